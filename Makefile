@@ -1,0 +1,46 @@
+# make setup: idempotent; creates .venv, installs dependencies, builds alignment_msgs,
+# installs this package (editable). Each step reruns only when its inputs changed.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := $(CURDIR)/.venv
+BIN := $(VENV)/bin
+MSG_SOURCES := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+
+.PHONY: setup demo test bench clean
+
+setup: $(VENV)/.stamp-package
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(VENV)/.stamp-deps: requirements.txt | $(BIN)/python
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -r requirements.txt
+	touch $@
+
+$(VENV)/.stamp-msgs: $(VENV)/.stamp-deps $(MSG_SOURCES)
+	rm -rf build/alignment_msgs && mkdir -p build/alignment_msgs
+	cd build/alignment_msgs && \
+	  export VIRTUAL_ENV=$(VENV) PATH=$(BIN):$$PATH AMENT_PREFIX_PATH=$(VENV) && \
+	  cmake $(CURDIR)/msg_defs -DCMAKE_PREFIX_PATH=$(VENV) -DCMAKE_INSTALL_PREFIX=$(VENV) \
+	    -DPython3_EXECUTABLE=$(BIN)/python -DBUILD_TESTING=OFF > cmake.log 2>&1 || { tail -n 40 cmake.log; exit 1; }; \
+	  $(MAKE) -j2 install > make.log 2>&1 || { tail -n 40 make.log; exit 1; }
+	$(BIN)/python -c "import alignment_msgs.msg, alignment_msgs.srv"
+	touch $@
+
+$(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg
+	$(BIN)/pip install --quiet --no-build-isolation --no-deps -e .
+	touch $@
+
+demo: setup
+	$(BIN)/machine-align demo --out out/demo
+
+test: setup
+	$(BIN)/python -m pytest -q test
+
+bench: setup
+	$(BIN)/python -m calib_core.bench --out bench_results
+
+clean:
+	rm -rf build out .pytest_cache

@@ -1,0 +1,29 @@
+"""Errors raised by machine_alignment's core code.
+
+Every error a user can cause with bad input derives from :class:`MachineAlignmentError`, so
+nodes and the CLI can catch it, log the message and keep running.
+"""
+
+
+class MachineAlignmentError(Exception):
+    """Base class: a clear message about bad input or an impossible request."""
+
+
+class InvalidInputError(MachineAlignmentError, ValueError):
+    """Input data is malformed: missing columns, NaN or infinite values, wrong shapes."""
+
+
+class DetectionError(MachineAlignmentError):
+    """No usable Mark in an image: none found, clipped at the border, ambiguous, saturated."""
+
+
+class OutOfTravelError(MachineAlignmentError):
+    """A motion command outside the machine's travel; the machine was not moved."""
+
+
+class CalibrationError(MachineAlignmentError):
+    """The data cannot determine the requested parameters, or the fit failed."""
+
+
+class BagError(MachineAlignmentError):
+    """A bag is missing, truncated, or not in rosbag2 MCAP layout."""

@@ -1,0 +1,1 @@
+"""Vision screen printer: camera, Mark detection, XY camera gantry (core, sim, nodes)."""

@@ -1,0 +1,1 @@
+"""Printer algorithms: Mark detection, camera and gantry models, vision calibration (no rclpy)."""

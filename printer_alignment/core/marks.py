@@ -1,0 +1,291 @@
+"""Sub-pixel detection of circular and cross Marks.
+
+Segmentation (Otsu threshold and connected components, OpenCV) finds candidates; each one
+is refined by fitting an intensity model to the raw pixels with
+scipy.optimize.least_squares (Levenberg-Marquardt). Under Gaussian noise that fit is the
+maximum-likelihood estimate, which is what lets the centre error approach the Cramer-Rao
+bound. The covariance of the centre comes from the fit's Jacobian and residual variance.
+
+Pixels follow OpenCV's convention: the centre of the top-left pixel is (0, 0).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from calib_core.errors import DetectionError, InvalidInputError
+from printer_alignment.core.mark_models import circle_edge_model, cross_coverage
+
+SHAPES = ('circle', 'cross')
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Detector settings (pixel units).
+
+    Attributes
+    ----------
+    min_size_px, max_size_px : float
+        Accepted circle radius / cross half-length, px.
+    polarity : str
+        ``"dark"`` (Marks darker than background), ``"bright"`` or ``"auto"`` (the minority
+        class of the Otsu threshold).
+    min_snr : float
+        Minimum fitted contrast over the image noise sigma.
+    border_margin_px : float
+        A candidate closer than this to the image border is reported as clipped.
+    """
+
+    min_size_px: float = 2.5
+    max_size_px: float = 120.0
+    polarity: str = 'auto'
+    min_snr: float = 6.0
+    border_margin_px: float = 1.0
+
+    def __post_init__(self):
+        if not 0 < self.min_size_px < self.max_size_px:
+            raise InvalidInputError('need 0 < min_size_px < max_size_px')
+        if self.polarity not in ('auto', 'dark', 'bright'):
+            raise InvalidInputError(f'polarity must be auto, dark or bright, not {self.polarity!r}')
+        if self.min_snr <= 0:
+            raise InvalidInputError('min_snr must be positive')
+
+
+@dataclass(frozen=True)
+class Mark:
+    """A detected Mark. ``covariance`` is the 2x2 covariance of (u, v) in px^2."""
+
+    shape: str
+    u: float
+    v: float
+    covariance: np.ndarray
+    size: float
+    contrast: float
+    quality: float
+
+    @property
+    def sigma_px(self) -> float:
+        """Largest 1-sigma axis of the centre uncertainty, px."""
+        return float(np.sqrt(np.max(np.linalg.eigvalsh(self.covariance))))
+
+
+@dataclass
+class Detection:
+    """All Marks found in an image and the candidates rejected, with reasons."""
+
+    marks: list[Mark]
+    rejected: list[str] = field(default_factory=list)
+    noise_sigma: float = 0.0
+
+
+def _full_scale(image: np.ndarray) -> float | None:
+    if image.dtype == np.uint8:
+        return 255.0
+    if image.dtype == np.uint16:
+        return 65535.0
+    return None
+
+
+def _check_image(image) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim != 2:
+        raise InvalidInputError(f'expected a single-channel image (2-D array), got shape {image.shape}')
+    if image.size == 0:
+        raise InvalidInputError('empty image')
+    if image.dtype.kind == 'f' and not np.all(np.isfinite(image)):
+        raise InvalidInputError('image contains NaN or infinite values')
+    if image.dtype.kind not in 'uif':
+        raise InvalidInputError(f'unsupported pixel type {image.dtype}')
+    return image
+
+
+def estimate_noise(image: np.ndarray) -> float:
+    """Robust sigma of the pixel noise (image units) from horizontal pixel differences."""
+    diff = np.diff(image.astype(np.float64), axis=1)
+    return float(np.median(np.abs(diff - np.median(diff))) / 0.6745 / np.sqrt(2.0))
+
+
+def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',
+                 expected_count: int = 0) -> Detection:
+    """Find Marks in ``image`` and measure their centres to sub-pixel accuracy.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W), uint8, uint16 or float
+    shape : str
+        ``"circle"``, ``"cross"`` or ``""`` for both.
+    expected_count : int
+        If > 0, exactly this many Marks must be found.
+
+    Raises
+    ------
+    DetectionError
+        No Mark found, wrong number of Marks, saturated or uniform image; the message says
+        what was seen (clipped or ambiguous candidates and where).
+    InvalidInputError
+        Not a single-channel finite image.
+    """
+    if shape not in ('',) + SHAPES:
+        raise InvalidInputError(f'shape must be "circle", "cross" or "", not {shape!r}')
+    image = _check_image(image)
+    pixels = image.astype(np.float64)
+    low, high = float(pixels.min()), float(pixels.max())
+    full = _full_scale(image)
+    if full is not None and np.mean(image >= full) > 0.5:
+        raise DetectionError('image is saturated: more than half of the pixels are at full scale')
+    noise = max(estimate_noise(pixels), 1e-12 * max(abs(high), 1.0))
+    if high - low < 2 * config.min_snr * noise or high == low:
+        raise DetectionError('image has no contrast (empty or uniform): no Mark can be seen')
+
+    scaled = np.round((pixels - low) * (255.0 / (high - low))).astype(np.uint8)
+    smoothed = cv2.GaussianBlur(scaled, (5, 5), 1.0)
+    threshold, dark_mask = cv2.threshold(smoothed, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
+    polarity = config.polarity
+    if polarity == 'auto':
+        polarity = 'dark' if np.count_nonzero(dark_mask) < dark_mask.size / 2 else 'bright'
+    mask = dark_mask if polarity == 'dark' else cv2.bitwise_not(dark_mask)
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+
+    height, width = image.shape
+    marks: list[Mark] = []
+    rejected: list[str] = []
+    for label in range(1, count):
+        x0, y0, w, h, area = stats[label]
+        half = max(w, h) / 2.0
+        if half < config.min_size_px * 0.8 or area < 4:
+            continue  # noise speck
+        where = f'near ({centroids[label][0]:.0f}, {centroids[label][1]:.0f}) px'
+        if half > config.max_size_px * 1.2:
+            rejected.append(f'too large ({half:.0f} px) {where}')
+            continue
+        if (x0 < config.border_margin_px or y0 < config.border_margin_px
+                or x0 + w > width - config.border_margin_px
+                or y0 + h > height - config.border_margin_px):
+            rejected.append(f'clipped at the image border {where}')
+            continue
+        aspect = max(w, h) / max(min(w, h), 1)
+        fill = area / float(w * h)
+        if aspect < 1.35 and fill > 0.62:
+            kind = 'circle'
+        elif aspect < 1.35 and 0.12 < fill < 0.6:
+            kind = 'cross'
+        else:
+            rejected.append(f'ambiguous shape (aspect {aspect:.2f}, fill {fill:.2f}; '
+                            f'touching Marks or debris?) {where}')
+            continue
+        if shape and kind != shape:
+            continue
+        component = labels[y0:y0 + h, x0:x0 + w] == label
+        try:
+            if kind == 'circle':
+                mark = _fit_circle(pixels, x0, y0, component, area, polarity, noise, full)
+            else:
+                mark = _fit_cross(pixels, x0, y0, component, area, polarity, noise, full)
+        except DetectionError as exc:
+            rejected.append(f'{exc} {where}')
+            continue
+        if abs(mark.contrast) < config.min_snr * noise:
+            rejected.append(f'contrast {abs(mark.contrast):.3g} below {config.min_snr} x noise {where}')
+            continue
+        if not config.min_size_px <= mark.size <= config.max_size_px:
+            rejected.append(f'{kind} of size {mark.size:.1f} px outside '
+                            f'[{config.min_size_px}, {config.max_size_px}] {where}')
+            continue
+        marks.append(mark)
+
+    marks.sort(key=lambda m: (round(m.v), m.u))
+    if not marks:
+        detail = f' ({"; ".join(rejected)})' if rejected else ''
+        raise DetectionError(f'no {shape or "Mark"} found in the image{detail}')
+    if expected_count and len(marks) != expected_count:
+        detail = f'; rejected: {"; ".join(rejected)}' if rejected else ''
+        raise DetectionError(f'expected {expected_count} Mark(s), found {len(marks)}: ambiguous'
+                             f'{detail}')
+    return Detection(marks=marks, rejected=rejected, noise_sigma=noise)
+
+
+def _patch(pixels, x0, y0, w, h, pad):
+    height, width = pixels.shape
+    r0, r1 = max(y0 - pad, 0), min(y0 + h + pad, height)
+    c0, c1 = max(x0 - pad, 0), min(x0 + w + pad, width)
+    vv, uu = np.mgrid[r0:r1, c0:c1]
+    return pixels[r0:r1, c0:c1], uu.astype(float), vv.astype(float)
+
+
+def _check_saturation(values, full):
+    if full is not None and np.mean(values >= full) > 0.01:
+        raise DetectionError('saturated Mark (clipped intensities bias the centre)')
+
+
+def _covariance(jac, residuals, n_params):
+    dof = max(residuals.size - n_params, 1)
+    sigma2 = float(residuals @ residuals) / dof
+    return np.linalg.pinv(jac.T @ jac)[:2, :2] * sigma2
+
+
+def _fit_circle(pixels, x0, y0, component, area, polarity, noise, full) -> Mark:
+    h, w = component.shape
+    radius0 = np.sqrt(area / np.pi)
+    pad = int(np.ceil(4 + 0.15 * radius0))
+    values, uu, vv = _patch(pixels, x0, y0, w, h, pad)
+    rows, cols = np.nonzero(component)
+    cu0, cv0 = x0 + cols.mean(), y0 + rows.mean()
+    inside = np.hypot(uu - cu0, vv - cv0) < radius0 + pad
+    u, v, z = uu[inside], vv[inside], values[inside]
+    _check_saturation(z, full)
+    in_mark = np.hypot(u - cu0, v - cv0) < radius0 - 1.5
+    outside = np.hypot(u - cu0, v - cv0) > radius0 + 1.5
+    background = float(np.median(z[outside])) if outside.any() else float(np.median(z))
+    level = float(np.median(z[in_mark])) if in_mark.any() else float(z.min() if polarity == 'dark' else z.max())
+    x_init = np.array([cu0, cv0, radius0, 0.8, level - background, background, 0.0, 0.0])
+
+    def residual(p):
+        return circle_edge_model(p, u, v, cu0, cv0)[0] - z
+
+    def jacobian(p):
+        return circle_edge_model(p, u, v, cu0, cv0)[1]
+
+    result = least_squares(residual, x_init, jac=jacobian, method='lm', x_scale='jac')
+    cu, cv, radius, sigma, contrast = result.x[:5]
+    if (not result.success or abs(sigma) > radius or radius <= 0
+            or np.hypot(cu - cu0, cv - cv0) > 0.5 * radius0):
+        raise DetectionError('circle fit did not converge')
+    rms = float(np.sqrt(np.mean(result.fun ** 2)))
+    return Mark('circle', float(cu), float(cv), _covariance(result.jac, result.fun, 8),
+                float(radius), float(contrast), float(np.clip(1 - rms / abs(contrast), 0, 1)))
+
+
+def _fit_cross(pixels, x0, y0, component, area, polarity, noise, full) -> Mark:
+    h, w = component.shape
+    rows, cols = np.nonzero(component)
+    cu0, cv0 = x0 + cols.mean(), y0 + rows.mean()
+    du, dv = x0 + cols - cu0, y0 + rows - cv0
+    dist = np.hypot(du, dv)
+    tips = dist > 0.8 * dist.max()
+    # The arm tips give the orientation modulo 90 degrees (circular mean of 4 * angle).
+    angle0 = np.angle(np.mean(np.exp(4j * np.arctan2(dv[tips], du[tips])))) / 4.0
+    half0 = float(dist.max())
+    width0 = float(np.clip(area / (4.0 * half0), 1.0, half0))
+    pad = 4
+    values, uu, vv = _patch(pixels, x0, y0, w, h, pad)
+    u, v, z = uu.ravel(), vv.ravel(), values.ravel()
+    _check_saturation(z, full)
+    border = np.concatenate([values[0], values[-1], values[:, 0], values[:, -1]])
+    background = float(np.median(border))
+    level = float(np.median(pixels[y0 + rows, x0 + cols]))
+    x_init = np.array([cu0, cv0, angle0, half0, width0, 0.8, level - background, background])
+
+    def residual(p):
+        cu, cv, angle, half, width, sigma, contrast, bg = p
+        return bg + contrast * cross_coverage(u - cu, v - cv, angle, half, width, abs(sigma) + 1e-3) - z
+
+    result = least_squares(residual, x_init, method='lm', x_scale='jac')
+    cu, cv, angle, half, width, sigma, contrast, _ = result.x
+    if not result.success or half <= 0 or width <= 0 or np.hypot(cu - cu0, cv - cv0) > 0.5 * half0:
+        raise DetectionError('cross fit did not converge')
+    rms = float(np.sqrt(np.mean(result.fun ** 2)))
+    return Mark('cross', float(cu), float(cv), _covariance(result.jac, result.fun, 8),
+                float(half), float(contrast), float(np.clip(1 - rms / abs(contrast), 0, 1)))

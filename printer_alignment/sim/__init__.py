@@ -1,0 +1,1 @@
+"""Simulated printer hardware with its error sources (no rclpy)."""

@@ -1,0 +1,36 @@
+"""ament_python package machine_alignment: works with colcon on a ROS install and with pip in a venv."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'machine_alignment'
+
+NODES = {
+    'camera_sim': 'printer_alignment.nodes.camera_sim',
+    'gantry_sim': 'printer_alignment.nodes.gantry_sim',
+    'mark_detector': 'printer_alignment.nodes.mark_detector',
+    'vision_calibrator': 'printer_alignment.nodes.vision_calibrator',
+    'recorder': 'calib_core.nodes.recorder',
+    'player': 'calib_core.nodes.player',
+}
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(include=['calib_core*', 'printer_alignment*', 'hexapod_calib*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='machine_alignment maintainers',
+    maintainer_email='maintainers@machine-alignment.invalid',
+    description='Vision-based alignment and kinematic calibration of precision machines.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [f'{name} = {module}:main' for name, module in NODES.items()]
+        + ['machine-align = calib_core.cli:main'],
+    },
+)
