@@ -1,0 +1,87 @@
+"""The vision calibration run: where to move, and how the recorded observations turn into
+a calibration. Hardware access is injected, so the live node, the offline CLI (from a bag)
+and the tests run the same code."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+from printer_alignment.core.geometry import CameraToPlate, GantryModel
+from printer_alignment.core.vision_calibration import (
+    GantryObservation, calibrate_gantry, calibrate_pixel_size)
+
+
+@dataclass(frozen=True)
+class VisionPlan:
+    """Gantry positions of a calibration run (m) and how they are approached.
+
+    Targets form an ``nx`` x ``ny`` grid inset by ``margin`` from the travel; each is
+    approached from below (pre-position ``overshoot`` lower on both axes) so backlash
+    always acts the same way and does not enter the fit.
+    """
+
+    x_range: tuple[float, float] = (0.0, 0.200)
+    y_range: tuple[float, float] = (0.0, 0.150)
+    nx: int = 5
+    ny: int = 4
+    margin: float = 0.002
+    overshoot: float = 0.001
+    pitch: float = 0.5e-3
+
+    def __post_init__(self):
+        if self.nx < 2 or self.ny < 2:
+            raise InvalidInputError('the plan needs at least 2 positions along each axis')
+        if self.overshoot > self.margin:
+            raise InvalidInputError('overshoot must not exceed margin (pre-positions would '
+                                    'leave the travel)')
+        if self.x_range[1] - self.x_range[0] <= 2 * self.margin or \
+                self.y_range[1] - self.y_range[0] <= 2 * self.margin:
+            raise InvalidInputError('travel too short for the margin')
+
+    def targets(self) -> np.ndarray:
+        xs = np.linspace(self.x_range[0] + self.margin, self.x_range[1] - self.margin, self.nx)
+        ys = np.linspace(self.y_range[0] + self.margin, self.y_range[1] - self.margin, self.ny)
+        # Serpentine order keeps moves short.
+        return np.array([(x, y) for j, y in enumerate(ys)
+                         for x in (xs if j % 2 == 0 else xs[::-1])])
+
+
+@dataclass(frozen=True)
+class VisionCalibration:
+    camera2plate: CameraToPlate
+    gantry: GantryModel
+    report: dict
+
+
+def run_vision_calibration(plan: VisionPlan, move: Callable[[float, float], np.ndarray],
+                           observe: Callable[[], np.ndarray],
+                           progress: Callable[[int, int, str], None] = lambda *a: None,
+                           nominal_camera: CameraToPlate = CameraToPlate(),
+                           nominal_gantry: GantryModel = GantryModel()) -> tuple[list, VisionCalibration]:
+    """Drive the gantry over the plan, observe dots, and calibrate.
+
+    ``move(x, y)`` returns the motor angles reached (rev, shape (2,)); ``observe()`` returns
+    dot centres (px, shape (n, 2)) in the current image."""
+    observations = []
+    targets = plan.targets()
+    for k, (x, y) in enumerate(targets):
+        move(x - plan.overshoot, y - plan.overshoot)
+        revs = np.asarray(move(x, y), dtype=float)
+        observations.append(GantryObservation(revs, np.asarray(observe(), dtype=float)))
+        progress(k + 1, len(targets), f'observed position {k + 1}/{len(targets)}')
+    return observations, calibrate_from_observations(observations, plan.pitch, nominal_camera,
+                                                     nominal_gantry)
+
+
+def calibrate_from_observations(observations: list, pitch: float,
+                                nominal_camera: CameraToPlate = CameraToPlate(),
+                                nominal_gantry: GantryModel = GantryModel()) -> VisionCalibration:
+    """Pixel size from every view, then the gantry model; the same code for live and
+    recorded runs."""
+    pixel = calibrate_pixel_size([o.uv for o in observations], pitch, nominal_camera)
+    gantry = calibrate_gantry(observations, pixel.camera2plate, pitch, nominal_gantry)
+    report = {'pixel_size': pixel.report(), 'gantry': gantry.report(), 'pitch_m': pitch}
+    return VisionCalibration(pixel.camera2plate, gantry.model, report)

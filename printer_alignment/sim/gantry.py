@@ -1,0 +1,105 @@
+"""Simulated XY camera gantry (servo motors and ball screws) with its true errors.
+
+True camera position (plate frame, m)::
+
+    M(a, t) [Rx theta_x + e_x(theta_x) - b_x / 2 * dir_x, Ry theta_y + ...] + [x0, y0]
+
+with the paper's model (leads Rx, Ry, axis angle a, non-orthogonality t) plus two effects
+the paper's model lacks: backlash b (lost motion: the carriage lags the motor by b/2 in the
+direction of the last move) and lead-screw periodic error e(theta) = A sin(2 pi theta + phase)
+(once per screw revolution). The encoders read the motor angle theta exactly; commands are
+axis positions in m converted with the nominal leads, as a real drive does.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError, OutOfTravelError
+from printer_alignment.core.geometry import NOMINAL_LEAD_X, NOMINAL_LEAD_Y, GantryModel
+
+
+@dataclass(frozen=True)
+class GantryErrors:
+    """The simulation's truth. Angles in rad, lengths in m, leads in m/rev."""
+
+    model: GantryModel = field(default_factory=lambda: GantryModel(
+        lead_x=0.0159972, lead_y=0.0399984, axis_angle=np.deg2rad(0.0325),
+        non_orthogonality=np.deg2rad(-0.0060), offset_x=0.0012, offset_y=-0.0008))
+    backlash_x: float = 4e-6
+    backlash_y: float = 6e-6
+    periodic_amplitude_x: float = 1.5e-6
+    periodic_amplitude_y: float = 2.0e-6
+    periodic_phase_x: float = 0.4
+    periodic_phase_y: float = 2.1
+
+    @classmethod
+    def ideal(cls) -> 'GantryErrors':
+        """A gantry exactly at its nominal geometry (for tests of clean data)."""
+        return cls(model=GantryModel(), backlash_x=0.0, backlash_y=0.0,
+                   periodic_amplitude_x=0.0, periodic_amplitude_y=0.0)
+
+
+@dataclass(frozen=True)
+class Travel:
+    """Axis travel limits, m (commanded axis positions)."""
+
+    x_min: float = 0.0
+    x_max: float = 0.200
+    y_min: float = 0.0
+    y_max: float = 0.150
+
+    def contains(self, x: float, y: float) -> bool:
+        return self.x_min <= x <= self.x_max and self.y_min <= y <= self.y_max
+
+
+class GantrySim:
+    """State of the simulated gantry. Moves are instantaneous; use :meth:`move`."""
+
+    def __init__(self, errors: GantryErrors = GantryErrors(), travel: Travel = Travel()):
+        self.errors = errors
+        self.travel = travel
+        self.revs = np.zeros(2)
+        self._direction = np.ones(2)  # +1: last moved towards +, -1: towards -
+
+    @property
+    def axis_position(self) -> np.ndarray:
+        """Encoder reading as axis position (m), shape (2,)."""
+        return self.revs * np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
+
+    def move(self, x: float, y: float) -> np.ndarray:
+        """Move to axis position (x, y) in m; returns the encoder position reached (m).
+
+        Raises
+        ------
+        OutOfTravelError
+            The target is outside the travel; the gantry does not move.
+        """
+        if not (np.isfinite(x) and np.isfinite(y)):
+            raise InvalidInputError(f'gantry target ({x}, {y}) is not finite')
+        if not self.travel.contains(x, y):
+            t = self.travel
+            raise OutOfTravelError(
+                f'gantry target ({x * 1e3:.3f}, {y * 1e3:.3f}) mm is outside the travel '
+                f'x [{t.x_min * 1e3:.1f}, {t.x_max * 1e3:.1f}] mm, '
+                f'y [{t.y_min * 1e3:.1f}, {t.y_max * 1e3:.1f}] mm; not moved')
+        target = np.array([x / NOMINAL_LEAD_X, y / NOMINAL_LEAD_Y])
+        step = target - self.revs
+        moved = step != 0
+        self._direction[moved] = np.sign(step[moved])
+        self.revs = target
+        return self.axis_position
+
+    def true_camera_position(self) -> np.ndarray:
+        """Where the camera really is in the plate frame (m), shape (2,). Truth: sim only."""
+        e = self.errors
+        theta = self.revs
+        screw = np.array([
+            e.model.lead_x * theta[0]
+            + e.periodic_amplitude_x * np.sin(2 * np.pi * theta[0] + e.periodic_phase_x)
+            - 0.5 * e.backlash_x * self._direction[0],
+            e.model.lead_y * theta[1]
+            + e.periodic_amplitude_y * np.sin(2 * np.pi * theta[1] + e.periodic_phase_y)
+            - 0.5 * e.backlash_y * self._direction[1]])
+        return e.model.matrix() @ screw + np.array([e.model.offset_x, e.model.offset_y])

@@ -1,0 +1,60 @@
+"""What lies under the gantry camera: a dot calibration plate, substrate or stencil Marks."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PlateMark:
+    """A Mark on a plate, in the plate frame: centre (m), radius or half-length (m), bar
+    width (m, crosses only)."""
+
+    kind: str
+    x: float
+    y: float
+    size: float
+    width: float = 0.0
+
+
+@dataclass(frozen=True)
+class DotPlate:
+    """A calibration plate with a square grid of dots: dot (i, j) at (i, j) * pitch (m)."""
+
+    pitch: float = 0.5e-3
+    radius: float = 0.1e-3
+    extent: tuple[float, float, float, float] = (-0.01, 0.22, -0.01, 0.17)  # x0, x1, y0, y1 (m)
+
+    def marks_within(self, x0: float, x1: float, y0: float, y1: float) -> list[PlateMark]:
+        """Dots whose centres lie in the rectangle (m), found by arithmetic, not search."""
+        ex0, ex1, ey0, ey1 = self.extent
+        i0 = int(np.ceil(max(x0, ex0) / self.pitch))
+        i1 = int(np.floor(min(x1, ex1) / self.pitch))
+        j0 = int(np.ceil(max(y0, ey0) / self.pitch))
+        j1 = int(np.floor(min(y1, ey1) / self.pitch))
+        return [PlateMark('circle', i * self.pitch, j * self.pitch, self.radius)
+                for j in range(j0, j1 + 1) for i in range(i0, i1 + 1)]
+
+
+@dataclass(frozen=True)
+class MarkSet:
+    """A few fiducial Marks, e.g. on a substrate (circles) or a stencil (crosses)."""
+
+    marks: tuple[PlateMark, ...]
+
+    def marks_within(self, x0: float, x1: float, y0: float, y1: float) -> list[PlateMark]:
+        return [m for m in self.marks if x0 <= m.x <= x1 and y0 <= m.y <= y1]
+
+
+def make_scene(name: str):
+    """The scene called ``name``: ``dot_plate``, ``substrate`` or ``stencil``."""
+    if name == 'dot_plate':
+        return DotPlate()
+    if name == 'substrate':
+        return MarkSet((PlateMark('circle', 0.020, 0.020, 0.5e-3),
+                        PlateMark('circle', 0.180, 0.130, 0.5e-3)))
+    if name == 'stencil':
+        return MarkSet((PlateMark('cross', 0.020, 0.020, 0.6e-3, 0.2e-3),
+                        PlateMark('cross', 0.180, 0.130, 0.6e-3, 0.2e-3)))
+    raise ValueError(f'unknown scene {name!r}; use dot_plate, substrate or stencil')
