@@ -1,0 +1,98 @@
+"""Mark detection on rendered images with known true centres, and its failure modes."""
+import numpy as np
+import pytest
+
+from calib_core.errors import DetectionError, InvalidInputError
+from printer_alignment.core.marks import detect_marks
+from printer_alignment.sim.render import MarkShape, render
+
+
+def _frame(rng, kind, size, blur, noise_fraction, contrast=-150.0, n=1):
+    truth = [MarkShape(kind, 160 + 250 * (k % 2) + rng.uniform(-0.5, 0.5),
+                       240 + rng.uniform(-0.5, 0.5), size, width=0.4 * size,
+                       angle=rng.uniform(-0.1, 0.1)) for k in range(n)]
+    image = render(truth, 640, 480, blur, 200.0, contrast)
+    return image + rng.normal(0.0, noise_fraction * abs(contrast), image.shape), truth
+
+
+@pytest.mark.parametrize('kind,size,blur', [('circle', 5, 0.0), ('circle', 20, 1.0),
+                                            ('circle', 40, 1.5), ('cross', 20, 1.0)])
+def test_centre_error_below_one_fiftieth_pixel(rng, kind, size, blur):
+    errors = []
+    for _ in range(12):
+        image, truth = _frame(rng, kind, size, blur, 0.02)
+        mark = detect_marks(image, shape=kind, expected_count=1).marks[0]
+        errors.append([mark.u - truth[0].u, mark.v - truth[0].v])
+    errors = np.array(errors)
+    assert np.sqrt(np.mean(errors ** 2)) < 1 / 50
+    assert mark.shape == kind
+
+
+def test_reported_covariance_matches_scatter(rng):
+    errors, sigmas = [], []
+    for _ in range(40):
+        image, truth = _frame(rng, 'circle', 10, 1.0, 0.05)
+        mark = detect_marks(image, expected_count=1).marks[0]
+        errors.append(mark.u - truth[0].u)
+        sigmas.append(np.sqrt(mark.covariance[0, 0]))
+    ratio = np.std(errors) / np.mean(sigmas)
+    assert 0.7 < ratio < 1.4
+
+
+def test_bright_marks_on_dark_background(rng):
+    image, truth = _frame(rng, 'circle', 12, 1.0, 0.02, contrast=+120.0)
+    image -= 150.0
+    mark = detect_marks(image, expected_count=1).marks[0]
+    assert abs(mark.u - truth[0].u) < 0.05 and mark.contrast > 0
+
+
+def test_uint8_image_and_quality(rng):
+    image, truth = _frame(rng, 'circle', 15, 1.0, 0.01)
+    mark = detect_marks(np.clip(np.round(image), 0, 255).astype(np.uint8)).marks[0]
+    assert abs(mark.v - truth[0].v) < 0.03
+    assert mark.quality > 0.9
+
+
+def test_image_without_marks_is_a_clear_error(rng):
+    noise = 200 + rng.normal(0, 3, (480, 640))
+    with pytest.raises(DetectionError, match='no contrast|no Mark'):
+        detect_marks(noise)
+
+
+def test_uniform_and_saturated_images():
+    with pytest.raises(DetectionError, match='no contrast'):
+        detect_marks(np.zeros((480, 640), np.uint8))
+    with pytest.raises(DetectionError, match='saturated'):
+        detect_marks(np.full((480, 640), 255, np.uint8))
+
+
+def test_clipped_mark_is_reported(rng):
+    image = render([MarkShape('circle', 3.0, 240.0, 15)], 640, 480, 1.0, 200.0, -150.0)
+    image += rng.normal(0, 2, image.shape)
+    with pytest.raises(DetectionError, match='clipped'):
+        detect_marks(image)
+
+
+def test_touching_marks_are_ambiguous(rng):
+    marks = [MarkShape('circle', 300.0, 240.0, 15), MarkShape('circle', 328.0, 240.0, 15)]
+    image = render(marks, 640, 480, 1.0, 200.0, -150.0) + rng.normal(0, 2, (480, 640))
+    with pytest.raises(DetectionError, match='ambiguous'):
+        detect_marks(image)
+
+
+def test_expected_count_mismatch(rng):
+    image, _ = _frame(rng, 'circle', 12, 1.0, 0.02, n=2)
+    assert len(detect_marks(image).marks) == 2
+    with pytest.raises(DetectionError, match='expected 1'):
+        detect_marks(image, expected_count=1)
+
+
+def test_bad_arrays_are_refused():
+    with pytest.raises(InvalidInputError, match='single-channel'):
+        detect_marks(np.zeros((10, 10, 3)))
+    bad = np.full((50, 50), 100.0)
+    bad[3, 3] = np.nan
+    with pytest.raises(InvalidInputError, match='NaN'):
+        detect_marks(bad)
+    with pytest.raises(InvalidInputError, match='shape'):
+        detect_marks(np.zeros((50, 50)), shape='square')

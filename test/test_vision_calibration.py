@@ -1,0 +1,98 @@
+"""Vision system calibration on the simulated gantry: recovered parameters against truth."""
+import numpy as np
+import pytest
+
+from calib_core.errors import CalibrationError, InvalidInputError, OutOfTravelError
+from calib_core.storage import read_calibration, write_calibration
+from printer_alignment.core.geometry import NOMINAL_LEAD_X, NOMINAL_LEAD_Y
+from printer_alignment.core.marks import detect_marks
+from printer_alignment.core.vision_calibration import (
+    GantryObservation, calibrate_gantry, calibrate_pixel_size)
+from printer_alignment.core.vision_procedure import VisionPlan, run_vision_calibration
+from printer_alignment.sim.camera import CameraSim
+from printer_alignment.sim.gantry import GantrySim
+from printer_alignment.sim.scene import make_scene
+
+NOMINAL_LEADS = np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
+
+
+def _run(gantry, camera, plan):
+    return run_vision_calibration(
+        plan, lambda x, y: gantry.move(x, y) / NOMINAL_LEADS,
+        lambda: np.array([[m.u, m.v] for m in detect_marks(
+            camera.capture(gantry.true_camera_position())).marks]))
+
+
+@pytest.fixture(scope='module')
+def calibrated():
+    gantry = GantrySim()
+    camera = CameraSim(make_scene('dot_plate'), seed=7)
+    observations, result = _run(gantry, camera, VisionPlan(nx=4, ny=3))
+    return gantry, camera, observations, result
+
+
+def test_parameters_recovered_within_tolerance(calibrated):
+    gantry, camera, _, result = calibrated
+    truth = gantry.errors.model
+    std = result.report['gantry']['std_devs']
+    # Tolerances: the unmodelled periodic screw error (1.5-2 um) dominates the noise.
+    tolerance = {'lead_x': 0.3e-6, 'lead_y': 0.5e-6, 'axis_angle': 15e-6,
+                 'non_orthogonality': 20e-6}
+    for name, tol in tolerance.items():
+        error = getattr(result.gantry, name) - getattr(truth, name)
+        assert abs(error) < tol, (name, error)
+        assert std[name] > 0
+    assert result.camera2plate.pixel_size == pytest.approx(
+        camera.optics.camera2plate.pixel_size, rel=2e-5)
+    assert result.camera2plate.angle == pytest.approx(camera.optics.camera2plate.angle, abs=2e-5)
+
+
+def test_nominal_model_would_be_far_worse(calibrated):
+    _, _, _, result = calibrated
+    leads_error = abs(result.gantry.lead_x - NOMINAL_LEAD_X) * (0.2 / NOMINAL_LEAD_X)
+    assert leads_error > 20e-6  # the calibration corrects > 20 um over the X travel
+
+
+def test_clean_gantry_recovers_nominal():
+    from printer_alignment.sim.gantry import GantryErrors
+    gantry = GantrySim(GantryErrors.ideal())
+    camera = CameraSim(make_scene('dot_plate'), seed=3)
+    _, result = _run(gantry, camera, VisionPlan(nx=3, ny=3))
+    assert result.gantry.lead_x == pytest.approx(NOMINAL_LEAD_X, abs=0.05e-6)
+    assert abs(result.gantry.non_orthogonality) < 5e-6
+
+
+def test_too_few_positions_and_immobile_axis(calibrated):
+    _, _, observations, result = calibrated
+    with pytest.raises(CalibrationError, match='at least 4'):
+        calibrate_gantry(observations[:3], result.camera2plate, 0.5e-3)
+    frozen = [GantryObservation(np.array([o.revs[0], 1.0]), o.uv) for o in observations]
+    with pytest.raises(CalibrationError, match='Y axis never moved'):
+        calibrate_gantry(frozen, result.camera2plate, 0.5e-3)
+
+
+def test_pixel_size_bad_input():
+    with pytest.raises(InvalidInputError, match='NaN'):
+        calibrate_pixel_size([np.array([[1.0, np.nan]] * 10)], 0.5e-3)
+    with pytest.raises(CalibrationError, match='at least 9'):
+        calibrate_pixel_size([np.zeros((3, 2))], 0.5e-3)
+    with pytest.raises(InvalidInputError, match='pitch'):
+        calibrate_pixel_size([np.zeros((30, 2))], -1.0)
+
+
+def test_gantry_refuses_targets_outside_travel():
+    gantry = GantrySim()
+    gantry.move(0.05, 0.05)
+    with pytest.raises(OutOfTravelError, match='outside the travel'):
+        gantry.move(0.25, 0.05)
+    assert np.allclose(gantry.axis_position, [0.05, 0.05])
+    with pytest.raises(InvalidInputError):
+        gantry.move(float('nan'), 0.0)
+
+
+def test_calibration_files_are_versioned(tmp_path):
+    first, v1 = write_calibration(tmp_path, 'vision', {'a': 1})
+    second, v2 = write_calibration(tmp_path, 'vision', {'a': 2})
+    assert (v1, v2) == (1, 2) and first.exists() and second.exists()
+    assert read_calibration(tmp_path, 'vision')['a'] == 2
+    assert not list(tmp_path.glob('*.tmp'))
