@@ -1,0 +1,131 @@
+"""MCAP bags in rosbag2 layout (metadata.yaml version 9, ``<name>_0.mcap``, profile ros2,
+schema encoding ros2msg, CDR messages), written and read with the ``rosbags`` package so a
+real ``ros2 bag play``, ``rosbags`` and ``mcap-ros2-support`` can all read them.
+
+Messages go in and out as CDR bytes: nodes serialise with rclpy, offline code decodes with
+the bag's own embedded definitions. No rclpy here.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Iterator
+
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from calib_core.errors import BagError
+
+PROJECT_PACKAGES = ('alignment_msgs',)
+
+
+def _interface_dirs(package: str) -> list[Path]:
+    """Where ``package``'s .msg/.srv files are: the source tree first, then install prefixes."""
+    here = Path(__file__).resolve().parents[1] / 'msg_defs'
+    candidates = [here] if package == 'alignment_msgs' else []
+    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]
+    candidates += [Path(p) / 'share' / package for p in prefixes if p]
+    return [c for c in candidates if (c / 'msg').is_dir()]
+
+
+def project_typestore():
+    """A rosbags typestore with ROS 2 Jazzy's standard types and this project's messages."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for package in PROJECT_PACKAGES:
+        dirs = _interface_dirs(package)
+        if not dirs:
+            raise BagError(f'cannot find the message definitions of {package}')
+        types = {}
+        for path in sorted((dirs[0] / 'msg').glob('*.msg')):
+            types.update(get_types_from_msg(path.read_text(), f'{package}/msg/{path.stem}'))
+        store.register(types)
+    return store
+
+
+class BagWriter:
+    """Writes CDR-serialised messages to a new rosbag2 MCAP bag directory.
+
+    Use as a context manager; the bag is complete (metadata.yaml written) on exit."""
+
+    def __init__(self, path: str | os.PathLike):
+        path = Path(path)
+        if path.exists():
+            raise BagError(f'{path} exists already; a bag is never overwritten')
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self._typestore = project_typestore()
+        self._writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._connections = {}
+
+    def __enter__(self) -> 'BagWriter':
+        self._writer.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._writer is None:
+            return
+        self._writer.close()
+        self._writer = None
+        # rosbags names the file <bag>.mcap; rosbag2 (and this suite's contract) <bag>_0.mcap.
+        old, new = f'{self.path.name}.mcap', f'{self.path.name}_0.mcap'
+        (self.path / old).rename(self.path / new)
+        metadata = self.path / 'metadata.yaml'
+        metadata.write_text(metadata.read_text().replace(f' {old}\n', f' {new}\n'))
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """Declare ``topic`` with ROS type ``msgtype`` (``pkg/msg/Name``)."""
+        if topic in self._connections:
+            return
+        if msgtype not in self._typestore.fielddefs:
+            raise BagError(f'unknown message type {msgtype}')
+        self._connections[topic] = self._writer.add_connection(
+            topic, msgtype, typestore=self._typestore)
+
+    def write(self, topic: str, stamp_ns: int, cdr: bytes) -> None:
+        """Append one CDR message received at ``stamp_ns`` (ns since the epoch)."""
+        if topic not in self._connections:
+            raise BagError(f'topic {topic} was not declared with add_topic')
+        self._writer.write(self._connections[topic], int(stamp_ns), cdr)
+
+
+def read_bag(path: str | os.PathLike, topics: list[str] | None = None
+             ) -> Iterator[tuple[str, str, int, bytes]]:
+    """Yield ``(topic, msgtype, stamp_ns, cdr_bytes)`` from a rosbag2 bag in time order.
+
+    Raises
+    ------
+    BagError
+        Missing, truncated or foreign bag.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f'no bag at {path}')
+    if path.is_dir() and not (path / 'metadata.yaml').exists():
+        raise BagError(f'{path} is not a rosbag2 bag: metadata.yaml is missing')
+    try:
+        with AnyReader([path]) as reader:
+            connections = [c for c in reader.connections if topics is None or c.topic in topics]
+            for connection, stamp, raw in reader.messages(connections=connections):
+                yield connection.topic, connection.msgtype, stamp, bytes(raw)
+    except BagError:
+        raise
+    except Exception as exc:  # rosbags raises several types for damaged files
+        raise BagError(f'cannot read bag {path}: {exc} (truncated or not a rosbag2 bag?)') from exc
+
+
+def decode_bag(path: str | os.PathLike, topics: list[str] | None = None
+               ) -> Iterator[tuple[str, int, object]]:
+    """Yield ``(topic, stamp_ns, message)`` with messages decoded from the bag's own
+    embedded definitions (attribute access like rclpy messages)."""
+    path = Path(path)
+    store = project_typestore()
+    for topic, msgtype, stamp, raw in read_bag(path, topics):
+        try:
+            yield topic, stamp, store.deserialize_cdr(raw, msgtype)
+        except Exception as exc:
+            raise BagError(f'cannot decode a {msgtype} message on {topic} in {path}: {exc}') from exc

@@ -1,0 +1,79 @@
+"""Start a graph of nodes as separate processes from the venv (no ros2 launch needed).
+
+Each node runs as ``python -m <module>`` with ``--ros-args`` parameters; Ctrl-C or
+:meth:`Graph.stop` ends them all. The same graphs exist as launch files for ROS installs.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    module: str
+    parameters: dict = field(default_factory=dict)
+
+
+def printer_graph(scene: str = 'dot_plate', output_dir: str = 'calibration',
+                  record_dir: str = 'runs', camera_rate_hz: float = 4.0) -> list[NodeSpec]:
+    """The printer's vision chain: gantry, camera, detector, vision calibrator."""
+    return [
+        NodeSpec('printer_alignment.nodes.gantry_sim'),
+        NodeSpec('printer_alignment.nodes.camera_sim', {'scene': scene, 'rate_hz': camera_rate_hz}),
+        NodeSpec('printer_alignment.nodes.mark_detector', {'continuous': False}),
+        NodeSpec('printer_alignment.nodes.vision_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir}),
+    ]
+
+
+def _format(value) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ','.join(_format(v) for v in value) + ']'
+    return str(value)
+
+
+class Graph:
+    """Running node processes; a context manager that stops them on exit."""
+
+    def __init__(self, nodes: list[NodeSpec], env: dict | None = None, log_dir: str | None = None):
+        self.processes = []
+        environment = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **(env or {})}
+        for spec in nodes:
+            args = [sys.executable, '-m', spec.module]
+            if spec.parameters:
+                args += ['--ros-args'] + [a for k, v in spec.parameters.items()
+                                          for a in ('-p', f'{k}:={_format(v)}')]
+            out = None
+            if log_dir:
+                os.makedirs(log_dir, exist_ok=True)
+                out = open(os.path.join(log_dir, spec.module.rsplit('.', 1)[-1] + '.log'), 'w')
+            self.processes.append(subprocess.Popen(args, env=environment, stdout=out,
+                                                   stderr=subprocess.STDOUT if out else None))
+
+    def __enter__(self) -> 'Graph':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def alive(self) -> list[bool]:
+        return [p.poll() is None for p in self.processes]
+
+    def stop(self, timeout: float = 10.0) -> None:
+        for p in self.processes:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for p in self.processes:
+            try:
+                p.wait(max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()

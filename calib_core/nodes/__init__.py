@@ -1,0 +1,1 @@
+"""rclpy nodes shared by every machine (recorder, player) and the common main()."""

@@ -1,0 +1,1 @@
+"""rclpy nodes of the printer: thin wrappers around core and sim."""

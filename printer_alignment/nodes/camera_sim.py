@@ -1,0 +1,84 @@
+"""camera_sim: the simulated 640x480 gantry camera.
+
+Renders what the camera sees of the scene (dot plate, substrate or stencil Marks) at the
+gantry's true position, read from ``sim/truth/camera_position`` (simulators may use truth;
+calibration nodes never do). Publishes ``camera/image_raw`` (mono8, sensor-data QoS) and
+``camera/camera_info``.
+"""
+import threading
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PointStamped
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+
+from calib_core.nodes.spin import run_node
+from printer_alignment.core.geometry import CameraToPlate
+from printer_alignment.nodes.conversions import image_as_message
+from printer_alignment.sim.camera import CameraOptics, CameraSim
+from printer_alignment.sim.scene import make_scene
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class CameraSimNode(Node):
+
+    def __init__(self):
+        super().__init__('camera_sim')
+        self.declare_parameter('scene', 'dot_plate')
+        self.declare_parameter('rate_hz', 4.0)
+        self.declare_parameter('seed', 0)
+        self.declare_parameter('pixel_size', 12.3369e-6)
+        self.declare_parameter('angle', float(np.deg2rad(0.35)))
+        self.declare_parameter('blur_sigma', 0.8)
+        self.declare_parameter('read_noise', 1.5)
+        self.declare_parameter('k1', 0.0)
+        self.declare_parameter('gradient_x', 0.0)
+        g = self.get_parameter
+        rate = g('rate_hz').value
+        if not rate > 0 or not g('pixel_size').value > 0 or g('blur_sigma').value < 0:
+            raise ValueError('rate_hz and pixel_size must be positive, blur_sigma >= 0')
+        optics = CameraOptics(
+            camera2plate=CameraToPlate(g('pixel_size').value, g('angle').value),
+            distortion=(g('k1').value, 0.0, 0.0, 0.0), blur_sigma=g('blur_sigma').value,
+            read_noise=g('read_noise').value, gradient=(g('gradient_x').value, 0.0))
+        self.camera = CameraSim(make_scene(g('scene').value), optics, seed=g('seed').value)
+        self._position = None
+        self._lock = threading.Lock()
+        self.image_pub = self.create_publisher(Image, 'camera/image_raw', qos_profile_sensor_data)
+        self.info_pub = self.create_publisher(CameraInfo, 'camera/camera_info', qos_profile_sensor_data)
+        self.create_subscription(PointStamped, 'sim/truth/camera_position', self.on_truth, LATCHED)
+        self.create_timer(1.0 / rate, self.capture)
+
+    def on_truth(self, msg):
+        with self._lock:
+            self._position = np.array([msg.point.x, msg.point.y])
+
+    def capture(self):
+        with self._lock:
+            position = self._position
+        if position is None:
+            return  # no gantry yet: a real camera would see nothing useful either
+        header = Header(stamp=self.get_clock().now().to_msg(), frame_id='camera')
+        pixels = self.camera.capture(position)
+        self.image_pub.publish(image_as_message(pixels, header))
+        o = self.camera.optics
+        info = CameraInfo(header=header, height=o.height, width=o.width,
+                          distortion_model='plumb_bob')
+        info.d = [float(x) for x in o.distortion] + [0.0]
+        info.k = o.camera_matrix().ravel().tolist()
+        info.p = np.hstack([o.camera_matrix(), np.zeros((3, 1))]).ravel().tolist()
+        info.r = np.eye(3).ravel().tolist()
+        self.info_pub.publish(info)
+
+
+def main(args=None):
+    run_node(CameraSimNode, args)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,107 @@
+"""Conversions between ROS messages and core types, kept at the node boundary."""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+from alignment_msgs.msg import CalibrationResult, GantryState, Mark as MarkMsg, MarkArray
+from sensor_msgs.msg import Image
+
+from calib_core.errors import InvalidInputError
+from printer_alignment.core.marks import Mark
+
+_ENCODINGS = {'mono8': (np.uint8, 1), '8UC1': (np.uint8, 1), 'mono16': (np.uint16, 1),
+              '16UC1': (np.uint16, 1), 'bgr8': (np.uint8, 3), 'rgb8': (np.uint8, 3)}
+
+
+def image_from_message(msg) -> np.ndarray:
+    """Single-channel array (H, W) from a sensor_msgs/Image; colour is converted to grey.
+
+    Raises InvalidInputError on an unsupported encoding or inconsistent size."""
+    if msg.encoding not in _ENCODINGS:
+        raise InvalidInputError(f'unsupported image encoding {msg.encoding!r}; '
+                                f'use one of {", ".join(_ENCODINGS)}')
+    dtype, channels = _ENCODINGS[msg.encoding]
+    itemsize = np.dtype(dtype).itemsize
+    row = msg.width * channels * itemsize
+    if msg.height == 0 or msg.width == 0 or msg.step < row or len(msg.data) < msg.step * msg.height:
+        raise InvalidInputError(f'image data ({len(msg.data)} bytes) does not match '
+                                f'{msg.width}x{msg.height} {msg.encoding} with step {msg.step}')
+    buffer = np.frombuffer(bytes(msg.data), dtype=np.uint8)[:msg.step * msg.height]
+    rows = buffer.reshape(msg.height, msg.step)[:, :row]
+    pixels = rows.copy().view(np.dtype(dtype).newbyteorder('>' if msg.is_bigendian else '<'))
+    pixels = pixels.reshape(msg.height, msg.width, channels).astype(dtype)
+    if channels == 3:
+        code = cv2.COLOR_BGR2GRAY if msg.encoding == 'bgr8' else cv2.COLOR_RGB2GRAY
+        return cv2.cvtColor(pixels, code)
+    return pixels[:, :, 0]
+
+
+def image_as_message(pixels: np.ndarray, header) -> Image:
+    """sensor_msgs/Image (mono8) from a uint8 array (H, W)."""
+    msg = Image()
+    msg.header = header
+    msg.height, msg.width = pixels.shape
+    msg.encoding = 'mono8'
+    msg.is_bigendian = 0
+    msg.step = msg.width
+    msg.data = np.ascontiguousarray(pixels, dtype=np.uint8).tobytes()
+    return msg
+
+
+def marks_as_message(marks: list[Mark], header, status: str = 'ok') -> MarkArray:
+    out = MarkArray()
+    out.header = header
+    out.status = status
+    for mark in marks:
+        out.marks.append(MarkMsg(shape=mark.shape, u=mark.u, v=mark.v,
+                                 covariance=np.asarray(mark.covariance, float).ravel().tolist(),
+                                 size=mark.size, contrast=mark.contrast, quality=mark.quality))
+    return out
+
+
+def marks_from_message(msg) -> list[Mark]:
+    """Core Marks from an alignment_msgs/MarkArray (or a decoded bag message).
+
+    Raises InvalidInputError if a centre or covariance is not finite."""
+    marks = []
+    for m in msg.marks:
+        values = np.array([m.u, m.v, *m.covariance], dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise InvalidInputError('a Mark in the message has a NaN or infinite centre or covariance')
+        marks.append(Mark(m.shape, float(m.u), float(m.v), np.reshape(np.array(m.covariance,
+                                                                               float), (2, 2)),
+                          float(m.size), float(m.contrast), float(m.quality)))
+    return marks
+
+
+def gantry_state_as_message(axis_position, revs, header, moving: bool = False) -> GantryState:
+    return GantryState(header=header, x=float(axis_position[0]), y=float(axis_position[1]),
+                       x_rev=float(revs[0]), y_rev=float(revs[1]), moving=moving)
+
+
+def revs_from_gantry_state(msg) -> np.ndarray:
+    revs = np.array([msg.x_rev, msg.y_rev], dtype=float)
+    if not np.all(np.isfinite(revs)):
+        raise InvalidInputError('gantry state has NaN or infinite motor angles')
+    return revs
+
+
+def calibration_result_as_message(kind: str, header, parameters: dict, std_devs: dict,
+                                  units: dict, report: dict, rms: float, max_residual: float,
+                                  residual_unit: str, num_observations: int,
+                                  file_path: str = '', version: int = 0) -> CalibrationResult:
+    names = list(parameters)
+    return CalibrationResult(
+        header=header, kind=kind, success=True, message='ok', names=names,
+        values=[float(parameters[n]) for n in names],
+        std_devs=[float(std_devs.get(n, 0.0)) for n in names],
+        units=[units.get(n, '') for n in names], rms_residual=float(rms),
+        max_residual=float(max_residual), residual_unit=residual_unit,
+        num_observations=int(num_observations), file_path=file_path, version=int(version),
+        report_json=json.dumps(report))
+
+
+def failed_result(kind: str, header, message: str) -> CalibrationResult:
+    return CalibrationResult(header=header, kind=kind, success=False, message=message)

@@ -1,0 +1,83 @@
+"""gantry_sim: the simulated XY camera gantry.
+
+Publishes the encoder reading on ``gantry/state`` and, for the camera simulator only, the
+true camera position on ``sim/truth/camera_position``. Service ``gantry/move`` moves to an
+absolute axis position (m) and refuses targets outside the travel.
+"""
+import threading
+
+import rclpy
+from alignment_msgs.msg import GantryState
+from alignment_msgs.srv import MoveGantry
+from geometry_msgs.msg import PointStamped
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Header
+
+from calib_core.errors import MachineAlignmentError
+from calib_core.nodes.spin import run_node
+from printer_alignment.nodes.conversions import gantry_state_as_message
+from printer_alignment.sim.gantry import GantryErrors, GantrySim, Travel
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class GantrySimNode(Node):
+
+    def __init__(self):
+        super().__init__('gantry_sim')
+        self.declare_parameter('x_min', 0.0)
+        self.declare_parameter('x_max', 0.200)
+        self.declare_parameter('y_min', 0.0)
+        self.declare_parameter('y_max', 0.150)
+        self.declare_parameter('ideal', False)
+        self.declare_parameter('state_rate_hz', 10.0)
+        p = {n: self.get_parameter(n).value for n in ('x_min', 'x_max', 'y_min', 'y_max')}
+        if not (p['x_min'] < p['x_max'] and p['y_min'] < p['y_max']):
+            raise ValueError(f'invalid travel {p}')
+        rate = self.get_parameter('state_rate_hz').value
+        if not rate > 0:
+            raise ValueError('state_rate_hz must be positive')
+        errors = GantryErrors.ideal() if self.get_parameter('ideal').value else GantryErrors()
+        self.gantry = GantrySim(errors, Travel(**p))
+        self._lock = threading.Lock()
+        self.state_pub = self.create_publisher(GantryState, 'gantry/state', 10)
+        self.truth_pub = self.create_publisher(PointStamped, 'sim/truth/camera_position', LATCHED)
+        self.create_service(MoveGantry, 'gantry/move', self.on_move)
+        self.create_timer(1.0 / rate, self.publish_state)
+        self.publish_state()
+
+    def publish_state(self):
+        with self._lock:
+            header = self._header()
+            self.state_pub.publish(gantry_state_as_message(
+                self.gantry.axis_position, self.gantry.revs, header))
+            truth = self.gantry.true_camera_position()
+        point = PointStamped(header=header)
+        point.point.x, point.point.y = float(truth[0]), float(truth[1])
+        self.truth_pub.publish(point)
+
+    def _header(self):
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id='gantry')
+
+    def on_move(self, request, response):
+        try:
+            with self._lock:
+                reached = self.gantry.move(request.x, request.y)
+            response.success, response.message = True, 'ok'
+            response.x, response.y = float(reached[0]), float(reached[1])
+        except MachineAlignmentError as exc:
+            self.get_logger().warning(str(exc))
+            response.success, response.message = False, str(exc)
+            response.x, response.y = map(float, self.gantry.axis_position)
+        self.publish_state()
+        return response
+
+
+def main(args=None):
+    run_node(GantrySimNode, args)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,226 @@
+"""vision_calibrator: the paper's vision system calibration on the live graph.
+
+Service ``vision_calibrator/calibrate`` (RunCalibration) drives the gantry over the dot
+plate (``gantry/move``), detects dots at each stop (``mark_detector/detect``), identifies
+the pixel size and image rotation, then the gantry model (leads Rx, Ry, axis angle,
+non-orthogonality, offset). ``vision_calibrator/calibrate_pixel_size`` does the pixel size
+alone from the current view. Each run is recorded to an MCAP bag, written to an atomic,
+versioned calibration file, published latched on ``vision_calibrator/result``, with
+progress on ``vision_calibrator/progress``. One calibration at a time; a second request
+while one runs is refused. A failed or interrupted run leaves the previous calibration
+in force.
+"""
+import threading
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import rclpy
+import yaml
+from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionObservation
+from alignment_msgs.srv import DetectMarks, MoveGantry, RunCalibration
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Header
+
+from calib_core.bags import BagWriter
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.spin import run_node
+from calib_core.storage import write_calibration
+from printer_alignment.core.geometry import (
+    NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
+from printer_alignment.core.vision_calibration import GantryObservation, calibrate_pixel_size
+from printer_alignment.core.vision_procedure import (
+    VisionCalibration, VisionPlan, calibrate_from_observations)
+from printer_alignment.nodes.conversions import (
+    calibration_result_as_message, failed_result, marks_from_message, revs_from_gantry_state)
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
+RESULT_TOPIC = '/vision_calibrator/result'
+
+
+def observation_to_core(msg):
+    """(revs, uv) of a VisionObservation (live or decoded from a bag)."""
+    uv = np.array([[m.u, m.v] for m in marks_from_message(msg.marks)]).reshape(-1, 2)
+    return GantryObservation(revs_from_gantry_state(msg.gantry), uv)
+
+
+def vision_result_message(calibration: VisionCalibration, header, file_path='', version=0):
+    report = calibration.report
+    gantry = report['gantry']
+    parameters = {'pixel_size': calibration.camera2plate.pixel_size,
+                  'camera_angle': calibration.camera2plate.angle, **gantry['parameters']}
+    std = {'pixel_size': report['pixel_size']['pixel_size_std_m'],
+           'camera_angle': report['pixel_size']['angle_std_rad'], **gantry['std_devs']}
+    units = {'pixel_size': 'm/px', 'camera_angle': 'rad', **gantry['units']}
+    return calibration_result_as_message(
+        'vision', header, parameters, std, units, report, gantry['residual_rms_m'],
+        gantry['residual_max_m'], 'm', gantry['num_positions'], file_path, version)
+
+
+class VisionCalibratorNode(Node):
+
+    def __init__(self):
+        super().__init__('vision_calibrator')
+        self.declare_parameter('output_dir', 'calibration')
+        self.declare_parameter('record_dir', 'runs')
+        self.declare_parameter('pitch', 0.5e-3)
+        self.declare_parameter('nx', 5)
+        self.declare_parameter('ny', 4)
+        self.declare_parameter('x_range', [0.0, 0.200])
+        self.declare_parameter('y_range', [0.0, 0.150])
+        self.declare_parameter('nominal_pixel_size', NOMINAL_PIXEL_SIZE)
+        self.declare_parameter('call_timeout_s', 10.0)
+        self.plan = self._plan_from_parameters({})
+        self.timeout = float(self.get_parameter('call_timeout_s').value)
+        self.nominal_camera = CameraToPlate(float(self.get_parameter('nominal_pixel_size').value))
+        self._busy = threading.Lock()
+        self._gantry_state = GantryState()
+        group = ReentrantCallbackGroup()
+        self.move_client = self.create_client(MoveGantry, 'gantry/move', callback_group=group)
+        self.detect_client = self.create_client(DetectMarks, 'mark_detector/detect',
+                                                callback_group=group)
+        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.progress_pub = self.create_publisher(Progress, '/vision_calibrator/progress', 10)
+        self.observation_pub = self.create_publisher(VisionObservation, OBSERVATIONS_TOPIC, 10)
+        self.create_service(RunCalibration, 'vision_calibrator/calibrate', self.on_calibrate,
+                            callback_group=group)
+        self.create_service(RunCalibration, 'vision_calibrator/calibrate_pixel_size',
+                            self.on_pixel_size, callback_group=group)
+
+    def _plan_from_parameters(self, overrides: dict) -> VisionPlan:
+        g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
+        unknown = set(overrides) - {'pitch', 'nx', 'ny', 'x_range', 'y_range'}
+        if unknown:
+            raise InvalidInputError(f'unknown plan keys {sorted(unknown)}')
+        return VisionPlan(x_range=tuple(map(float, g('x_range'))),
+                          y_range=tuple(map(float, g('y_range'))), nx=int(g('nx')),
+                          ny=int(g('ny')), pitch=float(g('pitch')))
+
+    def _header(self):
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id='plate')
+
+    def _call(self, client, request, what):
+        if not client.wait_for_service(timeout_sec=self.timeout):
+            raise CalibrationError(f'{what} service {client.srv_name} is not available')
+        response = client.call(request, timeout_sec=self.timeout)
+        if response is None:
+            raise CalibrationError(f'{what} service did not answer within {self.timeout:.0f} s')
+        if not response.success:
+            raise CalibrationError(f'{what} failed: {response.message}')
+        return response
+
+    def _observe(self) -> VisionObservation:
+        detected = self._call(self.detect_client, DetectMarks.Request(shape='circle'), 'detection')
+        state = self._gantry_state
+        return VisionObservation(header=self._header(), gantry=state, marks=detected.marks)
+
+    def _move(self, x, y):
+        reached = self._call(self.move_client, MoveGantry.Request(x=float(x), y=float(y)),
+                             'gantry move')
+        # The drive reports axis positions as motor angle times the nominal lead.
+        revs = np.array([reached.x / NOMINAL_LEAD_X, reached.y / NOMINAL_LEAD_Y])
+        self._gantry_state = GantryState(header=self._header(), x=reached.x, y=reached.y,
+                                         x_rev=float(revs[0]), y_rev=float(revs[1]))
+        return revs
+
+    def _progress(self, step, total, message):
+        self.progress_pub.publish(Progress(header=self._header(), task='vision_calibration',
+                                           step=step, total=total, message=message))
+        self.get_logger().info(f'[{step}/{total}] {message}')
+
+    def on_calibrate(self, request, response):
+        if not self._busy.acquire(blocking=False):
+            response.success, response.message = False, 'a calibration is already running'
+            return response
+        try:
+            overrides = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
+            if not isinstance(overrides, dict):
+                raise InvalidInputError('plan_yaml must be a YAML mapping')
+            plan = self._plan_from_parameters(overrides)
+            result = self._run(plan)
+            response.success, response.message, response.result = True, 'ok', result
+        except (MachineAlignmentError, ValueError, yaml.YAMLError) as exc:
+            self.get_logger().error(f'vision calibration failed: {exc}; previous calibration '
+                                    'stays in force')
+            response.success, response.message = False, str(exc)
+            response.result = failed_result('vision', self._header(), str(exc))
+        except Exception as exc:  # log a bug, answer, keep serving
+            self.get_logger().error(f'internal error in vision calibration: {exc!r}')
+            response.success, response.message = False, f'internal error: {exc!r}'
+            response.result = failed_result('vision', self._header(), response.message)
+        finally:
+            self._busy.release()
+        return response
+
+    def _run(self, plan: VisionPlan) -> CalibrationResult:
+        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+        bag_path = Path(self.get_parameter('record_dir').value) / f'vision_{stamp}'
+        observations = []
+        with BagWriter(bag_path) as bag:
+            bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/VisionObservation')
+            bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+            targets = plan.targets()
+            for k, (x, y) in enumerate(targets):
+                self._move(x - plan.overshoot, y - plan.overshoot)
+                self._move(x, y)
+                msg = self._observe()
+                self.observation_pub.publish(msg)
+                bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds,
+                          serialize_message(msg))
+                observations.append(observation_to_core(msg))
+                self._progress(k + 1, len(targets) + 1, f'position {k + 1}/{len(targets)}: '
+                               f'{len(msg.marks.marks)} dots')
+            calibration = calibrate_from_observations(observations, plan.pitch, self.nominal_camera)
+            content = {'kind': 'vision', 'created': stamp, 'bag': str(bag_path),
+                       'camera2plate': {'pixel_size': calibration.camera2plate.pixel_size,
+                                        'angle': calibration.camera2plate.angle,
+                                        'principal': list(calibration.camera2plate.principal)},
+                       'gantry2plate': calibration.gantry.as_dict(),
+                       'report': calibration.report}
+            path, version = write_calibration(self.get_parameter('output_dir').value, 'vision',
+                                              content)
+            result = vision_result_message(calibration, self._header(), str(path), version)
+            bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
+        self.result_pub.publish(result)
+        self._progress(len(targets) + 1, len(targets) + 1,
+                       f'done: pixel size {calibration.camera2plate.pixel_size * 1e6:.4f} um, '
+                       f'Rx {calibration.gantry.lead_x * 1e3:.4f} mm/rev, '
+                       f'Ry {calibration.gantry.lead_y * 1e3:.4f} mm/rev; wrote {path}')
+        return result
+
+    def on_pixel_size(self, request, response):
+        if not self._busy.acquire(blocking=False):
+            response.success, response.message = False, 'a calibration is already running'
+            return response
+        try:
+            msg = self._call(self.detect_client, DetectMarks.Request(shape='circle'), 'detection')
+            uv = np.array([[m.u, m.v] for m in marks_from_message(msg.marks)])
+            result = calibrate_pixel_size([uv], self.plan.pitch, self.nominal_camera)
+            report = result.report()
+            response.result = calibration_result_as_message(
+                'pixel_size', self._header(),
+                {'pixel_size': report['pixel_size_m'], 'camera_angle': report['angle_rad']},
+                {'pixel_size': report['pixel_size_std_m'], 'camera_angle': report['angle_std_rad']},
+                {'pixel_size': 'm/px', 'camera_angle': 'rad'}, report,
+                report['residual_rms_px'], report['residual_max_px'], 'px', report['num_marks'])
+            response.success, response.message = True, 'ok'
+        except MachineAlignmentError as exc:
+            self.get_logger().error(f'pixel size calibration failed: {exc}')
+            response.success, response.message = False, str(exc)
+            response.result = failed_result('pixel_size', self._header(), str(exc))
+        finally:
+            self._busy.release()
+        return response
+
+
+def main(args=None):
+    run_node(VisionCalibratorNode, args, threads=4)
+
+
+if __name__ == '__main__':
+    main()
