@@ -85,3 +85,15 @@ def calibrate_from_observations(observations: list, pitch: float,
     gantry = calibrate_gantry(observations, pixel.camera2plate, pitch, nominal_gantry)
     report = {'pixel_size': pixel.report(), 'gantry': gantry.report(), 'pitch_m': pitch}
     return VisionCalibration(pixel.camera2plate, gantry.model, report)
+
+
+def observation_from_message(msg) -> GantryObservation:
+    """A GantryObservation from an alignment_msgs/VisionObservation, live (rclpy) or decoded
+    from a bag (rosbags): only attribute access is used, so no ROS import is needed.
+
+    Raises InvalidInputError on NaN or infinite motor angles or Mark centres."""
+    revs = np.array([msg.gantry.x_rev, msg.gantry.y_rev], dtype=float)
+    uv = np.array([[m.u, m.v] for m in msg.marks.marks], dtype=float).reshape(-1, 2)
+    if not (np.all(np.isfinite(revs)) and np.all(np.isfinite(uv))):
+        raise InvalidInputError('observation has NaN or infinite motor angles or Mark centres')
+    return GantryObservation(revs, uv)

@@ -81,13 +81,6 @@ def gantry_state_as_message(axis_position, revs, header, moving: bool = False) -
                        x_rev=float(revs[0]), y_rev=float(revs[1]), moving=moving)
 
 
-def revs_from_gantry_state(msg) -> np.ndarray:
-    revs = np.array([msg.x_rev, msg.y_rev], dtype=float)
-    if not np.all(np.isfinite(revs)):
-        raise InvalidInputError('gantry state has NaN or infinite motor angles')
-    return revs
-
-
 def calibration_result_as_message(kind: str, header, parameters: dict, std_devs: dict,
                                   units: dict, report: dict, rms: float, max_residual: float,
                                   residual_unit: str, num_observations: int,

@@ -31,22 +31,16 @@ from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
 from printer_alignment.core.geometry import (
     NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
-from printer_alignment.core.vision_calibration import GantryObservation, calibrate_pixel_size
+from printer_alignment.core.vision_calibration import calibrate_pixel_size
 from printer_alignment.core.vision_procedure import (
-    VisionCalibration, VisionPlan, calibrate_from_observations)
+    VisionCalibration, VisionPlan, calibrate_from_observations, observation_from_message)
 from printer_alignment.nodes.conversions import (
-    calibration_result_as_message, failed_result, marks_from_message, revs_from_gantry_state)
+    calibration_result_as_message, failed_result, marks_from_message)
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
 RESULT_TOPIC = '/vision_calibrator/result'
-
-
-def observation_to_core(msg):
-    """(revs, uv) of a VisionObservation (live or decoded from a bag)."""
-    uv = np.array([[m.u, m.v] for m in marks_from_message(msg.marks)]).reshape(-1, 2)
-    return GantryObservation(revs_from_gantry_state(msg.gantry), uv)
 
 
 def vision_result_message(calibration: VisionCalibration, header, file_path='', version=0):
@@ -172,7 +166,7 @@ class VisionCalibratorNode(Node):
                 self.observation_pub.publish(msg)
                 bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds,
                           serialize_message(msg))
-                observations.append(observation_to_core(msg))
+                observations.append(observation_from_message(msg))
                 self._progress(k + 1, len(targets) + 1, f'position {k + 1}/{len(targets)}: '
                                f'{len(msg.marks.marks)} dots')
             calibration = calibrate_from_observations(observations, plan.pitch, self.nominal_camera)

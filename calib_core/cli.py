@@ -1,0 +1,209 @@
+"""machine-align: the command line of machine_alignment. It runs the same core code as
+the nodes: subcommands read a dataset, image files or a recorded bag, print a human
+report and write JSON (``--json PATH``, SI units)."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from calib_core.errors import MachineAlignmentError
+from calib_core.storage import write_atomic
+
+
+def _progress(done: int, total: int, label: str) -> None:
+    if not sys.stderr.isatty():
+        return
+    width = 30
+    filled = int(width * done / max(total, 1))
+    sys.stderr.write(f'\r{label} [{"#" * filled}{"." * (width - filled)}] {done}/{total}')
+    if done == total:
+        sys.stderr.write('\n')
+    sys.stderr.flush()
+
+
+def _write_json(path, content) -> None:
+    if path:
+        write_atomic(path, json.dumps(content, indent=2) + '\n')
+        print(f'wrote {path}')
+
+
+def cmd_detect(args) -> int:
+    import cv2
+
+    from printer_alignment.core.marks import DetectorConfig, detect_marks
+    config = DetectorConfig(min_size_px=args.min_size, max_size_px=args.max_size,
+                            polarity=args.polarity)
+    results, failures = [], 0
+    for k, path in enumerate(args.images):
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        entry = {'image': str(path)}
+        if image is None:
+            entry['error'] = 'not a readable image'
+        else:
+            try:
+                detection = detect_marks(image, config, args.shape, args.expected)
+                entry['marks'] = [{'shape': m.shape, 'u_px': m.u, 'v_px': m.v,
+                                   'covariance_px2': m.covariance.tolist(), 'size_px': m.size,
+                                   'contrast': m.contrast, 'quality': m.quality}
+                                  for m in detection.marks]
+                entry['rejected'] = detection.rejected
+                entry['noise_sigma'] = detection.noise_sigma
+            except MachineAlignmentError as exc:
+                entry['error'] = str(exc)
+        failures += 'error' in entry
+        results.append(entry)
+        _progress(k + 1, len(args.images), 'detect')
+        if 'error' in entry:
+            print(f'{path}: {entry["error"]}')
+        else:
+            sigma = np.median([np.sqrt(max(m['covariance_px2'][0][0], m['covariance_px2'][1][1]))
+                               for m in entry['marks']])
+            print(f'{path}: {len(entry["marks"])} Mark(s), median centre sigma {sigma:.4f} px')
+    _write_json(args.json, {'images': results})
+    return 1 if failures == len(args.images) else 0
+
+
+def cmd_calibrate_camera(args) -> int:
+    from printer_alignment.core.camera_calibration import (
+        calibrate_intrinsics, infer_image_size, read_correspondences, views_from_images)
+    failures = []
+    if args.data:
+        views = read_correspondences(args.data)
+        size = _parse_size(args.image_size) if args.image_size else infer_image_size(views)
+    else:
+        if not (args.cols and args.rows and args.spacing):
+            raise MachineAlignmentError('--images needs --target, --cols, --rows and --spacing')
+        views, size, failures = views_from_images(args.images, args.target, args.cols,
+                                                  args.rows, args.spacing)
+        for path, reason in failures:
+            print(f'{path}: {reason}')
+        if args.image_size:
+            size = _parse_size(args.image_size)
+    result = calibrate_intrinsics(views, size, distortion=not args.no_distortion)
+    report = result.report()
+    report['failed_images'] = [{'image': p, 'reason': r} for p, r in failures]
+    p, s = report['parameters'], report['std_devs']
+    print(f'{report["num_views"]} views, reprojection RMS {report["rms_reprojection_px"]:.3f} px')
+    for name in p:
+        print(f'  {name:>3} = {p[name]: .6g} +- {s[name]:.2g} {report["units"][name]}')
+    _write_json(args.json, report)
+    return 0
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split('x'))
+    except ValueError:
+        raise MachineAlignmentError(f'--image-size must look like 640x480, not {text!r}') from None
+    return w, h
+
+
+def cmd_calibrate_vision(args) -> int:
+    from calib_core.bags import decode_bag
+    from printer_alignment.core.vision_procedure import (
+        calibrate_from_observations, observation_from_message)
+    observations, recorded = [], None
+    for topic, _, msg in decode_bag(args.bag):
+        if topic.endswith('/observations'):
+            observations.append(observation_from_message(msg))
+        elif topic.endswith('/result') and msg.success:
+            recorded = json.loads(msg.report_json)
+    if not observations:
+        raise MachineAlignmentError(f'{args.bag} holds no vision calibration observations')
+    calibration = calibrate_from_observations(observations, args.pitch)
+    report = dict(calibration.report)
+    g = report['gantry']
+    print(f'{len(observations)} positions; pixel size '
+          f'{report["pixel_size"]["pixel_size_m"] * 1e6:.5f} um')
+    for name, value in g['parameters'].items():
+        print(f'  {name:>17} = {value: .9g} +- {g["std_devs"][name]:.2g} {g["units"][name]}')
+    if recorded is not None:
+        live = recorded['gantry']['parameters']
+        report['max_difference_to_live'] = {n: abs(live[n] - v) for n, v in g['parameters'].items()}
+        print('same as the live run: max |difference| '
+              f'{max(report["max_difference_to_live"].values()):.3g} (SI units)')
+    _write_json(args.json, report)
+    return 0
+
+
+def cmd_launch(args) -> int:
+    import time
+
+    from calib_core.launcher import Graph, printer_graph
+    with Graph(printer_graph(args.scene, args.output_dir, args.record_dir)) as graph:
+        print('printer graph running (Ctrl-C to stop)')
+        try:
+            while all(graph.alive()):
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from calib_core.demo import run_demo
+    return run_demo(Path(args.out))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='machine-align', description=__doc__)
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    detect = sub.add_parser('detect', help='Mark centres (px) in image files')
+    detect.add_argument('images', nargs='+')
+    detect.add_argument('--json')
+    detect.add_argument('--shape', default='', choices=['', 'circle', 'cross'])
+    detect.add_argument('--expected', type=int, default=0)
+    detect.add_argument('--polarity', default='auto', choices=['auto', 'dark', 'bright'])
+    detect.add_argument('--min-size', type=float, default=2.5, help='px')
+    detect.add_argument('--max-size', type=float, default=120.0, help='px')
+    detect.set_defaults(func=cmd_detect)
+
+    calibrate = sub.add_parser('calibrate', help='run a calibration offline')
+    what = calibrate.add_subparsers(dest='what', required=True)
+    camera = what.add_parser('camera', help='intrinsics and distortion (OpenCV)')
+    source = camera.add_mutually_exclusive_group(required=True)
+    source.add_argument('--data', help='CSV: view, model_x, model_y (m), u, v (px)')
+    source.add_argument('--images', nargs='+', help='photos of a calibration target')
+    camera.add_argument('--target', default='chessboard', choices=['chessboard', 'circles', 'acircles'])
+    camera.add_argument('--cols', type=int, help='inner corners / circles per row')
+    camera.add_argument('--rows', type=int)
+    camera.add_argument('--spacing', type=float, help='square size or circle pitch, m')
+    camera.add_argument('--image-size', help='WxH in px (default: from images or inferred)')
+    camera.add_argument('--no-distortion', action='store_true')
+    camera.add_argument('--json')
+    camera.set_defaults(func=cmd_calibrate_camera)
+    vision = what.add_parser('vision', help='pixel size and gantry model from a recorded run')
+    vision.add_argument('--bag', required=True)
+    vision.add_argument('--pitch', type=float, default=0.5e-3, help='dot pitch, m')
+    vision.add_argument('--json')
+    vision.set_defaults(func=cmd_calibrate_vision)
+
+    launch = sub.add_parser('launch', help='start a simulated machine graph from the venv')
+    launch.add_argument('graph', choices=['printer'])
+    launch.add_argument('--scene', default='dot_plate', choices=['dot_plate', 'substrate', 'stencil'])
+    launch.add_argument('--output-dir', default='calibration')
+    launch.add_argument('--record-dir', default='runs')
+    launch.set_defaults(func=cmd_launch)
+
+    demo = sub.add_parser('demo', help='calibrate the simulated printer end to end')
+    demo.add_argument('--out', default='out/demo')
+    demo.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except MachineAlignmentError as exc:
+        print(f'machine-align: error: {exc}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

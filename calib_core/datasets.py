@@ -1,0 +1,56 @@
+"""CSV datasets (header row, numeric columns) with clear errors for malformed files."""
+from __future__ import annotations
+
+import csv
+import os
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+
+
+def read_columns(path: str | os.PathLike, required: list[str]) -> dict[str, np.ndarray]:
+    """Read a CSV with a header row into float columns.
+
+    Every column is returned (extra numeric columns are covariates for later analysis).
+
+    Raises
+    ------
+    InvalidInputError
+        Missing file or columns, non-numeric, NaN or infinite values, ragged rows.
+    """
+    if not os.path.exists(path):
+        raise InvalidInputError(f'no such file: {path}')
+    with open(path, newline='') as stream:
+        rows = list(csv.reader(stream))
+    if not rows:
+        raise InvalidInputError(f'{path} is empty')
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InvalidInputError(f'{path} lacks column(s) {", ".join(missing)}; it has '
+                                f'{", ".join(header)}')
+    body = [r for r in rows[1:] if any(cell.strip() for cell in r)]
+    if not body:
+        raise InvalidInputError(f'{path} has a header but no data rows')
+    columns = {}
+    for j, name in enumerate(header):
+        values = []
+        for i, row in enumerate(body, start=2):
+            if len(row) != len(header):
+                raise InvalidInputError(f'{path} line {i}: {len(row)} fields, header has '
+                                        f'{len(header)}')
+            try:
+                values.append(float(row[j]))
+            except ValueError:
+                if name in required:
+                    raise InvalidInputError(f'{path} line {i}: {name}={row[j]!r} is not a '
+                                            'number') from None
+                break
+        else:
+            array = np.array(values)
+            if not np.all(np.isfinite(array)):
+                bad = int(np.argmax(~np.isfinite(array))) + 2
+                raise InvalidInputError(f'{path} line {bad}: {name} is NaN or infinite')
+            columns[name] = array
+    return columns

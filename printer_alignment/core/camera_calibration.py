@@ -1,0 +1,133 @@
+"""Camera intrinsics and lens distortion with OpenCV (Zhang's method), from correspondences
+or from images of chessboards and circle grids."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from calib_core.datasets import read_columns
+from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
+
+INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3')
+
+
+@dataclass(frozen=True)
+class View:
+    """Planar target points (m, (n, 2), z = 0) and their pixels (px, (n, 2))."""
+
+    model: np.ndarray
+    pixels: np.ndarray
+
+
+def read_correspondences(path) -> list[View]:
+    """Views from a CSV with columns view, model_x, model_y (m), u, v (px)."""
+    c = read_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'])
+    views = []
+    for view_id in np.unique(c['view']):
+        k = c['view'] == view_id
+        views.append(View(np.stack([c['model_x'][k], c['model_y'][k]], 1),
+                          np.stack([c['u'][k], c['v'][k]], 1)))
+    return views
+
+
+def infer_image_size(views: list[View]) -> tuple[int, int]:
+    """A guess of (width, height) from the pixel extent: the next even size that holds all
+    points, assuming the principal point near the centre."""
+    allp = np.concatenate([v.pixels for v in views])
+    return int(np.ceil(allp[:, 0].max() + 1)), int(np.ceil(allp[:, 1].max() + 1))
+
+
+@dataclass(frozen=True)
+class IntrinsicsResult:
+    camera_matrix: np.ndarray
+    distortion: np.ndarray
+    rms_px: float
+    per_view_rms_px: np.ndarray
+    std_devs: dict
+    image_size: tuple[int, int]
+
+    def report(self) -> dict:
+        k, d = self.camera_matrix, self.distortion.ravel()
+        values = dict(zip(INTRINSIC_NAMES, [k[0, 0], k[1, 1], k[0, 2], k[1, 2], *d[:5]]))
+        return {'parameters': {n: float(v) for n, v in values.items()},
+                'std_devs': self.std_devs,
+                'units': {n: 'px' if n in ('fx', 'fy', 'cx', 'cy') else '1' for n in INTRINSIC_NAMES},
+                'rms_reprojection_px': self.rms_px,
+                'per_view_rms_px': self.per_view_rms_px.tolist(),
+                'image_size': list(self.image_size), 'num_views': len(self.per_view_rms_px)}
+
+
+def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
+                         distortion: bool = True) -> IntrinsicsResult:
+    """Pinhole intrinsics (and k1, k2, p1, p2, k3 if ``distortion``) by cv2.calibrateCameraExtended.
+
+    Raises CalibrationError with fewer than 3 views or 6 points in a view."""
+    if len(views) < 3:
+        raise CalibrationError(f'intrinsics need at least 3 views of the plane at different '
+                               f'tilts; got {len(views)}')
+    for k, v in enumerate(views):
+        if len(v.model) < 6:
+            raise CalibrationError(f'view {k} has {len(v.model)} points; at least 6 are needed')
+        if not (np.all(np.isfinite(v.model)) and np.all(np.isfinite(v.pixels))):
+            raise InvalidInputError(f'view {k} has NaN or infinite coordinates')
+    objects = [np.hstack([v.model, np.zeros((len(v.model), 1))]).astype(np.float32) for v in views]
+    images = [v.pixels.reshape(-1, 1, 2).astype(np.float32) for v in views]
+    flags = 0 if distortion else (cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
+                                  | cv2.CALIB_ZERO_TANGENT_DIST)
+    rms, k, d, _, _, std_intr, _, per_view = cv2.calibrateCameraExtended(
+        objects, images, tuple(image_size), None, None, flags=flags)
+    std = dict(zip(INTRINSIC_NAMES, std_intr.ravel()[:9].astype(float).tolist()))
+    return IntrinsicsResult(k, d.ravel(), float(rms), per_view.ravel(), std, tuple(image_size))
+
+
+def target_points(kind: str, cols: int, rows: int, spacing: float) -> np.ndarray:
+    """Model points (m, (cols*rows, 2)) of a chessboard's inner corners or a circle grid,
+    in the order OpenCV's finders return them."""
+    if kind == 'acircles':
+        return np.array([((2 * i + j % 2) * spacing, j * spacing)
+                         for j in range(rows) for i in range(cols)], float)
+    return np.array([(i * spacing, j * spacing) for j in range(rows) for i in range(cols)], float)
+
+
+def find_target(image: np.ndarray, kind: str, cols: int, rows: int) -> np.ndarray:
+    """Pixels (px, (n, 2)) of the target's points in a grey image.
+
+    ``kind``: ``chessboard`` (inner corners, refined by cornerSubPix), ``circles``
+    (symmetric grid) or ``acircles`` (asymmetric grid). Raises DetectionError if not found."""
+    if kind == 'chessboard':
+        found, corners = cv2.findChessboardCorners(
+            image, (cols, rows), cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if found:
+            corners = cv2.cornerSubPix(image, corners, (5, 5), (-1, -1),
+                                       (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3))
+    elif kind in ('circles', 'acircles'):
+        flag = cv2.CALIB_CB_SYMMETRIC_GRID if kind == 'circles' else cv2.CALIB_CB_ASYMMETRIC_GRID
+        found, corners = cv2.findCirclesGrid(image, (cols, rows), flags=flag)
+    else:
+        raise InvalidInputError(f'unknown target {kind!r}; use chessboard, circles or acircles')
+    if not found:
+        raise DetectionError(f'{kind} {cols}x{rows} not found in the image')
+    return corners.reshape(-1, 2).astype(float)
+
+
+def views_from_images(paths: list, kind: str, cols: int, rows: int, spacing: float):
+    """(views, image_size, failures) from image files; unreadable or target-less images
+    are listed in ``failures`` with the reason, not fatal."""
+    views, failures, size = [], [], None
+    model = target_points(kind, cols, rows, spacing)
+    for path in paths:
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            failures.append((str(path), 'not a readable image'))
+            continue
+        if size is not None and (image.shape[1], image.shape[0]) != size:
+            failures.append((str(path), f'size {image.shape[::-1]} differs from {size}'))
+            continue
+        size = (image.shape[1], image.shape[0])
+        try:
+            views.append(View(model, find_target(image, kind, cols, rows)))
+        except DetectionError as exc:
+            failures.append((str(path), str(exc)))
+    return views, size, failures
