@@ -118,6 +118,18 @@ def read_bag(path: str | os.PathLike, topics: list[str] | None = None
         raise BagError(f'cannot read bag {path}: {exc} (truncated or not a rosbag2 bag?)') from exc
 
 
+def bag_topics(path: str | os.PathLike) -> dict[str, str]:
+    """``{topic: msgtype}`` of a rosbag2 bag, from its metadata and file summary."""
+    path = Path(path)
+    if not (path / 'metadata.yaml').exists():
+        raise BagError(f'{path} is not a rosbag2 bag: metadata.yaml is missing')
+    try:
+        with AnyReader([path]) as reader:
+            return {c.topic: c.msgtype for c in reader.connections}
+    except Exception as exc:
+        raise BagError(f'cannot read bag {path}: {exc} (truncated or not a rosbag2 bag?)') from exc
+
+
 def decode_bag(path: str | os.PathLike, topics: list[str] | None = None
                ) -> Iterator[tuple[str, int, object]]:
     """Yield ``(topic, stamp_ns, message)`` with messages decoded from the bag's own
