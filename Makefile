@@ -40,7 +40,7 @@ test: setup
 	$(BIN)/python -m pytest -q test
 
 bench: setup
-	$(BIN)/python -m calib_core.bench --out bench_results
+	$(BIN)/python -m printer_alignment.bench --out bench_results
 
 clean:
 	rm -rf build out .pytest_cache

@@ -1,0 +1,165 @@
+"""`make bench`: Mark detection against truth, the Cramer-Rao bound and OpenCV's
+SimpleBlobDetector / findCirclesGrid on the same frames; detection and calibration on the
+real photos. Writes ``<out>/results.json`` and ``<out>/results.md``."""
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from calib_core.errors import MachineAlignmentError
+from printer_alignment.core.camera_calibration import calibrate_intrinsics, views_from_images
+from printer_alignment.core.marks import detect_marks
+from printer_alignment.sim.render import MarkShape, render
+
+REAL = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'real'
+BACKGROUND, CONTRAST = 200.0, -150.0
+
+
+def _grid(rng, radius):
+    spacing = max(4 * radius, 60)
+    angle = rng.uniform(-0.05, 0.05)
+    origin = np.array([320, 240]) + rng.uniform(-0.5, 0.5, 2)
+    c, s = np.cos(angle), np.sin(angle)
+    return [MarkShape('circle', *(origin + spacing * np.array([c * i - s * j, s * i + c * j])), radius)
+            for j in (-1, 0, 1) for i in (-1, 0, 1)]
+
+
+def cramer_rao(mark: MarkShape, blur: float, sigma: float) -> float:
+    """RMS per-axis centre bound (px) for one circle: Fisher information of the exact
+    rendering model in (u, v, radius, blur, contrast, background) with white noise."""
+    r = int(mark.size + 10)
+    vv, uu = np.mgrid[int(mark.v) - r:int(mark.v) + r, int(mark.u) - r:int(mark.u) + r].astype(float)
+
+    def model(p):
+        m = MarkShape('circle', p[0], p[1], p[2])
+        from printer_alignment.sim.render import coverage
+        return (p[5] + p[4] * coverage(m, uu, vv, p[3])).ravel()
+
+    p0 = np.array([mark.u, mark.v, mark.size, max(blur, 0.05), CONTRAST, BACKGROUND])
+    steps = np.array([1e-4, 1e-4, 1e-4, 1e-4, 1e-3, 1e-3])
+    jac = np.stack([(model(p0 + np.eye(6)[k] * steps[k]) - model(p0 - np.eye(6)[k] * steps[k]))
+                    / (2 * steps[k]) for k in range(6)], axis=1)
+    cov = sigma ** 2 * np.linalg.inv(jac.T @ jac)
+    return float(np.sqrt((cov[0, 0] + cov[1, 1]) / 2))
+
+
+def _match(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    if len(found) == 0:
+        return np.full_like(truth, np.nan)
+    d = np.linalg.norm(found[None] - truth[:, None], axis=2)
+    nearest = found[np.argmin(d, axis=1)] - truth
+    nearest[np.min(d, axis=1) > 3] = np.nan
+    return nearest
+
+
+def bench_synthetic(frames: int, seed: int = 1) -> list[dict]:
+    rng = np.random.default_rng(seed)
+    params = cv2.SimpleBlobDetector_Params()
+    params.filterByArea, params.minArea, params.maxArea = True, 10, 1e6
+    params.filterByConvexity = params.filterByInertia = False
+    sbd = cv2.SimpleBlobDetector_create(params)
+    rows = []
+    for radius in (5, 10, 20, 40):
+        for blur in (0.5, 1.5):
+            for noise in (0.01, 0.02, 0.05):
+                sigma = noise * abs(CONTRAST)
+                err = {'ours': [], 'blob': [], 'grid': []}
+                times = {'ours': 0.0, 'blob': 0.0, 'grid': 0.0}
+                crb = []
+                for _ in range(frames):
+                    marks = _grid(rng, radius)
+                    truth = np.array([[m.u, m.v] for m in marks])
+                    image = render(marks, 640, 480, blur, BACKGROUND, CONTRAST)
+                    image = np.clip(np.round(image + rng.normal(0, sigma, image.shape)), 0, 255).astype(np.uint8)
+                    t = time.perf_counter()
+                    ours = np.array([[m.u, m.v] for m in detect_marks(image).marks])
+                    times['ours'] += time.perf_counter() - t
+                    t = time.perf_counter()
+                    blobs = np.array([k.pt for k in sbd.detect(image)]).reshape(-1, 2)
+                    times['blob'] += time.perf_counter() - t
+                    t = time.perf_counter()
+                    ok, centres = cv2.findCirclesGrid(image, (3, 3), flags=cv2.CALIB_CB_SYMMETRIC_GRID,
+                                                      blobDetector=sbd)
+                    times['grid'] += time.perf_counter() - t
+                    err['ours'].append(_match(ours, truth))
+                    err['blob'].append(_match(blobs, truth))
+                    err['grid'].append(_match(centres.reshape(-1, 2) if ok else np.empty((0, 2)), truth))
+                    crb.append(cramer_rao(marks[4], blur, np.sqrt(sigma ** 2 + 1 / 12)))
+                row = {'radius_px': radius, 'blur_px': blur, 'noise_fraction': noise,
+                       'crb_rms_px': float(np.mean(crb))}
+                for name, e in err.items():
+                    e = np.concatenate(e)
+                    good = e[~np.isnan(e).any(axis=1)]
+                    row[f'{name}_found'] = f'{len(good)}/{len(e)}'
+                    row[f'{name}_rms_px'] = float(np.sqrt(np.mean(good ** 2))) if len(good) else None
+                    row[f'{name}_bias_px'] = np.mean(good, axis=0).tolist() if len(good) else None
+                    row[f'{name}_ms_per_frame'] = times[name] / frames * 1e3
+                row['ours_over_crb'] = row['ours_rms_px'] / row['crb_rms_px']
+                row['time_ours_over_blob'] = times['ours'] / times['blob']
+                rows.append(row)
+                print(f"r={radius:>2} blur={blur} noise={noise:.2f}: ours {row['ours_rms_px']:.4f} px "
+                      f"({row['ours_over_crb']:.2f} x CRB {row['crb_rms_px']:.4f}), blob "
+                      f"{row['blob_rms_px'] or float('nan'):.4f} px, time ratio {row['time_ours_over_blob']:.2f}")
+    return rows
+
+
+def bench_real() -> dict:
+    out = {}
+    if not REAL.exists():
+        return {'skipped': f'{REAL} not found'}
+    chess = sorted(glob.glob(str(REAL / 'boofcv_mono/Sony_DSC-HX5V_Chess/*.jpg')))
+    views, size, failures = views_from_images(chess, 'chessboard', 4, 6, 0.03)
+    result = calibrate_intrinsics(views, size)
+    shipped = yaml.safe_load(open(REAL / 'boofcv_mono/Sony_DSC-HX5V_Chess/intrinsic.yaml'))
+    out['chessboard'] = {'found': f'{len(views)}/{len(chess)}', 'rms_px': result.rms_px,
+                         'ours': result.report()['parameters'], 'boofcv': shipped['pinhole'],
+                         'boofcv_radial': shipped['radial_tangential']['radial']}
+    regular = sorted(glob.glob(str(REAL / 'boofcv_mono/Sony_DSC-HX5V_CircleRegular/*.jpg')))
+    counts = {}
+    for path in regular + sorted(glob.glob(str(REAL / 'boofcv_fiducial_dots/random_dots/*.jpg'))):
+        image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+        try:
+            detection = detect_marks(image)
+            counts[Path(path).parent.name + '/' + Path(path).name] = len(detection.marks)
+        except MachineAlignmentError as exc:
+            counts[Path(path).parent.name + '/' + Path(path).name] = f'error: {exc}'[:120]
+    out['dots_found_per_image'] = counts
+    views, size, failures = views_from_images(regular, 'circles', 10, 8, 0.025)
+    if len(views) >= 3:
+        out['circle_grid'] = {'found': f'{len(views)}/{len(regular)}',
+                              'rms_px': calibrate_intrinsics(views, size).rms_px}
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument('--out', default='bench_results')
+    parser.add_argument('--frames', type=int, default=8)
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = {'synthetic': bench_synthetic(args.frames), 'real': bench_real()}
+    (out / 'results.json').write_text(json.dumps(results, indent=2) + '\n')
+    lines = ['| radius px | blur px | noise | CRB px | ours RMS px | ours/CRB | blob RMS px | '
+             'grid RMS px | ours ms | blob ms | time ours/blob |', '|' + '---|' * 11]
+    for r in results['synthetic']:
+        fmt = lambda x: f'{x:.4f}' if isinstance(x, float) else str(x)  # noqa: E731
+        lines.append(f"| {r['radius_px']} | {r['blur_px']} | {r['noise_fraction']} | "
+                     f"{fmt(r['crb_rms_px'])} | {fmt(r['ours_rms_px'])} | {r['ours_over_crb']:.2f} | "
+                     f"{fmt(r['blob_rms_px'])} | {fmt(r['grid_rms_px'])} | "
+                     f"{r['ours_ms_per_frame']:.1f} | {r['blob_ms_per_frame']:.1f} | "
+                     f"{r['time_ours_over_blob']:.2f} |")
+    lines += ['', '```', json.dumps(results['real'], indent=1), '```']
+    (out / 'results.md').write_text('\n'.join(lines) + '\n')
+    print(f'wrote {out}/results.json and results.md')
+
+
+if __name__ == '__main__':
+    main()
