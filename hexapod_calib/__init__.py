@@ -1,0 +1,1 @@
+"""6-SPS hexapod calibration (issue 4): not implemented yet."""
