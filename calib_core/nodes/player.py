@@ -9,15 +9,12 @@ import time
 
 import rclpy
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from calib_core.bags import bag_topics, read_bag
 from calib_core.errors import MachineAlignmentError
+from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.nodes.types import message_class
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class PlayerNode(Node):

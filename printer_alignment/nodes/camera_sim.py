@@ -8,21 +8,18 @@ calibration nodes never do). Publishes ``camera/image_raw`` (mono8, sensor-data 
 import threading
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
+from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.geometry import CameraToPlate
 from printer_alignment.nodes.conversions import image_as_message
 from printer_alignment.sim.camera import CameraOptics, CameraSim
 from printer_alignment.sim.scene import make_scene
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class CameraSimNode(Node):

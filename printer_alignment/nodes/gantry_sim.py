@@ -6,21 +6,17 @@ absolute axis position (m) and refuses targets outside the travel.
 """
 import threading
 
-import rclpy
 from alignment_msgs.msg import GantryState
 from alignment_msgs.srv import MoveGantry
 from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from printer_alignment.nodes.conversions import gantry_state_as_message
 from printer_alignment.sim.gantry import GantryErrors, GantrySim, Travel
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class GantrySimNode(Node):

@@ -6,7 +6,6 @@ detects in the next image taken after the request, with the request's shape and 
 """
 import threading
 
-import rclpy
 from alignment_msgs.msg import MarkArray
 from alignment_msgs.srv import DetectMarks
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup

@@ -15,18 +15,17 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-import rclpy
 import yaml
 from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionObservation
 from alignment_msgs.srv import DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
 from printer_alignment.core.geometry import (
@@ -36,9 +35,6 @@ from printer_alignment.core.vision_procedure import (
     VisionCalibration, VisionPlan, calibrate_from_observations, observation_from_message)
 from printer_alignment.nodes.conversions import (
     calibration_result_as_message, failed_result, marks_from_message)
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
 RESULT_TOPIC = '/vision_calibrator/result'
 
