@@ -93,6 +93,19 @@ class BagWriter:
         self._writer.write(self._connections[topic], int(stamp_ns), cdr)
 
 
+def _require_bag(path: Path) -> None:
+    """BagError unless ``path`` is a rosbag2 bag directory (or an existing bag file)."""
+    if not path.exists():
+        raise BagError(f'no bag at {path}')
+    if path.is_dir() and not (path / 'metadata.yaml').exists():
+        raise BagError(f'{path} is not a rosbag2 bag: metadata.yaml is missing')
+
+
+def _unreadable(path: Path, exc: Exception) -> BagError:
+    # rosbags raises several exception types for damaged or foreign files.
+    return BagError(f'cannot read bag {path}: {exc} (truncated or not a rosbag2 bag?)')
+
+
 def read_bag(path: str | os.PathLike, topics: list[str] | None = None
              ) -> Iterator[tuple[str, str, int, bytes]]:
     """Yield ``(topic, msgtype, stamp_ns, cdr_bytes)`` from a rosbag2 bag in time order.
@@ -103,31 +116,25 @@ def read_bag(path: str | os.PathLike, topics: list[str] | None = None
         Missing, truncated or foreign bag.
     """
     path = Path(path)
-    if not path.exists():
-        raise BagError(f'no bag at {path}')
-    if path.is_dir() and not (path / 'metadata.yaml').exists():
-        raise BagError(f'{path} is not a rosbag2 bag: metadata.yaml is missing')
+    _require_bag(path)
     try:
         with AnyReader([path]) as reader:
             connections = [c for c in reader.connections if topics is None or c.topic in topics]
             for connection, stamp, raw in reader.messages(connections=connections):
                 yield connection.topic, connection.msgtype, stamp, bytes(raw)
-    except BagError:
-        raise
-    except Exception as exc:  # rosbags raises several types for damaged files
-        raise BagError(f'cannot read bag {path}: {exc} (truncated or not a rosbag2 bag?)') from exc
+    except Exception as exc:
+        raise _unreadable(path, exc) from exc
 
 
 def bag_topics(path: str | os.PathLike) -> dict[str, str]:
     """``{topic: msgtype}`` of a rosbag2 bag, from its metadata and file summary."""
     path = Path(path)
-    if not (path / 'metadata.yaml').exists():
-        raise BagError(f'{path} is not a rosbag2 bag: metadata.yaml is missing')
+    _require_bag(path)
     try:
         with AnyReader([path]) as reader:
             return {c.topic: c.msgtype for c in reader.connections}
     except Exception as exc:
-        raise BagError(f'cannot read bag {path}: {exc} (truncated or not a rosbag2 bag?)') from exc
+        raise _unreadable(path, exc) from exc
 
 
 def decode_bag(path: str | os.PathLike, topics: list[str] | None = None

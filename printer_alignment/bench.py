@@ -16,7 +16,7 @@ import yaml
 from calib_core.errors import MachineAlignmentError
 from printer_alignment.core.camera_calibration import calibrate_intrinsics, views_from_images
 from printer_alignment.core.marks import detect_marks
-from printer_alignment.sim.render import MarkShape, render
+from printer_alignment.sim.render import MarkShape, coverage, render
 
 REAL = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'real'
 BACKGROUND, CONTRAST = 200.0, -150.0
@@ -39,7 +39,6 @@ def cramer_rao(mark: MarkShape, blur: float, sigma: float) -> float:
 
     def model(p):
         m = MarkShape('circle', p[0], p[1], p[2])
-        from printer_alignment.sim.render import coverage
         return (p[5] + p[4] * coverage(m, uu, vv, p[3])).ravel()
 
     p0 = np.array([mark.u, mark.v, mark.size, max(blur, 0.05), CONTRAST, BACKGROUND])

@@ -33,8 +33,7 @@ def read_correspondences(path) -> list[View]:
 
 
 def infer_image_size(views: list[View]) -> tuple[int, int]:
-    """A guess of (width, height) from the pixel extent: the next even size that holds all
-    points, assuming the principal point near the centre."""
+    """A guess of (width, height) in px: the smallest image that holds every point."""
     allp = np.concatenate([v.pixels for v in views])
     return int(np.ceil(allp[:, 0].max() + 1)), int(np.ceil(allp[:, 1].max() + 1))
 

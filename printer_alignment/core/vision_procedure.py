@@ -70,8 +70,9 @@ def run_vision_calibration(plan: VisionPlan, move: Callable[[float, float], np.n
     for k, (x, y) in enumerate(targets):
         move(x - plan.overshoot, y - plan.overshoot)
         revs = np.asarray(move(x, y), dtype=float)
-        observations.append(GantryObservation(revs, np.asarray(observe(), dtype=float)))
-        progress(k + 1, len(targets), f'observed position {k + 1}/{len(targets)}')
+        uv = np.asarray(observe(), dtype=float)
+        observations.append(GantryObservation(revs, uv))
+        progress(k + 1, len(targets), f'position {k + 1}/{len(targets)}: {len(uv)} dots')
     return observations, calibrate_from_observations(observations, plan.pitch, nominal_camera,
                                                      nominal_gantry)
 

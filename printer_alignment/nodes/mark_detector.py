@@ -16,7 +16,7 @@ from sensor_msgs.msg import Image
 
 from calib_core.errors import MachineAlignmentError
 from calib_core.nodes.spin import run_node
-from printer_alignment.core.marks import DetectorConfig, detect_marks
+from printer_alignment.core.marks import SHAPES, DetectorConfig, detect_marks
 from printer_alignment.nodes.conversions import image_from_message, marks_as_message
 
 LATEST_IMAGE = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -39,7 +39,7 @@ class MarkDetectorNode(Node):
         self.config = DetectorConfig(min_size_px=g('min_size_px'), max_size_px=g('max_size_px'),
                                      polarity=g('polarity'), min_snr=g('min_snr'))
         self.shape, self.expected = g('shape'), int(g('expected_count'))
-        if self.shape not in ('', 'circle', 'cross') or self.expected < 0:
+        if self.shape not in ('',) + SHAPES or self.expected < 0:
             raise ValueError('shape must be "", circle or cross; expected_count >= 0')
         self.continuous, self.timeout = g('continuous'), float(g('service_timeout_s'))
         self._latest = None
@@ -79,7 +79,7 @@ class MarkDetectorNode(Node):
             response.success = False
             response.message = f'no camera image within {self.timeout:.1f} s'
             return response
-        if request.shape not in ('', 'circle', 'cross'):
+        if request.shape not in ('',) + SHAPES:
             response.success, response.message = False, f'unknown shape {request.shape!r}'
             return response
         result = self._detect(image, request.shape, int(request.expected_count))

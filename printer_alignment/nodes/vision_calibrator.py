@@ -32,7 +32,7 @@ from printer_alignment.core.geometry import (
     NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
 from printer_alignment.core.vision_calibration import calibrate_pixel_size
 from printer_alignment.core.vision_procedure import (
-    VisionCalibration, VisionPlan, calibrate_from_observations, observation_from_message)
+    VisionCalibration, VisionPlan, observation_from_message, run_vision_calibration)
 from printer_alignment.nodes.conversions import (
     calibration_result_as_message, failed_result, marks_from_message)
 OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
@@ -104,10 +104,15 @@ class VisionCalibratorNode(Node):
             raise CalibrationError(f'{what} failed: {response.message}')
         return response
 
-    def _observe(self) -> VisionObservation:
+    def _observe_and_record(self, bag: BagWriter) -> np.ndarray:
+        """Detect dots at the current stop, publish and record the observation; return the
+        dot centres (px, (n, 2)) for the core calibration loop."""
         detected = self._call(self.detect_client, DetectMarks.Request(shape='circle'), 'detection')
-        state = self._gantry_state
-        return VisionObservation(header=self._header(), gantry=state, marks=detected.marks)
+        msg = VisionObservation(header=self._header(), gantry=self._gantry_state,
+                                marks=detected.marks)
+        self.observation_pub.publish(msg)
+        bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds, serialize_message(msg))
+        return observation_from_message(msg).uv
 
     def _move(self, x, y):
         reached = self._call(self.move_client, MoveGantry.Request(x=float(x), y=float(y)),
@@ -150,22 +155,14 @@ class VisionCalibratorNode(Node):
     def _run(self, plan: VisionPlan) -> CalibrationResult:
         stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
         bag_path = Path(self.get_parameter('record_dir').value) / f'vision_{stamp}'
-        observations = []
+        total = len(plan.targets()) + 1  # the stops, then the fit
         with BagWriter(bag_path) as bag:
             bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/VisionObservation')
             bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
-            targets = plan.targets()
-            for k, (x, y) in enumerate(targets):
-                self._move(x - plan.overshoot, y - plan.overshoot)
-                self._move(x, y)
-                msg = self._observe()
-                self.observation_pub.publish(msg)
-                bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds,
-                          serialize_message(msg))
-                observations.append(observation_from_message(msg))
-                self._progress(k + 1, len(targets) + 1, f'position {k + 1}/{len(targets)}: '
-                               f'{len(msg.marks.marks)} dots')
-            calibration = calibrate_from_observations(observations, plan.pitch, self.nominal_camera)
+            _, calibration = run_vision_calibration(
+                plan, self._move, lambda: self._observe_and_record(bag),
+                lambda step, _, message: self._progress(step, total, message),
+                nominal_camera=self.nominal_camera)
             content = {'kind': 'vision', 'created': stamp, 'bag': str(bag_path),
                        'camera2plate': {'pixel_size': calibration.camera2plate.pixel_size,
                                         'angle': calibration.camera2plate.angle,
@@ -177,7 +174,7 @@ class VisionCalibratorNode(Node):
             result = vision_result_message(calibration, self._header(), str(path), version)
             bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
         self.result_pub.publish(result)
-        self._progress(len(targets) + 1, len(targets) + 1,
+        self._progress(total, total,
                        f'done: pixel size {calibration.camera2plate.pixel_size * 1e6:.4f} um, '
                        f'Rx {calibration.gantry.lead_x * 1e3:.4f} mm/rev, '
                        f'Ry {calibration.gantry.lead_y * 1e3:.4f} mm/rev; wrote {path}')
