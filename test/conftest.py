@@ -1,4 +1,4 @@
-"""Shared fixtures: paths to real data, simulated printer hardware."""
+"""Shared fixtures: a seeded random generator and the real photos in ../shared."""
 from pathlib import Path
 
 import numpy as np

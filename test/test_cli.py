@@ -1,0 +1,60 @@
+"""machine-align on image files and CSV datasets, including malformed input."""
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from calib_core.cli import main as cli_main
+from calib_core.datasets import read_columns
+from calib_core.errors import InvalidInputError
+from printer_alignment.sim.render import MarkShape, render
+
+
+def test_detect_writes_mark_centres(tmp_path, rng):
+    truth = MarkShape('circle', 300.3, 200.7, 12)
+    image = render([truth], 640, 480, 1.0, 200.0, -150.0) + rng.normal(0, 2, (480, 640))
+    good = tmp_path / 'mark.png'
+    cv2.imwrite(str(good), np.clip(np.round(image), 0, 255).astype(np.uint8))
+    blank = tmp_path / 'blank.png'
+    cv2.imwrite(str(blank), np.full((480, 640), 128, np.uint8))
+    out = tmp_path / 'marks.json'
+    assert cli_main(['detect', str(good), str(blank), '--json', str(out)]) == 0
+    images = json.loads(out.read_text())['images']
+    mark = images[0]['marks'][0]
+    assert mark['u_px'] == pytest.approx(truth.u, abs=0.05)
+    assert mark['v_px'] == pytest.approx(truth.v, abs=0.05)
+    assert 'no contrast' in images[1]['error']
+
+
+def test_camera_calibration_on_real_chessboard_photos(real_data, tmp_path):
+    photos = sorted((real_data / 'boofcv_mono' / 'Sony_DSC-HX5V_Chess').glob('*.jpg'))
+    out = tmp_path / 'camera.json'
+    assert cli_main(['calibrate', 'camera', '--images', *map(str, photos), '--target',
+                     'chessboard', '--cols', '4', '--rows', '6', '--spacing', '0.03',
+                     '--json', str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report['num_views'] == len(photos) == 13
+    assert report['rms_reprojection_px'] < 0.25
+    # BoofCV's own fit of the same photos: k1 = -0.2556, cx = 308.5 px.
+    assert report['parameters']['k1'] == pytest.approx(-0.2556, abs=0.02)
+    assert report['parameters']['cx'] == pytest.approx(308.5, abs=5)
+
+
+def test_csv_with_missing_column_is_a_clear_error(tmp_path):
+    data = tmp_path / 'points.csv'
+    data.write_text('view,model_x,u,v\n0,0.0,10,20\n')
+    with pytest.raises(InvalidInputError, match='lacks column'):
+        read_columns(data, ['view', 'model_x', 'model_y', 'u', 'v'])
+    assert cli_main(['calibrate', 'camera', '--data', str(data)]) == 2
+
+
+def test_csv_with_nan_or_text_is_refused(tmp_path):
+    nan = tmp_path / 'nan.csv'
+    nan.write_text('command,measured\n0.0,0.0\n0.1,nan\n')
+    with pytest.raises(InvalidInputError, match='line 3: measured is NaN'):
+        read_columns(nan, ['command', 'measured'])
+    text = tmp_path / 'text.csv'
+    text.write_text('command,measured\n0.0,abc\n')
+    with pytest.raises(InvalidInputError, match='not a number'):
+        read_columns(text, ['command', 'measured'])
