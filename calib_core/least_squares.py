@@ -41,9 +41,40 @@ class FitResult:
         return float(np.sqrt(np.mean(self.residuals ** 2)))
 
 
+def check_identifiability(jacobian: np.ndarray, names: list[str],
+                           max_condition: float = 1e10) -> float:
+    """Condition number of the column-scaled Jacobian (shape (n_residuals, n_free)).
+
+    Raises
+    ------
+    CalibrationError
+        Naming the parameter(s) no measurement moves, or the pair the data cannot
+        separate (the largest components of the weakest singular direction).
+    """
+    scale = np.linalg.norm(jacobian, axis=0)
+    dead = [n for n, s in zip(names, scale) if s == 0]
+    if dead:
+        raise CalibrationError(f'the data do not depend on parameter(s) {", ".join(dead)}: '
+                               'no measurement moves them')
+    _, singular, vt = np.linalg.svd(jacobian / scale, full_matrices=False)
+    condition = float(singular[0] / max(singular[-1], 1e-300))
+    if condition > max_condition:
+        weakest = np.argsort(-np.abs(vt[-1]))[:2]
+        raise CalibrationError(
+            'the data cannot separate parameters '
+            f'{" and ".join(names[i] for i in weakest)} (condition number {condition:.3g}); '
+            'add measurements that move them differently')
+    return condition
+
+
 def fit(residual_fn: Callable[[ParameterSet], np.ndarray], initial: ParameterSet,
-        max_condition: float = 1e10) -> FitResult:
+        max_condition: float = 1e10,
+        jacobian_fn: Callable[[ParameterSet], np.ndarray] | None = None) -> FitResult:
     """Minimise the sum of squares of ``residual_fn(parameters)`` over the free parameters.
+
+    ``jacobian_fn(parameters)``, if given, returns the derivative of the residuals with
+    respect to the free parameters, shape (n_residuals, n_free); otherwise scipy
+    differentiates numerically.
 
     Raises
     ------
@@ -65,23 +96,11 @@ def fit(residual_fn: Callable[[ParameterSet], np.ndarray], initial: ParameterSet
     if r0.size < x0.size:
         raise CalibrationError(f'{r0.size} residuals cannot determine {x0.size} parameters '
                                f'({", ".join(names)})')
-    solution = least_squares(fun, x0, method='trf', x_scale='jac')
+    jac = '2-point' if jacobian_fn is None else (
+        lambda x: np.asarray(jacobian_fn(initial.with_free_vector(x)), dtype=float))
+    solution = least_squares(fun, x0, jac=jac, method='trf', x_scale='jac')
     jac = solution.jac
-    scale = np.linalg.norm(jac, axis=0)
-    dead = [n for n, s in zip(names, scale) if s == 0]
-    if dead:
-        raise CalibrationError(f'the data do not depend on parameter(s) {", ".join(dead)}: '
-                               'no measurement moves them')
-    scaled = jac / scale
-    singular = np.linalg.svd(scaled, compute_uv=False)
-    condition = float(singular[0] / max(singular[-1], 1e-300))
-    if condition > max_condition:
-        _, _, vt = np.linalg.svd(scaled)
-        weakest = np.argsort(-np.abs(vt[-1]))[:2]
-        raise CalibrationError(
-            'the data cannot separate parameters '
-            f'{" and ".join(names[i] for i in weakest)} (condition number {condition:.3g}); '
-            'add measurements that move them differently')
+    condition = check_identifiability(jac, names, max_condition)
     residuals = solution.fun
     dof = max(residuals.size - x0.size, 1)
     sigma2 = float(residuals @ residuals) / dof

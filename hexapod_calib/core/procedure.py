@@ -1,0 +1,183 @@
+"""The hexapod calibration run, independent of ROS: plan poses, drive, measure, identify,
+iterate with the recorded leg lengths, evaluate on separate poses.
+
+The node injects its service calls as ``move_legs`` and ``measure``; tests and the offline
+study inject the simulator directly. A recorded run replays through
+:func:`identify_from_records` with the same result.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Callable
+
+import numpy as np
+
+from calib_core.errors import CalibrationError, InvalidInputError
+from hexapod_calib.core.calibration import (
+    Identification, PoseData, identifiability, identify, select_poses, summarise_pose_errors)
+from hexapod_calib.core.geometry import HexapodGeometry
+from hexapod_calib.core.kinematics import MAX_CONDITION, condition_numbers, inverse_kinematics
+
+IDENTIFY_PHASE = 'identify_{}'
+EVALUATE_NOMINAL = 'evaluate_nominal'
+EVALUATE_CALIBRATED = 'evaluate_calibrated'
+
+
+@dataclass(frozen=True)
+class HexapodPlan:
+    """What a calibration run measures (SI units).
+
+    Poses are drawn uniformly from a box about ``home`` (half-widths ``translation`` in m
+    and ``rotation`` in rad), kept if the nominal leg lengths lie inside ``stroke`` with
+    ``margin`` and the pose is well conditioned; ``num_poses`` of ``num_candidates`` are
+    chosen for the best-conditioned identification, ``num_evaluation`` others are kept for
+    evaluation only."""
+
+    num_poses: int = 30
+    num_candidates: int = 400
+    num_evaluation: int = 30
+    iterations: int = 2
+    seed: int = 0
+    home: tuple = (0.0, 0.0, 0.20, 0.0, 0.0, 0.0)
+    translation: tuple = (0.02, 0.02, 0.02)
+    rotation: tuple = (0.1, 0.1, 0.1)
+    stroke: tuple = (0.17, 0.30)
+    margin: float = 0.002
+
+    def __post_init__(self):
+        for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations'):
+            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+                raise InvalidInputError(f'{name} must be a positive integer')
+        if self.num_poses + self.num_evaluation > self.num_candidates:
+            raise InvalidInputError('num_candidates must be at least num_poses + num_evaluation')
+        for name, size in (('home', 6), ('translation', 3), ('rotation', 3), ('stroke', 2)):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (size,) or not np.all(np.isfinite(value)):
+                raise InvalidInputError(f'{name} must be {size} finite numbers')
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+        if min(self.translation + self.rotation) < 0 or self.stroke[0] >= self.stroke[1]:
+            raise InvalidInputError('ranges must be >= 0 and stroke (min, max) increasing')
+
+    @classmethod
+    def from_mapping(cls, overrides: dict) -> 'HexapodPlan':
+        known = {f.name for f in fields(cls)}
+        unknown = set(overrides) - known
+        if unknown:
+            raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {sorted(known)}')
+        return cls(**overrides)
+
+    def poses(self, nominal: HexapodGeometry) -> tuple[np.ndarray, np.ndarray]:
+        """(identification poses (num_poses, 6), evaluation poses (num_evaluation, 6))."""
+        rng = np.random.default_rng(self.seed)
+        half = np.array(self.translation + self.rotation)
+        candidates = np.array(self.home) + rng.uniform(-1, 1, (4 * self.num_candidates, 6)) * half
+        legs = inverse_kinematics(nominal, candidates)
+        ok = (np.all(legs >= self.stroke[0] + self.margin, axis=1)
+              & np.all(legs <= self.stroke[1] - self.margin, axis=1)
+              & (condition_numbers(nominal, candidates) < MAX_CONDITION / 10))
+        candidates = candidates[ok][:self.num_candidates]
+        if len(candidates) < self.num_poses + self.num_evaluation:
+            raise InvalidInputError(f'only {len(candidates)} poses of the box lie inside the '
+                                    'stroke; shrink the ranges or ask for fewer poses')
+        chosen = select_poses(nominal, candidates, self.num_poses)
+        rest = np.setdiff1d(np.arange(len(candidates)), chosen)
+        return candidates[chosen], candidates[rng.choice(rest, self.num_evaluation, replace=False)]
+
+
+@dataclass
+class HexapodCalibration:
+    """Outcome of a run: the identified geometry and the report (SI units)."""
+
+    identification: Identification
+    report: dict = field(default_factory=dict)
+
+    @property
+    def geometry(self) -> HexapodGeometry:
+        return self.identification.geometry
+
+
+def _measure_set(targets, legs, move_legs, measure, phase, record, progress, step, total):
+    recorded, measured = [], []
+    for k, (target, lengths) in enumerate(zip(targets, legs)):
+        recorded.append(np.asarray(move_legs(lengths), dtype=float))
+        measured.append(np.asarray(measure(), dtype=float))
+        if record:
+            record(phase, target, recorded[-1], measured[-1])
+        if progress:
+            progress(step + k + 1, total, f'{phase}: pose {k + 1}/{len(targets)}')
+    return PoseData(targets, np.array(measured), np.array(recorded))
+
+
+def iterate_identification(rounds: list[PoseData], nominal: HexapodGeometry) -> tuple[
+        Identification, list[dict]]:
+    """The paper's iteration: round k's poses were driven with the geometry identified
+    after round k-1; each identification pools every round so far with the recorded leg
+    lengths and starts from the previous estimate."""
+    geometry, history, identification = nominal, [], None
+    for k in range(len(rounds)):
+        identification = identify(PoseData.concatenate(rounds[:k + 1]), geometry)
+        change = np.array(list(identification.report()['change_from_initial'].values()))
+        history.append({'round': k, 'num_poses': identification.num_poses,
+                        'residual_rms_m': identification.report()['residual_rms_m'],
+                        'parameter_change_max_m': float(np.max(np.abs(change)))})
+        geometry = identification.geometry
+    return identification, history
+
+
+def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
+                            move_legs: Callable, measure: Callable,
+                            progress: Callable | None = None,
+                            record: Callable | None = None) -> HexapodCalibration:
+    """Drive, measure, identify and evaluate.
+
+    Parameters
+    ----------
+    move_legs : callable (6,) -> (6,)
+        Commands actuator lengths (m); returns the lengths the controller recorded.
+    measure : callable () -> (6,)
+        The pose sensor: measured platform pose (m, rad).
+    progress : callable (step, total, message), optional
+    record : callable (phase, target, leg_lengths, measured), optional
+        Called for every stop, e.g. to write it to a bag.
+    """
+    targets, evaluation = plan.poses(nominal)
+    identifiability(nominal, targets)
+    total = plan.iterations * len(targets) + 2 * len(evaluation)
+    rounds, geometry = [], nominal
+    for k in range(plan.iterations):
+        legs = inverse_kinematics(geometry, targets)
+        rounds.append(_measure_set(targets, legs, move_legs, measure, IDENTIFY_PHASE.format(k),
+                                   record, progress, k * len(targets), total))
+        identification, history = iterate_identification(rounds, nominal)
+        geometry = identification.geometry
+    step = plan.iterations * len(targets)
+    before = _measure_set(evaluation, inverse_kinematics(nominal, evaluation), move_legs, measure,
+                          EVALUATE_NOMINAL, record, progress, step, total)
+    after = _measure_set(evaluation, inverse_kinematics(geometry, evaluation), move_legs, measure,
+                         EVALUATE_CALIBRATED, record, progress, step + len(evaluation), total)
+    return HexapodCalibration(identification, {
+        'identification': identification.report(),
+        'iterations': history,
+        'evaluation': {'note': 'poses not used for fitting, measured by the pose sensor',
+                       'before': summarise_pose_errors(before.commanded, before.measured),
+                       'after': summarise_pose_errors(after.commanded, after.measured)},
+    })
+
+
+def identify_from_records(records: list[tuple], nominal: HexapodGeometry) -> tuple[
+        Identification, list[dict]]:
+    """Rerun the identification of a recorded run.
+
+    ``records`` are (phase, target (6,), leg_lengths (6,), measured (6,)) in recorded order."""
+    rounds: dict[int, list] = {}
+    for phase, target, legs, measured in records:
+        if phase.startswith('identify_'):
+            rounds.setdefault(int(phase.split('_')[1]), []).append((target, legs, measured))
+    if not rounds:
+        raise CalibrationError('the records hold no identification poses')
+    if sorted(rounds) != list(range(len(rounds))):
+        raise CalibrationError(f'identification rounds {sorted(rounds)} are incomplete '
+                               '(was the run interrupted?)')
+    data = [PoseData(np.array([r[0] for r in rows]), np.array([r[2] for r in rows]),
+                     np.array([r[1] for r in rows])) for _, rows in sorted(rounds.items())]
+    return iterate_identification(data, nominal)

@@ -1,0 +1,182 @@
+"""Simulated hexapod and pose sensor.
+
+The true hexapod differs from the nominal one by geometric errors of a few tenths of a mm
+(joint centres, actuator offsets), which the 42-parameter model describes, and by effects
+it does not: joint play of 8-10 um per leg (linear guide backlash plus two universal joints,
+taken up by the static leg force, or by the direction of the last move where that force is
+too small to close it), and actuator positioning noise.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError, OutOfTravelError
+from hexapod_calib.core.geometry import HexapodGeometry, as_poses, nominal_geometry
+from hexapod_calib.core.kinematics import (
+    MAX_CONDITION, condition_numbers, forward_kinematics, inverse_kinematics, jacobian)
+
+GRAVITY = 9.81  # m/s^2
+
+
+def true_geometry(nominal: HexapodGeometry, seed: int = 7, joint_sigma: float = 0.25e-3,
+                  offset_sigma: float = 0.3e-3) -> HexapodGeometry:
+    """The nominal geometry with random joint-centre (m, per coordinate) and actuator
+    offset (m) errors."""
+    rng = np.random.default_rng(seed)
+    return HexapodGeometry(nominal.base_joints + rng.normal(0, joint_sigma, (6, 3)),
+                           nominal.platform_joints + rng.normal(0, joint_sigma, (6, 3)),
+                           nominal.leg_length_offsets + rng.normal(0, offset_sigma, 6))
+
+
+@dataclass(frozen=True)
+class HexapodTruth:
+    """What the simulated hexapod really is (SI units).
+
+    Attributes
+    ----------
+    geometry : HexapodGeometry
+    leg_play : ndarray (6,)
+        Total play per leg, m (the paper: 3 um guide backlash + 2 joints of ~3 um).
+    payload_mass : float
+        kg, carried by the platform.
+    payload_centre : ndarray (3,)
+        Centre of mass in the platform frame, m; off-centre so leg forces vary over the
+        workspace.
+    force_to_close_play : float
+        N; below this axial force the play stays where the last move left it.
+    actuator_noise : float
+        1-sigma random positioning error per leg and move, m.
+    """
+
+    geometry: HexapodGeometry
+    leg_play: np.ndarray
+    payload_mass: float = 25.0
+    payload_centre: tuple = (0.03, -0.02, 0.08)
+    force_to_close_play: float = 5.0
+    actuator_noise: float = 0.5e-6
+
+    @classmethod
+    def default(cls, nominal: HexapodGeometry | None = None, seed: int = 7) -> 'HexapodTruth':
+        nominal = nominal or nominal_geometry()
+        rng = np.random.default_rng(seed + 1)
+        return cls(true_geometry(nominal, seed), rng.uniform(8.3e-6, 9.9e-6, 6))
+
+    @classmethod
+    def ideal(cls, nominal: HexapodGeometry | None = None) -> 'HexapodTruth':
+        """No geometric error, no play, no noise: for tests of the kinematics."""
+        return cls(nominal or nominal_geometry(), np.zeros(6), actuator_noise=0.0)
+
+
+def leg_forces(geometry: HexapodGeometry, poses, mass: float, centre) -> np.ndarray:
+    """Static axial leg forces (N, compression positive) holding a payload of ``mass`` (kg)
+    with centre of mass ``centre`` (platform frame, m), shape (n, 6)."""
+    poses = as_poses(poses)
+    from hexapod_calib.core.geometry import rotation_matrices
+    lever = np.einsum('nij,j->ni', rotation_matrices(poses[:, 3:]), np.asarray(centre, float))
+    weight = np.array([0.0, 0.0, -mass * GRAVITY])
+    wrench = np.concatenate([np.broadcast_to(weight, lever.shape), np.cross(lever, weight)], 1)
+    # Legs push along u_i: sum f_i [u_i, (R a_i) x u_i] + wrench = 0, i.e. J^T f = -wrench.
+    return np.linalg.solve(np.swapaxes(jacobian(geometry, poses), 1, 2), -wrench[..., None])[..., 0]
+
+
+@dataclass(frozen=True)
+class Stroke:
+    """Actuator stroke limits, m."""
+
+    minimum: float = 0.17
+    maximum: float = 0.30
+
+    def check(self, lengths: np.ndarray) -> None:
+        low, high = lengths < self.minimum, lengths > self.maximum
+        if np.any(low | high):
+            leg = int(np.argmax(low | high))
+            raise OutOfTravelError(f'leg {leg + 1} length {lengths[leg] * 1e3:.3f} mm is outside '
+                                   f'the stroke [{self.minimum * 1e3:.1f}, '
+                                   f'{self.maximum * 1e3:.1f}] mm; not moved')
+
+
+HOME_POSE = np.array([0.0, 0.0, 0.20, 0.0, 0.0, 0.0])
+
+
+class HexapodSim:
+    """A hexapod that moves to commanded actuator lengths (or to poses through its
+    controller's nominal inverse kinematics) and refuses lengths outside the stroke, poses
+    near a singularity and lengths no pose realises."""
+
+    def __init__(self, truth: HexapodTruth | None = None, nominal: HexapodGeometry | None = None,
+                 stroke: Stroke = Stroke(), max_condition: float = MAX_CONDITION, seed: int = 0):
+        self.nominal = nominal or nominal_geometry()
+        self.truth = truth or HexapodTruth.default(self.nominal)
+        self.stroke = stroke
+        self.max_condition = max_condition
+        self._rng = np.random.default_rng(seed)
+        self.pose = HOME_POSE.copy()
+        self.leg_lengths = inverse_kinematics(self.nominal, self.pose)[0]
+        self._play_side = np.zeros(6)      # -1/+1: where the play sits in weakly loaded legs
+        self.pose = self._realise(self.leg_lengths, np.zeros(6))
+
+    def _play(self, pose: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """Leg length change by joint play at ``pose``, m, (6,)."""
+        truth = self.truth
+        force = leg_forces(truth.geometry, pose, truth.payload_mass, truth.payload_centre)[0]
+        side = np.where(direction != 0, -np.sign(direction), self._play_side)
+        side = np.where(np.abs(force) >= truth.force_to_close_play, -np.sign(force), side)
+        self._play_side = side
+        return 0.5 * truth.leg_play * side
+
+    def _realise(self, lengths: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        geometry = self.truth.geometry
+        pose = forward_kinematics(geometry, lengths, initial=self.pose,
+                                  max_condition=self.max_condition)[0]
+        noise = self._rng.normal(0.0, self.truth.actuator_noise, 6)
+        # The play depends on the load at the pose it produces: two fixed-point steps settle it.
+        for _ in range(2):
+            effective = lengths + self._play(pose, direction) + noise
+            pose = forward_kinematics(geometry, effective, initial=pose,
+                                      max_condition=self.max_condition)[0]
+        return pose
+
+    def move_legs(self, lengths) -> np.ndarray:
+        """Command actuator lengths (m, (6,)); return the commanded lengths as recorded."""
+        lengths = np.asarray(lengths, dtype=float)
+        if lengths.shape != (6,) or not np.all(np.isfinite(lengths)):
+            raise InvalidInputError(f'need six finite leg lengths, got {lengths!r}')
+        self.stroke.check(lengths)
+        direction = np.sign(lengths - self.leg_lengths)
+        new_pose = self._realise(lengths, direction)
+        self.pose, self.leg_lengths = new_pose, lengths.copy()
+        return self.leg_lengths.copy()
+
+    def move_pose(self, pose) -> np.ndarray:
+        """Move to ``pose`` (6,) through the controller's nominal inverse kinematics;
+        refuse poses near a singularity. Returns the commanded leg lengths, m."""
+        pose = as_poses(pose)[0]
+        condition = condition_numbers(self.nominal, pose)[0]
+        if condition > self.max_condition:
+            raise OutOfTravelError(f'pose is near a singularity (condition number '
+                                   f'{condition:.3g}); not moved')
+        return self.move_legs(inverse_kinematics(self.nominal, pose)[0])
+
+
+class PoseSensorSim:
+    """An external instrument (CMM / laser tracker) measuring the platform pose.
+
+    Noise (1 sigma): ``position_noise`` m per axis, ``angle_noise`` rad per axis."""
+
+    def __init__(self, position_noise: float = 0.6e-6, angle_noise: float = 6e-6, seed: int = 1):
+        if position_noise < 0 or angle_noise < 0:
+            raise InvalidInputError('noise levels must be >= 0')
+        self.position_noise, self.angle_noise = position_noise, angle_noise
+        self._rng = np.random.default_rng(seed)
+
+    def measure(self, true_pose) -> np.ndarray:
+        """A measured pose (6,), m and rad."""
+        noise = np.concatenate([self._rng.normal(0, self.position_noise, 3),
+                                self._rng.normal(0, self.angle_noise, 3)])
+        return as_poses(true_pose)[0] + noise
+
+    def covariance(self) -> np.ndarray:
+        """Measurement covariance, (6, 6), m^2 and rad^2."""
+        return np.diag([self.position_noise ** 2] * 3 + [self.angle_noise ** 2] * 3)
