@@ -10,6 +10,9 @@ NODES = {
     'gantry_sim': 'printer_alignment.nodes.gantry_sim',
     'mark_detector': 'printer_alignment.nodes.mark_detector',
     'vision_calibrator': 'printer_alignment.nodes.vision_calibrator',
+    'hexapod_sim': 'hexapod_calib.nodes.hexapod_sim',
+    'pose_sensor_sim': 'hexapod_calib.nodes.pose_sensor_sim',
+    'hexapod_calibrator': 'hexapod_calib.nodes.hexapod_calibrator',
     'recorder': 'calib_core.nodes.recorder',
     'player': 'calib_core.nodes.player',
 }

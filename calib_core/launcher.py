@@ -31,6 +31,16 @@ def printer_graph(scene: str = 'dot_plate', output_dir: str = 'calibration',
     ]
 
 
+def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> list[NodeSpec]:
+    """The hexapod cell: simulated hexapod, pose sensor (CMM / laser tracker), calibrator."""
+    return [
+        NodeSpec('hexapod_calib.nodes.hexapod_sim'),
+        NodeSpec('hexapod_calib.nodes.pose_sensor_sim'),
+        NodeSpec('hexapod_calib.nodes.hexapod_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir}),
+    ]
+
+
 def _format(value) -> str:
     if isinstance(value, bool):
         return 'true' if value else 'false'

@@ -1,11 +1,9 @@
 """Conversions between ROS messages and core types, kept at the node boundary."""
 from __future__ import annotations
 
-import json
-
 import cv2
 import numpy as np
-from alignment_msgs.msg import CalibrationResult, GantryState, Mark as MarkMsg, MarkArray
+from alignment_msgs.msg import GantryState, Mark as MarkMsg, MarkArray
 from sensor_msgs.msg import Image
 
 from calib_core.errors import InvalidInputError
@@ -79,22 +77,3 @@ def marks_from_message(msg) -> list[Mark]:
 def gantry_state_as_message(axis_position, revs, header, moving: bool = False) -> GantryState:
     return GantryState(header=header, x=float(axis_position[0]), y=float(axis_position[1]),
                        x_rev=float(revs[0]), y_rev=float(revs[1]), moving=moving)
-
-
-def calibration_result_as_message(kind: str, header, parameters: dict, std_devs: dict,
-                                  units: dict, report: dict, rms: float, max_residual: float,
-                                  residual_unit: str, num_observations: int,
-                                  file_path: str = '', version: int = 0) -> CalibrationResult:
-    names = list(parameters)
-    return CalibrationResult(
-        header=header, kind=kind, success=True, message='ok', names=names,
-        values=[float(parameters[n]) for n in names],
-        std_devs=[float(std_devs.get(n, 0.0)) for n in names],
-        units=[units.get(n, '') for n in names], rms_residual=float(rms),
-        max_residual=float(max_residual), residual_unit=residual_unit,
-        num_observations=int(num_observations), file_path=file_path, version=int(version),
-        report_json=json.dumps(report))
-
-
-def failed_result(kind: str, header, message: str) -> CalibrationResult:
-    return CalibrationResult(header=header, kind=kind, success=False, message=message)

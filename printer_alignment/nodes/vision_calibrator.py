@@ -25,6 +25,7 @@ from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
@@ -33,8 +34,7 @@ from printer_alignment.core.geometry import (
 from printer_alignment.core.vision_calibration import calibrate_pixel_size
 from printer_alignment.core.vision_procedure import (
     VisionCalibration, VisionPlan, observation_from_message, run_vision_calibration)
-from printer_alignment.nodes.conversions import (
-    calibration_result_as_message, failed_result, marks_from_message)
+from printer_alignment.nodes.conversions import marks_from_message
 OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
 RESULT_TOPIC = '/vision_calibrator/result'
 

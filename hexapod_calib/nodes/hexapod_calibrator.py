@@ -1,0 +1,170 @@
+"""hexapod_calibrator: the hexapod's kinematic calibration on the live graph.
+
+Service ``hexapod_calibrator/calibrate`` (RunCalibration; ``plan_yaml`` overrides fields of
+hexapod_calib.core.procedure.HexapodPlan) plans well-conditioned poses, drives the hexapod
+with actuator lengths (``hexapod/move``), measures each pose (``pose_sensor/measure``),
+identifies the 42 parameters, repeats with the legs of the new model (the paper's
+iteration), and evaluates on separate poses with the nominal and the calibrated model.
+The geometry is written as an atomic, versioned YAML file in the form of DESIGN.md section
+6, the result published latched on ``/hexapod_calibrator/result``, every stop on
+``/hexapod_calibrator/measurements`` and progress on ``/hexapod_calibrator/progress``; the
+run is recorded to an MCAP bag. One calibration at a time; a failed or interrupted run
+leaves the previous calibration in force.
+"""
+import threading
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import yaml
+from alignment_msgs.msg import CalibrationResult, HexapodMeasurement, Progress
+from alignment_msgs.srv import MeasurePose, MoveHexapod, RunCalibration
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Header
+
+from calib_core.bags import BagWriter
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.conversions import calibration_result_as_message, failed_result
+from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.spin import run_node
+from calib_core.storage import write_calibration
+from hexapod_calib.core.geometry import nominal_geometry, read_geometry
+from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
+from hexapod_calib.nodes.conversions import (
+    leg_lengths_from_message, pose_as_message, pose_from_message)
+
+MEASUREMENTS_TOPIC = '/hexapod_calibrator/measurements'
+RESULT_TOPIC = '/hexapod_calibrator/result'
+CALIBRATION_NAME = 'hexapod_geometry'
+
+
+def hexapod_result_message(calibration: HexapodCalibration, header, file_path='', version=0):
+    report = calibration.report['identification']
+    return calibration_result_as_message(
+        'hexapod', header, report['parameters'], report['std_devs'], report['units'],
+        calibration.report, report['residual_rms_m'], report['residual_max_m'], 'm',
+        report['num_poses'], file_path, version)
+
+
+class HexapodCalibratorNode(Node):
+
+    def __init__(self):
+        super().__init__('hexapod_calibrator')
+        self.declare_parameter('output_dir', 'calibration')
+        self.declare_parameter('record_dir', 'runs')
+        self.declare_parameter('nominal_geometry', '')
+        self.declare_parameter('call_timeout_s', 10.0)
+        self.timeout = float(self.get_parameter('call_timeout_s').value)
+        if not self.timeout > 0:
+            raise InvalidInputError('call_timeout_s must be > 0')
+        path = self.get_parameter('nominal_geometry').value
+        self.nominal = read_geometry(path) if path else nominal_geometry()
+        self._busy = threading.Lock()
+        self._settled = None
+        self._last_measurement = None  # the sensor's message, recorded as it came
+        group = ReentrantCallbackGroup()
+        self.move_client = self.create_client(MoveHexapod, 'hexapod/move', callback_group=group)
+        self.measure_client = self.create_client(MeasurePose, 'pose_sensor/measure',
+                                                 callback_group=group)
+        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.progress_pub = self.create_publisher(Progress, '/hexapod_calibrator/progress', 10)
+        self.measurement_pub = self.create_publisher(HexapodMeasurement, MEASUREMENTS_TOPIC, 10)
+        self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', self.on_calibrate,
+                            callback_group=group)
+
+    def _header(self):
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id='base')
+
+    def _call(self, client, request, what):
+        if not client.wait_for_service(timeout_sec=self.timeout):
+            raise CalibrationError(f'{what} service {client.srv_name} is not available')
+        response = client.call(request, timeout_sec=self.timeout)
+        if response is None:
+            raise CalibrationError(f'{what} service did not answer within {self.timeout:.0f} s')
+        if not response.success:
+            raise CalibrationError(f'{what} failed: {response.message}')
+        return response
+
+    def _move_legs(self, lengths):
+        request = MoveHexapod.Request(mode=MoveHexapod.Request.LEG_LENGTHS,
+                                      leg_lengths=np.asarray(lengths, float).tolist())
+        response = self._call(self.move_client, request, 'hexapod move')
+        self._settled = response.settled
+        return leg_lengths_from_message(response.leg_lengths)
+
+    def _measure(self):
+        response = self._call(self.measure_client, MeasurePose.Request(not_before=self._settled),
+                              'pose measurement')
+        self._last_measurement = response.pose.pose
+        return pose_from_message(response.pose.pose.pose)
+
+    def _record(self, bag, phase, target, legs, _measured):
+        msg = HexapodMeasurement(header=self._header(), phase=phase, target=pose_as_message(target),
+                                 leg_lengths=np.asarray(legs, float).tolist(),
+                                 measured=self._last_measurement)
+        self.measurement_pub.publish(msg)
+        bag.write(MEASUREMENTS_TOPIC, self.get_clock().now().nanoseconds, serialize_message(msg))
+
+    def _progress(self, step, total, message):
+        self.progress_pub.publish(Progress(header=self._header(), task='hexapod_calibration',
+                                           step=step, total=total, message=message))
+        if step % 10 == 0 or step == total:
+            self.get_logger().info(f'[{step}/{total}] {message}')
+
+    def on_calibrate(self, request, response):
+        if not self._busy.acquire(blocking=False):
+            response.success, response.message = False, 'a calibration is already running'
+            return response
+        try:
+            overrides = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
+            if not isinstance(overrides, dict):
+                raise InvalidInputError('plan_yaml must be a YAML mapping')
+            result = self._run(HexapodPlan.from_mapping(overrides))
+            response.success, response.message, response.result = True, 'ok', result
+        except (MachineAlignmentError, TypeError, yaml.YAMLError) as exc:
+            self.get_logger().error(f'hexapod calibration failed: {exc}; previous calibration '
+                                    'stays in force')
+            response.success, response.message = False, str(exc)
+            response.result = failed_result('hexapod', self._header(), str(exc))
+        except Exception as exc:  # log a bug, answer, keep serving
+            self.get_logger().error(f'internal error in hexapod calibration: {exc!r}')
+            response.success, response.message = False, f'internal error: {exc!r}'
+            response.result = failed_result('hexapod', self._header(), response.message)
+        finally:
+            self._busy.release()
+        return response
+
+    def _run(self, plan: HexapodPlan) -> CalibrationResult:
+        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+        bag_path = Path(self.get_parameter('record_dir').value) / f'hexapod_{stamp}'
+        self._settled = self.get_clock().now().to_msg()
+        plan.poses(self.nominal)  # a plan that cannot work fails here, before a bag exists
+        with BagWriter(bag_path) as bag:
+            bag.add_topic(MEASUREMENTS_TOPIC, 'alignment_msgs/msg/HexapodMeasurement')
+            bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+            calibration = run_hexapod_calibration(
+                plan, self.nominal, self._move_legs, self._measure, self._progress,
+                lambda *stop: self._record(bag, *stop))
+            content = {**calibration.geometry.as_dict(), 'kind': 'hexapod', 'created': stamp,
+                       'bag': str(bag_path), 'nominal': self.nominal.as_dict(),
+                       'report': calibration.report}
+            path, version = write_calibration(self.get_parameter('output_dir').value,
+                                              CALIBRATION_NAME, content)
+            result = hexapod_result_message(calibration, self._header(), str(path), version)
+            bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
+        self.result_pub.publish(result)
+        after = calibration.report['evaluation']['after']
+        self.get_logger().info(f'done: max {after["max_displacement_m"] * 1e6:.1f} um, '
+                               f'{after["max_angle_rad"] * 1e6:.0f} urad on separate poses; '
+                               f'wrote {path}')
+        return result
+
+
+def main(args=None):
+    run_node(HexapodCalibratorNode, args, threads=4)
+
+
+if __name__ == '__main__':
+    main()
