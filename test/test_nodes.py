@@ -29,7 +29,7 @@ def graph(tmp_path_factory):
     out = tmp_path_factory.mktemp('graph')
     spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     with Graph(spec, env={'ROS_DOMAIN_ID': DOMAIN}, log_dir=str(out / 'logs')) as running:
-        rclpy.init()
+        rclpy.init(domain_id=int(DOMAIN))
         node = rclpy.create_node('test_client')
         yield running, node, out
         node.destroy_node()
