@@ -130,12 +130,94 @@ def cmd_calibrate_vision(args) -> int:
     return 0
 
 
+def _print_pose_summary(label: str, summary: dict) -> None:
+    print(f'  {label:<28} max {summary["max_displacement_m"] * 1e6:8.2f} um '
+          f'{summary["max_angle_rad"] * 1e6:8.1f} urad   RMS '
+          f'{summary["rms_displacement_m"] * 1e6:8.2f} um {summary["rms_angle_rad"] * 1e6:8.1f} urad')
+
+
+def cmd_calibrate_hexapod(args) -> int:
+    from hexapod_calib.core.calibration import PoseData, identify, summarise_pose_errors
+    from hexapod_calib.core.geometry import read_geometry, write_geometry
+    nominal = read_geometry(args.geometry)
+    data = PoseData.from_csv(args.data, nominal)
+    identification = identify(data, nominal, fixed=args.fix or ())
+    report = identification.report()
+    report['data'] = str(args.data)
+    report['commanded_vs_measured'] = summarise_pose_errors(data.commanded, data.measured)
+    print(f'{len(data)} poses, 42 parameters ({len(args.fix or [])} fixed); leg-length residual '
+          f'RMS {report["residual_rms_m"] * 1e6:.3f} um, max {report["residual_max_m"] * 1e6:.3f} um, '
+          f'condition number {report["condition_number"]:.3g}')
+    _print_pose_summary('commanded vs measured:', report['commanded_vs_measured'])
+    changes = report['change_from_initial']
+    for name in sorted(changes, key=lambda n: -abs(changes[n]))[:6]:
+        print(f'  {name:>12} changed {changes[name] * 1e6:+9.1f} um '
+              f'(+- {report["std_devs"].get(name, 0.0) * 1e6:.1f} um)')
+    write_geometry(args.out, identification.geometry,
+                   {'std_devs': report['std_devs'], 'residual_rms_m': report['residual_rms_m']})
+    print(f'wrote {args.out}')
+    _write_json(args.json, report)
+    return 0
+
+
+def cmd_evaluate_hexapod(args) -> int:
+    from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
+    from hexapod_calib.core.geometry import read_geometry
+    from hexapod_calib.core.kinematics import forward_kinematics
+    calibrated = read_geometry(args.geometry)
+    nominal = read_geometry(args.nominal) if args.nominal else None
+    data = PoseData.from_csv(args.data, nominal if nominal is not None else calibrated)
+    predicted = forward_kinematics(calibrated, data.leg_lengths, initial=data.measured)
+    report = {'data': str(args.data), 'geometry': str(args.geometry),
+              'commanded_vs_measured': summarise_pose_errors(data.commanded, data.measured),
+              'model_vs_measured': summarise_pose_errors(predicted, data.measured),
+              'note': 'commanded_vs_measured: how far the machine was from the pose aimed at '
+                      'with the leg lengths it was given; model_vs_measured: the pose the '
+                      'geometry predicts for those leg lengths against the measured one, i.e. '
+                      'the error left after compensating with this geometry (m, rad)'}
+    print(f'{len(data)} poses')
+    _print_pose_summary('commanded vs measured:', report['commanded_vs_measured'])
+    _print_pose_summary('model vs measured:', report['model_vs_measured'])
+    _write_json(args.json, report)
+    return 0
+
+
+def cmd_simulate_hexapod(args) -> int:
+    from hexapod_calib.core.calibration import PoseData
+    from hexapod_calib.core.geometry import nominal_geometry, write_geometry
+    from hexapod_calib.core.kinematics import inverse_kinematics
+    from hexapod_calib.core.procedure import HexapodPlan
+    from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
+    out = Path(args.out)
+    nominal = nominal_geometry()
+    sim = HexapodSim(HexapodTruth.default(nominal, args.seed), nominal, seed=args.seed + 1)
+    sensor = PoseSensorSim(seed=args.seed + 2)
+    targets, evaluation = HexapodPlan(num_poses=args.poses, num_evaluation=args.evaluation,
+                                      num_candidates=max(400, 2 * (args.poses + args.evaluation)),
+                                      seed=args.seed).poses(nominal)
+    for name, poses in (('calibration', targets), ('evaluation', evaluation)):
+        legs, measured = inverse_kinematics(nominal, poses), []
+        for k, lengths in enumerate(legs):
+            sim.move_legs(lengths)
+            measured.append(sensor.measure(sim.pose))
+            _progress(k + 1, len(legs), name)
+        PoseData(poses, np.array(measured), legs).to_csv(out / f'{name}.csv')
+    write_geometry(out / 'nominal.yaml', nominal)
+    write_geometry(out / 'truth.yaml', sim.truth.geometry,
+                   {'note': 'simulation truth, for checking a calibration only'})
+    print(f'wrote {out}/nominal.yaml, calibration.csv ({len(targets)} poses), '
+          f'evaluation.csv ({len(evaluation)} poses), truth.yaml')
+    return 0
+
+
 def cmd_launch(args) -> int:
     import time
 
-    from calib_core.launcher import Graph, printer_graph
-    with Graph(printer_graph(args.scene, args.output_dir, args.record_dir)) as graph:
-        print('printer graph running (Ctrl-C to stop)')
+    from calib_core.launcher import Graph, hexapod_graph, printer_graph
+    spec = (printer_graph(args.scene, args.output_dir, args.record_dir) if args.graph == 'printer'
+            else hexapod_graph(args.output_dir, args.record_dir))
+    with Graph(spec) as graph:
+        print(f'{args.graph} graph running (Ctrl-C to stop)')
         try:
             while all(graph.alive()):
                 time.sleep(0.5)
@@ -183,8 +265,36 @@ def build_parser() -> argparse.ArgumentParser:
     vision.add_argument('--json')
     vision.set_defaults(func=cmd_calibrate_vision)
 
+    hexapod = what.add_parser('hexapod', help='42-parameter hexapod geometry from measured poses')
+    hexapod.add_argument('--data', required=True,
+                         help='CSV: x..yaw, meas_x..meas_yaw (m, rad), optional l1..l6 (m)')
+    hexapod.add_argument('--geometry', required=True, help='nominal geometry YAML')
+    hexapod.add_argument('--out', required=True, help='calibrated geometry YAML to write')
+    hexapod.add_argument('--fix', nargs='*', help='parameter names to keep at their nominal value')
+    hexapod.add_argument('--json')
+    hexapod.set_defaults(func=cmd_calibrate_hexapod)
+
+    evaluate = sub.add_parser('evaluate', help='check a calibration on data not used to fit it')
+    evaluated = evaluate.add_subparsers(dest='what', required=True)
+    hexapod_eval = evaluated.add_parser('hexapod', help='pose errors of a geometry on a pose file')
+    hexapod_eval.add_argument('--data', required=True, help='pose CSV (as for calibrate hexapod)')
+    hexapod_eval.add_argument('--geometry', required=True, help='calibrated geometry YAML')
+    hexapod_eval.add_argument('--nominal', help='geometry the controller used, when the CSV has '
+                                                'no l1..l6 columns')
+    hexapod_eval.add_argument('--json')
+    hexapod_eval.set_defaults(func=cmd_evaluate_hexapod)
+
+    simulate = sub.add_parser('simulate', help='write datasets measured on a simulated machine')
+    simulated = simulate.add_subparsers(dest='what', required=True)
+    hexapod_sim = simulated.add_parser('hexapod', help='pose files from the simulated hexapod')
+    hexapod_sim.add_argument('--out', required=True, help='directory')
+    hexapod_sim.add_argument('--poses', type=int, default=30)
+    hexapod_sim.add_argument('--evaluation', type=int, default=30)
+    hexapod_sim.add_argument('--seed', type=int, default=7)
+    hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
+
     launch = sub.add_parser('launch', help='start a simulated machine graph from the venv')
-    launch.add_argument('graph', choices=['printer'])
+    launch.add_argument('graph', choices=['printer', 'hexapod'])
     launch.add_argument('--scene', default='dot_plate', choices=['dot_plate', 'substrate', 'stencil'])
     launch.add_argument('--output-dir', default='calibration')
     launch.add_argument('--record-dir', default='runs')
