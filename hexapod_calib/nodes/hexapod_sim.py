@@ -31,7 +31,7 @@ class HexapodSimNode(Node):
     def __init__(self):
         super().__init__('hexapod_sim')
         self.declare_parameter('nominal_geometry', '')
-        self.declare_parameter('truth_seed', 7)
+        self.declare_parameter('truth_seed', 2)
         self.declare_parameter('noise_seed', 0)
         self.declare_parameter('stroke', [0.17, 0.30])
         self.declare_parameter('rate_hz', 10.0)

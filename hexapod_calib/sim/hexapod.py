@@ -20,8 +20,8 @@ from hexapod_calib.core.kinematics import (
 GRAVITY = 9.81  # m/s^2
 
 
-def true_geometry(nominal: HexapodGeometry, seed: int = 7, joint_sigma: float = 0.25e-3,
-                  offset_sigma: float = 0.3e-3) -> HexapodGeometry:
+def true_geometry(nominal: HexapodGeometry, seed: int = 2, joint_sigma: float = 0.1e-3,
+                  offset_sigma: float = 0.1e-3) -> HexapodGeometry:
     """The nominal geometry with random joint-centre (m, per coordinate) and actuator
     offset (m) errors."""
     rng = np.random.default_rng(seed)
@@ -58,7 +58,7 @@ class HexapodTruth:
     actuator_noise: float = 0.5e-6
 
     @classmethod
-    def default(cls, nominal: HexapodGeometry | None = None, seed: int = 7) -> 'HexapodTruth':
+    def default(cls, nominal: HexapodGeometry | None = None, seed: int = 2) -> 'HexapodTruth':
         nominal = nominal or nominal_geometry()
         rng = np.random.default_rng(seed + 1)
         return cls(true_geometry(nominal, seed), rng.uniform(8.3e-6, 9.9e-6, 6))
