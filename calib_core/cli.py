@@ -138,7 +138,11 @@ def _print_pose_summary(label: str, summary: dict) -> None:
 
 def cmd_calibrate_hexapod(args) -> int:
     from hexapod_calib.core.calibration import PoseData, identify, summarise_pose_errors
-    from hexapod_calib.core.geometry import read_geometry, write_geometry
+    from hexapod_calib.core.geometry import read_geometry
+    if args.bag:
+        return _calibrate_hexapod_from_bag(args)
+    if not args.geometry:
+        raise MachineAlignmentError('--data needs --geometry NOMINAL.yaml')
     nominal = read_geometry(args.geometry)
     data = PoseData.from_csv(args.data, nominal)
     identification = identify(data, nominal, fixed=args.fix or ())
@@ -153,10 +157,51 @@ def cmd_calibrate_hexapod(args) -> int:
     for name in sorted(changes, key=lambda n: -abs(changes[n]))[:6]:
         print(f'  {name:>12} changed {changes[name] * 1e6:+9.1f} um '
               f'(+- {report["std_devs"].get(name, 0.0) * 1e6:.1f} um)')
-    write_geometry(args.out, identification.geometry,
-                   {'std_devs': report['std_devs'], 'residual_rms_m': report['residual_rms_m']})
-    print(f'wrote {args.out}')
+    _write_hexapod_outputs(args, identification.geometry, report)
+    return 0
+
+
+def _write_hexapod_outputs(args, geometry, report) -> None:
+    from hexapod_calib.core.geometry import write_geometry
+    if args.out:
+        write_geometry(args.out, geometry, {'std_devs': report['std_devs'],
+                                            'residual_rms_m': report['residual_rms_m']})
+        print(f'wrote {args.out}')
     _write_json(args.json, report)
+
+
+def _calibrate_hexapod_from_bag(args) -> int:
+    """Rerun the identification of a run recorded by hexapod_calibrator."""
+    from calib_core.bags import decode_bag
+    from hexapod_calib.core.geometry import HexapodGeometry, read_geometry
+    from hexapod_calib.core.procedure import identify_from_records
+    from hexapod_calib.nodes.conversions import measurement_record
+    records, recorded = [], None
+    for topic, _, msg in decode_bag(args.bag):
+        if topic.endswith('/measurements'):
+            records.append(measurement_record(msg))
+        elif topic.endswith('/result') and msg.success:
+            recorded = json.loads(msg.report_json)
+    if not records:
+        raise MachineAlignmentError(f'{args.bag} holds no hexapod calibration measurements')
+    if args.geometry:
+        nominal = read_geometry(args.geometry)
+    elif recorded is not None:
+        nominal = HexapodGeometry.from_dict(recorded['nominal_geometry'], 'recorded nominal')
+    else:
+        raise MachineAlignmentError(f'{args.bag} has no result (interrupted run?): give the '
+                                    'nominal geometry with --geometry')
+    identification, history = identify_from_records(records, nominal)
+    report = {**identification.report(), 'iterations': history}
+    print(f'{len(records)} recorded stops, {identification.num_poses} used for identification '
+          f'in {len(history)} round(s); leg-length residual RMS '
+          f'{report["residual_rms_m"] * 1e6:.3f} um')
+    if recorded is not None:
+        live = recorded['identification']['parameters']
+        report['max_difference_to_live_m'] = max(abs(live[n] - v)
+                                                  for n, v in report['parameters'].items())
+        print(f'same as the live run: max |difference| {report["max_difference_to_live_m"]:.3g} m')
+    _write_hexapod_outputs(args, identification.geometry, report)
     return 0
 
 
@@ -266,10 +311,13 @@ def build_parser() -> argparse.ArgumentParser:
     vision.set_defaults(func=cmd_calibrate_vision)
 
     hexapod = what.add_parser('hexapod', help='42-parameter hexapod geometry from measured poses')
-    hexapod.add_argument('--data', required=True,
-                         help='CSV: x..yaw, meas_x..meas_yaw (m, rad), optional l1..l6 (m)')
-    hexapod.add_argument('--geometry', required=True, help='nominal geometry YAML')
-    hexapod.add_argument('--out', required=True, help='calibrated geometry YAML to write')
+    hexapod_source = hexapod.add_mutually_exclusive_group(required=True)
+    hexapod_source.add_argument('--data', help='CSV: x..yaw, meas_x..meas_yaw (m, rad), '
+                                               'optional l1..l6 (m)')
+    hexapod_source.add_argument('--bag', help='a run recorded by hexapod_calibrator')
+    hexapod.add_argument('--geometry', help='nominal geometry YAML (with --bag: default the '
+                                            'one the run recorded)')
+    hexapod.add_argument('--out', help='calibrated geometry YAML to write')
     hexapod.add_argument('--fix', nargs='*', help='parameter names to keep at their nominal value')
     hexapod.add_argument('--json')
     hexapod.set_defaults(func=cmd_calibrate_hexapod)

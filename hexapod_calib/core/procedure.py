@@ -156,6 +156,7 @@ def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
     after = _measure_set(evaluation, inverse_kinematics(geometry, evaluation), move_legs, measure,
                          EVALUATE_CALIBRATED, record, progress, step + len(evaluation), total)
     return HexapodCalibration(identification, {
+        'nominal_geometry': nominal.as_dict(),
         'identification': identification.report(),
         'iterations': history,
         'evaluation': {'note': 'poses not used for fitting, measured by the pose sensor',
