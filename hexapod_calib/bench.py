@@ -189,7 +189,7 @@ def markdown(r) -> str:
                      f'{a["median_after_max_displacement_m"] * um:.1f} um / {a["median_after_max_angle_rad"] * urad:.0f} urad | '
                      f'{a["worst_after_max_displacement_m"] * um:.1f} um / {a["worst_after_max_angle_rad"] * urad:.0f} urad | '
                      f'{a["median_after_rms_displacement_m"] * um:.1f} um |')
-    lines.append(f'| paper (13) | 1 | 350 um / 7300 urad | 12.1 um / 1100 urad | | |')
+    lines.append('| paper (13) | 1 | 350 um / 7300 urad | 12.1 um / 1100 urad | | |')
     rep = r['repeatability']['worst']
     lines += ['', f'Repeatability (ISO 9283 style, {r["repeatability"]["num_points"]} points x '
               f'{r["repeatability"]["visits"]} visits from random poses, worst point): '

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 DOMAIN = str(100 + os.getpid() % 50)
-os.environ['ROS_DOMAIN_ID'] = DOMAIN
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
 from alignment_msgs.srv import MeasurePose, MoveHexapod, RunCalibration  # noqa: E402
 
 from calib_core.bags import decode_bag  # noqa: E402
-from calib_core.launcher import Graph, hexapod_graph  # noqa: E402
+from calib_core.launcher import hexapod_graph  # noqa: E402
+from dds import call, running  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry  # noqa: E402
 from hexapod_calib.core.procedure import identify_from_records  # noqa: E402
 from hexapod_calib.nodes.conversions import (  # noqa: E402
@@ -24,24 +24,12 @@ from hexapod_calib.nodes.conversions import (  # noqa: E402
 PLAN = 'num_poses: 20\nnum_evaluation: 10\nnum_candidates: 200\niterations: 2\n'
 
 
-def _call(node, client, request, timeout=120.0):
-    assert client.wait_for_service(timeout_sec=30.0), f'{client.srv_name} not available'
-    future = client.call_async(request)
-    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
-    assert future.done(), f'{client.srv_name} did not answer'
-    return future.result()
-
-
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
     out = tmp_path_factory.mktemp('hexapod')
     spec = hexapod_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
-    with Graph(spec, env={'ROS_DOMAIN_ID': DOMAIN}, log_dir=str(out / 'logs')) as running:
-        rclpy.init(domain_id=int(DOMAIN))
-        node = rclpy.create_node('hexapod_test_client')
-        yield running, node, out
-        node.destroy_node()
-        rclpy.try_shutdown()
+    with running(spec, DOMAIN, out, 'hexapod_test_client') as (graph, node):
+        yield graph, node, out
 
 
 def test_moves_outside_the_workspace_are_refused_and_poses_measured(graph):
@@ -49,25 +37,25 @@ def test_moves_outside_the_workspace_are_refused_and_poses_measured(graph):
     move = node.create_client(MoveHexapod, 'hexapod/move')
     measure = node.create_client(MeasurePose, 'pose_sensor/measure')
     target = np.array([0.005, -0.004, 0.205, 0.02, -0.03, 0.04])
-    ok = _call(node, move, MoveHexapod.Request(mode=MoveHexapod.Request.POSE,
+    ok = call(node, move, MoveHexapod.Request(mode=MoveHexapod.Request.POSE,
                                                pose=pose_as_message(target)))
     assert ok.success and len(ok.leg_lengths) == 6
-    measured = _call(node, measure, MeasurePose.Request(not_before=ok.settled))
+    measured = call(node, measure, MeasurePose.Request(not_before=ok.settled))
     assert measured.success
     error = pose_from_message(measured.pose.pose.pose) - target
     # Uncalibrated: a few tenths of a mm off, but clearly the commanded pose.
     assert 1e-6 < np.linalg.norm(error[:3]) < 2e-3
     too_long = MoveHexapod.Request(mode=MoveHexapod.Request.LEG_LENGTHS,
                                    leg_lengths=[0.35, 0.22, 0.22, 0.22, 0.22, 0.22])
-    refused = _call(node, move, too_long)
+    refused = call(node, move, too_long)
     assert not refused.success and 'outside the stroke' in refused.message
-    singular = _call(node, move, MoveHexapod.Request(
+    singular = call(node, move, MoveHexapod.Request(
         mode=MoveHexapod.Request.POSE, pose=pose_as_message([0, 0, 0.2, 0, 0, np.pi / 2])))
     assert not singular.success and 'singularity' in singular.message
-    nan = _call(node, move, MoveHexapod.Request(mode=MoveHexapod.Request.LEG_LENGTHS,
+    nan = call(node, move, MoveHexapod.Request(mode=MoveHexapod.Request.LEG_LENGTHS,
                                                 leg_lengths=[float('nan')] * 6))
     assert not nan.success and 'finite' in nan.message
-    again = _call(node, measure, MeasurePose.Request(not_before=ok.settled))
+    again = call(node, measure, MeasurePose.Request(not_before=ok.settled))
     assert np.linalg.norm(pose_from_message(again.pose.pose.pose)[:3] - target[:3]) < 2e-3
     assert all(running.alive())
 
@@ -75,15 +63,15 @@ def test_moves_outside_the_workspace_are_refused_and_poses_measured(graph):
 def test_calibration_service_writes_geometry_records_and_replays(graph):
     running, node, out = graph
     client = node.create_client(RunCalibration, 'hexapod_calibrator/calibrate')
-    bad = _call(node, client, RunCalibration.Request(plan_yaml='num_poses: 3\nnum_candidates: 50'))
+    bad = call(node, client, RunCalibration.Request(plan_yaml='num_poses: 3\nnum_candidates: 50'))
     assert not bad.success and 'cannot determine the 7 parameters' in bad.message
     assert not (out / 'calibration' / 'hexapod_geometry.yaml').exists()
-    unknown = _call(node, client, RunCalibration.Request(plan_yaml='speed: 3'))
+    unknown = call(node, client, RunCalibration.Request(plan_yaml='speed: 3'))
     assert not unknown.success and 'unknown plan keys' in unknown.message
 
     first = client.call_async(RunCalibration.Request(plan_yaml=PLAN))
     time.sleep(0.5)
-    second = _call(node, client, RunCalibration.Request(plan_yaml=PLAN))
+    second = call(node, client, RunCalibration.Request(plan_yaml=PLAN))
     assert not second.success and 'already running' in second.message
     rclpy.spin_until_future_complete(node, first, timeout_sec=180)
     response = first.result()

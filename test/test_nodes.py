@@ -6,44 +6,32 @@ import numpy as np
 import pytest
 
 DOMAIN = str(150 + os.getpid() % 80)
-os.environ['ROS_DOMAIN_ID'] = DOMAIN
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
 from alignment_msgs.srv import DetectMarks, MoveGantry, RunCalibration  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
-from calib_core.launcher import Graph, printer_graph  # noqa: E402
-
-
-def _call(node, client, request, timeout=60.0):
-    assert client.wait_for_service(timeout_sec=30.0), f'{client.srv_name} not available'
-    future = client.call_async(request)
-    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
-    assert future.done(), f'{client.srv_name} did not answer'
-    return future.result()
+from calib_core.launcher import printer_graph  # noqa: E402
+from dds import call, running  # noqa: E402
 
 
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
     out = tmp_path_factory.mktemp('graph')
     spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
-    with Graph(spec, env={'ROS_DOMAIN_ID': DOMAIN}, log_dir=str(out / 'logs')) as running:
-        rclpy.init(domain_id=int(DOMAIN))
-        node = rclpy.create_node('test_client')
-        yield running, node, out
-        node.destroy_node()
-        rclpy.try_shutdown()
+    with running(spec, DOMAIN, out, 'test_client') as (graph, node):
+        yield graph, node, out
 
 
 def test_gantry_refuses_target_outside_travel(graph):
     running, node, _ = graph
     move = node.create_client(MoveGantry, 'gantry/move')
-    refused = _call(node, move, MoveGantry.Request(x=0.5, y=0.01))
+    refused = call(node, move, MoveGantry.Request(x=0.5, y=0.01))
     assert not refused.success and 'outside the travel' in refused.message
-    nan = _call(node, move, MoveGantry.Request(x=float('nan'), y=0.01))
+    nan = call(node, move, MoveGantry.Request(x=float('nan'), y=0.01))
     assert not nan.success and 'not finite' in nan.message
-    ok = _call(node, move, MoveGantry.Request(x=0.05, y=0.04))
+    ok = call(node, move, MoveGantry.Request(x=0.05, y=0.04))
     assert ok.success and ok.x == pytest.approx(0.05)
     assert all(running.alive())
 
@@ -51,11 +39,11 @@ def test_gantry_refuses_target_outside_travel(graph):
 def test_detector_service_and_bad_images(graph):
     running, node, _ = graph
     detect = node.create_client(DetectMarks, 'mark_detector/detect')
-    found = _call(node, detect, DetectMarks.Request(shape='circle'))
+    found = call(node, detect, DetectMarks.Request(shape='circle'))
     assert found.success and len(found.marks.marks) > 100
     uv = np.array([[m.u, m.v] for m in found.marks.marks])
     assert np.all((uv >= 0) & (uv < [640, 480]))
-    wrong = _call(node, detect, DetectMarks.Request(shape='circle', expected_count=1))
+    wrong = call(node, detect, DetectMarks.Request(shape='circle', expected_count=1))
     assert not wrong.success and 'expected 1' in wrong.message
     # A foreign publisher sends an image in an unsupported encoding: clear error, no crash.
     publisher = node.create_publisher(Image, 'camera/image_raw', 10)
@@ -89,7 +77,7 @@ def test_calibration_service_and_concurrent_request(graph):
     values = dict(zip(result.result.names, result.result.values))
     assert values['lead_x'] == pytest.approx(0.0159972, abs=0.5e-6)
     assert (out / 'calibration' / 'vision.v1.yaml').exists()
-    bad = _call(node, client, RunCalibration.Request(plan_yaml='{nx: 1}'))
+    bad = call(node, client, RunCalibration.Request(plan_yaml='{nx: 1}'))
     assert not bad.success and 'at least 2' in bad.message
     assert not (out / 'calibration' / 'vision.v2.yaml').exists()  # previous stays in force
     assert all(running.alive())

@@ -11,12 +11,10 @@ The geometry is written as an atomic, versioned YAML file in the form of DESIGN.
 run is recorded to an MCAP bag. One calibration at a time; a failed or interrupted run
 leaves the previous calibration in force.
 """
-import threading
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-import yaml
 from alignment_msgs.msg import CalibrationResult, HexapodMeasurement, Progress
 from alignment_msgs.srv import MeasurePose, MoveHexapod, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -25,8 +23,9 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter
-from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
-from calib_core.nodes.conversions import calibration_result_as_message, failed_result
+from calib_core.errors import InvalidInputError
+from calib_core.nodes.calibrator import CalibrationService, call_service
+from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
@@ -61,7 +60,6 @@ class HexapodCalibratorNode(Node):
             raise InvalidInputError('call_timeout_s must be > 0')
         path = self.get_parameter('nominal_geometry').value
         self.nominal = read_geometry(path) if path else nominal_geometry()
-        self._busy = threading.Lock()
         self._settled = None
         self._last_measurement = None  # the sensor's message, recorded as it came
         group = ReentrantCallbackGroup()
@@ -71,21 +69,15 @@ class HexapodCalibratorNode(Node):
         self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
         self.progress_pub = self.create_publisher(Progress, '/hexapod_calibrator/progress', 10)
         self.measurement_pub = self.create_publisher(HexapodMeasurement, MEASUREMENTS_TOPIC, 10)
-        self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', self.on_calibrate,
-                            callback_group=group)
+        self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', CalibrationService(
+            self, 'hexapod', lambda overrides: self._run(HexapodPlan.from_mapping(overrides)),
+            self._header), callback_group=group)
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='base')
 
     def _call(self, client, request, what):
-        if not client.wait_for_service(timeout_sec=self.timeout):
-            raise CalibrationError(f'{what} service {client.srv_name} is not available')
-        response = client.call(request, timeout_sec=self.timeout)
-        if response is None:
-            raise CalibrationError(f'{what} service did not answer within {self.timeout:.0f} s')
-        if not response.success:
-            raise CalibrationError(f'{what} failed: {response.message}')
-        return response
+        return call_service(client, request, what, self.timeout)
 
     def _move_legs(self, lengths):
         request = MoveHexapod.Request(mode=MoveHexapod.Request.LEG_LENGTHS,
@@ -112,29 +104,6 @@ class HexapodCalibratorNode(Node):
                                            step=step, total=total, message=message))
         if step % 10 == 0 or step == total:
             self.get_logger().info(f'[{step}/{total}] {message}')
-
-    def on_calibrate(self, request, response):
-        if not self._busy.acquire(blocking=False):
-            response.success, response.message = False, 'a calibration is already running'
-            return response
-        try:
-            overrides = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
-            if not isinstance(overrides, dict):
-                raise InvalidInputError('plan_yaml must be a YAML mapping')
-            result = self._run(HexapodPlan.from_mapping(overrides))
-            response.success, response.message, response.result = True, 'ok', result
-        except (MachineAlignmentError, TypeError, yaml.YAMLError) as exc:
-            self.get_logger().error(f'hexapod calibration failed: {exc}; previous calibration '
-                                    'stays in force')
-            response.success, response.message = False, str(exc)
-            response.result = failed_result('hexapod', self._header(), str(exc))
-        except Exception as exc:  # log a bug, answer, keep serving
-            self.get_logger().error(f'internal error in hexapod calibration: {exc!r}')
-            response.success, response.message = False, f'internal error: {exc!r}'
-            response.result = failed_result('hexapod', self._header(), response.message)
-        finally:
-            self._busy.release()
-        return response
 
     def _run(self, plan: HexapodPlan) -> CalibrationResult:
         stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')

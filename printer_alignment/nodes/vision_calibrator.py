@@ -10,12 +10,10 @@ progress on ``vision_calibrator/progress``. One calibration at a time; a second 
 while one runs is refused. A failed or interrupted run leaves the previous calibration
 in force.
 """
-import threading
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-import yaml
 from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionObservation
 from alignment_msgs.srv import DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -24,7 +22,8 @@ from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter
-from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.errors import InvalidInputError, MachineAlignmentError
+from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
@@ -68,7 +67,6 @@ class VisionCalibratorNode(Node):
         self.plan = self._plan_from_parameters({})
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.nominal_camera = CameraToPlate(float(self.get_parameter('nominal_pixel_size').value))
-        self._busy = threading.Lock()
         self._gantry_state = GantryState()
         group = ReentrantCallbackGroup()
         self.move_client = self.create_client(MoveGantry, 'gantry/move', callback_group=group)
@@ -77,8 +75,11 @@ class VisionCalibratorNode(Node):
         self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
         self.progress_pub = self.create_publisher(Progress, '/vision_calibrator/progress', 10)
         self.observation_pub = self.create_publisher(VisionObservation, OBSERVATIONS_TOPIC, 10)
-        self.create_service(RunCalibration, 'vision_calibrator/calibrate', self.on_calibrate,
-                            callback_group=group)
+        self.calibration_service = CalibrationService(
+            self, 'vision', lambda overrides: self._run(self._plan_from_parameters(overrides)),
+            self._header)
+        self.create_service(RunCalibration, 'vision_calibrator/calibrate',
+                            self.calibration_service, callback_group=group)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_pixel_size',
                             self.on_pixel_size, callback_group=group)
 
@@ -95,14 +96,7 @@ class VisionCalibratorNode(Node):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='plate')
 
     def _call(self, client, request, what):
-        if not client.wait_for_service(timeout_sec=self.timeout):
-            raise CalibrationError(f'{what} service {client.srv_name} is not available')
-        response = client.call(request, timeout_sec=self.timeout)
-        if response is None:
-            raise CalibrationError(f'{what} service did not answer within {self.timeout:.0f} s')
-        if not response.success:
-            raise CalibrationError(f'{what} failed: {response.message}')
-        return response
+        return call_service(client, request, what, self.timeout)
 
     def _observe_and_record(self, bag: BagWriter) -> np.ndarray:
         """Detect dots at the current stop, publish and record the observation; return the
@@ -127,30 +121,6 @@ class VisionCalibratorNode(Node):
         self.progress_pub.publish(Progress(header=self._header(), task='vision_calibration',
                                            step=step, total=total, message=message))
         self.get_logger().info(f'[{step}/{total}] {message}')
-
-    def on_calibrate(self, request, response):
-        if not self._busy.acquire(blocking=False):
-            response.success, response.message = False, 'a calibration is already running'
-            return response
-        try:
-            overrides = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
-            if not isinstance(overrides, dict):
-                raise InvalidInputError('plan_yaml must be a YAML mapping')
-            plan = self._plan_from_parameters(overrides)
-            result = self._run(plan)
-            response.success, response.message, response.result = True, 'ok', result
-        except (MachineAlignmentError, ValueError, yaml.YAMLError) as exc:
-            self.get_logger().error(f'vision calibration failed: {exc}; previous calibration '
-                                    'stays in force')
-            response.success, response.message = False, str(exc)
-            response.result = failed_result('vision', self._header(), str(exc))
-        except Exception as exc:  # log a bug, answer, keep serving
-            self.get_logger().error(f'internal error in vision calibration: {exc!r}')
-            response.success, response.message = False, f'internal error: {exc!r}'
-            response.result = failed_result('vision', self._header(), response.message)
-        finally:
-            self._busy.release()
-        return response
 
     def _run(self, plan: VisionPlan) -> CalibrationResult:
         stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
@@ -181,7 +151,7 @@ class VisionCalibratorNode(Node):
         return result
 
     def on_pixel_size(self, request, response):
-        if not self._busy.acquire(blocking=False):
+        if not self.calibration_service.busy.acquire(blocking=False):
             response.success, response.message = False, 'a calibration is already running'
             return response
         try:
@@ -201,7 +171,7 @@ class VisionCalibratorNode(Node):
             response.success, response.message = False, str(exc)
             response.result = failed_result('pixel_size', self._header(), str(exc))
         finally:
-            self._busy.release()
+            self.calibration_service.busy.release()
         return response
 
 

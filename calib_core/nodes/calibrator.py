@@ -1,0 +1,69 @@
+"""What every calibrator node does the same way: call another node's service with a
+timeout, and serve a RunCalibration request one at a time, answering every failure with
+an error instead of crashing."""
+from __future__ import annotations
+
+import threading
+from typing import Callable
+
+import yaml
+
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.conversions import failed_result
+
+
+def call_service(client, request, what: str, timeout: float):
+    """Call ``client`` and return its response.
+
+    Raises
+    ------
+    CalibrationError
+        The service is not there, does not answer within ``timeout`` (s), or answers
+        ``success = False`` (its message is passed on)."""
+    if not client.wait_for_service(timeout_sec=timeout):
+        raise CalibrationError(f'{what} service {client.srv_name} is not available')
+    response = client.call(request, timeout_sec=timeout)
+    if response is None:
+        raise CalibrationError(f'{what} service did not answer within {timeout:.0f} s')
+    if not response.success:
+        raise CalibrationError(f'{what} failed: {response.message}')
+    return response
+
+
+class CalibrationService:
+    """Serves RunCalibration for one node: refuses a second request while one runs,
+    parses ``plan_yaml`` into a mapping and hands it to ``run``, which returns the
+    CalibrationResult message. A failed run is logged and answered with its reason; the
+    previous calibration stays in force."""
+
+    def __init__(self, node, kind: str, run: Callable[[dict], object], header: Callable):
+        self.node, self.kind, self.run, self.header = node, kind, run, header
+        self._busy = threading.Lock()
+
+    def __call__(self, request, response):
+        if not self._busy.acquire(blocking=False):
+            response.success, response.message = False, 'a calibration is already running'
+            return response
+        logger = self.node.get_logger()
+        try:
+            overrides = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
+            if not isinstance(overrides, dict):
+                raise InvalidInputError('plan_yaml must be a YAML mapping')
+            response.result = self.run(overrides)
+            response.success, response.message = True, 'ok'
+        except (MachineAlignmentError, TypeError, ValueError, yaml.YAMLError) as exc:
+            logger.error(f'{self.kind} calibration failed: {exc}; previous calibration '
+                         'stays in force')
+            response.success, response.message = False, str(exc)
+            response.result = failed_result(self.kind, self.header(), str(exc))
+        except Exception as exc:  # log a bug, answer, keep serving
+            logger.error(f'internal error in {self.kind} calibration: {exc!r}')
+            response.success, response.message = False, f'internal error: {exc!r}'
+            response.result = failed_result(self.kind, self.header(), response.message)
+        finally:
+            self._busy.release()
+        return response
+
+    @property
+    def busy(self) -> threading.Lock:
+        return self._busy

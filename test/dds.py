@@ -1,0 +1,29 @@
+"""Helpers for tests that run nodes as separate processes over DDS."""
+from contextlib import contextmanager
+
+import rclpy
+
+from calib_core.launcher import Graph
+
+
+def call(node, client, request, timeout=60.0):
+    """Call a service from the test's client node and return the response."""
+    assert client.wait_for_service(timeout_sec=30.0), f'{client.srv_name} not available'
+    future = client.call_async(request)
+    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+    assert future.done(), f'{client.srv_name} did not answer'
+    return future.result()
+
+
+@contextmanager
+def running(spec, domain: str, out, client_name: str):
+    """Start ``spec`` in ROS domain ``domain`` (logs in ``out/logs``) and a client node in
+    the same domain; yields (graph, node)."""
+    with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
+        rclpy.init(domain_id=int(domain))
+        node = rclpy.create_node(client_name)
+        try:
+            yield graph, node
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown()
