@@ -1,4 +1,6 @@
 """Hexapod kinematics, identification and the calibration run on the simulator (no ROS)."""
+import re
+
 import numpy as np
 import pytest
 
@@ -170,6 +172,24 @@ def test_calibration_run_beats_the_paper_and_recovers_the_truth():
                          - inverse_kinematics(truth.geometry, poses))) > 0.3e-3
     replayed, _ = identify_from_records(records, NOMINAL)
     assert replayed.geometry.parameters().as_dict() == report['parameters']
+
+
+@pytest.mark.parametrize('overrides, message', [
+    ({'num_poses': 2.5}, 'num_poses must be an integer >= 1'),
+    ({'num_poses': 'many'}, 'num_poses must be an integer'),
+    ({'translation': [0.01, 0.01]}, 'translation must be 3 finite numbers'),
+    ({'stroke': [0.3, 0.2]}, 'stroke (min, max) increasing'),
+    ({'num_poses': 300, 'num_evaluation': 200}, 'num_candidates must be at least'),
+    ({'rotation_speed': 1}, 'unknown plan keys'),
+])
+def test_bad_plans_are_refused(overrides, message):
+    with pytest.raises(InvalidInputError, match=re.escape(message)):
+        HexapodPlan.from_mapping(overrides)
+
+
+def test_plan_outside_the_stroke_is_refused_before_moving():
+    with pytest.raises(InvalidInputError, match='inside the stroke'):
+        HexapodPlan(home=(0, 0, 0.45, 0, 0, 0)).poses(NOMINAL)
 
 
 def test_geometry_yaml_round_trip_and_malformed_files(tmp_path):

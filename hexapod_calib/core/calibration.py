@@ -16,6 +16,7 @@ from calib_core.datasets import read_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import FitResult, check_identifiability, fit
 from calib_core.parameters import ParameterSet
+from calib_core.storage import write_atomic
 from hexapod_calib.core.geometry import (
     LEGS, POSE_NAMES, HexapodGeometry, as_poses, rotation_matrices)
 from hexapod_calib.core.kinematics import inverse_kinematics, leg_vectors
@@ -93,7 +94,6 @@ class PoseData:
         return cls(commanded, measured, legs, {k: v for k, v in columns.items() if k not in used})
 
     def to_csv(self, path) -> None:
-        from calib_core.storage import write_atomic
         names = list(POSE_NAMES) + list(MEASURED_NAMES) + list(LEG_NAMES) + list(self.covariates)
         table = np.column_stack([self.commanded, self.measured, self.leg_lengths]
                                 + [self.covariates[k] for k in self.covariates])

@@ -45,9 +45,16 @@ class HexapodPlan:
     margin: float = 0.002
 
     def __post_init__(self):
-        for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations'):
-            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
-                raise InvalidInputError(f'{name} must be a positive integer')
+        for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations', 'seed'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or int(value) != value or value < (0 if name == 'seed' else 1):
+                raise InvalidInputError(f'{name} must be an integer >= {0 if name == "seed" else 1}, '
+                                        f'not {value!r}')
+            object.__setattr__(self, name, int(value))
+        if not (isinstance(self.margin, (int, float)) and np.isfinite(self.margin)
+                and self.margin >= 0):
+            raise InvalidInputError(f'margin must be a length >= 0 (m), not {self.margin!r}')
         if self.num_poses + self.num_evaluation > self.num_candidates:
             raise InvalidInputError('num_candidates must be at least num_poses + num_evaluation')
         for name, size in (('home', 6), ('translation', 3), ('rotation', 3), ('stroke', 2)):

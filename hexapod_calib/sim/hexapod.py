@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
-from hexapod_calib.core.geometry import HexapodGeometry, as_poses, nominal_geometry
+from hexapod_calib.core.geometry import (
+    HexapodGeometry, as_poses, nominal_geometry, rotation_matrices)
 from hexapod_calib.core.kinematics import (
     MAX_CONDITION, condition_numbers, forward_kinematics, inverse_kinematics, jacobian)
 
@@ -73,7 +74,6 @@ def leg_forces(geometry: HexapodGeometry, poses, mass: float, centre) -> np.ndar
     """Static axial leg forces (N, compression positive) holding a payload of ``mass`` (kg)
     with centre of mass ``centre`` (platform frame, m), shape (n, 6)."""
     poses = as_poses(poses)
-    from hexapod_calib.core.geometry import rotation_matrices
     lever = np.einsum('nij,j->ni', rotation_matrices(poses[:, 3:]), np.asarray(centre, float))
     weight = np.array([0.0, 0.0, -mass * GRAVITY])
     wrench = np.concatenate([np.broadcast_to(weight, lever.shape), np.cross(lever, weight)], 1)
@@ -115,38 +115,39 @@ class HexapodSim:
         self.pose = HOME_POSE.copy()
         self.leg_lengths = inverse_kinematics(self.nominal, self.pose)[0]
         self._play_side = np.zeros(6)      # -1/+1: where the play sits in weakly loaded legs
-        self.pose = self._realise(self.leg_lengths, np.zeros(6))
+        self.pose, self._play_side = self._realise(self.leg_lengths, np.zeros(6))
 
-    def _play(self, pose: np.ndarray, direction: np.ndarray) -> np.ndarray:
-        """Leg length change by joint play at ``pose``, m, (6,)."""
+    def _play(self, pose: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Leg length change by joint play at ``pose`` (m, (6,)) and the side (-1/+1) the
+        play sits on in each leg."""
         truth = self.truth
         force = leg_forces(truth.geometry, pose, truth.payload_mass, truth.payload_centre)[0]
         side = np.where(direction != 0, -np.sign(direction), self._play_side)
         side = np.where(np.abs(force) >= truth.force_to_close_play, -np.sign(force), side)
-        self._play_side = side
-        return 0.5 * truth.leg_play * side
+        return 0.5 * truth.leg_play * side, side
 
-    def _realise(self, lengths: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    def _realise(self, lengths: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pose the true hexapod takes for commanded ``lengths``, and the play sides."""
         geometry = self.truth.geometry
         pose = forward_kinematics(geometry, lengths, initial=self.pose,
                                   max_condition=self.max_condition)[0]
         noise = self._rng.normal(0.0, self.truth.actuator_noise, 6)
         # The play depends on the load at the pose it produces: two fixed-point steps settle it.
         for _ in range(2):
-            effective = lengths + self._play(pose, direction) + noise
-            pose = forward_kinematics(geometry, effective, initial=pose,
+            shift, side = self._play(pose, direction)
+            pose = forward_kinematics(geometry, lengths + shift + noise, initial=pose,
                                       max_condition=self.max_condition)[0]
-        return pose
+        return pose, side
 
     def move_legs(self, lengths) -> np.ndarray:
-        """Command actuator lengths (m, (6,)); return the commanded lengths as recorded."""
+        """Command actuator lengths (m, (6,)); return the commanded lengths as recorded.
+        A refused move changes nothing."""
         lengths = np.asarray(lengths, dtype=float)
         if lengths.shape != (6,) or not np.all(np.isfinite(lengths)):
             raise InvalidInputError(f'need six finite leg lengths, got {lengths!r}')
         self.stroke.check(lengths)
-        direction = np.sign(lengths - self.leg_lengths)
-        new_pose = self._realise(lengths, direction)
-        self.pose, self.leg_lengths = new_pose, lengths.copy()
+        self.pose, self._play_side = self._realise(lengths, np.sign(lengths - self.leg_lengths))
+        self.leg_lengths = lengths.copy()
         return self.leg_lengths.copy()
 
     def move_pose(self, pose) -> np.ndarray:
