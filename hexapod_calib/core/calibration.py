@@ -235,6 +235,13 @@ def select_poses(geometry: HexapodGeometry, candidates, count: int) -> np.ndarra
     return np.array(chosen)
 
 
+def compensate(geometry: HexapodGeometry, target_poses) -> np.ndarray:
+    """Actuator lengths (m, (n, 6)) that put the platform at ``target_poses`` (n, 6)
+    according to a calibrated ``geometry``: what the controller should command instead of
+    its nominal inverse kinematics."""
+    return inverse_kinematics(geometry, target_poses)
+
+
 def pose_errors(target, actual) -> tuple[np.ndarray, np.ndarray]:
     """Displacement (m) and rotation angle (rad) between target and actual poses, (n,) each."""
     target, actual = as_poses(target, 'target poses'), as_poses(actual, 'actual poses')

@@ -14,7 +14,8 @@ import numpy as np
 
 from calib_core.errors import CalibrationError, InvalidInputError
 from hexapod_calib.core.calibration import (
-    Identification, PoseData, identifiability, identify, select_poses, summarise_pose_errors)
+    Identification, PoseData, compensate, identifiability, identify, select_poses,
+    summarise_pose_errors)
 from hexapod_calib.core.geometry import HexapodGeometry
 from hexapod_calib.core.kinematics import MAX_CONDITION, condition_numbers, inverse_kinematics
 
@@ -152,7 +153,7 @@ def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
     total = plan.iterations * len(targets) + 2 * len(evaluation)
     rounds, geometry = [], nominal
     for k in range(plan.iterations):
-        legs = inverse_kinematics(geometry, targets)
+        legs = compensate(geometry, targets)
         rounds.append(_measure_set(targets, legs, move_legs, measure, IDENTIFY_PHASE.format(k),
                                    record, progress, k * len(targets), total))
         identification, history = iterate_identification(rounds, nominal)
@@ -160,7 +161,7 @@ def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
     step = plan.iterations * len(targets)
     before = _measure_set(evaluation, inverse_kinematics(nominal, evaluation), move_legs, measure,
                           EVALUATE_NOMINAL, record, progress, step, total)
-    after = _measure_set(evaluation, inverse_kinematics(geometry, evaluation), move_legs, measure,
+    after = _measure_set(evaluation, compensate(geometry, evaluation), move_legs, measure,
                          EVALUATE_CALIBRATED, record, progress, step + len(evaluation), total)
     return HexapodCalibration(identification, {
         'nominal_geometry': nominal.as_dict(),
