@@ -102,18 +102,27 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def cmd_calibrate_vision(args) -> int:
+def _read_run(bag, stop_suffix: str, convert, what: str) -> tuple[list, dict | None]:
+    """The stops of a calibrator's recorded run (messages on the topic ending in
+    ``stop_suffix``, each passed through ``convert``) and the report of its successful
+    result, None if the run ended without one."""
     from calib_core.bags import decode_bag
-    from printer_alignment.core.vision_procedure import (
-        calibrate_from_observations, observation_from_message)
-    observations, recorded = [], None
-    for topic, _, msg in decode_bag(args.bag):
-        if topic.endswith('/observations'):
-            observations.append(observation_from_message(msg))
+    stops, recorded = [], None
+    for topic, _, msg in decode_bag(bag):
+        if topic.endswith(stop_suffix):
+            stops.append(convert(msg))
         elif topic.endswith('/result') and msg.success:
             recorded = json.loads(msg.report_json)
-    if not observations:
-        raise MachineAlignmentError(f'{args.bag} holds no vision calibration observations')
+    if not stops:
+        raise MachineAlignmentError(f'{bag} holds no {what}')
+    return stops, recorded
+
+
+def cmd_calibrate_vision(args) -> int:
+    from printer_alignment.core.vision_procedure import (
+        calibrate_from_observations, observation_from_message)
+    observations, recorded = _read_run(args.bag, '/observations', observation_from_message,
+                                       'vision calibration observations')
     calibration = calibrate_from_observations(observations, args.pitch)
     report = dict(calibration.report)
     g = report['gantry']
@@ -172,18 +181,11 @@ def _write_hexapod_outputs(args, geometry, report) -> None:
 
 def _calibrate_hexapod_from_bag(args) -> int:
     """Rerun the identification of a run recorded by hexapod_calibrator."""
-    from calib_core.bags import decode_bag
     from hexapod_calib.core.geometry import HexapodGeometry, read_geometry
     from hexapod_calib.core.procedure import identify_from_records
     from hexapod_calib.nodes.conversions import measurement_record
-    records, recorded = [], None
-    for topic, _, msg in decode_bag(args.bag):
-        if topic.endswith('/measurements'):
-            records.append(measurement_record(msg))
-        elif topic.endswith('/result') and msg.success:
-            recorded = json.loads(msg.report_json)
-    if not records:
-        raise MachineAlignmentError(f'{args.bag} holds no hexapod calibration measurements')
+    records, recorded = _read_run(args.bag, '/measurements', measurement_record,
+                                  'hexapod calibration measurements')
     if args.geometry:
         nominal = read_geometry(args.geometry)
     elif recorded is not None:
@@ -228,10 +230,9 @@ def cmd_evaluate_hexapod(args) -> int:
 
 
 def cmd_simulate_hexapod(args) -> int:
-    from hexapod_calib.core.calibration import PoseData
     from hexapod_calib.core.geometry import nominal_geometry, write_geometry
     from hexapod_calib.core.kinematics import inverse_kinematics
-    from hexapod_calib.core.procedure import HexapodPlan
+    from hexapod_calib.core.procedure import HexapodPlan, measure_poses
     from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
     out = Path(args.out)
     nominal = nominal_geometry()
@@ -241,12 +242,10 @@ def cmd_simulate_hexapod(args) -> int:
                                       num_candidates=max(400, 2 * (args.poses + args.evaluation)),
                                       seed=args.seed).poses(nominal)
     for name, poses in (('calibration', targets), ('evaluation', evaluation)):
-        legs, measured = inverse_kinematics(nominal, poses), []
-        for k, lengths in enumerate(legs):
-            sim.move_legs(lengths)
-            measured.append(sensor.measure(sim.pose))
-            _progress(k + 1, len(legs), name)
-        PoseData(poses, np.array(measured), legs).to_csv(out / f'{name}.csv')
+        data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
+                             lambda: sensor.measure(sim.pose), name,
+                             progress=lambda step, total, _: _progress(step, total, name))
+        data.to_csv(out / f'{name}.csv')
     write_geometry(out / 'nominal.yaml', nominal)
     write_geometry(out / 'truth.yaml', sim.truth.geometry,
                    {'note': 'simulation truth, for checking a calibration only'})

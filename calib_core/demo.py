@@ -26,10 +26,11 @@ import numpy as np
 from calib_core.storage import write_atomic
 
 
-def _run_service(graph, srv_type, service: str, progress_topic: str, timeout: float = 600.0):
+def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.0):
     """Call a RunCalibration service on a running graph, printing its progress."""
     import rclpy
     from alignment_msgs.msg import Progress
+    from alignment_msgs.srv import RunCalibration
     rclpy.init()
     node = rclpy.create_node('demo_client')
     shown = {'step': -1}
@@ -40,11 +41,11 @@ def _run_service(graph, srv_type, service: str, progress_topic: str, timeout: fl
             print(f'      {msg.step}/{msg.total} {msg.message}')
     try:
         node.create_subscription(Progress, progress_topic, show, 10)
-        client = node.create_client(srv_type, service)
+        client = node.create_client(RunCalibration, service)
         if not client.wait_for_service(timeout_sec=30.0):
             print(f'{service} did not come up; processes alive: {graph.alive()}')
             return None
-        future = client.call_async(srv_type.Request())
+        future = client.call_async(RunCalibration.Request())
         rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
         return future.result()
     finally:
@@ -53,14 +54,12 @@ def _run_service(graph, srv_type, service: str, progress_topic: str, timeout: fl
 
 
 def _printer(out: Path, domain: str) -> int:
-    from alignment_msgs.srv import RunCalibration
-
     from calib_core.launcher import Graph, printer_graph
     print(f'[1/5] starting the simulated printer (ROS_DOMAIN_ID={domain}); logs in {out}/logs')
     graph_spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
     with Graph(graph_spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
-        response = _run_service(graph, RunCalibration, 'vision_calibrator/calibrate',
+        response = _run_service(graph, 'vision_calibrator/calibrate',
                                 '/vision_calibrator/progress', timeout=300.0)
     if response is None or not response.success:
         print(f'calibration failed: {response.message if response else "timeout"}')
@@ -106,14 +105,12 @@ def _printer(out: Path, domain: str) -> int:
 
 
 def _hexapod(out: Path, domain: str) -> int:
-    from alignment_msgs.srv import RunCalibration
-
     from calib_core.launcher import Graph, hexapod_graph
     print('[4/5] starting the simulated hexapod cell and calibrating it')
     spec = hexapod_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
     with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
-        response = _run_service(graph, RunCalibration, 'hexapod_calibrator/calibrate',
+        response = _run_service(graph, 'hexapod_calibrator/calibrate',
                                 '/hexapod_calibrator/progress')
     if response is None or not response.success:
         print(f'hexapod calibration failed: {response.message if response else "timeout"}')

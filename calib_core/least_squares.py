@@ -96,9 +96,9 @@ def fit(residual_fn: Callable[[ParameterSet], np.ndarray], initial: ParameterSet
     if r0.size < x0.size:
         raise CalibrationError(f'{r0.size} residuals cannot determine {x0.size} parameters '
                                f'({", ".join(names)})')
-    jac = '2-point' if jacobian_fn is None else (
+    derivative = '2-point' if jacobian_fn is None else (
         lambda x: np.asarray(jacobian_fn(initial.with_free_vector(x)), dtype=float))
-    solution = least_squares(fun, x0, jac=jac, method='trf', x_scale='jac')
+    solution = least_squares(fun, x0, jac=derivative, method='trf', x_scale='jac')
     jac = solution.jac
     condition = check_identifiability(jac, names, max_condition)
     residuals = solution.fun

@@ -104,7 +104,13 @@ class HexapodCalibration:
         return self.identification.geometry
 
 
-def _measure_set(targets, legs, move_legs, measure, phase, record, progress, step, total):
+def measure_poses(targets, legs, move_legs, measure, phase: str = 'measure', record=None,
+                  progress=None, step: int = 0, total: int | None = None) -> PoseData:
+    """Drive ``legs`` (n, 6; m) one after the other and measure each pose.
+
+    ``record(phase, target, recorded legs, measured pose)`` and ``progress(step, total,
+    message)`` are called at every stop when given."""
+    total = len(targets) if total is None else total
     recorded, measured = [], []
     for k, (target, lengths) in enumerate(zip(targets, legs)):
         recorded.append(np.asarray(move_legs(lengths), dtype=float))
@@ -116,18 +122,26 @@ def _measure_set(targets, legs, move_legs, measure, phase, record, progress, ste
     return PoseData(targets, np.array(measured), np.array(recorded))
 
 
+def _identify_round(rounds: list[PoseData], geometry: HexapodGeometry) -> tuple[
+        Identification, dict]:
+    """One step of the paper's iteration: identify from every round so far with the
+    recorded leg lengths, starting from the previous estimate ``geometry``."""
+    identification = identify(PoseData.concatenate(rounds), geometry)
+    report = identification.report()
+    change = np.array(list(report['change_from_initial'].values()))
+    return identification, {'round': len(rounds) - 1, 'num_poses': identification.num_poses,
+                            'residual_rms_m': report['residual_rms_m'],
+                            'parameter_change_max_m': float(np.max(np.abs(change)))}
+
+
 def iterate_identification(rounds: list[PoseData], nominal: HexapodGeometry) -> tuple[
         Identification, list[dict]]:
-    """The paper's iteration: round k's poses were driven with the geometry identified
-    after round k-1; each identification pools every round so far with the recorded leg
-    lengths and starts from the previous estimate."""
+    """The paper's iteration over recorded rounds: round k's poses were driven with the
+    geometry identified after round k-1."""
     geometry, history, identification = nominal, [], None
     for k in range(len(rounds)):
-        identification = identify(PoseData.concatenate(rounds[:k + 1]), geometry)
-        change = np.array(list(identification.report()['change_from_initial'].values()))
-        history.append({'round': k, 'num_poses': identification.num_poses,
-                        'residual_rms_m': identification.report()['residual_rms_m'],
-                        'parameter_change_max_m': float(np.max(np.abs(change)))})
+        identification, entry = _identify_round(rounds[:k + 1], geometry)
+        history.append(entry)
         geometry = identification.geometry
     return identification, history
 
@@ -135,7 +149,8 @@ def iterate_identification(rounds: list[PoseData], nominal: HexapodGeometry) -> 
 def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
                             move_legs: Callable, measure: Callable,
                             progress: Callable | None = None,
-                            record: Callable | None = None) -> HexapodCalibration:
+                            record: Callable | None = None,
+                            poses: tuple | None = None) -> HexapodCalibration:
     """Drive, measure, identify and evaluate.
 
     Parameters
@@ -147,22 +162,25 @@ def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
     progress : callable (step, total, message), optional
     record : callable (phase, target, leg_lengths, measured), optional
         Called for every stop, e.g. to write it to a bag.
+    poses : (identification poses, evaluation poses), optional
+        ``plan.poses(nominal)`` when already computed (it is deterministic).
     """
-    targets, evaluation = plan.poses(nominal)
+    targets, evaluation = plan.poses(nominal) if poses is None else poses
     identifiability(nominal, targets)
     total = plan.iterations * len(targets) + 2 * len(evaluation)
-    rounds, geometry = [], nominal
+    rounds, history, geometry = [], [], nominal
     for k in range(plan.iterations):
         legs = compensate(geometry, targets)
-        rounds.append(_measure_set(targets, legs, move_legs, measure, IDENTIFY_PHASE.format(k),
-                                   record, progress, k * len(targets), total))
-        identification, history = iterate_identification(rounds, nominal)
+        rounds.append(measure_poses(targets, legs, move_legs, measure, IDENTIFY_PHASE.format(k),
+                                    record, progress, k * len(targets), total))
+        identification, entry = _identify_round(rounds, geometry)
+        history.append(entry)
         geometry = identification.geometry
     step = plan.iterations * len(targets)
-    before = _measure_set(evaluation, inverse_kinematics(nominal, evaluation), move_legs, measure,
-                          EVALUATE_NOMINAL, record, progress, step, total)
-    after = _measure_set(evaluation, compensate(geometry, evaluation), move_legs, measure,
-                         EVALUATE_CALIBRATED, record, progress, step + len(evaluation), total)
+    before = measure_poses(evaluation, inverse_kinematics(nominal, evaluation), move_legs, measure,
+                           EVALUATE_NOMINAL, record, progress, step, total)
+    after = measure_poses(evaluation, compensate(geometry, evaluation), move_legs, measure,
+                          EVALUATE_CALIBRATED, record, progress, step + len(evaluation), total)
     return HexapodCalibration(identification, {
         'nominal_geometry': nominal.as_dict(),
         'identification': identification.report(),

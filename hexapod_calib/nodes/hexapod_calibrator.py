@@ -109,13 +109,13 @@ class HexapodCalibratorNode(Node):
         stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
         bag_path = Path(self.get_parameter('record_dir').value) / f'hexapod_{stamp}'
         self._settled = self.get_clock().now().to_msg()
-        plan.poses(self.nominal)  # a plan that cannot work fails here, before a bag exists
+        poses = plan.poses(self.nominal)  # a plan that cannot work fails here, before a bag exists
         with BagWriter(bag_path) as bag:
             bag.add_topic(MEASUREMENTS_TOPIC, 'alignment_msgs/msg/HexapodMeasurement')
             bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
             calibration = run_hexapod_calibration(
                 plan, self.nominal, self._move_legs, self._measure, self._progress,
-                lambda *stop: self._record(bag, *stop))
+                lambda *stop: self._record(bag, *stop), poses)
             content = {**calibration.geometry.as_dict(), 'kind': 'hexapod', 'created': stamp,
                        'bag': str(bag_path), 'nominal': self.nominal.as_dict(),
                        'report': calibration.report}
