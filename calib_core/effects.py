@@ -1,0 +1,367 @@
+"""The closed loop's effect library: physical effects a machine model may lack.
+
+An effect adds a term to the machine's *channels*: the quantities it acts on directly,
+such as an axis position (m), a hexapod leg length (m) or a normalised image coordinate.
+Each machine says what its channels are and supplies the covariates an effect needs in a
+*context* (a dict of arrays for the rows being evaluated):
+
+``position``     (n, C) channel positions, m (axis command, gantry axis, leg length)
+``direction``    (n, C) direction of approach, +1 from below, -1 from above
+``time``         (n,) s, ``temperature`` (n,) K (differences matter, not the zero)
+``load``         (n, C) static axial force per channel, N, compression positive
+``normalized``   (n, 2) normalised image coordinates of a camera (x/z, y/z)
+
+Names are stable (they appear in reports):
+
+==========================  ============================================================
+``offset``                  constant shift per channel (m)
+``scale``                   scale error per channel, term = s * position (1)
+``squareness``              non-orthogonality of two axes: channel 0 gains gamma * position 1 (rad)
+``reversal``                backlash / lost motion: the carriage lags the drive by b/2 against
+                            the direction of approach, term = -b/2 * direction (m)
+``periodic``                cyclic error per channel, e.g. once per lead-screw revolution,
+                            a cos(2 pi x / P) + b sin(2 pi x / P), period P found from the data (m)
+``drift_time``              linear drift with time, term = rate * (t - t_ref) (m/s)
+``drift_temperature``       thermal expansion and zero drift, term = (k x + c) (T - T_ref)
+                            (k in 1/K, c in m/K)
+``radial_distortion``       lens distortion k1, k2 (OpenCV): x_n (k1 r^2 + k2 r^4) (1)
+``tangential_distortion``   decentring distortion p1, p2 (OpenCV) (1)
+``leg_play``                joint play taken up by the static leg force,
+                            term = -play/2 * sign(load) (m)
+``compliance``              elastic deflection, term = -c * load (m/N)
+==========================  ============================================================
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.signal import lombscargle
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """An effect set up for one dataset: its free parameters and how they enter.
+
+    Attributes
+    ----------
+    effect : Effect
+    names, units : tuple of str
+        One per parameter (channel names are part of the parameter names).
+    initial : ndarray (p,)
+    term : callable (params (p,), context) -> ndarray (n, C)
+    trials : float
+        Independent alternatives searched while preparing (periods scanned), for the
+        look-elsewhere correction of the significance test; 1 for effects with nothing
+        searched.
+    """
+
+    effect: 'Effect'
+    names: tuple
+    units: tuple
+    initial: np.ndarray
+    term: Callable
+    trials: float = 1.0
+    notes: dict = field(default_factory=dict)
+
+    def describe(self, values: np.ndarray, std_devs: np.ndarray) -> dict:
+        """Parameters (SI) and their 1-sigma standard deviations, as a report entry."""
+        out = {'name': self.effect.name, 'meaning': self.effect.meaning,
+               'parameters': dict(zip(self.names, map(float, values))),
+               'std_devs': dict(zip(self.names, map(float, std_devs))),
+               'units': dict(zip(self.names, self.units))}
+        out.update(self.notes)
+        return out
+
+
+class Effect:
+    """A candidate effect. Subclasses set ``name``, ``meaning``, ``requires`` and
+    implement :meth:`prepare`, which returns a :class:`Prepared` or a string saying why the
+    effect cannot be tested on this data."""
+
+    name = ''
+    meaning = ''
+    requires: tuple = ()
+
+    def prepare(self, context: dict, channels: tuple, channel_residuals: np.ndarray):
+        raise NotImplementedError
+
+    def missing(self, context: dict) -> str | None:
+        lacking = [k for k in self.requires if k not in context]
+        if lacking:
+            return f'needs covariate(s) {", ".join(lacking)}, which the data lack'
+        return None
+
+
+def _varying(values: np.ndarray, tolerance: float = 0.0) -> np.ndarray:
+    """Which columns of ``values`` (n, C) take more than one value."""
+    return np.ptp(values, axis=0) > tolerance
+
+
+class _PerChannel(Effect):
+    """An effect linear in one parameter per channel: term[:, c] = p_c * basis[:, c]."""
+
+    covariate = 'position'
+    unit = 'm'
+    suffix = ''
+
+    def basis(self, context: dict, width: int) -> np.ndarray:
+        """The term per unit parameter, shape (n, width)."""
+        raise NotImplementedError
+
+    def active(self, context: dict, width: int) -> np.ndarray:
+        """Which channels the data can inform, shape (width,) bool."""
+        return _varying(self.basis(context, width))
+
+    def inactive_reason(self) -> str:
+        return f'{self.covariate} does not vary in any channel'
+
+    def prepare(self, context, channels, channel_residuals):
+        reason = self.missing(context)
+        if reason:
+            return reason
+        width = len(channels)
+        active = self.active(context, width)
+        if not active.any():
+            return self.inactive_reason()
+        index = np.flatnonzero(active)
+
+        def term(params, ctx, basis=self.basis, index=index, width=width):
+            b = basis(ctx, width)
+            out = np.zeros((len(b), width))
+            out[:, index] = b[:, index] * params
+            return out
+
+        names = tuple(f'{self.suffix}_{channels[i]}' if self.suffix else channels[i]
+                      for i in index)
+        return Prepared(self, names, (self.unit,) * len(index), np.zeros(len(index)), term)
+
+
+class Offset(_PerChannel):
+    name, meaning, requires = 'offset', 'constant shift of each channel', ('position',)
+    suffix = 'offset'
+
+    def active(self, context, width):
+        return np.ones(width, dtype=bool)
+
+    def basis(self, context, width):
+        return np.ones((len(context['position']), width))
+
+
+class Scale(_PerChannel):
+    name, meaning, requires = 'scale', 'scale (length) error of each channel', ('position',)
+    unit, suffix = '1', 'scale'
+
+    def basis(self, context, width):
+        return context['position']
+
+
+class Reversal(_PerChannel):
+    name = 'reversal'
+    meaning = ('backlash / lost motion: the driven part lags by b/2 against the direction of '
+               'approach')
+    requires, covariate, suffix = ('direction',), 'direction', 'backlash'
+
+    def inactive_reason(self):
+        return ('every channel is approached from one direction only: backlash cannot be '
+                'told from an offset')
+
+    def basis(self, context, width):
+        return -0.5 * context['direction']
+
+
+class DriftTime(_PerChannel):
+    name, meaning, requires = 'drift_time', 'linear drift of each channel with time', ('time',)
+    covariate, unit, suffix = 'time', 'm/s', 'rate'
+
+    def inactive_reason(self):
+        return 'time is constant in the data'
+
+    def basis(self, context, width):
+        t = context['time'] - context.get('time_ref', 0.0)
+        return np.repeat(t[:, None], width, axis=1)
+
+
+class LegPlay(_PerChannel):
+    name = 'leg_play'
+    meaning = ('joint play taken up by the static leg force: compression shortens a leg by '
+               'play/2, tension lengthens it')
+    requires, covariate, suffix = ('load',), 'load', 'play'
+
+    def active(self, context, width):
+        load = context['load']
+        return (load > 0).any(axis=0) & (load < 0).any(axis=0)
+
+    def inactive_reason(self):
+        return ('no channel\'s static force changes sign: play cannot be told from an '
+                'offset')
+
+    def basis(self, context, width):
+        return -0.5 * np.sign(context['load'])
+
+
+class Compliance(_PerChannel):
+    name, meaning = 'compliance', 'elastic deflection proportional to the static load'
+    requires, covariate, unit, suffix = ('load',), 'load', 'm/N', 'compliance'
+
+    def inactive_reason(self):
+        return 'the static load does not vary in any channel'
+
+    def basis(self, context, width):
+        return -context['load']
+
+
+class Squareness(Effect):
+    name = 'squareness'
+    meaning = 'non-orthogonality of two axes: the first axis picks up gamma times the second'
+    requires = ('position',)
+
+    def prepare(self, context, channels, channel_residuals):
+        reason = self.missing(context)
+        if reason:
+            return reason
+        position = context['position']
+        if position.shape[1] != 2:
+            return f'needs exactly two axes, the model has {position.shape[1]} channel(s)'
+        if not _varying(position).all():
+            return 'both axes must move for squareness to be observable'
+
+        def term(params, ctx):
+            out = np.zeros_like(ctx['position'])
+            out[:, 0] = params[0] * ctx['position'][:, 1]
+            return out
+
+        return Prepared(self, ('gamma',), ('rad',), np.zeros(1), term)
+
+
+class DriftTemperature(Effect):
+    name = 'drift_temperature'
+    meaning = ('thermal expansion (k, 1/K, proportional to position) and zero drift '
+               '(c, m/K) with temperature')
+    requires = ('temperature', 'position')
+
+    def prepare(self, context, channels, channel_residuals):
+        reason = self.missing(context)
+        if reason:
+            return reason
+        if np.ptp(context['temperature']) <= 0:
+            return 'temperature is constant in the data'
+        count = len(channels)
+
+        def term(params, ctx):
+            k, c = params[:count], params[count:]
+            dt = (ctx['temperature'] - ctx.get('temperature_ref', 0.0))[:, None]
+            return (k * ctx['position'] + c) * dt
+
+        names = tuple(f'expansion_{c}' for c in channels) + tuple(f'zero_drift_{c}' for c in channels)
+        return Prepared(self, names, ('1/K',) * count + ('m/K',) * count,
+                        np.zeros(2 * count), term)
+
+
+class Periodic(Effect):
+    """Cyclic error per channel; its period comes from a Lomb-Scargle periodogram of the
+    channel residuals against channel position and is then refined in the joint fit."""
+
+    name = 'periodic'
+    meaning = ('cyclic error per channel (lead-screw wobble, encoder interpolation), '
+               'amplitude and period found from the data')
+    requires = ('position',)
+    min_samples = 20
+
+    def prepare(self, context, channels, channel_residuals):
+        reason = self.missing(context)
+        if reason:
+            return reason
+        position = context['position']
+        if len(position) < self.min_samples:
+            return (f'{len(position)} rows are too few to find a period '
+                    f'(needs {self.min_samples})')
+        periods, trials, index = [], 1.0, []
+        for c in range(position.shape[1]):
+            x, r = position[:, c], channel_residuals[:, c]
+            span = np.ptp(x)
+            if span <= 0:
+                continue
+            distinct = np.unique(x)
+            # Periods down to the mean target spacing, or twice the median one; irregular
+            # targets (as ISO 230-2 asks for) resolve periods down to there.
+            f_low = 2.0 / span
+            f_high = max(len(distinct) / span, 0.5 / np.median(np.diff(distinct))) \
+                if len(distinct) > 2 else f_low
+            if f_high <= f_low:
+                continue
+            count = int(min(20000, max(200, 10 * (f_high - f_low) * span)))
+            freqs = np.linspace(f_low, f_high, count)
+            power = lombscargle(x, r, 2 * np.pi * freqs, floating_mean=True)
+            periods.append(1.0 / freqs[np.argmax(power)])
+            trials *= max((f_high - f_low) * span, 1.0)
+            index.append(c)
+        if not index:
+            return 'no channel moves far enough to show a period'
+        index = np.array(index)
+        count = len(index)
+        width = len(channels)
+
+        def term(params, ctx):
+            a, b, period = params[:count], params[count:2 * count], params[2 * count:]
+            phase = 2 * np.pi * ctx['position'][:, index] / period
+            out = np.zeros((len(phase), width))
+            out[:, index] = a * np.cos(phase) + b * np.sin(phase)
+            return out
+
+        initial = []
+        for c, period in zip(index, periods):
+            phase = 2 * np.pi * position[:, c] / period
+            design = np.column_stack([np.cos(phase), np.sin(phase), np.ones_like(phase)])
+            initial.append(np.linalg.lstsq(design, channel_residuals[:, c], rcond=None)[0][:2])
+        initial = np.array(initial)
+        names = (tuple(f'cos_{channels[i]}' for i in index) + tuple(f'sin_{channels[i]}' for i in index)
+                 + tuple(f'period_{channels[i]}' for i in index))
+        units = ('m',) * (2 * count) + ('m',) * count
+        return Prepared(self, names, units,
+                        np.concatenate([initial[:, 0], initial[:, 1], periods]), term,
+                        trials=trials)
+
+
+class RadialDistortion(Effect):
+    name = 'radial_distortion'
+    meaning = 'radial lens distortion (OpenCV k1, k2): x_n (k1 r^2 + k2 r^4)'
+    requires = ('normalized',)
+
+    def prepare(self, context, channels, channel_residuals):
+        reason = self.missing(context)
+        if reason:
+            return reason
+
+        def term(params, ctx):
+            n = ctx['normalized']
+            r2 = np.sum(n ** 2, axis=1, keepdims=True)
+            return n * (params[0] * r2 + params[1] * r2 ** 2)
+
+        return Prepared(self, ('k1', 'k2'), ('1', '1'), np.zeros(2), term)
+
+
+class TangentialDistortion(Effect):
+    name = 'tangential_distortion'
+    meaning = 'decentring lens distortion (OpenCV p1, p2)'
+    requires = ('normalized',)
+
+    def prepare(self, context, channels, channel_residuals):
+        reason = self.missing(context)
+        if reason:
+            return reason
+
+        def term(params, ctx):
+            x, y = ctx['normalized'][:, 0], ctx['normalized'][:, 1]
+            p1, p2 = params
+            r2 = x ** 2 + y ** 2
+            return np.column_stack([2 * p1 * x * y + p2 * (r2 + 2 * x ** 2),
+                                    p1 * (r2 + 2 * y ** 2) + 2 * p2 * x * y])
+
+        return Prepared(self, ('p1', 'p2'), ('1', '1'), np.zeros(2), term)
+
+
+LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
+                               DriftTime(), DriftTemperature(), RadialDistortion(),
+                               TangentialDistortion(), LegPlay(), Compliance())}
