@@ -57,9 +57,9 @@ class AxisData:
         return len(self.command)
 
     @classmethod
-    def from_csv(cls, path) -> 'AxisData':
+    def from_csv(cls, path, dropped: dict | None = None) -> 'AxisData':
         """Read the axis CSV of DESIGN.md section 6 (command, measured in m; direction)."""
-        columns = read_columns(path, list(AXIS_COLUMNS))
+        columns = read_columns(path, list(AXIS_COLUMNS), dropped)
         return cls(columns['command'], columns['measured'], columns['direction'],
                    {k: v for k, v in columns.items() if k not in AXIS_COLUMNS})
 

@@ -422,3 +422,29 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
         'unexplained': unexplained,
     }
     return LoopResult(report, holdout, before_all, after_all, covariates)
+
+
+def format_report(report: dict) -> str:
+    """A few lines for people: what was added, the held-out error before and after, what
+    was skipped and what structure remains."""
+    factor, unit = (1e6, 'um') if report['unit'] == 'm' else (1.0, report['unit'])
+    lines = [f'{report["machine"]}: base model {report["base_model"]}',
+             f'  rows: {report["rows"]["fitting"]} fitted, {report["rows"]["held_out"]} held out']
+    for effect in report['effects_added']:
+        values = ', '.join(f'{k} {v:.4g} {effect["units"][k]}'
+                           for k, v in effect['parameters'].items())
+        lines.append(f'  added {effect["name"]} (p = {effect["evidence"]["p_value"]:.2g}, '
+                     f'CV RMS {effect["evidence"]["cv_rms_before"] * factor:.3g} -> '
+                     f'{effect["evidence"]["cv_rms_after"] * factor:.3g} {unit}): {values}')
+    if not report['effects_added']:
+        lines.append('  added nothing: no candidate effect is significant')
+    lines.append(f'  held out: RMS {report["rms_before"] * factor:.3g} -> '
+                 f'{report["rms_after"] * factor:.3g} {unit}, max '
+                 f'{report["max_before"] * factor:.3g} -> {report["max_after"] * factor:.3g} {unit}')
+    for name, reason in report['skipped'].items():
+        lines.append(f'  skipped {name}: {reason}')
+    for item in report['unexplained']:
+        lines.append(f'  UNEXPLAINED {item["kind"]} of {item["component"]} against '
+                     f'{item["covariate"]}: {item["structure_rms"] * factor:.3g} {unit} RMS '
+                     f'(p = {item["p_value"]:.2g})')
+    return '\n'.join(lines)

@@ -9,10 +9,14 @@ import numpy as np
 from calib_core.errors import InvalidInputError
 
 
-def read_columns(path: str | os.PathLike, required: list[str]) -> dict[str, np.ndarray]:
+def read_columns(path: str | os.PathLike, required: list[str],
+                 dropped: dict | None = None) -> dict[str, np.ndarray]:
     """Read a CSV with a header row into float columns.
 
     Every column is returned (extra numeric columns are covariates for later analysis).
+    Extra columns that are not numeric are left out. Given a ``dropped`` dict, extra
+    columns with NaN or infinite values are left out too, with the reason stored in it
+    under the column's name; otherwise they are an error.
 
     Raises
     ------
@@ -51,6 +55,23 @@ def read_columns(path: str | os.PathLike, required: list[str]) -> dict[str, np.n
             array = np.array(values)
             if not np.all(np.isfinite(array)):
                 bad = int(np.argmax(~np.isfinite(array))) + 2
-                raise InvalidInputError(f'{path} line {bad}: {name} is NaN or infinite')
+                if dropped is None or name in required:
+                    raise InvalidInputError(f'{path} line {bad}: {name} is NaN or infinite')
+                dropped[name] = f'NaN or infinite from line {bad}: column not used'
+                continue
             columns[name] = array
     return columns
+
+
+def directions_from_order(command: np.ndarray) -> np.ndarray:
+    """Direction of approach (+1 / -1) of each row from the order the targets were
+    visited, shape like ``command`` (n, C): the sign of the last move that changed each
+    axis (+1 before the first move)."""
+    command = np.asarray(command, dtype=float)
+    out = np.ones_like(command)
+    last = np.ones(command.shape[1])
+    for i in range(1, len(command)):
+        step = command[i] - command[i - 1]
+        last = np.where(step != 0, np.sign(step), last)
+        out[i] = last
+    return out

@@ -183,22 +183,60 @@ class DriftTime(_PerChannel):
         return np.repeat(t[:, None], width, axis=1)
 
 
-class LegPlay(_PerChannel):
+class LegPlay(Effect):
+    """Joint play per leg. Where the static force is large it holds the play closed on one
+    side; below a closing force (found from the data among ``thresholds``) the play stays
+    where the last move left it, so the direction of approach decides, when known."""
+
     name = 'leg_play'
     meaning = ('joint play taken up by the static leg force: compression shortens a leg by '
-               'play/2, tension lengthens it')
-    requires, covariate, suffix = ('load',), 'load', 'play'
+               'play/2, tension lengthens it; below the closing force the last move decides')
+    requires = ('load',)
+    thresholds = (0.0, 1.0, 2.0, 5.0, 10.0, 20.0)   # N
 
-    def active(self, context, width):
+    @staticmethod
+    def side(context: dict, threshold: float) -> np.ndarray:
+        """Which side (+1 / -1) the play sits on, (n, C)."""
         load = context['load']
-        return (load > 0).any(axis=0) & (load < 0).any(axis=0)
+        weak = np.abs(load) < threshold
+        direction = context.get('direction')
+        if direction is None:
+            return np.sign(load)
+        return np.where(weak, direction, np.sign(load))
 
-    def inactive_reason(self):
-        return ('no channel\'s static force changes sign: play cannot be told from an '
-                'offset')
+    def prepare(self, context, channels, channel_residuals):
+        reason = self.missing(context)
+        if reason:
+            return reason
+        load = context['load']
+        active = (load > 0).any(axis=0) & (load < 0).any(axis=0)
+        if not active.any():
+            return ('no channel\'s static force changes sign: play cannot be told from an '
+                    'offset')
+        index = np.flatnonzero(active)
+        thresholds = self.thresholds if 'direction' in context else (0.0,)
+        best = None
+        for threshold in thresholds:
+            basis = -0.5 * self.side(context, threshold)[:, index]
+            rss = 0.0
+            for k, c in enumerate(index):
+                design = np.column_stack([basis[:, k], np.ones(len(basis))])
+                fit = np.linalg.lstsq(design, channel_residuals[:, c], rcond=None)[0]
+                rss += float(np.sum((channel_residuals[:, c] - design @ fit) ** 2))
+            if best is None or rss < best[0]:
+                best = (rss, threshold)
+        threshold = best[1]
+        width = len(channels)
 
-    def basis(self, context, width):
-        return -0.5 * np.sign(context['load'])
+        def term(params, ctx):
+            out = np.zeros((len(ctx['load']), width))
+            out[:, index] = -0.5 * self.side(ctx, threshold)[:, index] * params
+            return out
+
+        return Prepared(self, tuple(f'play_{channels[i]}' for i in index),
+                        ('m',) * len(index), np.zeros(len(index)), term,
+                        trials=float(len(thresholds)),
+                        notes={'force_to_close_play_N': threshold})
 
 
 class Compliance(_PerChannel):

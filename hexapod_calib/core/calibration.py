@@ -77,11 +77,11 @@ class PoseData:
                         {k: np.concatenate([p.covariates[k] for p in parts]) for k in keys})
 
     @classmethod
-    def from_csv(cls, path, nominal: HexapodGeometry) -> 'PoseData':
+    def from_csv(cls, path, nominal: HexapodGeometry, dropped: dict | None = None) -> 'PoseData':
         """Read the pose CSV of DESIGN.md section 6. Without ``l1..l6`` columns the
         commanded leg lengths are those of the nominal geometry at the commanded pose (what
         an uncalibrated controller sends)."""
-        columns = read_columns(path, list(POSE_NAMES) + list(MEASURED_NAMES))
+        columns = read_columns(path, list(POSE_NAMES) + list(MEASURED_NAMES), dropped)
         commanded = np.column_stack([columns[n] for n in POSE_NAMES])
         measured = np.column_stack([columns[n] for n in MEASURED_NAMES])
         present = [n for n in LEG_NAMES if n in columns]

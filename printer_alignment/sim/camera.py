@@ -106,3 +106,34 @@ class CameraSim:
         electrons = self.rng.poisson(np.clip(ideal, 0, None) * o.gain) / o.gain
         noisy = electrons + self.rng.normal(0.0, o.read_noise, ideal.shape)
         return np.clip(np.round(noisy), 0, 255).astype(np.uint8)
+
+
+def tilted_plate_views(camera_matrix: np.ndarray, distortion, image_size=(640, 480),
+                       views: int = 12, grid=(9, 7), pitch: float = 0.01,
+                       noise_px: float = 0.05, seed: int = 0) -> list:
+    """Correspondences of a planar grid target (``grid`` points, ``pitch`` m) seen in
+    ``views`` tilted poses (up to about 30 degrees) by a camera with OpenCV
+    ``camera_matrix`` and ``distortion`` (k1, k2, p1, p2[, k3]); Gaussian pixel noise of
+    ``noise_px``. Points outside the image are dropped. Returns
+    :class:`printer_alignment.core.camera_calibration.View` objects."""
+    from printer_alignment.core.camera_calibration import View
+    rng = np.random.default_rng(seed)
+    cols, rows = grid
+    model = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), -1).reshape(-1, 2) * pitch
+    model = model - model.mean(axis=0)
+    focal = camera_matrix[0, 0]
+    # Distance at which the target spans about 70 % of the image width.
+    distance = focal * (cols - 1) * pitch / (0.7 * image_size[0])
+    out = []
+    while len(out) < views:
+        rvec = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-0.3, 0.3)])
+        shift = rng.uniform(-0.15, 0.15, 2) * distance
+        tvec = np.array([shift[0], shift[1], distance * rng.uniform(0.9, 1.2)])
+        points = np.column_stack([model, np.zeros(len(model))])
+        pixels = cv2.projectPoints(points, rvec, tvec, camera_matrix,
+                                   np.asarray(distortion, float))[0].reshape(-1, 2)
+        pixels = pixels + rng.normal(0, noise_px, pixels.shape)
+        inside = ((pixels >= 0) & (pixels <= np.array(image_size) - 1)).all(axis=1)
+        if inside.sum() >= 0.8 * len(model):
+            out.append(View(model[inside], pixels[inside]))
+    return out

@@ -103,3 +103,22 @@ class GantrySim:
             + e.periodic_amplitude_y * np.sin(2 * np.pi * theta[1] + e.periodic_phase_y)
             - 0.5 * e.backlash_y * self._direction[1]])
         return e.model.matrix() @ screw + np.array([e.model.offset_x, e.model.offset_y])
+
+
+def measure_positions(gantry: GantrySim, targets: np.ndarray, noise: float = 0.3e-6,
+                      seed: int = 0):
+    """Visit ``targets`` (commanded axis positions, m, (n, 2)) in order and measure the
+    camera position through the camera and a dot plate, with ``noise`` m (1 sigma) per
+    coordinate; the data for the closed loop (directions from the moves)."""
+    from calib_core.datasets import directions_from_order
+    from printer_alignment.core.loop_models import GantryData
+    rng = np.random.default_rng(seed)
+    targets = np.atleast_2d(np.asarray(targets, dtype=float))
+    measured = []
+    for x, y in targets:
+        gantry.move(x, y)
+        measured.append(gantry.true_camera_position() + rng.normal(0, noise, 2))
+    start = np.array([gantry.travel.x_min, gantry.travel.y_min])
+    # The gantry's own state fixes the direction of the first target.
+    with_start = np.vstack([start, targets])
+    return GantryData(targets, np.array(measured), directions_from_order(with_start)[1:])

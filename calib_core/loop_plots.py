@@ -1,0 +1,79 @@
+"""Pictures of a closed-loop run: residuals against each covariate and over the workspace,
+before (base model) and after (extended model), and held-out error histograms."""
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from calib_core.closed_loop import LoopResult, MachineModel  # noqa: E402
+
+_SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px')}
+_MAX_COVARIATE_PANELS = 12
+
+
+def _component(machine: MachineModel, name: str, residuals: np.ndarray) -> np.ndarray:
+    """The residual to plot against covariate ``name``: the matching channel's when the
+    covariate belongs to one, else every component pooled (repeated covariate)."""
+    if residuals.shape[1] == len(machine.channels):
+        for c, channel in enumerate(machine.channels):
+            if name.endswith(f'_{channel}'):
+                return residuals[:, c]
+    return residuals
+
+
+def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
+    """Write the figure for ``result`` to ``path`` (PNG)."""
+    report = result.report
+    factor, unit = _SCALES.get(machine.unit, (1.0, machine.unit))
+    covariates = list(result.covariates.items())[:_MAX_COVARIATE_PANELS]
+    workspace = machine.workspace()
+    panels = len(covariates) + 1 + (workspace is not None and result.residuals_after.shape[1] == 2)
+    cols = min(3, panels)
+    rows = int(np.ceil(panels / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.6 * rows), squeeze=False)
+    axes = axes.ravel()
+    held = result.holdout
+    for ax, (name, z) in zip(axes, covariates):
+        for residuals, colour, label in ((result.residuals_before, 'tab:red', 'base model'),
+                                         (result.residuals_after, 'tab:blue', 'after loop')):
+            r = _component(machine, name, residuals) * factor
+            zz = np.broadcast_to(z[:, None], r.shape) if r.ndim == 2 else z
+            ax.plot(zz.ravel(), r.ravel(), '.', ms=2, color=colour, alpha=0.5, label=label)
+        ax.set_xlabel(name)
+        ax.set_ylabel(f'residual ({unit})')
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc='best', fontsize=8)
+    k = len(covariates)
+    ax = axes[k]
+    before = machine.row_errors(result.residuals_before[held]) * factor
+    after = machine.row_errors(result.residuals_after[held]) * factor
+    bins = np.linspace(0, max(before.max(), after.max()) * 1.02, 30)
+    ax.hist(before, bins, color='tab:red', alpha=0.6,
+            label=f'base: RMS {report["rms_before"] * factor:.3g} {unit}')
+    ax.hist(after, bins, color='tab:blue', alpha=0.6,
+            label=f'after: RMS {report["rms_after"] * factor:.3g} {unit}')
+    ax.set_xlabel(f'held-out error ({unit})')
+    ax.set_ylabel('count')
+    ax.legend(fontsize=8)
+    if workspace is not None and result.residuals_after.shape[1] == 2:
+        ax = axes[k + 1]
+        span = np.ptp(workspace, axis=0).max() or 1.0
+        for residuals, colour in ((result.residuals_before, 'tab:red'),
+                                  (result.residuals_after, 'tab:blue')):
+            largest = np.abs(result.residuals_before).max() or 1.0
+            ax.quiver(workspace[:, 0], workspace[:, 1], residuals[:, 0], residuals[:, 1],
+                      color=colour, angles='xy', scale_units='xy',
+                      scale=largest / (0.05 * span), width=0.003)
+        ax.set_aspect('equal')
+        ax.set_title('residual vectors (red: base, blue: after)', fontsize=9)
+    for ax in axes[panels:]:
+        ax.axis('off')
+    names = ', '.join(e['name'] for e in report['effects_added']) or 'nothing'
+    fig.suptitle(f'{report["machine"]}: added {names}; held-out RMS '
+                 f'{report["rms_before"] * factor:.3g} -> {report["rms_after"] * factor:.3g} {unit}')
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

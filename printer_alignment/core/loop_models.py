@@ -1,0 +1,232 @@
+"""The printer's machines as seen by the closed loop: the camera gantry and the camera.
+
+Gantry base model (the paper's, without the non-orthogonality the loop may add as
+``squareness``)::
+
+    measured = R(a) [(1 + s_x) c_x + delta_x, (1 + s_y) c_y + delta_y] + [x0, y0]
+
+with commanded axis positions c (m, converted from motor angles with the nominal leads),
+scale errors s (the lead ratios Rx / Rx_nominal - 1), camera-axis angle a (rad) and the
+effect terms delta acting on the axes. Squareness gamma equals minus the paper's
+non-orthogonality t.
+
+Camera base model: a pinhole camera (fx, fy, cx, cy in px; one pose per view) without
+distortion; the effects act on normalised image coordinates exactly as OpenCV's
+distortion model does.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from calib_core.closed_loop import MachineModel
+from calib_core.datasets import directions_from_order, read_columns
+from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.parameters import Parameter, ParameterSet
+from calib_core.storage import write_atomic
+from printer_alignment.core.camera_calibration import View, infer_image_size
+from printer_alignment.core.geometry import rotation
+
+GANTRY_COLUMNS = ('command_x', 'command_y', 'measured_x', 'measured_y')
+DIRECTION_COLUMNS = ('direction_x', 'direction_y')
+_CONTEXT_COLUMNS = ('time', 'temperature')
+
+
+@dataclass(frozen=True)
+class GantryData:
+    """Camera positions measured at commanded gantry positions.
+
+    Attributes
+    ----------
+    command : ndarray (n, 2)
+        Commanded axis positions, m.
+    measured : ndarray (n, 2)
+        Camera position in the plate frame measured through the camera, m.
+    direction : ndarray (n, 2)
+        Direction of approach per axis (+1 / -1).
+    covariates : dict of str to ndarray (n,)
+    """
+
+    command: np.ndarray
+    measured: np.ndarray
+    direction: np.ndarray
+    covariates: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        for name in ('command', 'measured', 'direction'):
+            value = np.atleast_2d(np.asarray(getattr(self, name), dtype=float))
+            if value.ndim != 2 or value.shape[1] != 2:
+                raise InvalidInputError(f'{name} must have shape (n, 2), got {value.shape}')
+            if not np.all(np.isfinite(value)):
+                raise InvalidInputError(f'{name} contains NaN or infinite values')
+            object.__setattr__(self, name, value)
+        if not (len(self.command) == len(self.measured) == len(self.direction)):
+            raise InvalidInputError('command, measured and direction need the same rows')
+        if not np.all(np.isin(self.direction, (-1.0, 1.0))):
+            raise InvalidInputError('directions must be +1 or -1')
+
+    def __len__(self) -> int:
+        return len(self.command)
+
+    @classmethod
+    def from_csv(cls, path, dropped: dict | None = None) -> 'GantryData':
+        """Columns command_x, command_y, measured_x, measured_y (m); optional direction_x,
+        direction_y (+1 / -1; without them, from the order of the rows), time (s),
+        temperature (K)."""
+        columns = read_columns(path, list(GANTRY_COLUMNS), dropped)
+        command = np.column_stack([columns['command_x'], columns['command_y']])
+        present = [c for c in DIRECTION_COLUMNS if c in columns]
+        if len(present) == 1:
+            raise InvalidInputError(f'{path} has {present[0]} but not the other direction column')
+        direction = (np.column_stack([columns[c] for c in DIRECTION_COLUMNS]) if present
+                     else directions_from_order(command))
+        used = set(GANTRY_COLUMNS) | set(DIRECTION_COLUMNS)
+        return cls(command, np.column_stack([columns['measured_x'], columns['measured_y']]),
+                   direction, {k: v for k, v in columns.items() if k not in used})
+
+    def to_csv(self, path) -> None:
+        names = list(GANTRY_COLUMNS) + list(DIRECTION_COLUMNS) + list(self.covariates)
+        table = np.column_stack([self.command, self.measured, self.direction]
+                                + [self.covariates[k] for k in self.covariates])
+        lines = [','.join(names)] + [','.join(f'{v:.12g}' for v in row) for row in table]
+        write_atomic(path, '\n'.join(lines) + '\n')
+
+
+class GantryLoopModel(MachineModel):
+    """The camera gantry for the closed loop; channels are the two axes."""
+
+    name = 'gantry'
+    base_model = ('measured = R(axis_angle) [(1 + scale_x) command_x, (1 + scale_y) command_y] '
+                  '+ offset (m); the paper\'s model without non-orthogonality')
+    channels = ('x', 'y')
+    candidates = ('squareness', 'reversal', 'periodic', 'drift_time', 'drift_temperature')
+
+    def __init__(self, data: GantryData):
+        self.data = data
+        self._references = {f'{k}_ref': float(np.mean(data.covariates[k]))
+                            for k in _CONTEXT_COLUMNS if k in data.covariates}
+
+    def __len__(self):
+        return len(self.data)
+
+    def initial(self) -> ParameterSet:
+        d = self.data
+        start = np.mean(d.measured - d.command, axis=0)
+        return ParameterSet([Parameter('scale_x', 0.0, '1'), Parameter('scale_y', 0.0, '1'),
+                             Parameter('axis_angle', 0.0, 'rad'),
+                             Parameter('offset_x', float(start[0]), 'm'),
+                             Parameter('offset_y', float(start[1]), 'm')])
+
+    def context(self, base, rows):
+        d = self.data
+        context = {'position': d.command[rows], 'direction': d.direction[rows]}
+        for key in _CONTEXT_COLUMNS:
+            if key in d.covariates:
+                context[key] = d.covariates[key][rows]
+        context.update(self._references)
+        return context
+
+    def _axes(self, base, delta, rows):
+        scale = 1 + np.array([base['scale_x'], base['scale_y']])
+        return self.data.command[rows] * scale + delta
+
+    def residuals(self, base, delta, rows):
+        offset = np.array([base['offset_x'], base['offset_y']])
+        predicted = self._axes(base, delta, rows) @ rotation(base['axis_angle']).T + offset
+        return self.data.measured[rows] - predicted
+
+    def channel_residuals(self, base, delta, rows):
+        return self.residuals(base, delta, rows) @ rotation(base['axis_angle'])
+
+    def workspace(self):
+        return self.data.command
+
+
+def _rodrigues(rvecs: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of rotation vectors (n, 3), rad."""
+    angle = np.linalg.norm(rvecs, axis=1)
+    safe = np.where(angle > 0, angle, 1.0)
+    k = rvecs / safe[:, None]
+    kx = np.zeros((len(rvecs), 3, 3))
+    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    kx = kx - np.swapaxes(kx, 1, 2)
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    return np.eye(3) + s * kx + (1 - c) * kx @ kx
+
+
+class CameraLoopModel(MachineModel):
+    """A camera seen through planar-target correspondences; channels are the normalised
+    image coordinates. The base model starts from OpenCV's calibration with every
+    distortion coefficient held at zero."""
+
+    name = 'camera'
+    base_model = 'pinhole without distortion: fx, fy, cx, cy (px) and one pose per view'
+    unit = 'px'
+    channels = ('x_n', 'y_n')
+    candidates = ('radial_distortion', 'tangential_distortion')
+
+    def __init__(self, views: list[View], image_size: tuple[int, int] | None = None):
+        if len(views) < 2:
+            raise CalibrationError(f'camera intrinsics need at least 2 views, got {len(views)}')
+        for i, view in enumerate(views):
+            if len(view.model) < 6:
+                raise CalibrationError(f'view {i} has {len(view.model)} points; at least 6 '
+                                       'are needed')
+        self.views = views
+        self.image_size = image_size or infer_image_size(views)
+        self.view_index = np.concatenate([np.full(len(v.model), i) for i, v in enumerate(views)])
+        self.points = np.concatenate([np.column_stack([v.model, np.zeros(len(v.model))])
+                                      for v in views])
+        self.pixels = np.concatenate([v.pixels for v in views])
+
+    def __len__(self):
+        return len(self.points)
+
+    def initial(self) -> ParameterSet:
+        flags = (cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
+                 | cv2.CALIB_ZERO_TANGENT_DIST)
+        objects = [np.column_stack([v.model, np.zeros(len(v.model))]).astype(np.float32)
+                   for v in self.views]
+        images = [v.pixels.astype(np.float32) for v in self.views]
+        try:
+            _, matrix, _, rvecs, tvecs = cv2.calibrateCamera(objects, images, self.image_size,
+                                                             None, None, flags=flags)
+        except cv2.error as error:
+            raise CalibrationError(f'OpenCV could not calibrate the pinhole model: {error}') from None
+        parameters = [Parameter('fx', matrix[0, 0], 'px'), Parameter('fy', matrix[1, 1], 'px'),
+                      Parameter('cx', matrix[0, 2], 'px'), Parameter('cy', matrix[1, 2], 'px')]
+        for i, (r, t) in enumerate(zip(rvecs, tvecs)):
+            parameters += [Parameter(f'view{i}_r{a}', float(v), 'rad') for a, v in zip('xyz', r.ravel())]
+            parameters += [Parameter(f'view{i}_t{a}', float(v), 'm') for a, v in zip('xyz', t.ravel())]
+        return ParameterSet(parameters)
+
+    def _poses(self, base: ParameterSet):
+        poses = np.array(list(base.as_dict().values())[4:]).reshape(len(self.views), 6)
+        return _rodrigues(poses[:, :3]), poses[:, 3:]
+
+    def context(self, base, rows):
+        rotations, translations = self._poses(base)
+        v = self.view_index[rows]
+        camera = np.einsum('nij,nj->ni', rotations[v], self.points[rows]) + translations[v]
+        if np.any(camera[:, 2] <= 0):
+            raise CalibrationError('a target point lies behind the camera')
+        return {'normalized': camera[:, :2] / camera[:, 2:3]}
+
+    def _project(self, base, normalized):
+        return np.column_stack([base['fx'] * normalized[:, 0] + base['cx'],
+                                base['fy'] * normalized[:, 1] + base['cy']])
+
+    def residuals(self, base, delta, rows):
+        normalized = self.context(base, rows)['normalized'] + delta
+        return self.pixels[rows] - self._project(base, normalized)
+
+    def channel_residuals(self, base, delta, rows):
+        return self.residuals(base, delta, rows) / np.array([base['fx'], base['fy']])
+
+    def strata(self):
+        return self.view_index
+
+    def workspace(self):
+        return self.pixels
