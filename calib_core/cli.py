@@ -254,6 +254,64 @@ def cmd_simulate_hexapod(args) -> int:
     return 0
 
 
+def _loop_machine(args, dropped: dict):
+    """The closed loop's model of ``args.machine`` over ``args.data``."""
+    if args.machine == 'axis':
+        from calib_core.axis import AxisData, AxisModel
+        return AxisModel(AxisData.from_csv(args.data, dropped))
+    if args.machine == 'gantry':
+        from printer_alignment.core.loop_models import GantryData, GantryLoopModel
+        return GantryLoopModel(GantryData.from_csv(args.data, dropped))
+    if args.machine == 'camera':
+        from printer_alignment.core.camera_calibration import read_correspondences
+        from printer_alignment.core.loop_models import CameraLoopModel
+        size = _parse_size(args.image_size) if args.image_size else None
+        return CameraLoopModel(read_correspondences(args.data), size)
+    from hexapod_calib.core.calibration import PoseData
+    from hexapod_calib.core.geometry import read_geometry
+    from hexapod_calib.core.loop_model import HexapodLoopModel
+    nominal = read_geometry(args.geometry)
+    data = PoseData.from_csv(args.data, nominal, dropped)
+    forces = None
+    if args.payload:
+        from hexapod_calib.sim.hexapod import leg_forces
+        mass, *centre = args.payload
+        forces = leg_forces(nominal, data.commanded, mass, centre)
+    return HexapodLoopModel(data, nominal, forces)
+
+
+def cmd_analyze(args) -> int:
+    from calib_core.closed_loop import LoopConfig, analyze, format_report
+    from calib_core.loop_plots import plot_loop
+    dropped = {}
+    machine = _loop_machine(args, dropped)
+    config = LoopConfig(holdout_fraction=args.holdout, alpha=args.alpha, seed=args.seed,
+                        max_effects=args.max_effects)
+    result = analyze(machine, config, progress=_progress)
+    report = dict(result.report, data=str(args.data), dropped_columns=dropped)
+    print(format_report(report))
+    for name, reason in dropped.items():
+        print(f'  column {name}: {reason}')
+    if args.json:
+        _write_json(args.json, report)
+        plot = Path(args.json).with_suffix('.png')
+        plot_loop(plot, machine, result)
+        print(f'wrote {plot}')
+    return 0
+
+
+def cmd_simulate_axis(args) -> int:
+    from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
+    truth = AxisTruth(backlash=args.backlash, periodic_amplitude=args.periodic,
+                      pitch=args.pitch, expansion=args.expansion,
+                      temperature_rise=args.temperature_rise)
+    data = simulate_axis_test(truth, AxisTest(travel=args.travel, targets=args.targets,
+                                              cycles=args.cycles), seed=args.seed)
+    data.to_csv(args.out)
+    print(f'wrote {args.out} ({len(data)} rows)')
+    return 0
+
+
 def cmd_launch(args) -> int:
     import time
 
@@ -339,6 +397,50 @@ def build_parser() -> argparse.ArgumentParser:
     hexapod_sim.add_argument('--evaluation', type=int, default=30)
     hexapod_sim.add_argument('--seed', type=int, default=2)
     hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
+
+    axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
+                                                  'a simulated axis')
+    axis_sim.add_argument('--out', required=True, help='CSV to write')
+    axis_sim.add_argument('--backlash', type=float, default=0.0, help='m')
+    axis_sim.add_argument('--periodic', type=float, default=0.0, help='amplitude, m')
+    axis_sim.add_argument('--pitch', type=float, default=0.016, help='period, m')
+    axis_sim.add_argument('--expansion', type=float, default=0.0, help='1/K')
+    axis_sim.add_argument('--temperature-rise', type=float, default=0.0, help='K over the test')
+    axis_sim.add_argument('--travel', type=float, default=0.2, help='m')
+    axis_sim.add_argument('--targets', type=int, default=41)
+    axis_sim.add_argument('--cycles', type=int, default=5)
+    axis_sim.add_argument('--seed', type=int, default=0)
+    axis_sim.set_defaults(func=cmd_simulate_axis)
+
+    analyze = sub.add_parser('analyze', help='closed loop: find the effect a model lacks, '
+                                             'refit, report before/after on held-out data')
+    machines = analyze.add_subparsers(dest='machine', required=True)
+    formats = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional time (s), '
+                       'temperature (K)',
+               'gantry': 'CSV: command_x, command_y, measured_x, measured_y (m); optional '
+                         'direction_x, direction_y, time, temperature',
+               'camera': 'CSV: view, model_x, model_y (m), u, v (px)',
+               'hexapod': 'CSV: x..yaw, meas_x..meas_yaw (m, rad); optional l1..l6 (m), '
+                          'force1..force6 (N, compression positive), direction1..direction6, '
+                          'time, temperature'}
+    for name, help_text in formats.items():
+        machine = machines.add_parser(name, help=help_text)
+        machine.add_argument('--data', required=True, help=help_text)
+        machine.add_argument('--json', help='report to write; the plot goes beside it (.png)')
+        machine.add_argument('--holdout', type=float, default=0.3,
+                             help='fraction of rows kept out of every fit')
+        machine.add_argument('--alpha', type=float, default=1e-3, help='significance level')
+        machine.add_argument('--max-effects', type=int, default=4)
+        machine.add_argument('--seed', type=int, default=0, help='of the hold-out split')
+        if name == 'camera':
+            machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
+        if name == 'hexapod':
+            machine.add_argument('--geometry', required=True, help='nominal geometry YAML')
+            machine.add_argument('--payload', type=float, nargs=4,
+                                 metavar=('MASS', 'X', 'Y', 'Z'),
+                                 help='payload mass (kg) and centre of mass (m, platform '
+                                      'frame): leg forces for leg_play and compliance')
+        machine.set_defaults(func=cmd_analyze)
 
     launch = sub.add_parser('launch', help='start a simulated machine graph from the venv')
     launch.add_argument('graph', choices=['printer', 'hexapod'])

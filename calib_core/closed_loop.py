@@ -357,7 +357,7 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
         tested = len(scored)
         for entry in scored:
             entry['p_value'] = min(1.0, entry['p_value_raw'] * max(tested, 1))
-            entry['significant'] = entry['p_value'] < config.alpha
+            entry['significant'] = bool(entry['p_value'] < config.alpha)
             entry['cv_rms'] = (_cv_rms(machine, entry['fit'], train, folds)
                                if entry['significant'] else None)
         if progress:

@@ -99,6 +99,12 @@ def _varying(values: np.ndarray, tolerance: float = 0.0) -> np.ndarray:
     return np.ptp(values, axis=0) > tolerance
 
 
+def _both_signs(values: np.ndarray, needed: int = 5) -> np.ndarray:
+    """Which columns of ``values`` (n, C) have ``needed`` rows of each sign: enough for a
+    sign-dependent term to be told from an offset in every cross-validation fold."""
+    return ((values > 0).sum(axis=0) >= needed) & ((values < 0).sum(axis=0) >= needed)
+
+
 class _PerChannel(Effect):
     """An effect linear in one parameter per channel: term[:, c] = p_c * basis[:, c]."""
 
@@ -163,9 +169,12 @@ class Reversal(_PerChannel):
                'approach')
     requires, covariate, suffix = ('direction',), 'direction', 'backlash'
 
+    def active(self, context, width):
+        return _both_signs(context['direction'])
+
     def inactive_reason(self):
-        return ('every channel is approached from one direction only: backlash cannot be '
-                'told from an offset')
+        return ('no channel is approached often enough from both directions: backlash '
+                'cannot be told from an offset')
 
     def basis(self, context, width):
         return -0.5 * context['direction']
@@ -209,10 +218,10 @@ class LegPlay(Effect):
         if reason:
             return reason
         load = context['load']
-        active = (load > 0).any(axis=0) & (load < 0).any(axis=0)
+        active = _both_signs(load)
         if not active.any():
-            return ('no channel\'s static force changes sign: play cannot be told from an '
-                    'offset')
+            return ('no channel\'s static force changes sign often enough: play cannot be '
+                    'told from an offset')
         index = np.flatnonzero(active)
         thresholds = self.thresholds if 'direction' in context else (0.0,)
         best = None

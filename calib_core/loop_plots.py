@@ -12,6 +12,8 @@ from calib_core.closed_loop import LoopResult, MachineModel  # noqa: E402
 
 _SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px')}
 _MAX_COVARIATE_PANELS = 12
+_COVARIATE_UNITS = {'position': 'm', 'direction': '+1 / -1', 'time': 's', 'temperature': 'K',
+                    'load': 'N', 'image': 'normalised'}
 
 
 def _component(machine: MachineModel, name: str, residuals: np.ndarray) -> np.ndarray:
@@ -28,7 +30,8 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     """Write the figure for ``result`` to ``path`` (PNG)."""
     report = result.report
     factor, unit = _SCALES.get(machine.unit, (1.0, machine.unit))
-    covariates = list(result.covariates.items())[:_MAX_COVARIATE_PANELS]
+    covariates = [(name, z) for name, z in result.covariates.items()
+                  if np.ptp(z) > 0][:_MAX_COVARIATE_PANELS]
     workspace = machine.workspace()
     panels = len(covariates) + 1 + (workspace is not None and result.residuals_after.shape[1] == 2)
     cols = min(3, panels)
@@ -42,7 +45,7 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
             r = _component(machine, name, residuals) * factor
             zz = np.broadcast_to(z[:, None], r.shape) if r.ndim == 2 else z
             ax.plot(zz.ravel(), r.ravel(), '.', ms=2, color=colour, alpha=0.5, label=label)
-        ax.set_xlabel(name)
+        ax.set_xlabel(f'{name} ({_COVARIATE_UNITS.get(name.split("_")[0], "")})')
         ax.set_ylabel(f'residual ({unit})')
         ax.grid(alpha=0.3)
     axes[0].legend(loc='best', fontsize=8)

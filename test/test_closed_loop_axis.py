@@ -84,7 +84,7 @@ def test_one_direction_only_skips_reversal_and_says_why():
     data = simulate_axis_test(AxisTruth(backlash=4e-6), seed=16, bidirectional=False)
     report = analyze(AxisModel(data)).report
     assert 'reversal' in report['skipped']
-    assert 'one direction' in report['skipped']['reversal']
+    assert 'both directions' in report['skipped']['reversal']
     assert 'temperature is constant' in report['skipped']['drift_temperature']
 
 

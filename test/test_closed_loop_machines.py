@@ -1,0 +1,186 @@
+"""The closed loop on the gantry, the camera (simulated and real photos) and the hexapod:
+the undeclared effect is named and recovered, clean data get nothing."""
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from calib_core.cli import main as cli_main
+from calib_core.closed_loop import analyze
+from hexapod_calib.core.geometry import nominal_geometry, write_geometry
+from hexapod_calib.core.kinematics import inverse_kinematics
+from hexapod_calib.core.loop_model import HexapodLoopModel
+from hexapod_calib.core.procedure import HexapodPlan, measure_poses
+from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim, leg_forces
+from printer_alignment.core.camera_calibration import views_from_images
+from printer_alignment.core.loop_models import CameraLoopModel, GantryData, GantryLoopModel
+from printer_alignment.sim.camera import tilted_plate_views
+from printer_alignment.sim.gantry import GantryErrors, GantrySim, measure_positions
+
+GANTRY_NOISE = 0.3e-6          # m per coordinate
+CAMERA_NOISE = 0.05            # px per coordinate
+CAMERA = np.array([[800.0, 0, 322], [0, 805, 236], [0, 0, 1]])
+
+
+def _added(report):
+    return {e['name']: e for e in report['effects_added']}
+
+
+def _gantry_data(errors, seed, count=200):
+    targets = np.random.default_rng(seed).uniform([0, 0], [0.2, 0.15], (count, 2))
+    return measure_positions(GantrySim(errors), targets, GANTRY_NOISE, seed=seed + 1)
+
+
+def test_gantry_backlash_screw_error_and_squareness_found():
+    truth = GantryErrors()
+    report = analyze(GantryLoopModel(_gantry_data(truth, seed=1))).report
+    effects = _added(report)
+    assert set(effects) == {'squareness', 'reversal', 'periodic'}
+    # Tolerance table: recovered against the simulation's truth.
+    backlash = effects['reversal']['parameters']
+    assert backlash['backlash_x'] == pytest.approx(truth.backlash_x, abs=0.3e-6)
+    assert backlash['backlash_y'] == pytest.approx(truth.backlash_y, abs=0.3e-6)
+    assert effects['squareness']['parameters']['gamma'] == pytest.approx(
+        -truth.model.non_orthogonality, abs=5e-6)
+    periodic = effects['periodic']['parameters']
+    assert periodic['period_x'] == pytest.approx(0.016, abs=0.05e-3)   # one screw revolution
+    assert periodic['period_y'] == pytest.approx(0.040, abs=0.2e-3)
+    assert np.hypot(periodic['cos_x'], periodic['sin_x']) == pytest.approx(1.5e-6, abs=0.2e-6)
+    floor = np.sqrt(2) * GANTRY_NOISE
+    assert report['rms_before'] > 5 * floor
+    assert report['rms_after'] < 1.3 * floor
+
+
+def test_gantry_clean_data_get_nothing():
+    for seed in range(5):
+        report = analyze(GantryLoopModel(_gantry_data(GantryErrors.ideal(), seed=10 + seed))).report
+        assert report['effects_added'] == [] and report['unexplained'] == []
+
+
+def test_gantry_directions_from_row_order(tmp_path):
+    data = _gantry_data(GantryErrors(), seed=3, count=40)
+    path = tmp_path / 'gantry.csv'
+    lines = ['command_x,command_y,measured_x,measured_y']
+    lines += [','.join(f'{v:.12g}' for v in (*c, *m)) for c, m in zip(data.command, data.measured)]
+    path.write_text('\n'.join(lines) + '\n')
+    np.testing.assert_array_equal(GantryData.from_csv(path).direction, data.direction)
+
+
+def test_camera_radial_distortion_found():
+    views = tilted_plate_views(CAMERA, (-0.25, 0.08, 0, 0), noise_px=CAMERA_NOISE, seed=4)
+    report = analyze(CameraLoopModel(views, (640, 480))).report
+    effects = _added(report)
+    assert list(effects) == ['radial_distortion']
+    assert effects['radial_distortion']['parameters']['k1'] == pytest.approx(-0.25, abs=0.01)
+    assert effects['radial_distortion']['parameters']['k2'] == pytest.approx(0.08, abs=0.03)
+    floor = np.sqrt(2) * CAMERA_NOISE
+    assert report['rms_before'] > 10 * floor
+    assert report['rms_after'] < 1.3 * floor
+    assert report['base_parameters']['after']['fx'] == pytest.approx(800, abs=2)
+
+
+def test_camera_two_effects_and_clean_views():
+    views = tilted_plate_views(CAMERA, (-0.25, 0.08, 1e-3, -8e-4), noise_px=CAMERA_NOISE, seed=5)
+    effects = _added(analyze(CameraLoopModel(views, (640, 480))).report)
+    assert set(effects) == {'radial_distortion', 'tangential_distortion'}
+    assert effects['tangential_distortion']['parameters']['p1'] == pytest.approx(1e-3, abs=2e-4)
+    assert effects['tangential_distortion']['parameters']['p2'] == pytest.approx(-8e-4, abs=2e-4)
+    clean = tilted_plate_views(CAMERA, (0, 0, 0, 0), noise_px=CAMERA_NOISE, seed=6)
+    report = analyze(CameraLoopModel(clean)).report
+    assert report['effects_added'] == [] and report['unexplained'] == []
+
+
+def test_real_chessboard_photos_start_without_distortion(real_data):
+    photos = sorted((real_data / 'boofcv_mono' / 'Sony_DSC-HX5V_Chess').glob('*.jpg'))
+    views, size, _ = views_from_images(photos, 'chessboard', 4, 6, 0.03)
+    report = analyze(CameraLoopModel(views, size)).report
+    effects = _added(report)
+    assert 'radial_distortion' in effects
+    # BoofCV's own calibration of these photos: k1 = -0.2556.
+    assert effects['radial_distortion']['parameters']['k1'] == pytest.approx(-0.2556, abs=0.02)
+    assert report['rms_after'] < 0.3 < report['rms_before']
+
+
+def _hexapod_data(truth, seed, count=200):
+    nominal = nominal_geometry()
+    sim = HexapodSim(truth, nominal, seed=seed)
+    sensor = PoseSensorSim(seed=seed + 1)
+    poses, _ = HexapodPlan(num_poses=count, num_evaluation=1, num_candidates=2 * count + 10,
+                           seed=seed + 2).poses(nominal)
+    data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
+                         lambda: sensor.measure(sim.pose))
+    # The engineer knows the payload; the forces come from the nominal geometry.
+    forces = leg_forces(nominal, poses, truth.payload_mass, truth.payload_centre)
+    return nominal, data, forces
+
+
+# A tall fixture: its weight's lever arm makes every leg's force change sign over the
+# workspace, so the play is observable in every leg.
+TALL_PAYLOAD = (0.02, -0.01, 0.5)
+
+
+def test_hexapod_joint_play_found():
+    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD)
+    nominal, data, forces = _hexapod_data(truth, seed=3)
+    report = analyze(HexapodLoopModel(data, nominal, forces)).report
+    effects = _added(report)
+    assert list(effects) == ['leg_play']
+    play = np.array(list(effects['leg_play']['parameters'].values()))
+    # The model sees the nominal force at the commanded pose; the sim closes the play by
+    # the true force at the true pose, and by the last move below 5 N. Near that closing
+    # force the two disagree, which biases single legs by up to about 2 um.
+    np.testing.assert_allclose(play, truth.leg_play, atol=2.0e-6)
+    assert np.mean(play) == pytest.approx(np.mean(truth.leg_play), abs=0.6e-6)
+    assert effects['leg_play']['force_to_close_play_N'] == 5.0
+    clean = dataclasses.replace(truth, leg_play=np.zeros(6))
+    _, clean_data, clean_forces = _hexapod_data(clean, seed=3)
+    clean_report = analyze(HexapodLoopModel(clean_data, nominal, clean_forces)).report
+    assert clean_report['effects_added'] == []
+    floor = clean_report['rms_after']
+    assert report['rms_before'] > 2 * floor
+    assert report['rms_after'] < 1.3 * floor
+
+
+def test_hexapod_without_forces_skips_play_and_says_why():
+    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD)
+    nominal, data, _ = _hexapod_data(truth, seed=4, count=60)
+    report = analyze(HexapodLoopModel(data, nominal)).report
+    assert 'load' in report['skipped']['leg_play']
+    assert 'load' in report['skipped']['compliance']
+
+
+def test_cli_analyze_writes_report_and_plot(tmp_path):
+    data = tmp_path / 'axis.csv'
+    assert cli_main(['simulate', 'axis', '--out', str(data), '--backlash', '4e-6']) == 0
+    out = tmp_path / 'axis.json'
+    assert cli_main(['analyze', 'axis', '--data', str(data), '--json', str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert [e['name'] for e in report['effects_added']] == ['reversal']
+    for key in ('rms_before', 'rms_after', 'max_before', 'max_after', 'unexplained'):
+        assert key in report
+    assert out.with_suffix('.png').stat().st_size > 10000
+
+
+def test_cli_analyze_hexapod_with_payload(tmp_path):
+    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD)
+    nominal, data, _ = _hexapod_data(truth, seed=5, count=120)
+    data.to_csv(tmp_path / 'poses.csv')
+    write_geometry(tmp_path / 'nominal.yaml', nominal)
+    out = tmp_path / 'hexapod.json'
+    assert cli_main(['analyze', 'hexapod', '--data', str(tmp_path / 'poses.csv'),
+                     '--geometry', str(tmp_path / 'nominal.yaml'), '--payload',
+                     str(truth.payload_mass), *map(str, TALL_PAYLOAD), '--json', str(out)]) == 0
+    assert 'leg_play' in [e['name'] for e in json.loads(out.read_text())['effects_added']]
+
+
+def test_cli_analyze_bad_input(tmp_path, capsys):
+    bad = tmp_path / 'axis.csv'
+    bad.write_text('command,measured,direction,temperature\n0,0,1,nan\n0.1,0.1,-1,20\n')
+    assert cli_main(['analyze', 'axis', '--data', str(bad)]) == 2
+    assert 'too few' in capsys.readouterr().err
+    constant = tmp_path / 'constant.csv'
+    rows = [f'{x:.4f},{x:.4f},{d},20.0' for x in np.linspace(0, 0.1, 30) for d in (1, -1)]
+    constant.write_text('command,measured,direction,temperature\n' + '\n'.join(rows) + '\n')
+    assert cli_main(['analyze', 'axis', '--data', str(constant)]) == 0
+    assert 'temperature is constant' in capsys.readouterr().out
