@@ -33,11 +33,15 @@ def printer_graph(scene: str = 'dot_plate', output_dir: str = 'calibration',
 
 def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> list[NodeSpec]:
     """The hexapod cell: simulated hexapod, pose sensor (CMM / laser tracker), calibrator."""
+    from hexapod_calib.sim.hexapod import HexapodTruth
     return [
         NodeSpec('hexapod_calib.nodes.hexapod_sim'),
         NodeSpec('hexapod_calib.nodes.pose_sensor_sim'),
+        # The engineer knows the payload the simulated hexapod carries.
         NodeSpec('hexapod_calib.nodes.hexapod_calibrator',
-                 {'output_dir': output_dir, 'record_dir': record_dir}),
+                 {'output_dir': output_dir, 'record_dir': record_dir,
+                  'payload_mass': HexapodTruth.payload_mass,
+                  'payload_centre': list(HexapodTruth.payload_centre)}),
     ]
 
 

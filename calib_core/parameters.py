@@ -66,6 +66,11 @@ class ParameterSet:
         return ParameterSet([Parameter(p.name, float(next(values)) if p.free else p.value,
                                        p.unit, p.free) for p in self.parameters])
 
+    @classmethod
+    def from_dict(cls, values: dict, units: dict) -> 'ParameterSet':
+        """All free, in the order of ``values``; units from ``units`` (missing: '')."""
+        return cls([Parameter(n, float(v), units.get(n, '')) for n, v in values.items()])
+
     def as_dict(self) -> dict[str, float]:
         return {p.name: p.value for p in self.parameters}
 

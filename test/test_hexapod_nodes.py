@@ -11,9 +11,11 @@ DOMAIN = str(100 + os.getpid() % 50)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
-from alignment_msgs.srv import MeasurePose, MoveHexapod, RunCalibration  # noqa: E402
+from alignment_msgs.msg import ResidualAnalysis  # noqa: E402
+from alignment_msgs.srv import AnalyzeResiduals, MeasurePose, MoveHexapod, RunCalibration  # noqa: E402
 
 from calib_core.bags import decode_bag  # noqa: E402
+from calib_core.nodes.qos import LATCHED  # noqa: E402
 from calib_core.launcher import hexapod_graph  # noqa: E402
 from dds import call, running  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry  # noqa: E402
@@ -60,6 +62,14 @@ def test_moves_outside_the_workspace_are_refused_and_poses_measured(graph):
     assert all(running.alive())
 
 
+def test_analysis_before_any_run_is_a_clear_error(graph):
+    running, node, _ = graph
+    client = node.create_client(AnalyzeResiduals, 'hexapod_calibrator/analyze_residuals')
+    response = call(node, client, AnalyzeResiduals.Request())
+    assert not response.success and 'calibrate first' in response.message
+    assert all(running.alive())
+
+
 def test_calibration_service_writes_geometry_records_and_replays(graph):
     running, node, out = graph
     client = node.create_client(RunCalibration, 'hexapod_calibrator/calibrate')
@@ -92,4 +102,33 @@ def test_calibration_service_writes_geometry_records_and_replays(graph):
     replayed, _ = identify_from_records(records, nominal_geometry())
     values = replayed.geometry.parameters().as_dict()
     assert max(abs(values[n] - v) for n, v in zip(result.names, result.values)) < 1e-12
+    assert all(running.alive())
+
+
+def test_analyze_residuals_after_the_run(graph):
+    running, node, out = graph
+    client = node.create_client(AnalyzeResiduals, 'hexapod_calibrator/analyze_residuals')
+    bad = call(node, client, AnalyzeResiduals.Request(plan_yaml='speed: 1'))
+    assert not bad.success and 'unknown analysis options' in bad.message
+    received = []
+    node.create_subscription(ResidualAnalysis, '/hexapod_calibrator/analysis',
+                             received.append, LATCHED)
+    response = call(node, client, AnalyzeResiduals.Request(apply=True), timeout=120)
+    assert response.success, response.message
+    analysis = response.analysis
+    report = json.loads(analysis.report_json)
+    assert analysis.machine == 'hexapod' and report['rows']['total'] == 2 * 20 + 2 * 10
+    assert 'leg_play' in report['candidates'] and 'leg_play' not in report['skipped']
+    assert analysis.rms_after <= analysis.rms_before * 1.05
+    assert (out / 'calibration' / 'analysis').exists()
+    assert any(p.suffix == '.png' for p in (out / 'calibration' / 'analysis').iterdir())
+    versions = sorted((out / 'calibration').glob('hexapod_geometry.v*.yaml'))
+    assert len(versions) == (2 if analysis.effects_added else 1) and analysis.applied == bool(
+        analysis.effects_added)
+    deadline = time.time() + 10
+    while not received and time.time() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.2)
+    assert received and received[-1].report_json == analysis.report_json
+    bags = [b for b in (out / 'runs').iterdir() if 'analysis' in b.name]
+    assert [topic for topic, _, _ in decode_bag(bags[0])] == ['/hexapod_calibrator/analysis']
     assert all(running.alive())

@@ -16,26 +16,32 @@ from pathlib import Path
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, HexapodMeasurement, Progress
-from alignment_msgs.srv import MeasurePose, MoveHexapod, RunCalibration
+from alignment_msgs.srv import AnalyzeResiduals, MeasurePose, MoveHexapod, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter
-from calib_core.errors import InvalidInputError
+from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.parameters import ParameterSet
+from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
-from hexapod_calib.core.geometry import nominal_geometry, read_geometry
+from hexapod_calib.core.calibration import PoseData
+from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
+from hexapod_calib.core.loop_model import HexapodLoopModel
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
 from hexapod_calib.nodes.conversions import (
     leg_lengths_from_message, pose_as_message, pose_from_message)
+from hexapod_calib.sim.hexapod import leg_forces
 
 MEASUREMENTS_TOPIC = '/hexapod_calibrator/measurements'
 RESULT_TOPIC = '/hexapod_calibrator/result'
+ANALYSIS_TOPIC = '/hexapod_calibrator/analysis'
 CALIBRATION_NAME = 'hexapod_geometry'
 
 
@@ -55,6 +61,13 @@ class HexapodCalibratorNode(Node):
         self.declare_parameter('record_dir', 'runs')
         self.declare_parameter('nominal_geometry', '')
         self.declare_parameter('call_timeout_s', 10.0)
+        self.declare_parameter('payload_mass', 0.0)
+        self.declare_parameter('payload_centre', [0.0, 0.0, 0.0])
+        self.payload_mass = float(self.get_parameter('payload_mass').value)
+        self.payload_centre = [float(v) for v in self.get_parameter('payload_centre').value]
+        if not (self.payload_mass >= 0 and len(self.payload_centre) == 3):
+            raise InvalidInputError('payload_mass must be >= 0 kg and payload_centre 3 numbers (m)')
+        self._last_run = []  # every stop of the last completed run, in order
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         if not self.timeout > 0:
             raise InvalidInputError('call_timeout_s must be > 0')
@@ -69,9 +82,16 @@ class HexapodCalibratorNode(Node):
         self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
         self.progress_pub = self.create_publisher(Progress, '/hexapod_calibrator/progress', 10)
         self.measurement_pub = self.create_publisher(HexapodMeasurement, MEASUREMENTS_TOPIC, 10)
-        self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', CalibrationService(
+        calibration = CalibrationService(
             self, 'hexapod', lambda overrides: self._run(HexapodPlan.from_mapping(overrides)),
-            self._header), callback_group=group)
+            self._header)
+        self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', calibration,
+                            callback_group=group)
+        self.create_service(AnalyzeResiduals, 'hexapod_calibrator/analyze_residuals',
+                            AnalysisService(self, 'hexapod', calibration.busy,
+                                            self._loop_model, self._apply_extended,
+                                            ANALYSIS_TOPIC, self._header),
+                            callback_group=group)
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='base')
@@ -92,7 +112,8 @@ class HexapodCalibratorNode(Node):
         self._last_measurement = response.pose.pose
         return pose_from_message(response.pose.pose.pose)
 
-    def _record(self, bag, phase, target, legs, _measured):
+    def _record(self, bag, stops, phase, target, legs, measured):
+        stops.append((target, measured, legs))
         msg = HexapodMeasurement(header=self._header(), phase=phase, target=pose_as_message(target),
                                  leg_lengths=np.asarray(legs, float).tolist(),
                                  measured=self._last_measurement)
@@ -110,12 +131,13 @@ class HexapodCalibratorNode(Node):
         bag_path = Path(self.get_parameter('record_dir').value) / f'hexapod_{stamp}'
         self._settled = self.get_clock().now().to_msg()
         poses = plan.poses(self.nominal)  # a plan that cannot work fails here, before a bag exists
+        stops = []
         with BagWriter(bag_path) as bag:
             bag.add_topic(MEASUREMENTS_TOPIC, 'alignment_msgs/msg/HexapodMeasurement')
             bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
             calibration = run_hexapod_calibration(
                 plan, self.nominal, self._move_legs, self._measure, self._progress,
-                lambda *stop: self._record(bag, *stop), poses)
+                lambda *stop: self._record(bag, stops, *stop), poses)
             content = {**calibration.geometry.as_dict(), 'kind': 'hexapod', 'created': stamp,
                        'bag': str(bag_path), 'nominal': self.nominal.as_dict(),
                        'report': calibration.report}
@@ -124,11 +146,37 @@ class HexapodCalibratorNode(Node):
             result = hexapod_result_message(calibration, self._header(), str(path), version)
             bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
         self.result_pub.publish(result)
+        self._last_run = stops
         after = calibration.report['evaluation']['after']
         self.get_logger().info(f'done: max {after["max_displacement_m"] * 1e6:.1f} um, '
                                f'{after["max_angle_rad"] * 1e6:.0f} urad on separate poses; '
                                f'wrote {path}')
         return result
+
+    def _loop_model(self, options: dict) -> HexapodLoopModel:
+        if options:
+            raise InvalidInputError(f'unknown analysis options {sorted(options)}')
+        if not self._last_run:
+            raise CalibrationError('no calibration run to analyse yet: call '
+                                   'hexapod_calibrator/calibrate first')
+        targets, measured, legs = (np.array(column) for column in zip(*self._last_run))
+        data = PoseData(targets, measured, legs)
+        forces = (leg_forces(self.nominal, targets, self.payload_mass, self.payload_centre)
+                  if self.payload_mass > 0 else None)
+        return HexapodLoopModel(data, self.nominal, forces)
+
+    def _apply_extended(self, result) -> str:
+        report = result.report
+        base = report['base_parameters']
+        geometry = HexapodGeometry.from_parameters(ParameterSet.from_dict(base['after'],
+                                                                          base['units']))
+        content = {**geometry.as_dict(), 'kind': 'hexapod', 'effects': report['effects_added'],
+                   'nominal': self.nominal.as_dict(),
+                   'analysis': {k: report[k] for k in ('rms_before', 'rms_after', 'max_before',
+                                                       'max_after', 'unit')}}
+        path, _ = write_calibration(self.get_parameter('output_dir').value, CALIBRATION_NAME,
+                                    content)
+        return str(path)
 
 
 def main(args=None):

@@ -1,0 +1,112 @@
+"""The ``analyze_residuals`` service every calibrator offers: run the closed loop on the
+calibrator's data, write the report (JSON + PNG), publish it latched, record it to an MCAP
+bag and, when asked, make the extended model the calibration in force."""
+from __future__ import annotations
+
+import json
+import threading
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+import yaml
+from alignment_msgs.msg import ResidualAnalysis
+from rclpy.serialization import serialize_message
+
+from calib_core.bags import BagWriter
+from calib_core.closed_loop import LoopConfig, LoopResult, MachineModel, analyze
+from calib_core.errors import InvalidInputError, MachineAlignmentError
+from calib_core.loop_plots import plot_loop
+from calib_core.nodes.qos import LATCHED
+from calib_core.storage import write_atomic
+
+LOOP_OPTIONS = ('holdout_fraction', 'alpha', 'max_effects', 'seed')
+
+
+def analysis_as_message(report: dict, header, applied: bool = False,
+                        report_path: str = '') -> ResidualAnalysis:
+    return ResidualAnalysis(
+        header=header, machine=report['machine'], base_model=report['base_model'],
+        unit=report['unit'], effects_added=[e['name'] for e in report['effects_added']],
+        rms_before=report['rms_before'], rms_after=report['rms_after'],
+        max_before=report['max_before'], max_after=report['max_after'],
+        unexplained=[f'{u["kind"]} of {u["component"]} vs {u["covariate"]}'
+                     for u in report['unexplained']],
+        applied=applied, report_path=report_path, report_json=json.dumps(report))
+
+
+class AnalysisService:
+    """Serves AnalyzeResiduals for one calibrator.
+
+    Parameters
+    ----------
+    node : rclpy Node
+        Its ``output_dir`` and ``record_dir`` parameters say where reports and bags go.
+    kind : str
+        Name used in file names and logs (``vision``, ``hexapod``).
+    lock : threading.Lock
+        Shared with the calibration service: one calibration or analysis at a time.
+    collect : callable (options: dict) -> MachineModel
+        The data to analyse; ``options`` are the plan's keys other than the loop's own.
+    apply : callable (LoopResult) -> str
+        Writes the extended model as the calibration in force; returns the file path.
+    topic : str
+        Latched topic of the reports.
+    header : callable () -> std_msgs/Header
+    progress : callable (step, total, message), optional
+    """
+
+    def __init__(self, node, kind: str, lock: threading.Lock,
+                 collect: Callable[[dict], MachineModel], apply: Callable[[LoopResult], str],
+                 topic: str, header: Callable, progress: Callable | None = None):
+        self.node, self.kind, self.lock, self.header = node, kind, lock, header
+        self.collect, self.apply, self.topic, self.progress = collect, apply, topic, progress
+        self.publisher = node.create_publisher(ResidualAnalysis, topic, LATCHED)
+
+    def __call__(self, request, response):
+        if not self.lock.acquire(blocking=False):
+            response.success, response.message = False, 'a calibration or analysis is running'
+            return response
+        logger = self.node.get_logger()
+        try:
+            options = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
+            if not isinstance(options, dict):
+                raise InvalidInputError('plan_yaml must be a YAML mapping')
+            config = LoopConfig(**{k: options.pop(k) for k in LOOP_OPTIONS if k in options})
+            machine = self.collect(options)
+            result = analyze(machine, config, progress=self.progress)
+            response.analysis = self._publish(machine, result, request.apply)
+            response.success = True
+            response.message = (f'added {", ".join(response.analysis.effects_added) or "nothing"}; '
+                                f'held-out RMS {result.report["rms_before"]:.4g} -> '
+                                f'{result.report["rms_after"]:.4g} {result.report["unit"]}')
+            logger.info(f'{self.kind} analysis: {response.message}')
+        except (MachineAlignmentError, TypeError, ValueError, yaml.YAMLError) as exc:
+            logger.error(f'{self.kind} analysis failed: {exc}')
+            response.success, response.message = False, str(exc)
+        except Exception as exc:  # log a bug, answer, keep serving
+            logger.error(f'internal error in {self.kind} analysis: {exc!r}')
+            response.success, response.message = False, f'internal error: {exc!r}'
+        finally:
+            self.lock.release()
+        return response
+
+    def _publish(self, machine, result: LoopResult, apply: bool) -> ResidualAnalysis:
+        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+        report = dict(result.report, created=stamp)
+        applied_to = ''
+        if apply and report['effects_added']:
+            applied_to = self.apply(result)
+            report['applied_to'] = applied_to
+        path = Path(self.node.get_parameter('output_dir').value) / 'analysis' / \
+            f'{self.kind}_{stamp}.json'
+        write_atomic(path, json.dumps(report, indent=2) + '\n')
+        plot_loop(path.with_suffix('.png'), machine, result)
+        message = analysis_as_message(report, self.header(), bool(applied_to), str(path))
+        bag_path = Path(self.node.get_parameter('record_dir').value) / f'{self.kind}_analysis_{stamp}'
+        with BagWriter(bag_path) as bag:
+            bag.add_topic(self.topic, 'alignment_msgs/msg/ResidualAnalysis')
+            bag.write(self.topic, self.node.get_clock().now().nanoseconds,
+                      serialize_message(message))
+        self.publisher.publish(message)
+        return message
