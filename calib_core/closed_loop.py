@@ -421,7 +421,21 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
         'rounds': rounds,
         'unexplained': unexplained,
     }
-    return LoopResult(report, holdout, before_all, after_all, covariates)
+    return LoopResult(_plain(report), holdout, before_all, after_all, covariates)
+
+
+def _plain(value):
+    """``value`` with numpy scalars and arrays made Python numbers and lists, so the
+    report serialises to JSON and YAML alike."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def format_report(report: dict) -> str:

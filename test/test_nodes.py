@@ -1,4 +1,5 @@
 """Nodes as separate processes talking over DDS (own ROS_DOMAIN_ID, localhost discovery)."""
+import json
 import os
 import time
 
@@ -9,7 +10,8 @@ DOMAIN = str(150 + os.getpid() % 80)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
-from alignment_msgs.srv import DetectMarks, MoveGantry, RunCalibration  # noqa: E402
+from alignment_msgs.srv import (  # noqa: E402
+    AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration)
 from sensor_msgs.msg import Image  # noqa: E402
 
 from calib_core.launcher import printer_graph  # noqa: E402
@@ -80,4 +82,25 @@ def test_calibration_service_and_concurrent_request(graph):
     bad = call(node, client, RunCalibration.Request(plan_yaml='{nx: 1}'))
     assert not bad.success and 'at least 2' in bad.message
     assert not (out / 'calibration' / 'vision.v2.yaml').exists()  # previous stays in force
+    assert all(running.alive())
+
+
+def test_analyze_residuals_finds_the_gantry_backlash(graph):
+    running, node, out = graph
+    client = node.create_client(AnalyzeResiduals, 'vision_calibrator/analyze_residuals')
+    bad = call(node, client, AnalyzeResiduals.Request(plan_yaml='{points: 3}'))
+    assert not bad.success and 'points must be' in bad.message
+    response = call(node, client, AnalyzeResiduals.Request(plan_yaml='{points: 40}', apply=True),
+                    timeout=180)
+    assert response.success, response.message
+    analysis = response.analysis
+    report = json.loads(analysis.report_json)
+    assert analysis.machine == 'gantry' and report['rows']['total'] == 40
+    # The simulated gantry has 4 / 6 um backlash, which the paper's model lacks.
+    assert 'reversal' in analysis.effects_added
+    backlash = next(e for e in report['effects_added'] if e['name'] == 'reversal')['parameters']
+    assert backlash['backlash_x'] == pytest.approx(4e-6, abs=1.5e-6)
+    assert backlash['backlash_y'] == pytest.approx(6e-6, abs=1.5e-6)
+    assert analysis.rms_after < 0.6 * analysis.rms_before
+    assert analysis.applied and (out / 'calibration' / 'vision.v2.yaml').exists()
     assert all(running.alive())

@@ -9,20 +9,29 @@ versioned calibration file, published latched on ``vision_calibrator/result``, w
 progress on ``vision_calibrator/progress``. One calibration at a time; a second request
 while one runs is refused. A failed or interrupted run leaves the previous calibration
 in force.
+
+Service ``vision_calibrator/analyze_residuals`` (AnalyzeResiduals) measures ``points``
+random positions over the travel in random order (so both directions of approach occur)
+with the calibrated camera and gantry model, runs the closed loop on the gantry (backlash,
+screw error, squareness, ...), publishes the report latched on
+``/vision_calibrator/analysis`` and, with ``apply``, writes the calibration again with the
+added effects as a new version.
 """
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionObservation
-from alignment_msgs.srv import DetectMarks, MoveGantry, RunCalibration
+from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter
-from calib_core.errors import InvalidInputError, MachineAlignmentError
+from calib_core.datasets import directions_from_order
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
@@ -30,12 +39,15 @@ from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
 from printer_alignment.core.geometry import (
     NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
-from printer_alignment.core.vision_calibration import calibrate_pixel_size
+from printer_alignment.core.loop_models import GantryData, GantryLoopModel
+from printer_alignment.core.vision_calibration import calibrate_pixel_size, locate_camera
 from printer_alignment.core.vision_procedure import (
     VisionCalibration, VisionPlan, observation_from_message, run_vision_calibration)
 from printer_alignment.nodes.conversions import marks_from_message
 OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
 RESULT_TOPIC = '/vision_calibrator/result'
+ANALYSIS_TOPIC = '/vision_calibrator/analysis'
+ANALYSIS_OPTIONS = ('points', 'measure_seed')
 
 
 def vision_result_message(calibration: VisionCalibration, header, file_path='', version=0):
@@ -82,6 +94,12 @@ class VisionCalibratorNode(Node):
                             self.calibration_service, callback_group=group)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_pixel_size',
                             self.on_pixel_size, callback_group=group)
+        self._calibration = None   # (VisionCalibration, file content) of the last run
+        self.create_service(AnalyzeResiduals, 'vision_calibrator/analyze_residuals',
+                            AnalysisService(self, 'vision', self.calibration_service.busy,
+                                            self._measure_for_analysis, self._apply_extended,
+                                            ANALYSIS_TOPIC, self._header),
+                            callback_group=group)
 
     def _plan_from_parameters(self, overrides: dict) -> VisionPlan:
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
@@ -144,11 +162,71 @@ class VisionCalibratorNode(Node):
             result = vision_result_message(calibration, self._header(), str(path), version)
             bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
         self.result_pub.publish(result)
+        self._calibration = (calibration, content)
         self._progress(total, total,
                        f'done: pixel size {calibration.camera2plate.pixel_size * 1e6:.4f} um, '
                        f'Rx {calibration.gantry.lead_x * 1e3:.4f} mm/rev, '
                        f'Ry {calibration.gantry.lead_y * 1e3:.4f} mm/rev; wrote {path}')
         return result
+
+    def _measure_for_analysis(self, options: dict) -> GantryLoopModel:
+        """Visit random positions over the travel with the calibrated vision system and
+        return the gantry data for the closed loop."""
+        unknown = set(options) - set(ANALYSIS_OPTIONS)
+        if unknown:
+            raise InvalidInputError(f'unknown analysis options {sorted(unknown)}; known: '
+                                    f'{list(ANALYSIS_OPTIONS)} and the loop\'s')
+        if self._calibration is None:
+            raise CalibrationError('no vision calibration to analyse yet: call '
+                                   'vision_calibrator/calibrate first')
+        points = options.get('points', 60)
+        if isinstance(points, bool) or not isinstance(points, int) or points < 10:
+            raise InvalidInputError(f'points must be an integer >= 10, not {points!r}')
+        calibration = self._calibration[0]
+        plan = self.plan
+        rng = np.random.default_rng(int(options.get('measure_seed', 0)))
+        low = np.array([plan.x_range[0], plan.y_range[0]]) + plan.margin
+        high = np.array([plan.x_range[1], plan.y_range[1]]) - plan.margin
+        targets = rng.uniform(low, high, (points, 2))
+        start = np.array([self._gantry_state.x, self._gantry_state.y])
+        command, measured = [], []
+        for k, (x, y) in enumerate(targets):
+            revs = self._move(x, y)
+            predicted = calibration.gantry.camera_position(revs)[0]
+            measured.append(self._locate(calibration, predicted))
+            command.append([self._gantry_state.x, self._gantry_state.y])
+            self._progress(k + 1, points, f'analysis: position {k + 1}/{points}')
+        command = np.array(command)
+        directions = directions_from_order(np.vstack([start, command]))[1:]
+        return GantryLoopModel(GantryData(command, np.array(measured), directions))
+
+    def _locate(self, calibration, predicted, attempts: int = 3) -> np.ndarray:
+        """Camera position (m) measured at the current stop. An image far from where the
+        calibrated model puts the camera (a quarter pitch) is taken again: it was exposed
+        before the gantry arrived."""
+        pitch = self.plan.pitch
+        for _ in range(attempts):
+            detected = self._call(self.detect_client, DetectMarks.Request(shape='circle'),
+                                  'detection')
+            uv = np.array([[m.u, m.v] for m in marks_from_message(detected.marks)])
+            position = locate_camera(uv, calibration.camera2plate, pitch, predicted)
+            miss = float(np.linalg.norm(position - predicted))
+            if miss < 0.25 * pitch:
+                return position
+            self.get_logger().warning(f'camera position {miss * 1e6:.0f} um from the '
+                                      'calibrated model\'s; taking another image')
+        raise CalibrationError(f'{attempts} images in a row disagree with the calibrated model '
+                               f'by more than {0.25 * pitch * 1e6:.0f} um: is the calibration '
+                               'stale or the plate moved?')
+
+    def _apply_extended(self, result) -> str:
+        content = dict(self._calibration[1])
+        report = result.report
+        content['effects'] = report['effects_added']
+        content['gantry_loop_model'] = {'base_model': report['base_model'],
+                                        'parameters': report['base_parameters']['after']}
+        path, _ = write_calibration(self.get_parameter('output_dir').value, 'vision', content)
+        return str(path)
 
     def on_pixel_size(self, request, response):
         if not self.calibration_service.busy.acquire(blocking=False):
