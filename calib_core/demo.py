@@ -2,14 +2,16 @@
 
 Printer vision system:
 1. Start gantry_sim, camera_sim, mark_detector and vision_calibrator as separate processes
-   (own ROS_DOMAIN_ID, localhost discovery) and trigger ``vision_calibrator/calibrate``.
+   (own ROS_DOMAIN_ID, localhost discovery) and trigger ``vision_calibrator/calibrate``,
+   then the closed loop (``vision_calibrator/analyze_residuals``, applied).
 2. Re-run the calibration offline from the bag the node recorded: same result.
 3. Evaluate against the simulation's truth over the whole travel: camera-measured dot
    positions before (nominal model) and after calibration, as JSON and PNG.
 Hexapod:
 4. Start hexapod_sim, pose_sensor_sim and hexapod_calibrator and trigger
    ``hexapod_calibrator/calibrate`` (plans poses, drives, measures, identifies, iterates,
-   evaluates on separate poses).
+   evaluates on separate poses), then the closed loop on its stops
+   (``hexapod_calibrator/analyze_residuals``, applied).
 5. Re-run the identification offline from its bag, and compare the 42 identified
    parameters with the simulation's truth.
 """
@@ -26,11 +28,14 @@ import numpy as np
 from calib_core.storage import write_atomic
 
 
-def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.0):
-    """Call a RunCalibration service on a running graph, printing its progress."""
+def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.0,
+                 analysis: str = ''):
+    """Call a RunCalibration service on a running graph, printing its progress; then, if
+    the calibration succeeded and ``analysis`` names an AnalyzeResiduals service, run the
+    closed loop with ``apply``. Returns (calibration response, analysis response)."""
     import rclpy
     from alignment_msgs.msg import Progress
-    from alignment_msgs.srv import RunCalibration
+    from alignment_msgs.srv import AnalyzeResiduals, RunCalibration
     rclpy.init()
     node = rclpy.create_node('demo_client')
     shown = {'step': -1}
@@ -44,13 +49,30 @@ def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.
         client = node.create_client(RunCalibration, service)
         if not client.wait_for_service(timeout_sec=30.0):
             print(f'{service} did not come up; processes alive: {graph.alive()}')
-            return None
+            return None, None
         future = client.call_async(RunCalibration.Request())
         rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
-        return future.result()
+        calibration = future.result()
+        if not (analysis and calibration and calibration.success):
+            return calibration, None
+        print(f'      closed loop: {analysis} (apply)')
+        future = node.create_client(AnalyzeResiduals, analysis).call_async(
+            AnalyzeResiduals.Request(apply=True))
+        rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+        return calibration, future.result()
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _print_analysis(response) -> None:
+    if response is None or not response.success:
+        print(f'      closed loop failed: {response.message if response else "timeout"}')
+        return
+    a = response.analysis
+    print(f'      closed loop added {", ".join(a.effects_added) or "nothing"}; held-out RMS '
+          f'{a.rms_before * 1e6:.2f} -> {a.rms_after * 1e6:.2f} um, max {a.max_before * 1e6:.2f} '
+          f'-> {a.max_after * 1e6:.2f} um; report {a.report_path}')
 
 
 def _printer(out: Path, domain: str) -> int:
@@ -59,18 +81,20 @@ def _printer(out: Path, domain: str) -> int:
     graph_spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
     with Graph(graph_spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
-        response = _run_service(graph, 'vision_calibrator/calibrate',
-                                '/vision_calibrator/progress', timeout=300.0)
+        response, analysis = _run_service(graph, 'vision_calibrator/calibrate',
+                                          '/vision_calibrator/progress', timeout=300.0,
+                                          analysis='vision_calibrator/analyze_residuals')
     if response is None or not response.success:
         print(f'calibration failed: {response.message if response else "timeout"}')
         return 1
     result = response.result
     print(f'      done in {time.monotonic() - start:.1f} s; calibration file {result.file_path} '
           f'(version {result.version})')
+    _print_analysis(analysis)
 
     print('[2/5] re-running the calibration offline from the recorded bag')
     from calib_core.cli import main as cli_main
-    bag = next((out / 'runs').glob('vision_*'))
+    bag = next(b for b in (out / 'runs').glob('vision_*') if 'analysis' not in b.name)
     cli_main(['calibrate', 'vision', '--bag', str(bag), '--json', str(out / 'replay.json')])
 
     print('[3/5] evaluating against the simulation truth over the whole travel')
@@ -110,8 +134,9 @@ def _hexapod(out: Path, domain: str) -> int:
     spec = hexapod_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
     with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
-        response = _run_service(graph, 'hexapod_calibrator/calibrate',
-                                '/hexapod_calibrator/progress')
+        response, analysis = _run_service(graph, 'hexapod_calibrator/calibrate',
+                                          '/hexapod_calibrator/progress',
+                                          analysis='hexapod_calibrator/analyze_residuals')
     if response is None or not response.success:
         print(f'hexapod calibration failed: {response.message if response else "timeout"}')
         return 1
@@ -123,10 +148,11 @@ def _hexapod(out: Path, domain: str) -> int:
     print(f'      {before["num_poses"]} separate poses, before: max {before["max_displacement_m"] * 1e6:.1f} um '
           f'/ {before["max_angle_rad"] * 1e6:.0f} urad; after: max {after["max_displacement_m"] * 1e6:.2f} um '
           f'/ {after["max_angle_rad"] * 1e6:.1f} urad (paper: 12.1 um / 1100 urad)')
+    _print_analysis(analysis)
 
     print('[5/5] re-running the identification offline from the bag; 42 parameters against truth')
     from calib_core.cli import main as cli_main
-    bag = next((out / 'runs').glob('hexapod_*'))
+    bag = next(b for b in (out / 'runs').glob('hexapod_*') if 'analysis' not in b.name)
     cli_main(['calibrate', 'hexapod', '--bag', str(bag), '--out', str(out / 'hexapod_replay.yaml'),
               '--json', str(out / 'hexapod_replay.json')])
     from hexapod_calib.sim.hexapod import HexapodTruth

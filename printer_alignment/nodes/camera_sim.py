@@ -45,6 +45,7 @@ class CameraSimNode(Node):
             read_noise=g('read_noise').value, gradient=(g('gradient_x').value, 0.0))
         self.camera = CameraSim(make_scene(g('scene').value), optics, seed=g('seed').value)
         self._position = None
+        self._position_stamp = None
         self._lock = threading.Lock()
         self.image_pub = self.create_publisher(Image, 'camera/image_raw', qos_profile_sensor_data)
         self.info_pub = self.create_publisher(CameraInfo, 'camera/camera_info', qos_profile_sensor_data)
@@ -54,13 +55,18 @@ class CameraSimNode(Node):
     def on_truth(self, msg):
         with self._lock:
             self._position = np.array([msg.point.x, msg.point.y])
+            self._position_stamp = msg.header.stamp
 
     def capture(self):
         with self._lock:
-            position = self._position
+            position, stamp = self._position, self._position_stamp
         if position is None:
             return  # no gantry yet: a real camera would see nothing useful either
-        header = Header(stamp=self.get_clock().now().to_msg(), frame_id='camera')
+        # Stamped with the time the rendered position was true, not with the capture time:
+        # a truth update still queued behind a long render would otherwise give a frame of
+        # the old position with a new stamp, which a detector waiting for a frame newer than
+        # the move accepts (a few um of error after a 1 mm pre-positioning move).
+        header = Header(stamp=stamp, frame_id='camera')
         pixels = self.camera.capture(position)
         self.image_pub.publish(image_as_message(pixels, header))
         o = self.camera.optics
