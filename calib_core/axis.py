@@ -10,15 +10,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.closed_loop import MachineModel
-from calib_core.datasets import read_columns
+from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
+from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
-from calib_core.storage import write_atomic
 
 AXIS_COLUMNS = ('command', 'measured', 'direction')
 # Covariates the effect library knows; other extra columns are kept but not used.
-_CONTEXT_COLUMNS = ('time', 'temperature')
 
 
 @dataclass(frozen=True)
@@ -65,10 +63,8 @@ class AxisData:
 
     def to_csv(self, path) -> None:
         names = list(AXIS_COLUMNS) + list(self.covariates)
-        table = np.column_stack([self.command, self.measured, self.direction]
-                                + [self.covariates[k] for k in self.covariates])
-        lines = [','.join(names)] + [','.join(f'{v:.12g}' for v in row) for row in table]
-        write_atomic(path, '\n'.join(lines) + '\n')
+        write_columns(path, names, [self.command, self.measured, self.direction]
+                      + [self.covariates[k] for k in self.covariates])
 
 
 class AxisModel(MachineModel):
@@ -81,8 +77,7 @@ class AxisModel(MachineModel):
 
     def __init__(self, data: AxisData):
         self.data = data
-        self._references = {f'{k}_ref': float(np.mean(data.covariates[k]))
-                            for k in _CONTEXT_COLUMNS if k in data.covariates}
+        self._scalars = scalar_covariates(data.covariates)
 
     def __len__(self):
         return len(self.data)
@@ -93,10 +88,7 @@ class AxisModel(MachineModel):
     def context(self, base, rows):
         d = self.data
         context = {'position': d.command[rows, None], 'direction': d.direction[rows, None]}
-        for key in _CONTEXT_COLUMNS:
-            if key in d.covariates:
-                context[key] = d.covariates[key][rows]
-        context.update(self._references)
+        context.update(select_rows(self._scalars, rows))
         return context
 
     def residuals(self, base, delta, rows):

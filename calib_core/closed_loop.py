@@ -79,6 +79,22 @@ class MachineModel:
         return None
 
 
+SCALAR_COVARIATES = ('time', 'temperature')
+
+
+def scalar_covariates(covariates: dict) -> dict:
+    """The time (s) and temperature (K) columns of a dataset, with their means as the
+    reference values the drift effects use (``time_ref``, ``temperature_ref``)."""
+    out = {k: np.asarray(covariates[k], float) for k in SCALAR_COVARIATES if k in covariates}
+    out.update({f'{k}_ref': float(np.mean(v)) for k, v in list(out.items())})
+    return out
+
+
+def select_rows(covariates: dict, rows: np.ndarray) -> dict:
+    """``covariates`` from :func:`scalar_covariates` restricted to ``rows``."""
+    return {k: v if k.endswith('_ref') else v[rows] for k, v in covariates.items()}
+
+
 @dataclass(frozen=True)
 class LoopConfig:
     """Settings of :func:`analyze`.

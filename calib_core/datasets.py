@@ -7,6 +7,7 @@ import os
 import numpy as np
 
 from calib_core.errors import InvalidInputError
+from calib_core.storage import write_atomic
 
 
 def read_columns(path: str | os.PathLike, required: list[str],
@@ -75,3 +76,11 @@ def directions_from_order(command: np.ndarray) -> np.ndarray:
         last = np.where(step != 0, np.sign(step), last)
         out[i] = last
     return out
+
+
+def write_columns(path, names: list[str], columns: list[np.ndarray]) -> None:
+    """Write a CSV with a header row (atomically); ``columns`` are (n,) or (n, k) arrays
+    whose columns match ``names`` in order."""
+    table = np.column_stack(columns)
+    lines = [','.join(names)] + [','.join(f'{v:.12g}' for v in row) for row in table]
+    write_atomic(path, '\n'.join(lines) + '\n')

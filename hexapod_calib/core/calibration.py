@@ -12,11 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.datasets import read_columns
+from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import FitResult, check_identifiability, fit
 from calib_core.parameters import ParameterSet
-from calib_core.storage import write_atomic
 from hexapod_calib.core.geometry import (
     LEGS, POSE_NAMES, HexapodGeometry, as_poses, rotation_matrices)
 from hexapod_calib.core.kinematics import inverse_kinematics, leg_vectors
@@ -95,10 +94,8 @@ class PoseData:
 
     def to_csv(self, path) -> None:
         names = list(POSE_NAMES) + list(MEASURED_NAMES) + list(LEG_NAMES) + list(self.covariates)
-        table = np.column_stack([self.commanded, self.measured, self.leg_lengths]
-                                + [self.covariates[k] for k in self.covariates])
-        lines = [','.join(names)] + [','.join(f'{v:.12g}' for v in row) for row in table]
-        write_atomic(path, '\n'.join(lines) + '\n')
+        write_columns(path, names, [self.commanded, self.measured, self.leg_lengths]
+                      + [self.covariates[k] for k in self.covariates])
 
 
 def identification_residuals(geometry: HexapodGeometry, data: PoseData) -> np.ndarray:

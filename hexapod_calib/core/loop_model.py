@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.closed_loop import MachineModel
+from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
 from calib_core.datasets import directions_from_order
 from calib_core.errors import InvalidInputError
 from hexapod_calib.core.calibration import PoseData
@@ -20,7 +20,6 @@ from hexapod_calib.core.kinematics import inverse_kinematics
 
 FORCE_NAMES = tuple(f'force{i + 1}' for i in range(LEGS))
 DIRECTION_NAMES = tuple(f'direction{i + 1}' for i in range(LEGS))
-_CONTEXT_COLUMNS = ('time', 'temperature')
 
 
 def _leg_columns(data: PoseData, names: tuple, what: str) -> np.ndarray | None:
@@ -53,8 +52,7 @@ class HexapodLoopModel(MachineModel):
         directions = _leg_columns(data, DIRECTION_NAMES, 'the direction of approach')
         self.directions = directions if directions is not None \
             else directions_from_order(data.leg_lengths)
-        self._references = {f'{k}_ref': float(np.mean(data.covariates[k]))
-                            for k in _CONTEXT_COLUMNS if k in data.covariates}
+        self._scalars = scalar_covariates(data.covariates)
 
     def __len__(self):
         return len(self.data)
@@ -66,10 +64,7 @@ class HexapodLoopModel(MachineModel):
         context = {'position': self.data.leg_lengths[rows], 'direction': self.directions[rows]}
         if self.forces is not None:
             context['load'] = self.forces[rows]
-        for key in _CONTEXT_COLUMNS:
-            if key in self.data.covariates:
-                context[key] = self.data.covariates[key][rows]
-        context.update(self._references)
+        context.update(select_rows(self._scalars, rows))
         return context
 
     def residuals(self, base, delta, rows):

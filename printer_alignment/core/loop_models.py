@@ -21,17 +21,15 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calib_core.closed_loop import MachineModel
-from calib_core.datasets import directions_from_order, read_columns
+from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
+from calib_core.datasets import directions_from_order, read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
-from calib_core.storage import write_atomic
 from printer_alignment.core.camera_calibration import View, infer_image_size
 from printer_alignment.core.geometry import rotation
 
 GANTRY_COLUMNS = ('command_x', 'command_y', 'measured_x', 'measured_y')
 DIRECTION_COLUMNS = ('direction_x', 'direction_y')
-_CONTEXT_COLUMNS = ('time', 'temperature')
 
 
 @dataclass(frozen=True)
@@ -88,10 +86,8 @@ class GantryData:
 
     def to_csv(self, path) -> None:
         names = list(GANTRY_COLUMNS) + list(DIRECTION_COLUMNS) + list(self.covariates)
-        table = np.column_stack([self.command, self.measured, self.direction]
-                                + [self.covariates[k] for k in self.covariates])
-        lines = [','.join(names)] + [','.join(f'{v:.12g}' for v in row) for row in table]
-        write_atomic(path, '\n'.join(lines) + '\n')
+        write_columns(path, names, [self.command, self.measured, self.direction]
+                      + [self.covariates[k] for k in self.covariates])
 
 
 class GantryLoopModel(MachineModel):
@@ -105,8 +101,7 @@ class GantryLoopModel(MachineModel):
 
     def __init__(self, data: GantryData):
         self.data = data
-        self._references = {f'{k}_ref': float(np.mean(data.covariates[k]))
-                            for k in _CONTEXT_COLUMNS if k in data.covariates}
+        self._scalars = scalar_covariates(data.covariates)
 
     def __len__(self):
         return len(self.data)
@@ -122,10 +117,7 @@ class GantryLoopModel(MachineModel):
     def context(self, base, rows):
         d = self.data
         context = {'position': d.command[rows], 'direction': d.direction[rows]}
-        for key in _CONTEXT_COLUMNS:
-            if key in d.covariates:
-                context[key] = d.covariates[key][rows]
-        context.update(self._references)
+        context.update(select_rows(self._scalars, rows))
         return context
 
     def _axes(self, base, delta, rows):
