@@ -91,7 +91,7 @@ class AxisModel(MachineModel):
         context.update(select_rows(self._scalars, rows))
         return context
 
-    def residuals(self, base, delta, rows):
+    def residuals(self, base, delta, rows, context):
         d = self.data
         predicted = d.command[rows] * (1 + base['scale']) + base['offset'] + delta[:, 0]
         return (d.measured[rows] - predicted)[:, None]

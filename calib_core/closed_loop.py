@@ -56,15 +56,17 @@ class MachineModel:
         """Covariates of ``rows`` (see :mod:`calib_core.effects`); may depend on ``base``."""
         raise NotImplementedError
 
-    def residuals(self, base: ParameterSet, delta: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    def residuals(self, base: ParameterSet, delta: np.ndarray, rows: np.ndarray,
+                  context: dict) -> np.ndarray:
         """Measured minus predicted, shape (n, k), with effect terms ``delta`` (n, C) added
-        to the channels."""
+        to the channels; ``context`` is :meth:`context` of the same base and rows, which
+        the loop has computed already."""
         raise NotImplementedError
 
-    def channel_residuals(self, base: ParameterSet, delta: np.ndarray,
-                          rows: np.ndarray) -> np.ndarray:
+    def channel_residuals(self, base: ParameterSet, delta: np.ndarray, rows: np.ndarray,
+                          context: dict) -> np.ndarray:
         """Residuals expressed in the channels (what ``delta`` lacks), shape (n, C)."""
-        return self.residuals(base, delta, rows)
+        return self.residuals(base, delta, rows, context)
 
     def strata(self) -> np.ndarray:
         """Label per row; hold-out and folds sample every label (e.g. camera views)."""
@@ -159,17 +161,23 @@ def _delta(machine, effects, values, context, count) -> np.ndarray:
     return delta
 
 
+def _residuals(machine: MachineModel, base: ParameterSet, effects: list, values: list,
+               rows: np.ndarray, in_channels: bool = False) -> np.ndarray:
+    """Residuals of the base model plus ``effects`` on ``rows``: (n, k), or (n, C)
+    expressed in the channels."""
+    context = machine.context(base, rows)
+    delta = _delta(machine, effects, values, context, len(rows))
+    method = machine.channel_residuals if in_channels else machine.residuals
+    return method(base, delta, rows, context)
+
+
 def evaluate(machine: MachineModel, fit: _Fit, rows: np.ndarray) -> np.ndarray:
     """Residuals (n, k) of a fitted model on any rows."""
-    context = machine.context(fit.base, rows)
-    return machine.residuals(fit.base, _delta(machine, fit.effects, fit.values, context,
-                                              len(rows)), rows)
+    return _residuals(machine, fit.base, fit.effects, fit.values, rows)
 
 
 def _channel_residuals(machine, fit: _Fit, rows) -> np.ndarray:
-    context = machine.context(fit.base, rows)
-    return machine.channel_residuals(
-        fit.base, _delta(machine, fit.effects, fit.values, context, len(rows)), rows)
+    return _residuals(machine, fit.base, fit.effects, fit.values, rows, in_channels=True)
 
 
 def _fit(machine: MachineModel, base: ParameterSet, effects: list, values: list,
@@ -188,9 +196,7 @@ def _fit(machine: MachineModel, base: ParameterSet, effects: list, values: list,
 
     def fun(x):
         b, parts = unpack(x)
-        context = machine.context(b, rows)
-        return machine.residuals(b, _delta(machine, effects, parts, context, len(rows)),
-                                 rows).ravel()
+        return _residuals(machine, b, effects, parts, rows).ravel()
 
     r0 = fun(x0)
     if not np.all(np.isfinite(r0)):
@@ -256,11 +262,9 @@ def _covariate_columns(machine, context: dict) -> dict:
 
 
 def _structure_tests(machine, residuals: np.ndarray, covariates: dict, alpha: float) -> list:
-    """Structure left in ``residuals`` (n, k) against each covariate: a cubic trend (a step
+    """Structure left in channel ``residuals`` (n, C) against each covariate: a cubic trend (a step
     for two-valued covariates) and, against positions, a sinusoid at the periodogram's
     peak; F-tests, Bonferroni-corrected over the periods scanned and every test made."""
-    names = (machine.channels if residuals.shape[1] == len(machine.channels)
-             else tuple(str(c) for c in range(residuals.shape[1])))
     n = len(residuals)
     tests = []
     for covariate, z in covariates.items():
@@ -270,7 +274,7 @@ def _structure_tests(machine, residuals: np.ndarray, covariates: dict, alpha: fl
         span = float(np.ptp(z))
         scaled = 2 * (z - z.min()) / span - 1
         degree = min(3, distinct - 1)
-        for j, component in enumerate(names):
+        for j, component in enumerate(machine.channels):
             r = residuals[:, j] - residuals[:, j].mean()
             candidates = [('trend' if degree > 1 else 'step',
                            legendre.legvander(scaled, degree)[:, 1:], 1.0)]
@@ -315,6 +319,9 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     CalibrationError
         Too few rows for the base model with a hold-out set.
     """
+    unknown = [name for name in machine.candidates if name not in LIBRARY]
+    if unknown:
+        raise InvalidInputError(f'unknown effect(s) {", ".join(unknown)}')
     rng = np.random.default_rng(config.seed)
     count = len(machine)
     every = np.arange(count)
@@ -323,7 +330,7 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     train, test = every[~holdout], every[holdout]
     base = machine.initial()
     needed = _minimum_residuals(len(base.free_names))
-    probe = machine.residuals(base, np.zeros((1, len(machine.channels))), train[:1])
+    probe = _residuals(machine, base, [], [], train[:1])
     if len(train) * probe.shape[1] < needed or len(test) == 0:
         raise CalibrationError(
             f'{count} rows are too few for the base model ({len(base.free_names)} parameters) '
@@ -335,10 +342,7 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     current = base_fit
     current_cv = _cv_rms(machine, current, train, folds)
     rounds, skipped, added = [], {}, []
-    remaining = [name for name in machine.candidates if name in LIBRARY]
-    unknown = [name for name in machine.candidates if name not in LIBRARY]
-    if unknown:
-        raise InvalidInputError(f'unknown effect(s) {", ".join(unknown)}')
+    remaining = list(machine.candidates)
     while remaining and len(added) < config.max_effects:
         context = machine.context(current.base, train)
         channel_residuals = _channel_residuals(machine, current, train)

@@ -67,7 +67,7 @@ class HexapodLoopModel(MachineModel):
         context.update(select_rows(self._scalars, rows))
         return context
 
-    def residuals(self, base, delta, rows):
+    def residuals(self, base, delta, rows, context):
         geometry = HexapodGeometry.from_parameters(base)
         return (inverse_kinematics(geometry, self.data.measured[rows])
                 - self.data.leg_lengths[rows] - delta)

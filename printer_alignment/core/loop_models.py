@@ -124,13 +124,13 @@ class GantryLoopModel(MachineModel):
         scale = 1 + np.array([base['scale_x'], base['scale_y']])
         return self.data.command[rows] * scale + delta
 
-    def residuals(self, base, delta, rows):
+    def residuals(self, base, delta, rows, context):
         offset = np.array([base['offset_x'], base['offset_y']])
         predicted = self._axes(base, delta, rows) @ rotation(base['axis_angle']).T + offset
         return self.data.measured[rows] - predicted
 
-    def channel_residuals(self, base, delta, rows):
-        return self.residuals(base, delta, rows) @ rotation(base['axis_angle'])
+    def channel_residuals(self, base, delta, rows, context):
+        return self.residuals(base, delta, rows, context) @ rotation(base['axis_angle'])
 
     def workspace(self):
         return self.data.command
@@ -210,12 +210,12 @@ class CameraLoopModel(MachineModel):
         return np.column_stack([base['fx'] * normalized[:, 0] + base['cx'],
                                 base['fy'] * normalized[:, 1] + base['cy']])
 
-    def residuals(self, base, delta, rows):
-        normalized = self.context(base, rows)['normalized'] + delta
+    def residuals(self, base, delta, rows, context):
+        normalized = context['normalized'] + delta
         return self.pixels[rows] - self._project(base, normalized)
 
-    def channel_residuals(self, base, delta, rows):
-        return self.residuals(base, delta, rows) / np.array([base['fx'], base['fy']])
+    def channel_residuals(self, base, delta, rows, context):
+        return self.residuals(base, delta, rows, context) / np.array([base['fx'], base['fy']])
 
     def strata(self):
         return self.view_index
