@@ -77,21 +77,44 @@ class Prepared:
 
 class Effect:
     """A candidate effect. Subclasses set ``name``, ``meaning``, ``requires`` and
-    implement :meth:`prepare`, which returns a :class:`Prepared` or a string saying why the
-    effect cannot be tested on this data."""
+    implement :meth:`_prepare`."""
 
     name = ''
     meaning = ''
     requires: tuple = ()
 
     def prepare(self, context: dict, channels: tuple, channel_residuals: np.ndarray):
-        raise NotImplementedError
-
-    def missing(self, context: dict) -> str | None:
+        """A :class:`Prepared` for this data, or a string saying why the effect cannot be
+        tested on it (a covariate in ``requires`` missing, or the data cannot show it)."""
         lacking = [k for k in self.requires if k not in context]
         if lacking:
             return f'needs covariate(s) {", ".join(lacking)}, which the data lack'
+        return self._prepare(context, channels, channel_residuals)
+
+    def _prepare(self, context: dict, channels: tuple, channel_residuals: np.ndarray):
+        raise NotImplementedError
+
+
+class _FixedParameters(Effect):
+    """An effect whose parameters (``parameters``, ``units``) do not depend on the data
+    and start at zero; subclasses implement :meth:`term` and may refuse data in
+    :meth:`unobservable`."""
+
+    parameters: tuple = ()
+    units: tuple = ()
+
+    def unobservable(self, context: dict) -> str | None:
         return None
+
+    def term(self, params: np.ndarray, context: dict) -> np.ndarray:
+        raise NotImplementedError
+
+    def _prepare(self, context, channels, channel_residuals):
+        reason = self.unobservable(context)
+        if reason:
+            return reason
+        return Prepared(self, self.parameters, self.units, np.zeros(len(self.parameters)),
+                        self.term)
 
 
 def _varying(values: np.ndarray, tolerance: float = 0.0) -> np.ndarray:
@@ -123,10 +146,7 @@ class _PerChannel(Effect):
     def inactive_reason(self) -> str:
         return f'{self.covariate} does not vary in any channel'
 
-    def prepare(self, context, channels, channel_residuals):
-        reason = self.missing(context)
-        if reason:
-            return reason
+    def _prepare(self, context, channels, channel_residuals):
         width = len(channels)
         active = self.active(context, width)
         if not active.any():
@@ -213,10 +233,7 @@ class LegPlay(Effect):
             return np.sign(load)
         return np.where(weak, direction, np.sign(load))
 
-    def prepare(self, context, channels, channel_residuals):
-        reason = self.missing(context)
-        if reason:
-            return reason
+    def _prepare(self, context, channels, channel_residuals):
         load = context['load']
         active = _both_signs(load)
         if not active.any():
@@ -259,27 +276,23 @@ class Compliance(_PerChannel):
         return -context['load']
 
 
-class Squareness(Effect):
+class Squareness(_FixedParameters):
     name = 'squareness'
     meaning = 'non-orthogonality of two axes: the first axis picks up gamma times the second'
-    requires = ('position',)
+    requires, parameters, units = ('position',), ('gamma',), ('rad',)
 
-    def prepare(self, context, channels, channel_residuals):
-        reason = self.missing(context)
-        if reason:
-            return reason
+    def unobservable(self, context):
         position = context['position']
         if position.shape[1] != 2:
             return f'needs exactly two axes, the model has {position.shape[1]} channel(s)'
         if not _varying(position).all():
             return 'both axes must move for squareness to be observable'
+        return None
 
-        def term(params, ctx):
-            out = np.zeros_like(ctx['position'])
-            out[:, 0] = params[0] * ctx['position'][:, 1]
-            return out
-
-        return Prepared(self, ('gamma',), ('rad',), np.zeros(1), term)
+    def term(self, params, context):
+        out = np.zeros_like(context['position'])
+        out[:, 0] = params[0] * context['position'][:, 1]
+        return out
 
 
 class DriftTemperature(Effect):
@@ -288,10 +301,7 @@ class DriftTemperature(Effect):
                '(c, m/K) with temperature')
     requires = ('temperature', 'position')
 
-    def prepare(self, context, channels, channel_residuals):
-        reason = self.missing(context)
-        if reason:
-            return reason
+    def _prepare(self, context, channels, channel_residuals):
         if np.ptp(context['temperature']) <= 0:
             return 'temperature is constant in the data'
         count = len(channels)
@@ -316,10 +326,7 @@ class Periodic(Effect):
     requires = ('position',)
     min_samples = 20
 
-    def prepare(self, context, channels, channel_residuals):
-        reason = self.missing(context)
-        if reason:
-            return reason
+    def _prepare(self, context, channels, channel_residuals):
         position = context['position']
         if len(position) < self.min_samples:
             return (f'{len(position)} rows are too few to find a period '
@@ -371,42 +378,28 @@ class Periodic(Effect):
                         trials=trials)
 
 
-class RadialDistortion(Effect):
+class RadialDistortion(_FixedParameters):
     name = 'radial_distortion'
     meaning = 'radial lens distortion (OpenCV k1, k2): x_n (k1 r^2 + k2 r^4)'
-    requires = ('normalized',)
+    requires, parameters, units = ('normalized',), ('k1', 'k2'), ('1', '1')
 
-    def prepare(self, context, channels, channel_residuals):
-        reason = self.missing(context)
-        if reason:
-            return reason
-
-        def term(params, ctx):
-            n = ctx['normalized']
-            r2 = np.sum(n ** 2, axis=1, keepdims=True)
-            return n * (params[0] * r2 + params[1] * r2 ** 2)
-
-        return Prepared(self, ('k1', 'k2'), ('1', '1'), np.zeros(2), term)
+    def term(self, params, context):
+        n = context['normalized']
+        r2 = np.sum(n ** 2, axis=1, keepdims=True)
+        return n * (params[0] * r2 + params[1] * r2 ** 2)
 
 
-class TangentialDistortion(Effect):
+class TangentialDistortion(_FixedParameters):
     name = 'tangential_distortion'
     meaning = 'decentring lens distortion (OpenCV p1, p2)'
-    requires = ('normalized',)
+    requires, parameters, units = ('normalized',), ('p1', 'p2'), ('1', '1')
 
-    def prepare(self, context, channels, channel_residuals):
-        reason = self.missing(context)
-        if reason:
-            return reason
-
-        def term(params, ctx):
-            x, y = ctx['normalized'][:, 0], ctx['normalized'][:, 1]
-            p1, p2 = params
-            r2 = x ** 2 + y ** 2
-            return np.column_stack([2 * p1 * x * y + p2 * (r2 + 2 * x ** 2),
-                                    p1 * (r2 + 2 * y ** 2) + 2 * p2 * x * y])
-
-        return Prepared(self, ('p1', 'p2'), ('1', '1'), np.zeros(2), term)
+    def term(self, params, context):
+        x, y = context['normalized'][:, 0], context['normalized'][:, 1]
+        p1, p2 = params
+        r2 = x ** 2 + y ** 2
+        return np.column_stack([2 * p1 * x * y + p2 * (r2 + 2 * x ** 2),
+                                p1 * (r2 + 2 * y ** 2) + 2 * p2 * x * y])
 
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
