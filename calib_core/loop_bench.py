@@ -26,9 +26,8 @@ def _axis(truth_kwargs: dict, seed: int):
 
 def _gantry(errors, seed: int):
     from printer_alignment.core.loop_models import GantryLoopModel
-    from printer_alignment.sim.gantry import GantrySim, measure_positions
-    targets = np.random.default_rng(seed).uniform([0, 0], [0.2, 0.15], (200, 2))
-    return GantryLoopModel(measure_positions(GantrySim(errors), targets, 0.3e-6, seed=seed + 1))
+    from printer_alignment.sim.gantry import measure_random_positions
+    return GantryLoopModel(measure_random_positions(errors, seed=seed))
 
 
 CAMERA = np.array([[800.0, 0, 322], [0, 805, 236], [0, 0, 1]])
@@ -43,20 +42,15 @@ def _camera(distortion, seed: int):
 
 def _hexapod(play: bool, seed: int):
     from hexapod_calib.core.geometry import nominal_geometry
-    from hexapod_calib.core.kinematics import inverse_kinematics
     from hexapod_calib.core.loop_model import HexapodLoopModel
-    from hexapod_calib.core.procedure import HexapodPlan, measure_poses
-    from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim, leg_forces
+    from hexapod_calib.sim.hexapod import (
+        TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses)
     nominal = nominal_geometry()
-    truth = dataclasses.replace(HexapodTruth.default(nominal, 2), payload_centre=(0.02, -0.01, 0.5))
+    truth = dataclasses.replace(HexapodTruth.default(nominal, 2),
+                                payload_centre=TALL_PAYLOAD_CENTRE)
     if not play:
         truth = dataclasses.replace(truth, leg_play=np.zeros(6))
-    sim, sensor = HexapodSim(truth, nominal, seed=seed), PoseSensorSim(seed=seed + 1)
-    poses, _ = HexapodPlan(num_poses=200, num_evaluation=1, num_candidates=410,
-                           seed=seed + 2).poses(nominal)
-    data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
-                         lambda: sensor.measure(sim.pose))
-    forces = leg_forces(nominal, poses, truth.payload_mass, truth.payload_centre)
+    data, forces = measure_random_poses(truth, 200, seed, nominal)
     return HexapodLoopModel(data, nominal, forces)
 
 

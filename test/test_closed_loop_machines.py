@@ -9,14 +9,12 @@ import pytest
 from calib_core.cli import main as cli_main
 from calib_core.closed_loop import analyze
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
-from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.loop_model import HexapodLoopModel
-from hexapod_calib.core.procedure import HexapodPlan, measure_poses
-from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim, leg_forces
+from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses
 from printer_alignment.core.camera_calibration import views_from_images
 from printer_alignment.core.loop_models import CameraLoopModel, GantryData, GantryLoopModel
 from printer_alignment.sim.camera import tilted_plate_views
-from printer_alignment.sim.gantry import GantryErrors, GantrySim, measure_positions
+from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
 
 GANTRY_NOISE = 0.3e-6          # m per coordinate
 CAMERA_NOISE = 0.05            # px per coordinate
@@ -27,14 +25,9 @@ def _added(report):
     return {e['name']: e for e in report['effects_added']}
 
 
-def _gantry_data(errors, seed, count=200):
-    targets = np.random.default_rng(seed).uniform([0, 0], [0.2, 0.15], (count, 2))
-    return measure_positions(GantrySim(errors), targets, GANTRY_NOISE, seed=seed + 1)
-
-
 def test_gantry_backlash_screw_error_and_squareness_found():
     truth = GantryErrors()
-    report = analyze(GantryLoopModel(_gantry_data(truth, seed=1))).report
+    report = analyze(GantryLoopModel(measure_random_positions(truth, noise=GANTRY_NOISE, seed=1))).report
     effects = _added(report)
     assert set(effects) == {'squareness', 'reversal', 'periodic'}
     # Tolerance table: recovered against the simulation's truth.
@@ -54,12 +47,13 @@ def test_gantry_backlash_screw_error_and_squareness_found():
 
 def test_gantry_clean_data_get_nothing():
     for seed in range(5):
-        report = analyze(GantryLoopModel(_gantry_data(GantryErrors.ideal(), seed=10 + seed))).report
+        report = analyze(GantryLoopModel(measure_random_positions(
+            GantryErrors.ideal(), noise=GANTRY_NOISE, seed=10 + seed))).report
         assert report['effects_added'] == [] and report['unexplained'] == []
 
 
 def test_gantry_directions_from_row_order(tmp_path):
-    data = _gantry_data(GantryErrors(), seed=3, count=40)
+    data = measure_random_positions(GantryErrors(), 40, GANTRY_NOISE, seed=3)
     path = tmp_path / 'gantry.csv'
     lines = ['command_x,command_y,measured_x,measured_y']
     lines += [','.join(f'{v:.12g}' for v in (*c, *m)) for c, m in zip(data.command, data.measured)]
@@ -102,27 +96,10 @@ def test_real_chessboard_photos_start_without_distortion(real_data):
     assert report['rms_after'] < 0.3 < report['rms_before']
 
 
-def _hexapod_data(truth, seed, count=200):
-    nominal = nominal_geometry()
-    sim = HexapodSim(truth, nominal, seed=seed)
-    sensor = PoseSensorSim(seed=seed + 1)
-    poses, _ = HexapodPlan(num_poses=count, num_evaluation=1, num_candidates=2 * count + 10,
-                           seed=seed + 2).poses(nominal)
-    data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
-                         lambda: sensor.measure(sim.pose))
-    # The engineer knows the payload; the forces come from the nominal geometry.
-    forces = leg_forces(nominal, poses, truth.payload_mass, truth.payload_centre)
-    return nominal, data, forces
-
-
-# A tall fixture: its weight's lever arm makes every leg's force change sign over the
-# workspace, so the play is observable in every leg.
-TALL_PAYLOAD = (0.02, -0.01, 0.5)
-
-
 def test_hexapod_joint_play_found():
-    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD)
-    nominal, data, forces = _hexapod_data(truth, seed=3)
+    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD_CENTRE)
+    nominal = nominal_geometry()
+    data, forces = measure_random_poses(truth, 200, seed=3)
     report = analyze(HexapodLoopModel(data, nominal, forces)).report
     effects = _added(report)
     assert list(effects) == ['leg_play']
@@ -134,7 +111,7 @@ def test_hexapod_joint_play_found():
     assert np.mean(play) == pytest.approx(np.mean(truth.leg_play), abs=0.6e-6)
     assert effects['leg_play']['force_to_close_play_N'] == 5.0
     clean = dataclasses.replace(truth, leg_play=np.zeros(6))
-    _, clean_data, clean_forces = _hexapod_data(clean, seed=3)
+    clean_data, clean_forces = measure_random_poses(clean, 200, seed=3)
     clean_report = analyze(HexapodLoopModel(clean_data, nominal, clean_forces)).report
     assert clean_report['effects_added'] == []
     floor = clean_report['rms_after']
@@ -143,8 +120,9 @@ def test_hexapod_joint_play_found():
 
 
 def test_hexapod_without_forces_skips_play_and_says_why():
-    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD)
-    nominal, data, _ = _hexapod_data(truth, seed=4, count=60)
+    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD_CENTRE)
+    nominal = nominal_geometry()
+    data, _ = measure_random_poses(truth, 60, seed=4)
     report = analyze(HexapodLoopModel(data, nominal)).report
     assert 'load' in report['skipped']['leg_play']
     assert 'load' in report['skipped']['compliance']
@@ -163,14 +141,15 @@ def test_cli_analyze_writes_report_and_plot(tmp_path):
 
 
 def test_cli_analyze_hexapod_with_payload(tmp_path):
-    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD)
-    nominal, data, _ = _hexapod_data(truth, seed=5, count=120)
+    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD_CENTRE)
+    nominal = nominal_geometry()
+    data, _ = measure_random_poses(truth, 120, seed=5)
     data.to_csv(tmp_path / 'poses.csv')
     write_geometry(tmp_path / 'nominal.yaml', nominal)
     out = tmp_path / 'hexapod.json'
     assert cli_main(['analyze', 'hexapod', '--data', str(tmp_path / 'poses.csv'),
                      '--geometry', str(tmp_path / 'nominal.yaml'), '--payload',
-                     str(truth.payload_mass), *map(str, TALL_PAYLOAD), '--json', str(out)]) == 0
+                     str(truth.payload_mass), *map(str, TALL_PAYLOAD_CENTRE), '--json', str(out)]) == 0
     assert 'leg_play' in [e['name'] for e in json.loads(out.read_text())['effects_added']]
 
 

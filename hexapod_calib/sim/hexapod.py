@@ -98,6 +98,9 @@ class Stroke:
 
 
 HOME_POSE = np.array([0.0, 0.0, 0.20, 0.0, 0.0, 0.0])
+# Centre of mass of a tall fixture (platform frame, m): its weight's lever arm makes every
+# leg's static force change sign over the workspace, so joint play shows in every leg.
+TALL_PAYLOAD_CENTRE = (0.02, -0.01, 0.5)
 
 
 class HexapodSim:
@@ -181,3 +184,19 @@ class PoseSensorSim:
     def covariance(self) -> np.ndarray:
         """Measurement covariance, (6, 6), m^2 and rad^2."""
         return np.diag([self.position_noise ** 2] * 3 + [self.angle_noise ** 2] * 3)
+
+
+def measure_random_poses(truth: HexapodTruth, count: int, seed: int,
+                         nominal: HexapodGeometry | None = None):
+    """Drive the simulated hexapod through ``count`` well-conditioned random poses with the
+    nominal leg lengths and measure each with the pose sensor. Returns the PoseData and
+    the static leg forces (N, (count, 6)) an engineer computes from the known payload
+    with the nominal geometry."""
+    from hexapod_calib.core.procedure import HexapodPlan, measure_poses
+    nominal = nominal or nominal_geometry()
+    sim, sensor = HexapodSim(truth, nominal, seed=seed), PoseSensorSim(seed=seed + 1)
+    poses, _ = HexapodPlan(num_poses=count, num_evaluation=1, num_candidates=2 * count + 10,
+                           seed=seed + 2).poses(nominal)
+    data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
+                         lambda: sensor.measure(sim.pose))
+    return data, leg_forces(nominal, poses, truth.payload_mass, truth.payload_centre)

@@ -122,3 +122,13 @@ def measure_positions(gantry: GantrySim, targets: np.ndarray, noise: float = 0.3
     # The gantry's own state fixes the direction of the first target.
     with_start = np.vstack([start, targets])
     return GantryData(targets, np.array(measured), directions_from_order(with_start)[1:])
+
+
+def measure_random_positions(errors: GantryErrors, count: int = 200, noise: float = 0.3e-6,
+                             seed: int = 0):
+    """:func:`measure_positions` at ``count`` random targets over the whole travel, visited
+    in random order, so both directions of approach occur on each axis."""
+    travel = Travel()
+    targets = np.random.default_rng(seed).uniform(
+        [travel.x_min, travel.y_min], [travel.x_max, travel.y_max], (count, 2))
+    return measure_positions(GantrySim(errors, travel), targets, noise, seed=seed + 1)
