@@ -116,10 +116,16 @@ class VisionCalibratorNode(Node):
     def _call(self, client, request, what):
         return call_service(client, request, what, self.timeout)
 
+    def _detect_dots(self):
+        """The detector's answer for the next image and its dot centres (px, (n, 2))."""
+        detected = self._call(self.detect_client, DetectMarks.Request(shape='circle'),
+                              'detection')
+        return detected, np.array([[m.u, m.v] for m in marks_from_message(detected.marks)])
+
     def _observe_and_record(self, bag: BagWriter) -> np.ndarray:
         """Detect dots at the current stop, publish and record the observation; return the
         dot centres (px, (n, 2)) for the core calibration loop."""
-        detected = self._call(self.detect_client, DetectMarks.Request(shape='circle'), 'detection')
+        detected, _ = self._detect_dots()
         msg = VisionObservation(header=self._header(), gantry=self._gantry_state,
                                 marks=detected.marks)
         self.observation_pub.publish(msg)
@@ -206,9 +212,7 @@ class VisionCalibratorNode(Node):
         before the gantry arrived."""
         pitch = self.plan.pitch
         for _ in range(attempts):
-            detected = self._call(self.detect_client, DetectMarks.Request(shape='circle'),
-                                  'detection')
-            uv = np.array([[m.u, m.v] for m in marks_from_message(detected.marks)])
+            _, uv = self._detect_dots()
             position = locate_camera(uv, calibration.camera2plate, pitch, predicted)
             miss = float(np.linalg.norm(position - predicted))
             if miss < 0.25 * pitch:
@@ -233,8 +237,7 @@ class VisionCalibratorNode(Node):
             response.success, response.message = False, 'a calibration is already running'
             return response
         try:
-            msg = self._call(self.detect_client, DetectMarks.Request(shape='circle'), 'detection')
-            uv = np.array([[m.u, m.v] for m in marks_from_message(msg.marks)])
+            _, uv = self._detect_dots()
             result = calibrate_pixel_size([uv], self.plan.pitch, self.nominal_camera)
             report = result.report()
             response.result = calibration_result_as_message(
