@@ -15,8 +15,9 @@ from rclpy.serialization import serialize_message
 
 from calib_core.bags import BagWriter
 from calib_core.closed_loop import LoopConfig, LoopResult, MachineModel, analyze
-from calib_core.errors import InvalidInputError, MachineAlignmentError
+from calib_core.errors import MachineAlignmentError
 from calib_core.loop_plots import plot_loop
+from calib_core.nodes.calibrator import parse_plan
 from calib_core.nodes.qos import LATCHED
 from calib_core.storage import write_atomic
 
@@ -69,9 +70,7 @@ class AnalysisService:
             return response
         logger = self.node.get_logger()
         try:
-            options = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
-            if not isinstance(options, dict):
-                raise InvalidInputError('plan_yaml must be a YAML mapping')
+            options = parse_plan(request.plan_yaml)
             config = LoopConfig(**{k: options.pop(k) for k in LOOP_OPTIONS if k in options})
             machine = self.collect(options)
             result = analyze(machine, config, progress=self.progress)

@@ -30,6 +30,19 @@ def call_service(client, request, what: str, timeout: float):
     return response
 
 
+def parse_plan(text: str) -> dict:
+    """A service request's ``plan_yaml``: empty means no options, otherwise a YAML mapping.
+
+    Raises
+    ------
+    InvalidInputError
+        The text is YAML but not a mapping (yaml.YAMLError for text that is not YAML)."""
+    options = yaml.safe_load(text) if text.strip() else {}
+    if not isinstance(options, dict):
+        raise InvalidInputError('plan_yaml must be a YAML mapping')
+    return options
+
+
 class CalibrationService:
     """Serves RunCalibration for one node: refuses a second request while one runs,
     parses ``plan_yaml`` into a mapping and hands it to ``run``, which returns the
@@ -46,10 +59,7 @@ class CalibrationService:
             return response
         logger = self.node.get_logger()
         try:
-            overrides = yaml.safe_load(request.plan_yaml) if request.plan_yaml.strip() else {}
-            if not isinstance(overrides, dict):
-                raise InvalidInputError('plan_yaml must be a YAML mapping')
-            response.result = self.run(overrides)
+            response.result = self.run(parse_plan(request.plan_yaml))
             response.success, response.message = True, 'ok'
         except (MachineAlignmentError, TypeError, ValueError, yaml.YAMLError) as exc:
             logger.error(f'{self.kind} calibration failed: {exc}; previous calibration '
