@@ -302,20 +302,25 @@ def stepwise_calibration(data: StageData):
     home = data.marks[home_rows].mean(axis=0)
     angle, shift = relative_motions(data.marks, home)
 
-    # Moving-platform frame: X direction from the X sweep.
-    mid_home = home.mean(axis=0)
-    moved_mid = _rotate(angle, mid_home) + shift                      # (n, 2)
-    slope_x = _fit_line(q[x_rows, 0], moved_mid[x_rows])
-    k1 = float(np.linalg.norm(slope_x))
-    frame_angle = float(np.arctan2(slope_x[1], slope_x[0]))
-
-    # Rotation centre of the attitude sweep: (I - R) c = C for every row.
+    # Rotation centre of the attitude sweep, (d2 + d3) / 2, d1 in the stage frame:
+    # (I - R) c = C for every row.
     big = w_rows[np.abs(angle[w_rows]) > 1e-4]
     if len(big) < 2:
         raise CalibrationError('the attitude sweep does not rotate the platform: cannot '
                                'find its rotation centre')
     design = np.vstack([np.eye(2) - _rotation(a) for a in angle[big]])
     centre, *_ = np.linalg.lstsq(design, shift[big].ravel(), rcond=None)
+
+    # Moving-platform frame: the X direction is the path of the platform point over chain
+    # 2's guide; points elsewhere also swing with the small turn an X move makes when the
+    # slots of chains 2 and 3 are not parallel.
+    d1, d2, d3 = NOMINAL_D
+    d_mid = 0.5 * (d2 + d3)
+    first = _fit_line(q[x_rows, 0], (_rotate(angle, home.mean(axis=0)) + shift)[x_rows])
+    over_chain2 = centre - 0.5 * (d3 - d2) * first / np.linalg.norm(first)
+    slope_x = _fit_line(q[x_rows, 0], (_rotate(angle, over_chain2) + shift)[x_rows])
+    k1 = float(np.linalg.norm(slope_x))
+    frame_angle = float(np.arctan2(slope_x[1], slope_x[0]))
 
     # Y sweep: direction (axis skew), rotation per input, displacement of the centre.
     moved_centre = _rotate(angle, centre) + shift
@@ -328,8 +333,6 @@ def stepwise_calibration(data: StageData):
     distance = k_mean / rho_w                                        # d3 - d2
     k2, k3 = k_mean - rho_y * distance / 2, k_mean + rho_y * distance / 2
 
-    d1, d2, d3 = NOMINAL_D
-    d_mid = 0.5 * (d2 + d3)
     # The centre of the attitude sweep is at (d_mid, d1) in the stage frame; the stage's
     # own middle is not visible, so d1 and (d2 + d3) / 2 stay nominal.
     origin = centre - _rotate(frame_angle, np.array([d_mid, d1]))
@@ -339,17 +342,11 @@ def stepwise_calibration(data: StageData):
         d=(d1, d_mid - distance / 2, d_mid + distance / 2), alpha1=alpha1,
         stage2plate=(float(origin[0]), float(origin[1]), home_angle))
 
-    # Attitude table over q3 - q2, one entry per commanded difference.
-    table_w, table_theta = _unique_mean(np.column_stack([w, w, w]),
-                                        angle[w_rows][:, None] * np.ones((1, 3)))
+    # Attitude table over q3 - q2, one entry per commanded difference, through (0, 0).
+    table_w, table_theta = _unique_mean(np.append(w, 0.0)[:, None],
+                                        np.append(angle[w_rows], 0.0)[:, None])
     order = np.argsort(table_theta[:, 0])
     table_w, table_theta = table_w[order, 0], table_theta[order, 0]
-    zero_w = np.isclose(table_w, 0.0)
-    if not np.any(zero_w):
-        table_w = np.append(table_w, 0.0)
-        table_theta = np.append(table_theta, 0.0)
-        order = np.argsort(table_theta)
-        table_w, table_theta = table_w[order], table_theta[order]
     if np.any(np.diff(table_theta) <= 0):
         raise CalibrationError('the attitude table is not monotonic in q3 - q2: the '
                                'attitude sweep measurements are inconsistent')
@@ -384,6 +381,8 @@ PARAMETRIC_GAUGE = {
     'q_offset3': 'encoder zero: same effect as the platform angle at home',
     'beta2': 'defines the stage frame\'s Y axis: a common turn of all guides is the stage angle',
     'd1': 'only in second-order terms: inseparable from the mark positions at this stroke',
+    'd2': 'defines the stage frame\'s x origin: a common shift of the guides is stage_x',
+    'link_difference': 'turns the platform at home like stage_angle and q_offset3 do',
 }
 
 
@@ -449,11 +448,36 @@ def parametric_calibration(data: StageData, initial: StageGeometry,
 
     result = fit(residuals, start)
     geometry, marks = _split(result.parameters)
+    weak = _weakly_determined(result)
     residual = result.residuals.reshape(-1, 2, 2)
     report = {
         'parameters': result.parameters.as_dict(), 'units': result.parameters.units(),
         'std_devs': result.std_devs, 'fixed': fixed,
         'residual_rms_m': float(np.sqrt(np.mean(np.sum(residual ** 2, axis=2)))),
         'residual_max_m': float(np.max(np.linalg.norm(residual, axis=2))),
-        'condition_number': result.condition_number, 'num_poses': len(data)}
+        'condition_number': result.condition_number, 'num_poses': len(data),
+        'weakly_determined': weak}
     return ParametricModel(geometry), report, result
+
+
+# A parameter whose 1-sigma exceeds this (per unit) is reported as weakly determined.
+WEAK_LIMITS = {'m': 50e-6, 'rad': 0.5e-3, 'm/rev': 1e-6}
+
+
+def _weakly_determined(result) -> dict:
+    """Parameter -> why the data hardly determine it (its sigma and its strongest
+    partner in the correlation matrix). Its effect on predicted poses is small at this
+    stroke; the prediction stays good, the value itself means little."""
+    names = result.parameters.free_names
+    units = result.parameters.units()
+    std = np.sqrt(np.clip(np.diag(result.covariance), 1e-300, None))
+    correlation = result.covariance / np.outer(std, std)
+    out = {}
+    for i, name in enumerate(names):
+        if std[i] > WEAK_LIMITS.get(units[name], np.inf):
+            others = np.abs(correlation[i]).copy()
+            others[i] = 0
+            j = int(np.argmax(others))
+            out[name] = (f'sigma {std[i]:.3g} {units[name]}; correlated {correlation[i, j]:+.3f} '
+                         f'with {names[j]}: they move the Marks almost alike within the stroke')
+    return out

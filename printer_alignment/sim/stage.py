@@ -191,3 +191,23 @@ def measure_repeatability(truth: StageGeometry = TRUE_STAGE, q=(1e-3, -1.5e-3, 2
                                 np.concatenate([g[1] for g in groups]))
     return {'unidirectional': unidirectional, 'multidirectional': pooled,
             'variation': multidirectional_variation(groups), 'q_m': q.tolist()}
+
+
+def simulate_calibration_run(truth: StageGeometry = TRUE_STAGE, plan=None,
+                             landing_sigma: float = 1.2e-6, camera_noise: float = 0.3e-6,
+                             seed: int = 0):
+    """The calibration run of ``plan`` (default :class:`StagePlan`) on a simulated stage,
+    measured by a camera with ``camera_noise`` (m, 1 sigma): a
+    :class:`~printer_alignment.core.stage_calibration.StageData`. Moves go straight to
+    each target, so the sweeps approach from both directions."""
+    from printer_alignment.core.stage_calibration import StageData, StagePlan
+    plan = plan or StagePlan()
+    stage = StageSim(truth, landing_sigma, seed=seed)
+    rng = np.random.default_rng(seed + 1)
+    targets = plan.targets()
+    marks, directions = [], []
+    for q in targets:
+        stage.move(q)
+        marks.append(measure_marks(stage, CALIBRATION_MARKS, camera_noise, rng))
+        directions.append(stage.directions.copy())
+    return StageData(targets, np.array(directions), np.array(marks))
