@@ -481,3 +481,74 @@ def _weakly_determined(result) -> dict:
             out[name] = (f'sigma {std[i]:.3g} {units[name]}; correlated {correlation[i, j]:+.3f} '
                          f'with {names[j]}: they move the Marks almost alike within the stroke')
     return out
+
+
+def _fit_error(model: StageModel, data: StageData, home) -> dict:
+    """How far each model puts the platform from the measured pose on the calibration
+    data (m, rad): Mark centroid distance and angle, max and RMS."""
+    angle, shift = relative_motions(data.marks, home)
+    centroid = home.mean(axis=0)
+    measured = _rotate(angle, centroid) + shift
+    home_pose = model.forward(np.zeros((1, 3)))[0]
+    predicted = model.forward(data.q)
+    moved = [_rotate(p[2] - home_pose[2], centroid - home_pose[:2]) + p[:2] for p in predicted]
+    distance = np.linalg.norm(np.array(moved) - measured, axis=1)
+    turn = np.abs(predicted[:, 2] - home_pose[2] - angle)
+    return {'position_max_m': float(distance.max()),
+            'position_rms_m': float(np.sqrt(np.mean(distance ** 2))),
+            'orientation_max_rad': float(turn.max()),
+            'orientation_rms_rad': float(np.sqrt(np.mean(turn ** 2)))}
+
+
+def calibrate_stage(data: StageData) -> tuple[dict, dict]:
+    """Both calibrations from one run: ``({'stepwise': ..., 'parametric': ...}, report)``.
+    The report holds each method's identified values and its fit to the data (the
+    comparison on unseen poses is the alignment evaluation)."""
+    stepwise, stepwise_report = stepwise_calibration(data)
+    parametric, parametric_report, _ = parametric_calibration(data, stepwise.geometry)
+    home = data.marks[np.all(np.abs(data.q) < 1e-9, axis=1)].mean(axis=0)
+    report = {'num_poses': len(data), 'stepwise': stepwise_report,
+              'parametric': parametric_report,
+              'fit_to_calibration_data': {'stepwise': _fit_error(stepwise, data, home),
+                                          'parametric': _fit_error(parametric, data, home)},
+              'note': 'fit_to_calibration_data: each model as the aligner uses it (every '
+                      'chain approached from below) against the measured poses of the run, '
+                      'whose downward sweeps carry backlash; accuracy on unseen poses is '
+                      'the alignment evaluation'}
+    return {'stepwise': stepwise, 'parametric': parametric}, report
+
+
+def models_as_dict(models: dict) -> dict:
+    """The calibrated models in plain YAML/JSON types (SI units), for files and messages."""
+    out = {}
+    for name, model in models.items():
+        entry = {'method': model.method, 'geometry': model.geometry.as_dict()}
+        if isinstance(model, StepwiseModel):
+            entry.update(attitude_w=model.attitude_w.tolist(),
+                         attitude_theta=model.attitude_theta.tolist(),
+                         poses=model.poses.tolist(), corrections=model.corrections.tolist())
+        out[name] = entry
+    return out
+
+
+def models_from_dict(content: dict) -> dict:
+    """Inverse of :func:`models_as_dict`.
+
+    Raises
+    ------
+    InvalidInputError
+        A model entry is incomplete (names what is missing)."""
+    models = {}
+    for name, entry in content.items():
+        try:
+            geometry = StageGeometry.from_parameters(entry['geometry'])
+            if entry['method'] == 'stepwise':
+                models[name] = StepwiseModel(geometry, entry['attitude_w'],
+                                             entry['attitude_theta'], entry['poses'],
+                                             entry['corrections'])
+            else:
+                models[name] = ParametricModel(geometry)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InvalidInputError(f'stage model {name!r} is incomplete or malformed: '
+                                    f'{exc!r}') from None
+    return models

@@ -4,13 +4,22 @@ Renders what the camera sees of the scene (dot plate, substrate or stencil Marks
 gantry's true position, read from ``sim/truth/camera_position`` (simulators may use truth;
 calibration nodes never do). Publishes ``camera/image_raw`` (mono8, sensor-data QoS) and
 ``camera/camera_info``.
+
+Scene ``stage``: the printer with its XY-Theta stage. The platform's Marks move with
+``sim/truth/stage_pose``; the camera is two-way, and service ``camera/select_view``
+(SelectView) switches between the ``substrate`` (down) and the ``stencil`` (up). Parameters
+``substrate_shift`` (x m, y m, rad: how the substrate is fixed on the platform) and
+``stencil_marks`` (plate x, y of each stencil fiducial, m; empty: the default stencil).
 """
 import threading
 
 import numpy as np
+from alignment_msgs.msg import StagePose
+from alignment_msgs.srv import SelectView
 from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.time import Time
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
@@ -19,7 +28,7 @@ from calib_core.nodes.spin import run_node
 from printer_alignment.core.geometry import CameraToPlate
 from printer_alignment.nodes.conversions import image_as_message
 from printer_alignment.sim.camera import CameraOptics, CameraSim
-from printer_alignment.sim.scene import make_scene
+from printer_alignment.sim.scene import StageScene, make_scene, stage_scene
 
 
 class CameraSimNode(Node):
@@ -35,6 +44,8 @@ class CameraSimNode(Node):
         self.declare_parameter('read_noise', 1.5)
         self.declare_parameter('k1', 0.0)
         self.declare_parameter('gradient_x', 0.0)
+        self.declare_parameter('substrate_shift', [0.0, 0.0, 0.0])
+        self.declare_parameter('stencil_marks', [0.0])
         g = self.get_parameter
         rate = g('rate_hz').value
         if not rate > 0 or not g('pixel_size').value > 0 or g('blur_sigma').value < 0:
@@ -43,23 +54,64 @@ class CameraSimNode(Node):
             camera2plate=CameraToPlate(g('pixel_size').value, g('angle').value),
             distortion=(g('k1').value, 0.0, 0.0, 0.0), blur_sigma=g('blur_sigma').value,
             read_noise=g('read_noise').value, gradient=(g('gradient_x').value, 0.0))
-        self.camera = CameraSim(make_scene(g('scene').value), optics, seed=g('seed').value)
+        scene = make_scene(g('scene').value)
+        if isinstance(scene, StageScene):
+            scene = self._stage_scene(g('substrate_shift').value, g('stencil_marks').value)
+        self.camera = CameraSim(scene, optics, seed=g('seed').value)
         self._position = None
-        self._position_stamp = None
+        self._stamp = None     # when the state the next frame shows became true
         self._lock = threading.Lock()
         self.image_pub = self.create_publisher(Image, 'camera/image_raw', qos_profile_sensor_data)
         self.info_pub = self.create_publisher(CameraInfo, 'camera/camera_info', qos_profile_sensor_data)
         self.create_subscription(PointStamped, 'sim/truth/camera_position', self.on_truth, LATCHED)
+        if isinstance(scene, StageScene):
+            self.create_subscription(StagePose, 'sim/truth/stage_pose', self.on_stage, LATCHED)
+            self.create_service(SelectView, 'camera/select_view', self.on_select_view)
         self.create_timer(1.0 / rate, self.capture)
+
+    @staticmethod
+    def _stage_scene(shift, stencil) -> StageScene:
+        shift = [float(v) for v in shift]
+        stencil = [float(v) for v in stencil]
+        if len(shift) != 3 or not np.all(np.isfinite(shift)):
+            raise ValueError('substrate_shift must be three finite numbers (x m, y m, rad)')
+        if len(stencil) <= 1:
+            return stage_scene(shift)
+        if len(stencil) % 2 or not np.all(np.isfinite(stencil)):
+            raise ValueError('stencil_marks must be finite x, y pairs (m)')
+        return stage_scene(shift, np.reshape(stencil, (-1, 2)))
+
+    def _changed(self, stamp):
+        """Remember the newest time the scene or camera position changed (lock held)."""
+        stamp = Time.from_msg(stamp)
+        if self._stamp is None or stamp > self._stamp:
+            self._stamp = stamp
 
     def on_truth(self, msg):
         with self._lock:
             self._position = np.array([msg.point.x, msg.point.y])
-            self._position_stamp = msg.header.stamp
+            self._changed(msg.header.stamp)
+
+    def on_stage(self, msg):
+        with self._lock:
+            self.camera.scene.pose = np.array([msg.x, msg.y, msg.theta])
+            self._changed(msg.header.stamp)
+
+    def on_select_view(self, request, response):
+        if request.view not in ('substrate', 'stencil'):
+            response.success = False
+            response.message = f'unknown view {request.view!r}; use substrate or stencil'
+            return response
+        with self._lock:
+            self.camera.scene.view = request.view
+            self._changed(self.get_clock().now().to_msg())
+        response.success, response.message = True, 'ok'
+        return response
 
     def capture(self):
         with self._lock:
-            position, stamp = self._position, self._position_stamp
+            position = self._position
+            stamp = None if self._stamp is None else self._stamp.to_msg()
         if position is None:
             return  # no gantry yet: a real camera would see nothing useful either
         # Stamped with the time the rendered position was true, not with the capture time:

@@ -10,6 +10,10 @@ progress on ``vision_calibrator/progress``. One calibration at a time; a second 
 while one runs is refused. A failed or interrupted run leaves the previous calibration
 in force.
 
+At start the node publishes the calibration in force (the current file in ``output_dir``)
+on ``vision_calibrator/result``, so nodes that measure with the vision system (stage
+calibrator, aligner) can work after the plate is removed and the graph restarted.
+
 Service ``vision_calibrator/analyze_residuals`` (AnalyzeResiduals) measures ``points``
 random positions over the travel in random order (so both directions of approach occur)
 with the calibrated camera and gantry model, runs the closed loop on the gantry (backlash,
@@ -36,7 +40,7 @@ from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
-from calib_core.storage import write_calibration
+from calib_core.storage import read_calibration, write_calibration
 from printer_alignment.core.geometry import (
     NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
 from printer_alignment.core.loop_models import GantryData, GantryLoopModel
@@ -51,10 +55,14 @@ ANALYSIS_OPTIONS = ('points', 'measure_seed')
 
 
 def vision_result_message(calibration: VisionCalibration, header, file_path='', version=0):
-    report = calibration.report
+    return _result_message(calibration.camera2plate.pixel_size, calibration.camera2plate.angle,
+                           calibration.report, header, file_path, version)
+
+
+def _result_message(pixel_size, camera_angle, report, header, file_path, version):
     gantry = report['gantry']
-    parameters = {'pixel_size': calibration.camera2plate.pixel_size,
-                  'camera_angle': calibration.camera2plate.angle, **gantry['parameters']}
+    parameters = {'pixel_size': pixel_size, 'camera_angle': camera_angle,
+                  **gantry['parameters']}
     std = {'pixel_size': report['pixel_size']['pixel_size_std_m'],
            'camera_angle': report['pixel_size']['angle_std_rad'], **gantry['std_devs']}
     units = {'pixel_size': 'm/px', 'camera_angle': 'rad', **gantry['units']}
@@ -95,11 +103,29 @@ class VisionCalibratorNode(Node):
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_pixel_size',
                             self.on_pixel_size, callback_group=group)
         self._calibration = None   # (VisionCalibration, file content) of the last run
+        self._publish_calibration_in_force()
         self.create_service(AnalyzeResiduals, 'vision_calibrator/analyze_residuals',
                             AnalysisService(self, 'vision', self.calibration_service.busy,
                                             self._measure_for_analysis, self._apply_extended,
                                             ANALYSIS_TOPIC, self._header),
                             callback_group=group)
+
+    def _publish_calibration_in_force(self):
+        directory = self.get_parameter('output_dir').value
+        try:
+            content = read_calibration(directory, 'vision')
+            if content is None:
+                return
+            camera = content['camera2plate']
+            result = _result_message(camera['pixel_size'], camera['angle'], content['report'],
+                                     self._header(), f'{directory}/vision.yaml',
+                                     content.get('version', 0))
+        except (OSError, KeyError, TypeError, ValueError) as exc:
+            self.get_logger().error(f'the vision calibration in {directory} is unreadable '
+                                    f'({exc!r}); calibrate again')
+            return
+        self.result_pub.publish(result)
+        self.get_logger().info(f'vision calibration v{result.version} in force')
 
     def _plan_from_parameters(self, overrides: dict) -> VisionPlan:
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731

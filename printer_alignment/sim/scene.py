@@ -47,8 +47,52 @@ class MarkSet:
         return [m for m in self.marks if x0 <= m.x <= x1 and y0 <= m.y <= y1]
 
 
+class StageScene:
+    """The printer with its XY-Theta stage: the calibration Marks and the substrate's
+    fiducials (circles) move with the platform; the stencil's fiducials (crosses) stay.
+    A two-way camera sees either the ``substrate`` side (down) or the ``stencil`` (up).
+
+    ``platform_marks``: (k, 2) platform-frame positions (m); ``stencil``: (k, 2) plate
+    positions (m)."""
+
+    def __init__(self, platform_marks, stencil, radius: float = 0.5e-3,
+                 cross: tuple = (0.6e-3, 0.2e-3)):
+        self.platform_marks = np.asarray(platform_marks, dtype=float)
+        self.stencil = MarkSet(tuple(PlateMark('cross', float(x), float(y), *cross)
+                                     for x, y in np.asarray(stencil, dtype=float)))
+        self.radius = radius
+        self.pose = np.zeros(3)     # platform pose in the plate frame (m, m, rad)
+        self.view = 'substrate'
+
+    def marks_within(self, x0: float, x1: float, y0: float, y1: float) -> list[PlateMark]:
+        if self.view == 'stencil':
+            return self.stencil.marks_within(x0, x1, y0, y1)
+        c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
+        plate = self.platform_marks @ np.array([[c, s], [-s, c]]) + self.pose[:2]
+        return MarkSet(tuple(PlateMark('circle', float(x), float(y), self.radius)
+                             for x, y in plate)).marks_within(x0, x1, y0, y1)
+
+
+def stage_scene(substrate_shift=(0.0, 0.0, 0.0), stencil=None) -> StageScene:
+    """The simulated printer's stage scene: calibration Marks and a substrate fixed with
+    ``substrate_shift`` (x m, y m, rotation rad) on the platform; the stencil's fiducials at
+    ``stencil`` (plate m, (2, 2)), by default where the substrate's would be if fixed
+    perfectly with the stage at home."""
+    from printer_alignment.sim.stage import CALIBRATION_MARKS, SUBSTRATE_MARKS, TRUE_STAGE
+    dx, dy, turn = substrate_shift
+    c, s = np.cos(turn), np.sin(turn)
+    substrate = SUBSTRATE_MARKS @ np.array([[c, s], [-s, c]]) + [dx, dy]
+    if stencil is None:
+        home = TRUE_STAGE.stage_to_plate(TRUE_STAGE.forward(np.zeros((1, 3))))[0]
+        c0, s0 = np.cos(home[2]), np.sin(home[2])
+        stencil = SUBSTRATE_MARKS @ np.array([[c0, s0], [-s0, c0]]) + home[:2]
+    return StageScene(np.vstack([CALIBRATION_MARKS, substrate]), stencil)
+
+
 def make_scene(name: str):
-    """The scene called ``name``: ``dot_plate``, ``substrate`` or ``stencil``."""
+    """The scene called ``name``: ``dot_plate``, ``substrate``, ``stencil`` or ``stage``."""
+    if name == 'stage':
+        return stage_scene()
     if name == 'dot_plate':
         return DotPlate()
     if name == 'substrate':
@@ -57,4 +101,4 @@ def make_scene(name: str):
     if name == 'stencil':
         return MarkSet((PlateMark('cross', 0.020, 0.020, 0.6e-3, 0.2e-3),
                         PlateMark('cross', 0.180, 0.130, 0.6e-3, 0.2e-3)))
-    raise ValueError(f'unknown scene {name!r}; use dot_plate, substrate or stencil')
+    raise ValueError(f'unknown scene {name!r}; use dot_plate, substrate, stencil or stage')

@@ -1,0 +1,211 @@
+"""stage_calibrator: self-calibration of the XY-Theta stage with the machine's own camera.
+
+Service ``stage_calibrator/calibrate`` (RunCalibration) moves the stage through the plan
+(``stage/move``: X, Y and attitude sweeps up and down, then a workspace grid), measures
+the two calibration Marks on the platform at every stop with the calibrated vision system
+(gantry, two-way camera, detector), then runs the paper's stepwise calibration and the
+parametric identification on the same measurements. The run is recorded to an MCAP bag
+(``stage_calibrator/observations`` and the result), the models are written to an atomic,
+versioned calibration file ``stage`` and published latched on
+``/stage_calibrator/result`` (``report_json`` carries both models, so the aligner needs no
+shared file system). Progress on ``/stage_calibrator/progress``. One run at a time; a
+failed or interrupted run leaves the previous calibration in force.
+
+Service ``stage_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
+the last run's measurements with the error model without backlash as the base model.
+"""
+import json
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+from alignment_msgs.msg import CalibrationResult, Progress, StageObservation
+from alignment_msgs.srv import AnalyzeResiduals, MoveStage, RunCalibration
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Header
+
+from calib_core.bags import BagWriter
+from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.nodes.analysis import AnalysisService
+from calib_core.nodes.calibrator import CalibrationService, call_service
+from calib_core.nodes.conversions import calibration_result_as_message
+from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.spin import run_node
+from calib_core.storage import write_calibration
+from printer_alignment.core.stage_calibration import (
+    StageData, StagePlan, calibrate_stage, models_as_dict)
+from printer_alignment.nodes.mark_locator import MarkLocator
+from printer_alignment.sim.stage import NOMINAL_STAGE
+
+OBSERVATIONS_TOPIC = '/stage_calibrator/observations'
+RESULT_TOPIC = '/stage_calibrator/result'
+ANALYSIS_TOPIC = '/stage_calibrator/analysis'
+PLAN_KEYS = ('sweep_points', 'grid', 'span')
+
+
+def observation_as_record(msg) -> tuple:
+    """(q (3,), direction (3,), marks (2, 2)) from a StageObservation."""
+    if len(msg.q) != 3 or len(msg.direction) != 3 or len(msg.marks_x) != 2 \
+            or len(msg.marks_y) != 2:
+        raise InvalidInputError('a stage observation needs 3 inputs, 3 directions, 2 Marks')
+    return (np.array(msg.q, dtype=float), np.array(msg.direction, dtype=float),
+            np.column_stack([msg.marks_x, msg.marks_y]))
+
+
+def data_from_records(records) -> StageData:
+    q, directions, marks = zip(*records)
+    return StageData(np.array(q), np.array(directions), np.array(marks))
+
+
+class StageCalibratorNode(Node):
+
+    def __init__(self):
+        super().__init__('stage_calibrator')
+        self.declare_parameter('output_dir', 'calibration')
+        self.declare_parameter('record_dir', 'runs')
+        self.declare_parameter('sweep_points', StagePlan.sweep_points)
+        self.declare_parameter('grid', list(StagePlan.grid))
+        self.declare_parameter('span', StagePlan.span)
+        # Where the two calibration Marks are (plate frame, m) with the stage at home.
+        self.declare_parameter('calibration_marks', [0.040, 0.075, 0.160, 0.075])
+        self.declare_parameter('call_timeout_s', 10.0)
+        marks = [float(v) for v in self.get_parameter('calibration_marks').value]
+        if len(marks) != 4 or not np.all(np.isfinite(marks)):
+            raise ValueError('calibration_marks must be x1, y1, x2, y2 (m)')
+        self.home_marks = np.reshape(marks, (2, 2))
+        self._plan(dict())    # validates the parameters at start
+        self.timeout = float(self.get_parameter('call_timeout_s').value)
+        group = ReentrantCallbackGroup()
+        self.locator = MarkLocator(self, group, self.timeout)
+        self.move_client = self.create_client(MoveStage, 'stage/move', callback_group=group)
+        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.progress_pub = self.create_publisher(Progress, '/stage_calibrator/progress', 10)
+        self.observation_pub = self.create_publisher(StageObservation, OBSERVATIONS_TOPIC, 10)
+        self.calibration_service = CalibrationService(
+            self, 'stage', lambda overrides: self._run(self._plan(overrides)), self._header)
+        self.create_service(RunCalibration, 'stage_calibrator/calibrate',
+                            self.calibration_service, callback_group=group)
+        self._data = None    # StageData of the last successful run
+        self.create_service(AnalyzeResiduals, 'stage_calibrator/analyze_residuals',
+                            AnalysisService(self, 'stage', self.calibration_service.busy,
+                                            self._loop_model, self._apply_extended,
+                                            ANALYSIS_TOPIC, self._header),
+                            callback_group=group)
+
+    def _plan(self, overrides: dict) -> StagePlan:
+        unknown = set(overrides) - set(PLAN_KEYS)
+        if unknown:
+            raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
+        g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
+        return StagePlan(sweep_points=int(g('sweep_points')),
+                         grid=tuple(int(v) for v in g('grid')), span=float(g('span')))
+
+    def _header(self):
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id='plate')
+
+    def _progress(self, step, total, message):
+        self.progress_pub.publish(Progress(header=self._header(), task='stage_calibration',
+                                           step=step, total=total, message=message))
+        self.get_logger().info(f'[{step}/{total}] {message}')
+
+    def _move(self, q):
+        return call_service(self.move_client, MoveStage.Request(q=[float(v) for v in q]),
+                            'stage move', self.timeout)
+
+    def _expected_marks(self, q, home) -> np.ndarray:
+        """Where the nominal kinematics puts the calibration Marks (m, (2, 2)); they are
+        searched for there (the stage's errors are far smaller than the image)."""
+        pose = NOMINAL_STAGE.forward(np.asarray(q)[None])[0]
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        stage_home = NOMINAL_STAGE.stage2plate
+        local = home - stage_home[:2]
+        return local @ np.array([[c, s], [-s, c]]) + stage_home[:2] + pose[:2]
+
+    def _run(self, plan: StagePlan) -> CalibrationResult:
+        self.locator.vision   # fails early without a vision calibration
+        targets = plan.targets()
+        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+        bag_path = Path(self.get_parameter('record_dir').value) / f'stage_{stamp}'
+        total = len(targets) + 1
+        records = []
+        with BagWriter(bag_path) as bag:
+            bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/StageObservation')
+            bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+            self.locator.select_view('substrate')
+            home = self.home_marks
+            for k, q in enumerate(targets):
+                reached = self._move(q)
+                marks = self.locator.measure(self._expected_marks(q, home), 'circle')
+                if k == 0:
+                    home = marks     # searched from the measured home from now on
+                msg = StageObservation(header=self._header(), q=list(reached.q),
+                                       direction=list(reached.direction),
+                                       marks_x=marks[:, 0].tolist(), marks_y=marks[:, 1].tolist())
+                self.observation_pub.publish(msg)
+                bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds,
+                          serialize_message(msg))
+                records.append(observation_as_record(msg))
+                self._progress(k + 1, total, f'stop {k + 1}/{len(targets)}: q = '
+                               + ', '.join(f'{v * 1e3:+.3f}' for v in q) + ' mm')
+            self._move(np.zeros(3))
+            data = data_from_records(records)
+            models, report = calibrate_stage(data)
+            content = {'kind': 'stage', 'created': stamp, 'bag': str(bag_path),
+                       'models': models_as_dict(models), 'report': report}
+            path, version = write_calibration(self.get_parameter('output_dir').value, 'stage',
+                                              content)
+            result = stage_result_message(report, models, self._header(), str(path), version)
+            bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
+        self.result_pub.publish(result)
+        self._data, self._content = data, content
+        r = report['stepwise']
+        self._progress(total, total, f'done: R1..R3 {r["R1"] * 1e3:.4f}, {r["R2"] * 1e3:.4f}, '
+                       f'{r["R3"] * 1e3:.4f} mm/rev, alpha1 {np.rad2deg(r["alpha1"]):.4f} deg; '
+                       f'wrote {path}')
+        return result
+
+    def _loop_model(self, options: dict):
+        from printer_alignment.core.stage_loop import StageLoopModel
+        if options:
+            raise InvalidInputError(f'unknown analysis options {sorted(options)}')
+        if self._data is None:
+            raise CalibrationError('no stage calibration run to analyse yet: call '
+                                   'stage_calibrator/calibrate first')
+        return StageLoopModel(self._data)
+
+    def _apply_extended(self, result) -> str:
+        content = dict(self._content)
+        report = result.report
+        content['effects'] = report['effects_added']
+        content['loop_model'] = {'base_model': report['base_model'],
+                                 'parameters': report['base_parameters']['after']}
+        path, _ = write_calibration(self.get_parameter('output_dir').value, 'stage', content)
+        return str(path)
+
+
+def stage_result_message(report: dict, models: dict, header, file_path='', version=0):
+    """CalibrationResult of a stage calibration: the parametric model's free parameters
+    with their sigmas, the stepwise values as ``stepwise_*``; both models in the JSON."""
+    parametric = report['parametric']
+    names = [n for n in parametric['parameters'] if n not in parametric['fixed']]
+    values = {n: parametric['parameters'][n] for n in names}
+    units = {n: parametric['units'][n] for n in names}
+    stepwise = report['stepwise']
+    for key in ('R1', 'R2', 'R3', 'alpha1', 'd3_minus_d2'):
+        values[f'stepwise_{key}'] = stepwise[key]
+        units[f'stepwise_{key}'] = stepwise['units'][key]
+    full = dict(report, models=models_as_dict(models))
+    return calibration_result_as_message(
+        'stage', header, values, parametric['std_devs'], units, full,
+        parametric['residual_rms_m'], parametric['residual_max_m'], 'm', report['num_poses'],
+        file_path, version)
+
+
+def main(args=None):
+    run_node(StageCalibratorNode, args, threads=4)
+
+
+if __name__ == '__main__':
+    main()
