@@ -139,6 +139,42 @@ def cmd_calibrate_vision(args) -> int:
     return 0
 
 
+def cmd_calibrate_stage(args) -> int:
+    """Rerun both stage calibrations from a run recorded by stage_calibrator (--bag) or a
+    stage CSV (--data)."""
+    from printer_alignment.core.stage_calibration import (
+        StageData, calibrate_stage, models_as_dict)
+    from printer_alignment.nodes.stage_calibrator import data_from_records, observation_as_record
+    recorded = None
+    if args.bag:
+        records, recorded = _read_run(args.bag, '/observations', observation_as_record,
+                                      'stage calibration observations')
+        data = data_from_records(records)
+    else:
+        data = StageData.from_csv(args.data)
+    models, report = calibrate_stage(data)
+    s, p = report['stepwise'], report['parametric']
+    print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '
+          f'{s["R3"] * 1e3:.5f} mm/rev, alpha1 {np.rad2deg(s["alpha1"]):.4f} deg, '
+          f'd3 - d2 {s["d3_minus_d2"] * 1e3:.3f} mm')
+    print(f'Parametric: Mark residual RMS {p["residual_rms_m"] * 1e6:.2f} um, max '
+          f'{p["residual_max_m"] * 1e6:.2f} um, condition number {p["condition_number"]:.3g}')
+    for name in p['parameters']:
+        if name not in p['fixed']:
+            print(f'  {name:>16} = {p["parameters"][name]: .9g} +- {p["std_devs"][name]:.2g} '
+                  f'{p["units"][name]}')
+    for name, why in p['weakly_determined'].items():
+        print(f'  weakly determined: {name}: {why}')
+    report['models'] = models_as_dict(models)
+    if recorded is not None:
+        live = recorded['parametric']['parameters']
+        report['max_difference_to_live'] = max(abs(live[n] - v) for n, v in p['parameters'].items())
+        print(f'same as the live run: max |difference| {report["max_difference_to_live"]:.3g} '
+              '(SI units)')
+    _write_json(args.json, report)
+    return 0
+
+
 def _print_pose_summary(label: str, summary: dict) -> None:
     print(f'  {label:<28} max {summary["max_displacement_m"] * 1e6:8.2f} um '
           f'{summary["max_angle_rad"] * 1e6:8.1f} urad   RMS '
@@ -267,6 +303,10 @@ def _loop_machine(args, dropped: dict):
         from printer_alignment.core.loop_models import CameraLoopModel
         size = _parse_size(args.image_size) if args.image_size else None
         return CameraLoopModel(read_correspondences(args.data), size)
+    if args.machine == 'stage':
+        from printer_alignment.core.stage_calibration import StageData
+        from printer_alignment.core.stage_loop import StageLoopModel
+        return StageLoopModel(StageData.from_csv(args.data, dropped))
     from hexapod_calib.core.calibration import PoseData
     from hexapod_calib.core.geometry import read_geometry
     from hexapod_calib.core.loop_model import HexapodLoopModel
@@ -312,12 +352,22 @@ def cmd_simulate_axis(args) -> int:
     return 0
 
 
+def cmd_simulate_stage(args) -> int:
+    from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
+    truth = TRUE_STAGE.with_changes(backlash=(0.0, 0.0, 0.0)) if args.no_backlash else TRUE_STAGE
+    data = simulate_calibration_run(truth, seed=args.seed)
+    data.to_csv(args.out)
+    print(f'wrote {args.out} ({len(data)} stops)')
+    return 0
+
+
 def cmd_launch(args) -> int:
     import time
 
-    from calib_core.launcher import Graph, hexapod_graph, printer_graph
-    spec = (printer_graph(args.scene, args.output_dir, args.record_dir) if args.graph == 'printer'
-            else hexapod_graph(args.output_dir, args.record_dir))
+    from calib_core.launcher import Graph, hexapod_graph, printer_graph, stage_graph
+    spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir),
+            'stage': lambda: stage_graph(args.output_dir, args.record_dir),
+            'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir)}[args.graph]()
     with Graph(spec) as graph:
         print(f'{args.graph} graph running (Ctrl-C to stop)')
         try:
@@ -367,6 +417,15 @@ def build_parser() -> argparse.ArgumentParser:
     vision.add_argument('--json')
     vision.set_defaults(func=cmd_calibrate_vision)
 
+    stage = what.add_parser('stage', help='XY-Theta stage: stepwise and parametric, from a '
+                                          'recorded run or a stage CSV')
+    stage_source = stage.add_mutually_exclusive_group(required=True)
+    stage_source.add_argument('--bag', help='a run recorded by stage_calibrator')
+    stage_source.add_argument('--data', help='CSV: q1..q3 (m), direction1..3, mark1_x, '
+                                             'mark1_y, mark2_x, mark2_y (m)')
+    stage.add_argument('--json')
+    stage.set_defaults(func=cmd_calibrate_stage)
+
     hexapod = what.add_parser('hexapod', help='42-parameter hexapod geometry from measured poses')
     hexapod_source = hexapod.add_mutually_exclusive_group(required=True)
     hexapod_source.add_argument('--data', help='CSV: x..yaw, meas_x..meas_yaw (m, rad), '
@@ -398,6 +457,14 @@ def build_parser() -> argparse.ArgumentParser:
     hexapod_sim.add_argument('--seed', type=int, default=2)
     hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
 
+    stage_sim = simulated.add_parser('stage', help='a calibration run of the simulated '
+                                                    'XY-Theta stage (stage CSV)')
+    stage_sim.add_argument('--out', required=True, help='CSV to write')
+    stage_sim.add_argument('--no-backlash', action='store_true',
+                           help='a stage without backlash (clean data for the closed loop)')
+    stage_sim.add_argument('--seed', type=int, default=0)
+    stage_sim.set_defaults(func=cmd_simulate_stage)
+
     axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
                                                   'a simulated axis')
     axis_sim.add_argument('--out', required=True, help='CSV to write')
@@ -420,6 +487,8 @@ def build_parser() -> argparse.ArgumentParser:
                'gantry': 'CSV: command_x, command_y, measured_x, measured_y (m); optional '
                          'direction_x, direction_y, time, temperature',
                'camera': 'CSV: view, model_x, model_y (m), u, v (px)',
+               'stage': 'CSV: q1..q3 (m), mark1_x, mark1_y, mark2_x, mark2_y (m, plate '
+                        'frame); optional direction1..3, time, temperature',
                'hexapod': 'CSV: x..yaw, meas_x..meas_yaw (m, rad); optional l1..l6 (m), '
                           'force1..force6 (N, compression positive), direction1..direction6, '
                           'time, temperature'}
@@ -443,7 +512,7 @@ def build_parser() -> argparse.ArgumentParser:
         machine.set_defaults(func=cmd_analyze)
 
     launch = sub.add_parser('launch', help='start a simulated machine graph from the venv')
-    launch.add_argument('graph', choices=['printer', 'hexapod'])
+    launch.add_argument('graph', choices=['printer', 'stage', 'hexapod'])
     launch.add_argument('--scene', default='dot_plate', choices=['dot_plate', 'substrate', 'stencil'])
     launch.add_argument('--output-dir', default='calibration')
     launch.add_argument('--record-dir', default='runs')

@@ -31,6 +31,26 @@ def printer_graph(scene: str = 'dot_plate', output_dir: str = 'calibration',
     ]
 
 
+def stage_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
+                camera_rate_hz: float = 10.0, substrate_shift=(0.0, 0.0, 0.0)) -> list[NodeSpec]:
+    """The printer with its XY-Theta stage (the dot plate removed): gantry, two-way camera
+    over the stage, detector, vision calibrator (publishing the calibration in force),
+    stage, stage calibrator and aligner."""
+    return [
+        NodeSpec('printer_alignment.nodes.gantry_sim'),
+        NodeSpec('printer_alignment.nodes.camera_sim',
+                 {'scene': 'stage', 'rate_hz': camera_rate_hz,
+                  'substrate_shift': [float(v) for v in substrate_shift]}),
+        NodeSpec('printer_alignment.nodes.mark_detector', {'continuous': False}),
+        NodeSpec('printer_alignment.nodes.vision_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir}),
+        NodeSpec('printer_alignment.nodes.stage_sim'),
+        NodeSpec('printer_alignment.nodes.stage_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir}),
+        NodeSpec('printer_alignment.nodes.aligner', {'record_dir': record_dir}),
+    ]
+
+
 def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> list[NodeSpec]:
     """The hexapod cell: simulated hexapod, pose sensor (CMM / laser tracker), calibrator."""
     from hexapod_calib.sim.hexapod import HexapodTruth

@@ -14,7 +14,6 @@ failed or interrupted run leaves the previous calibration in force.
 Service ``stage_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
 the last run's measurements with the error model without backlash as the base model.
 """
-import json
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -68,8 +67,9 @@ class StageCalibratorNode(Node):
         self.declare_parameter('sweep_points', StagePlan.sweep_points)
         self.declare_parameter('grid', list(StagePlan.grid))
         self.declare_parameter('span', StagePlan.span)
-        # Where the two calibration Marks are (plate frame, m) with the stage at home.
-        self.declare_parameter('calibration_marks', [0.040, 0.075, 0.160, 0.075])
+        # Where the two calibration Marks are (plate frame, m) with the stage at home, as
+        # taught by jogging the camera over them once.
+        self.declare_parameter('calibration_marks', [0.0351, 0.0791, 0.1551, 0.0797])
         self.declare_parameter('call_timeout_s', 10.0)
         marks = [float(v) for v in self.get_parameter('calibration_marks').value]
         if len(marks) != 4 or not np.all(np.isfinite(marks)):
