@@ -1,0 +1,115 @@
+"""XY-Theta stage nodes as separate processes over DDS: refusals, the calibration service
+with its bag and offline replay, alignment through the two-way camera, the closed loop."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+DOMAIN = str(150 + os.getpid() % 50)
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibration  # noqa: E402
+
+from calib_core.bags import decode_bag  # noqa: E402
+from calib_core.cli import main as cli_main  # noqa: E402
+from calib_core.launcher import stage_graph  # noqa: E402
+from calib_core.storage import write_calibration  # noqa: E402
+from dds import call, running  # noqa: E402
+from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E402
+from printer_alignment.nodes.stage_calibrator import (  # noqa: E402
+    data_from_records, observation_as_record)
+from printer_alignment.sim.camera import CameraOptics  # noqa: E402
+from printer_alignment.sim.gantry import GantryErrors  # noqa: E402
+from printer_alignment.sim.stage import TRUE_STAGE  # noqa: E402
+
+PLAN = 'sweep_points: 3\ngrid: [2, 2, 2]\n'
+SUBSTRATE_SHIFT = (0.25e-3, -0.15e-3, np.deg2rad(0.04))
+
+
+def _vision_in_force(directory):
+    """The vision calibration in force, as vision_calibrator writes it (the simulation's
+    true camera scale and gantry geometry: this test is about the stage)."""
+    camera = CameraOptics().camera2plate
+    gantry = {k: float(v) for k, v in GantryErrors().model.as_dict().items()}
+    zero = {k: 0.0 for k in gantry}
+    write_calibration(directory, 'vision', {
+        'kind': 'vision', 'camera2plate': {'pixel_size': float(camera.pixel_size),
+                                           'angle': float(camera.angle),
+                                           'principal': list(camera.principal)},
+        'gantry2plate': gantry,
+        'report': {'pixel_size': {'pixel_size_std_m': 0.0, 'angle_std_rad': 0.0},
+                   'gantry': {'parameters': gantry, 'std_devs': zero,
+                              'units': {k: '' for k in gantry}, 'residual_rms_m': 0.0,
+                              'residual_max_m': 0.0, 'num_positions': 0}}})
+
+
+@pytest.fixture(scope='module')
+def graph(tmp_path_factory):
+    out = tmp_path_factory.mktemp('stage')
+    _vision_in_force(out / 'calibration')
+    spec = stage_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
+                       substrate_shift=SUBSTRATE_SHIFT)
+    with running(spec, DOMAIN, out, 'stage_test_client') as (graph, node):
+        yield graph, node, out
+
+
+def test_stage_refuses_inputs_outside_the_stroke(graph):
+    running, node, _ = graph
+    move = node.create_client(MoveStage, 'stage/move')
+    refused = call(node, move, MoveStage.Request(q=[0.0, 5.5e-3, 0.0]))
+    assert not refused.success and 'outside the stroke' in refused.message
+    assert list(refused.q) == [0.0, 0.0, 0.0]
+    wrong = call(node, move, MoveStage.Request(q=[0.0, 0.0]))
+    assert not wrong.success and '3 chain inputs' in wrong.message
+    assert all(running.alive())
+
+
+def test_align_before_calibration_is_an_error(graph):
+    _, node, _ = graph
+    answer = call(node, node.create_client(Align, 'aligner/align'),
+                  Align.Request(model='parametric'))
+    assert not answer.success and 'stage_calibrator/calibrate' in answer.message
+
+
+def test_calibration_replay_alignment_and_closed_loop(graph):
+    running, node, out = graph
+    response = call(node, node.create_client(RunCalibration, 'stage_calibrator/calibrate'),
+                    RunCalibration.Request(plan_yaml=PLAN), timeout=300.0)
+    assert response.success, response.message
+    values = dict(zip(response.result.names, response.result.values))
+    for i in range(3):   # a short run, so looser than the core test
+        assert abs(values[f'lead{i + 1}'] - TRUE_STAGE.lead[i]) < 3e-6
+        assert abs(values[f'stepwise_R{i + 1}'] - TRUE_STAGE.lead[i]) < 3e-6
+    assert abs(values['alpha1'] - TRUE_STAGE.alpha1) < 1e-3
+
+    # The recorded bag replays through the same code to the same result.
+    bag = next((out / 'runs').glob('stage_2*'))
+    records = [observation_as_record(m) for t, _, m in decode_bag(bag)
+               if t.endswith('/observations')]
+    _, replay = calibrate_stage(data_from_records(records))
+    live = json.loads(response.result.report_json)['parametric']['parameters']
+    assert max(abs(live[n] - v) for n, v in replay['parametric']['parameters'].items()) < 1e-12
+    assert cli_main(['calibrate', 'stage', '--bag', str(bag), '--json',
+                     str(out / 'replay.json')]) == 0
+    assert json.loads((out / 'replay.json').read_text())['max_difference_to_live'] < 1e-12
+
+    aligned = call(node, node.create_client(Align, 'aligner/align'),
+                   Align.Request(model='parametric'), timeout=120.0)
+    assert aligned.success, aligned.message
+    report = json.loads(aligned.report_json)
+    # The substrate was fixed 0.3 mm and 0.04 deg off; after one move it sits on the
+    # stencil within the stage's repeatability and the gantry's residual error.
+    before = np.linalg.norm(np.mean(report['substrate_before_m'], axis=0)
+                            - np.mean(report['stencil_m'], axis=0))
+    assert before > 100e-6
+    assert aligned.position_error < 12.3e-6
+    assert aligned.orientation_error < np.deg2rad(5 / 3600)
+    assert any((out / 'runs').glob('alignment_*'))
+
+    analysis = call(node, node.create_client(AnalyzeResiduals,
+                                             'stage_calibrator/analyze_residuals'),
+                    AnalyzeResiduals.Request(apply=False), timeout=300.0)
+    assert analysis.success, analysis.message
+    assert analysis.analysis.machine == 'stage' and analysis.analysis.rms_after > 0
+    assert all(running.alive())
