@@ -7,6 +7,10 @@ Printer vision system:
 2. Re-run the calibration offline from the bag the node recorded: same result.
 3. Evaluate against the simulation's truth over the whole travel: camera-measured dot
    positions before (nominal model) and after calibration, as JSON and PNG.
+XY-Theta stage (the dot plate removed, the vision calibration in force):
+3b. Start the stage graph, trigger ``stage_calibrator/calibrate`` (stepwise and
+   parametric), align a substrate fixed 0.3 mm off with the nominal, stepwise and
+   parametric models (stage sent home before each), then the closed loop on the run.
 Hexapod:
 4. Start hexapod_sim, pose_sensor_sim and hexapod_calibrator and trigger
    ``hexapod_calibrator/calibrate`` (plans poses, drives, measures, identifies, iterates,
@@ -179,4 +183,53 @@ def run_demo(out: Path) -> int:
     domain = str(100 + os.getpid() % 100)
     os.environ['ROS_DOMAIN_ID'] = domain
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    return _printer(out, domain) or _hexapod(out, domain)
+    return _printer(out, domain) or _stage(out, domain) or _hexapod(out, domain)
+
+
+def _stage(out: Path, domain: str) -> int:
+    import rclpy
+    from alignment_msgs.srv import Align, MoveStage
+
+    from calib_core.launcher import Graph, stage_graph
+    print('[3b] the XY-Theta stage: self-calibration with the camera, then alignment')
+    spec = stage_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
+                       substrate_shift=(0.25e-3, -0.15e-3, float(np.deg2rad(0.04))))
+    start = time.monotonic()
+    with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
+        response, analysis = _run_service(graph, 'stage_calibrator/calibrate',
+                                          '/stage_calibrator/progress', timeout=900.0,
+                                          analysis='stage_calibrator/analyze_residuals')
+        if response is None or not response.success:
+            print(f'stage calibration failed: {response.message if response else "timeout"}')
+            return 1
+        report = json.loads(response.result.report_json)
+        s = report['stepwise']
+        print(f'      done in {time.monotonic() - start:.1f} s; file {response.result.file_path}; '
+              f'R1..R3 {s["R1"] * 1e3:.4f}, {s["R2"] * 1e3:.4f}, {s["R3"] * 1e3:.4f} mm/rev, '
+              f'alpha1 {np.rad2deg(s["alpha1"]):.4f} deg (true 2.0064, 2.0027, 2.0021, 89.8670)')
+        _print_analysis(analysis)
+        rclpy.init()
+        node = rclpy.create_node('demo_aligner_client')
+        results = {}
+        try:
+            for model in ('nominal', 'stepwise', 'parametric'):
+                home = node.create_client(MoveStage, 'stage/move').call_async(
+                    MoveStage.Request(q=[0.0, 0.0, 0.0]))
+                rclpy.spin_until_future_complete(node, home, timeout_sec=30.0)
+                future = node.create_client(Align, 'aligner/align').call_async(
+                    Align.Request(model=model))
+                rclpy.spin_until_future_complete(node, future, timeout_sec=120.0)
+                answer = future.result()
+                if answer is None or not answer.success:
+                    print(f'      alignment ({model}) failed: '
+                          f'{answer.message if answer else "timeout"}')
+                    return 1
+                results[model] = json.loads(answer.report_json)
+                print(f'      aligned with the {model:>10} model: {answer.position_error * 1e6:6.2f} um, '
+                      f'{np.rad2deg(answer.orientation_error) * 3600:5.2f} arcsec left (camera)')
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown()
+    write_atomic(out / 'stage_alignment.json', json.dumps(results, indent=2) + '\n')
+    print(f'      wrote {out}/stage_alignment.json')
+    return 0

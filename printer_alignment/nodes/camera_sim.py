@@ -59,7 +59,7 @@ class CameraSimNode(Node):
             scene = self._stage_scene(g('substrate_shift').value, g('stencil_marks').value)
         self.camera = CameraSim(scene, optics, seed=g('seed').value)
         self._position = None
-        self._stamp = None     # when the state the next frame shows became true
+        self._stamps = {}      # truth source -> stamp of its latest state
         self._lock = threading.Lock()
         self.image_pub = self.create_publisher(Image, 'camera/image_raw', qos_profile_sensor_data)
         self.info_pub = self.create_publisher(CameraInfo, 'camera/camera_info', qos_profile_sensor_data)
@@ -81,21 +81,23 @@ class CameraSimNode(Node):
             raise ValueError('stencil_marks must be finite x, y pairs (m)')
         return stage_scene(shift, np.reshape(stencil, (-1, 2)))
 
-    def _changed(self, stamp):
-        """Remember the newest time the scene or camera position changed (lock held)."""
-        stamp = Time.from_msg(stamp)
-        if self._stamp is None or stamp > self._stamp:
-            self._stamp = stamp
+    def _frame_stamp(self):
+        """The time at which everything a frame shows is known to be true: the oldest of
+        the truth sources' latest stamps. The newest would let a fresh stage update stamp
+        a frame that still shows the gantry before its last move (lock held)."""
+        if 'gantry' not in self._stamps:
+            return None
+        return min(self._stamps.values()).to_msg()
 
     def on_truth(self, msg):
         with self._lock:
             self._position = np.array([msg.point.x, msg.point.y])
-            self._changed(msg.header.stamp)
+            self._stamps['gantry'] = Time.from_msg(msg.header.stamp)
 
     def on_stage(self, msg):
         with self._lock:
             self.camera.scene.pose = np.array([msg.x, msg.y, msg.theta])
-            self._changed(msg.header.stamp)
+            self._stamps['stage'] = Time.from_msg(msg.header.stamp)
 
     def on_select_view(self, request, response):
         if request.view not in ('substrate', 'stencil'):
@@ -103,15 +105,16 @@ class CameraSimNode(Node):
             response.message = f'unknown view {request.view!r}; use substrate or stencil'
             return response
         with self._lock:
+            # Frames rendered from now on show the new view; the detector only takes
+            # frames stamped after its request, and the truth sources refresh at 10 Hz.
             self.camera.scene.view = request.view
-            self._changed(self.get_clock().now().to_msg())
         response.success, response.message = True, 'ok'
         return response
 
     def capture(self):
         with self._lock:
             position = self._position
-            stamp = None if self._stamp is None else self._stamp.to_msg()
+            stamp = self._frame_stamp()
         if position is None:
             return  # no gantry yet: a real camera would see nothing useful either
         # Stamped with the time the rendered position was true, not with the capture time:

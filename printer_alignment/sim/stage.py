@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.errors import InvalidInputError
+from calib_core.errors import InvalidInputError, OutOfTravelError
 from printer_alignment.core.stage import StageGeometry, check_stroke, platform_points_in_plate
 
 NOMINAL_STAGE2PLATE = (-0.140, -0.055, 0.0)   # m, m, rad: where the drawing puts the stage
@@ -107,6 +107,7 @@ def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
     plans with ``model``, moves once (approached from below) and compares the true
     substrate Marks with the stencil Marks.
 
+    Loads that would need an input beyond the stroke are refused and counted.
     Returns a dict with, per alignment, position error of the Marks' centroid (m),
     orientation error (rad) and the larger of the two Marks' errors (m), plus max / mean.
     """
@@ -114,6 +115,7 @@ def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
     rng = np.random.default_rng(seed)
     stage = StageSim(truth, landing_sigma, seed=seed + 1)
     position, orientation, mark_error = [], [], []
+    refused = 0
     for _ in range(poses):
         q_goal = rng.uniform(-reach, reach, 3)
         goal_pose = truth.stage_to_plate(truth.forward(q_goal[None], np.ones((1, 3))))
@@ -125,7 +127,11 @@ def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
             substrate = SUBSTRATE_MARKS @ np.array([[c, s], [-s, c]]) + shift
             approach_from_below(stage, np.zeros(3))
             measured = stage.true_points(substrate) + rng.normal(0, camera_noise, (2, 2))
-            plan = plan_alignment(model, stage.q, measured, stencil)
+            try:
+                plan = plan_alignment(model, stage.q, measured, stencil)
+            except OutOfTravelError:
+                refused += 1    # the load put the target beyond the stroke: not moved
+                continue
             approach_from_below(stage, plan.q)
             reached = stage.true_points(substrate)
             angle, _ = rigid_fit(stencil, reached)
@@ -133,7 +139,7 @@ def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
             orientation.append(abs(angle))
             mark_error.append(np.max(np.linalg.norm(reached - stencil, axis=1)))
     position, orientation, mark_error = map(np.array, (position, orientation, mark_error))
-    return {'alignments': int(len(position)),
+    return {'alignments': int(len(position)), 'refused_outside_workspace': refused,
             'position_max_m': float(position.max()), 'position_mean_m': float(position.mean()),
             'orientation_max_rad': float(orientation.max()),
             'orientation_mean_rad': float(orientation.mean()),
