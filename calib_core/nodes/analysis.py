@@ -19,7 +19,7 @@ from calib_core.errors import MachineAlignmentError
 from calib_core.loop_plots import plot_loop
 from calib_core.nodes.calibrator import parse_plan
 from calib_core.nodes.qos import LATCHED
-from calib_core.storage import write_atomic
+from calib_core.storage import write_atomic, write_calibration
 
 LOOP_OPTIONS = ('holdout_fraction', 'alpha', 'max_effects', 'seed')
 
@@ -34,6 +34,18 @@ def analysis_as_message(report: dict, header, applied: bool = False,
         unexplained=[f'{u["kind"]} of {u["component"]} vs {u["covariate"]}'
                      for u in report['unexplained']],
         applied=applied, report_path=report_path, report_json=json.dumps(report))
+
+
+def write_extended_calibration(directory, name: str, content: dict, result,
+                               model_key: str = 'loop_model') -> str:
+    """Write ``content`` again as a new version of calibration ``name``, with the loop's
+    added effects and its refitted base model (under ``model_key``); returns the path."""
+    report = result.report
+    extended = dict(content, effects=report['effects_added'])
+    extended[model_key] = {'base_model': report['base_model'],
+                           'parameters': report['base_parameters']['after']}
+    path, _ = write_calibration(directory, name, extended)
+    return str(path)
 
 
 class AnalysisService:

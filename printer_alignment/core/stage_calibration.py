@@ -31,6 +31,7 @@ from calib_core.datasets import directions_from_order, read_columns, write_colum
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import fit
 from calib_core.parameters import Parameter, ParameterSet
+from printer_alignment.core.geometry import rotation
 from printer_alignment.core.stage import (
     NOMINAL_D, NOMINAL_LEAD, STROKE, StageGeometry, check_stroke, platform_points_in_plate)
 
@@ -220,8 +221,6 @@ class ParametricModel(StageModel):
         return self.geometry.stage_to_plate(self.geometry.forward(q, UNIDIRECTIONAL))
 
 
-NOMINAL_MODEL_NAME = 'nominal'
-
 
 class StepwiseModel(StageModel):
     """The paper's stepwise model: identified kinematics, attitude table over q3 - q2 and
@@ -308,7 +307,7 @@ def stepwise_calibration(data: StageData):
     if len(big) < 2:
         raise CalibrationError('the attitude sweep does not rotate the platform: cannot '
                                'find its rotation centre')
-    design = np.vstack([np.eye(2) - _rotation(a) for a in angle[big]])
+    design = np.vstack([np.eye(2) - rotation(a) for a in angle[big]])
     centre, *_ = np.linalg.lstsq(design, shift[big].ravel(), rcond=None)
 
     # Moving-platform frame: the X direction is the path of the platform point over chain
@@ -367,11 +366,6 @@ def stepwise_calibration(data: StageData):
                   'd3_minus_d2': 'm', 'rotation_centre': 'm', 'platform_origin': 'm',
                   'platform_angle': 'rad'}}
     return model, report
-
-
-def _rotation(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s], [s, c]])
 
 
 # Fixed in the parametric fit, with the reason (the report repeats it):

@@ -27,7 +27,7 @@ from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter
 from calib_core.errors import CalibrationError, InvalidInputError
-from calib_core.nodes.analysis import AnalysisService
+from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
@@ -87,7 +87,7 @@ class StageCalibratorNode(Node):
             self, 'stage', lambda overrides: self._run(self._plan(overrides)), self._header)
         self.create_service(RunCalibration, 'stage_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
-        self._data = None    # StageData of the last successful run
+        self._data = self._content = None    # StageData and file content of the last run
         self.create_service(AnalyzeResiduals, 'stage_calibrator/analyze_residuals',
                             AnalysisService(self, 'stage', self.calibration_service.busy,
                                             self._loop_model, self._apply_extended,
@@ -176,13 +176,8 @@ class StageCalibratorNode(Node):
         return StageLoopModel(self._data)
 
     def _apply_extended(self, result) -> str:
-        content = dict(self._content)
-        report = result.report
-        content['effects'] = report['effects_added']
-        content['loop_model'] = {'base_model': report['base_model'],
-                                 'parameters': report['base_parameters']['after']}
-        path, _ = write_calibration(self.get_parameter('output_dir').value, 'stage', content)
-        return str(path)
+        return write_extended_calibration(self.get_parameter('output_dir').value, 'stage',
+                                          self._content, result)
 
 
 def stage_result_message(report: dict, models: dict, header, file_path='', version=0):

@@ -35,7 +35,7 @@ from std_msgs.msg import Header
 from calib_core.bags import BagWriter
 from calib_core.datasets import directions_from_order
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
-from calib_core.nodes.analysis import AnalysisService
+from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
@@ -250,13 +250,8 @@ class VisionCalibratorNode(Node):
                                'stale or the plate moved?')
 
     def _apply_extended(self, result) -> str:
-        content = dict(self._calibration[1])
-        report = result.report
-        content['effects'] = report['effects_added']
-        content['gantry_loop_model'] = {'base_model': report['base_model'],
-                                        'parameters': report['base_parameters']['after']}
-        path, _ = write_calibration(self.get_parameter('output_dir').value, 'vision', content)
-        return str(path)
+        return write_extended_calibration(self.get_parameter('output_dir').value, 'vision',
+                                          self._calibration[1], result, 'gantry_loop_model')
 
     def on_pixel_size(self, request, response):
         if not self.calibration_service.busy.acquire(blocking=False):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
-from printer_alignment.core.stage import StageGeometry, check_stroke, platform_points_in_plate
+from printer_alignment.core.stage import NOMINAL_LEAD, StageGeometry, check_stroke, platform_points_in_plate
 
 NOMINAL_STAGE2PLATE = (-0.140, -0.055, 0.0)   # m, m, rad: where the drawing puts the stage
 NOMINAL_STAGE = StageGeometry(stage2plate=NOMINAL_STAGE2PLATE)
@@ -63,7 +63,7 @@ class StageSim:
 
     def true_pose(self) -> np.ndarray:
         """Platform pose in the plate frame (x m, y m, theta rad). Truth: sim only."""
-        lead_ratio = np.asarray(self.truth.lead) / 2e-3
+        lead_ratio = np.asarray(self.truth.lead) / NOMINAL_LEAD
         # A landing error is a slider displacement; as an input it is divided by the ratio.
         q_effective = self.q + self._landing / lead_ratio
         pose = self.truth.forward(q_effective[None], self.directions[None])
