@@ -96,3 +96,14 @@ def test_calibration_files_are_versioned(tmp_path):
     assert (v1, v2) == (1, 2) and first.exists() and second.exists()
     assert read_calibration(tmp_path, 'vision')['a'] == 2
     assert not list(tmp_path.glob('*.tmp'))
+
+
+def test_gantry_model_inverse_puts_the_camera_where_asked():
+    from printer_alignment.core.geometry import GantryModel
+    model = GantryModel(lead_x=2.0031e-3, lead_y=1.9987e-3, axis_angle=2e-3,
+                        non_orthogonality=-1e-3, offset_x=-1.8e-3, offset_y=1.2e-3)
+    positions = np.random.default_rng(3).uniform(0, 0.2, (20, 2))
+    revs = model.revs_for(positions)
+    np.testing.assert_allclose(model.camera_position(revs), positions, atol=1e-12)
+    # the offsets matter: the nominal command would miss by them
+    assert np.abs(revs * [NOMINAL_LEAD_X, NOMINAL_LEAD_Y] - positions).max() > 1e-3

@@ -78,6 +78,13 @@ class GantryModel:
         travel = revs * np.array([self.lead_x, self.lead_y])
         return travel @ self.matrix().T + np.array([self.offset_x, self.offset_y])
 
+    def revs_for(self, positions: np.ndarray) -> np.ndarray:
+        """Motor angles (rev, shape (n, 2)) that put the camera at ``positions`` (m, shape
+        (n, 2)): the inverse of :meth:`camera_position`."""
+        positions = np.atleast_2d(np.asarray(positions, dtype=float))
+        travel = np.linalg.solve(self.matrix(), (positions - [self.offset_x, self.offset_y]).T).T
+        return travel / np.array([self.lead_x, self.lead_y])
+
     def as_dict(self) -> dict:
         return {'lead_x': self.lead_x, 'lead_y': self.lead_y, 'axis_angle': self.axis_angle,
                 'non_orthogonality': self.non_orthogonality, 'offset_x': self.offset_x,

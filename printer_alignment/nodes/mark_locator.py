@@ -3,8 +3,9 @@ need positions rather than pixels (stage calibrator, aligner).
 
 The vision calibration in force arrives as the latched ``/vision_calibrator/result``, so
 the user may run on another host than the vision calibrator. For each Mark the gantry
-parks on a lattice point near the Mark's expected position, approached from below on both
-axes (the gantry's backlash is then the same every time), the detector finds the one Mark
+parks on a lattice of commands, at the point whose calibrated camera position is nearest
+the Mark's expected position, approached from below on both axes (the gantry's backlash is
+then the same every time), the detector finds the one Mark
 of the requested shape in the next image, and the Mark's position is the calibrated
 camera position plus its calibrated pixel offset.
 """
@@ -48,6 +49,7 @@ class MarkLocator:
         self.lattice, self.approach = lattice, approach
         self._vision = None
         self._lock = threading.Lock()
+        self._vision_arrived = threading.Event()
         self.move_client = node.create_client(MoveGantry, 'gantry/move', callback_group=callback_group)
         self.detect_client = node.create_client(DetectMarks, 'mark_detector/detect',
                                                 callback_group=callback_group)
@@ -66,14 +68,18 @@ class MarkLocator:
             return
         with self._lock:
             self._vision = vision
+        self._vision_arrived.set()
 
     @property
     def vision(self):
+        """The vision calibration in force. A latched message can arrive after the first
+        service call when discovery is slow, so it is awaited up to the service timeout."""
+        if not self._vision_arrived.wait(self.timeout):
+            raise CalibrationError(
+                'no vision calibration in force: vision_calibrator has not published '
+                f'{VISION_RESULT_TOPIC} within {self.timeout:g} s (calibrate the vision '
+                'system first)')
         with self._lock:
-            if self._vision is None:
-                raise CalibrationError(
-                    'no vision calibration in force: vision_calibrator has not published '
-                    f'{VISION_RESULT_TOPIC} (calibrate the vision system first)')
             return self._vision
 
     def select_view(self, view: str) -> None:
@@ -101,8 +107,13 @@ class MarkLocator:
         if not np.all(np.isfinite(expected)):
             raise InvalidInputError('expected Mark positions contain NaN or infinite values')
         out = []
+        nominal_lead = np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
         for x, y in expected:
-            park = np.round(np.array([x, y]) / self.lattice) * self.lattice
+            # The lattice is in gantry commands (repeatable motor angles); the calibrated
+            # model says which command brings the camera over the Mark: the plate frame can
+            # sit millimetres from the command frame.
+            command = gantry.revs_for([[x, y]])[0] * nominal_lead
+            park = np.round(command / self.lattice) * self.lattice
             revs = self._park(*park)
             try:
                 detected = call_service(self.detect_client, DetectMarks.Request(
