@@ -265,6 +265,39 @@ def cmd_evaluate_hexapod(args) -> int:
     return 0
 
 
+def cmd_evaluate_alignment(args) -> int:
+    """Plan each alignment recorded by the aligner again, from its recorded Mark
+    measurements and the stage calibration it used, and compare the chain inputs."""
+    from calib_core.bags import decode_bag
+    from printer_alignment.core.alignment import replay_alignment
+    from printer_alignment.core.stage_calibration import ParametricModel, models_from_dict
+    from printer_alignment.nodes.aligner import REPORT_TOPIC, STAGE_RESULT_TOPIC
+    from printer_alignment.sim.stage import NOMINAL_STAGE
+    models = {'nominal': ParametricModel(NOMINAL_STAGE)}
+    alignments = []
+    for topic, _, msg in decode_bag(args.bag):
+        if topic == STAGE_RESULT_TOPIC and msg.success:
+            models.update(models_from_dict(json.loads(msg.report_json)['models']))
+        elif topic == REPORT_TOPIC:
+            report = json.loads(msg.data)
+            if report.get('model') not in models:
+                raise MachineAlignmentError(
+                    f'{args.bag}: an alignment used the {report.get("model")!r} model but the '
+                    'bag holds no stage calibration with it')
+            alignments.append(replay_alignment(report, models[report['model']]))
+    if not alignments:
+        raise MachineAlignmentError(f'{args.bag} holds no alignment report on {REPORT_TOPIC}')
+    for a in alignments:
+        v = a['verification'] or {}
+        print(f'{a["model"]:>10}: inputs ' + ', '.join(f'{q * 1e3:+.4f}' for q in a['q_replayed_m'])
+              + f' mm, |replayed - recorded| {a["max_difference_m"] * 1e9:.3g} nm; left after '
+              f'the move (camera) {v.get("position_error_m", np.nan) * 1e6:.2f} um, '
+              f'{np.rad2deg(v.get("orientation_error_rad", np.nan)) * 3600:.2f} arcsec')
+    _write_json(args.json, {'bag': str(args.bag), 'alignments': alignments,
+                            'max_difference_m': max(a['max_difference_m'] for a in alignments)})
+    return 0
+
+
 def cmd_simulate_hexapod(args) -> int:
     from hexapod_calib.core.geometry import nominal_geometry, write_geometry
     from hexapod_calib.core.kinematics import inverse_kinematics
@@ -447,6 +480,11 @@ def build_parser() -> argparse.ArgumentParser:
                                                 'no l1..l6 columns')
     hexapod_eval.add_argument('--json')
     hexapod_eval.set_defaults(func=cmd_evaluate_hexapod)
+    alignment_eval = evaluated.add_parser(
+        'alignment', help='plan recorded alignments again from their bag (aligner runs)')
+    alignment_eval.add_argument('--bag', required=True, help='an alignment_<stamp> bag')
+    alignment_eval.add_argument('--json')
+    alignment_eval.set_defaults(func=cmd_evaluate_alignment)
 
     simulate = sub.add_parser('simulate', help='write datasets measured on a simulated machine')
     simulated = simulate.add_subparsers(dest='what', required=True)

@@ -105,7 +105,14 @@ def test_calibration_replay_alignment_and_closed_loop(graph):
     assert before > 100e-6
     assert aligned.position_error < 12.3e-6
     assert aligned.orientation_error < np.deg2rad(5 / 3600)
-    assert any((out / 'runs').glob('alignment_*'))
+    # The alignment bag holds the calibration it used: planned again offline, same inputs.
+    alignment_bag = next((out / 'runs').glob('alignment_*'))
+    assert cli_main(['evaluate', 'alignment', '--bag', str(alignment_bag), '--json',
+                     str(out / 'alignment.json')]) == 0
+    replayed = json.loads((out / 'alignment.json').read_text())['alignments']
+    assert len(replayed) == 1 and replayed[0]['model'] == 'parametric'
+    assert replayed[0]['max_difference_m'] < 1e-12
+    np.testing.assert_allclose(replayed[0]['q_replayed_m'], aligned.q, atol=1e-9)
 
     analysis = call(node, node.create_client(AnalyzeResiduals,
                                              'stage_calibrator/analyze_residuals'),

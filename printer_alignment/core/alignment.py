@@ -101,3 +101,36 @@ def plan_alignment(model, q_now, substrate, stencil, stroke: float = STROKE) -> 
             f'outside the workspace: chain {chain + 1} would need {q[chain] * 1e3:.4f} mm '
             f'(stroke +-{stroke * 1e3:.1f} mm); not moved')
     return AlignmentPlan(angle, translation, fit_rms, current, target, q)
+
+
+REPORT_KEYS = ('model', 'q_before_m', 'substrate_before_m', 'stencil_m', 'q_planned_m')
+
+
+def replay_alignment(report: dict, model) -> dict:
+    """Plan a recorded alignment again from its recorded Mark measurements.
+
+    Parameters
+    ----------
+    report : dict
+        An aligner report: ``q_before_m`` (3,), ``substrate_before_m`` and ``stencil_m``
+        (k, 2) and ``q_planned_m`` (3,), all m.
+    model
+        The stage model the alignment used (``forward``/``inverse`` in m, rad).
+
+    Returns
+    -------
+    dict
+        ``q_recorded_m`` and ``q_replayed_m`` (3,), ``max_difference_m``, and the
+        camera-verified ``verification`` of the recorded run (m, rad).
+    """
+    missing = [k for k in REPORT_KEYS if k not in report]
+    if missing:
+        raise InvalidInputError(f'the alignment report lacks {", ".join(missing)} '
+                                '(recorded by an older aligner?)')
+    plan = plan_alignment(model, report['q_before_m'], report['substrate_before_m'],
+                          report['stencil_m'])
+    recorded = np.asarray(report['q_planned_m'], dtype=float)
+    return {'model': report['model'], 'q_recorded_m': recorded.tolist(),
+            'q_replayed_m': plan.q.tolist(),
+            'max_difference_m': float(np.abs(plan.q - recorded).max()),
+            'verification': report.get('verification')}

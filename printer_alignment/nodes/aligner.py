@@ -7,7 +7,8 @@ pairs), turns it into chain inputs with the chosen stage model (``parametric``,
 ``stepwise`` with the paper's interpolation, or ``nominal``), moves the stage approached
 from below on every chain, and verifies by measuring the substrate again. The stage
 model in force arrives as the latched ``/stage_calibrator/result``. A target outside the
-workspace is refused without moving. Each alignment is recorded to an MCAP bag and its
+workspace is refused without moving. Each alignment is recorded to an MCAP bag (the
+stage calibration in force and the report, enough to plan it again offline) and its
 report published on ``/aligner/report``.
 """
 import json
@@ -36,6 +37,7 @@ from printer_alignment.sim.stage import APPROACH, NOMINAL_STAGE
 
 MODELS = ('parametric', 'stepwise', 'nominal')
 REPORT_TOPIC = '/aligner/report'
+STAGE_RESULT_TOPIC = '/stage_calibrator/result'
 STATE_TOPIC = '/stage/state'
 
 
@@ -70,9 +72,10 @@ class AlignerNode(Node):
         self.locator = MarkLocator(self, group, self.timeout)
         self.move_client = self.create_client(MoveStage, 'stage/move', callback_group=group)
         self._models = {'nominal': ParametricModel(NOMINAL_STAGE)}
+        self._stage_result = None    # the calibration message in force, recorded with each run
         self._lock = threading.Lock()
         self._busy = threading.Lock()
-        self.create_subscription(CalibrationResult, '/stage_calibrator/result', self._on_stage,
+        self.create_subscription(CalibrationResult, STAGE_RESULT_TOPIC, self._on_stage,
                                  LATCHED, callback_group=group)
         self._q = None
         self.create_subscription(StageState, STATE_TOPIC, self._on_state, 10,
@@ -90,6 +93,7 @@ class AlignerNode(Node):
             return
         with self._lock:
             self._models.update(models)
+            self._stage_result = msg
         self.get_logger().info(f'stage calibration v{msg.version} in force')
 
     def _on_state(self, msg):
@@ -151,7 +155,8 @@ class AlignerNode(Node):
         after = self.locator.measure(moved, 'circle')
         angle_left, _ = rigid_fit(after, stencil)
         report = {
-            'model': model_name, 'q_before_m': q_now.tolist(), 'q_m': list(reached.q),
+            'model': model_name, 'q_before_m': q_now.tolist(), 'q_planned_m': plan.q.tolist(),
+            'q_m': list(reached.q), 'target_pose': plan.target_pose.tolist(),
             'stencil_m': stencil.tolist(), 'substrate_before_m': substrate.tolist(),
             'substrate_after_m': after.tolist(), 'angle_rad': plan.angle,
             'shift_m': plan.translation.tolist(), 'pair_fit_rms_m': plan.fit_rms,
@@ -160,20 +165,30 @@ class AlignerNode(Node):
                                                          - stencil.mean(axis=0))),
                 'orientation_error_rad': float(abs(angle_left)),
                 'mark_errors_m': np.linalg.norm(after - stencil, axis=1).tolist()}}
-        self._record(report)
+        with self._lock:
+            calibration = self._stage_result
+        if calibration is not None:
+            report['stage_calibration_version'] = calibration.version
+        self._record(report, calibration)
         v = report['verification']
         self.get_logger().info(
             f'aligned with the {model_name} model: {v["position_error_m"] * 1e6:.2f} um, '
             f'{np.rad2deg(v["orientation_error_rad"]) * 3600:.2f} arcsec left')
         return report
 
-    def _record(self, report: dict) -> None:
+    def _record(self, report: dict, calibration) -> None:
+        """Publish the report and record it with the stage calibration it used, so the
+        alignment can be planned again offline (``machine-align evaluate alignment``)."""
         msg = String(data=json.dumps(report))
         self.report_pub.publish(msg)
         stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+        now = self.get_clock().now().nanoseconds
         with BagWriter(Path(self.get_parameter('record_dir').value) / f'alignment_{stamp}') as bag:
+            if calibration is not None:
+                bag.add_topic(STAGE_RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+                bag.write(STAGE_RESULT_TOPIC, now, serialize_message(calibration))
             bag.add_topic(REPORT_TOPIC, 'std_msgs/msg/String')
-            bag.write(REPORT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(msg))
+            bag.write(REPORT_TOPIC, now, serialize_message(msg))
 
 
 def main(args=None):
