@@ -54,6 +54,13 @@ def _hexapod(play: bool, seed: int):
     return HexapodLoopModel(data, nominal, forces)
 
 
+def _stage(backlash: bool, seed: int):
+    from printer_alignment.core.stage_loop import StageLoopModel
+    from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
+    truth = TRUE_STAGE if backlash else dataclasses.replace(TRUE_STAGE, backlash=(0.0, 0.0, 0.0))
+    return StageLoopModel(simulate_calibration_run(truth, seed=seed))
+
+
 def _cases():
     from printer_alignment.sim.gantry import GantryErrors
     ideal = GantryErrors.ideal()
@@ -78,11 +85,14 @@ def _cases():
          lambda s: _camera((-0.25, 0.08, 0, 0), s), lambda s: _camera((0, 0, 0, 0), s)),
         ('camera', 'radial + tangential_distortion',
          lambda s: _camera((-0.25, 0.08, 1e-3, -8e-4), s), lambda s: _camera((0, 0, 0, 0), s)),
+        ('stage', 'reversal (chain backlash 3 / 4 / 2.5 um)', lambda s: _stage(True, s),
+         lambda s: _stage(False, s)),
         ('hexapod', 'leg_play (8.3-9.9 um)', lambda s: _hexapod(True, s),
          lambda s: _hexapod(False, s)),
     ], {'axis': (lambda s: _axis({'temperature_rise': 0.5}, s), 200),
         'gantry': (lambda s: _gantry(ideal, s), 30),
         'camera': (lambda s: _camera((0, 0, 0, 0), s), 15),
+        'stage': (lambda s: _stage(False, s), 30),
         'hexapod': (lambda s: _hexapod(False, s), 10)}
 
 

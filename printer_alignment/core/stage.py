@@ -39,6 +39,7 @@ NOMINAL_LEAD = 2e-3                     # m/rev, R1..R3
 NOMINAL_D = (0.268, 0.0395, 0.4315)     # m, d1, d2, d3
 LINK_LENGTH = 0.028                     # m, l1 = l2 = l3
 STROKE = 5e-3                           # m, inputs limited to [-STROKE, STROKE]
+APPROACH = 30e-6                        # m, length of the last, landing motion of a chain
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -58,6 +59,25 @@ def _as_poses(pose) -> np.ndarray:
     if not np.all(np.isfinite(pose)):
         raise InvalidInputError('pose contains NaN or infinite values')
     return pose
+
+
+def landing_path(q_now, q_target, directions, approach: float = APPROACH) -> np.ndarray:
+    """Two waypoints (m, (2, 3)) that land every chain on ``q_target`` with a last motion
+    of ``approach`` (m) in its direction of travel; a chain that does not travel keeps its
+    last direction (``directions``, +1 / -1, (3,)).
+
+    Every chain lands again at every stop, so its landing scatter is drawn afresh each
+    time (independent between stops, as the closed loop's tests assume; a chain that
+    stood still would carry one landing error over many stops), and the direction of
+    approach, hence backlash, is what the plan says. The pre-position is clipped to the
+    stroke.
+    """
+    q_now = np.asarray(q_now, dtype=float)
+    q_target = np.asarray(q_target, dtype=float)
+    step = q_target - q_now
+    travel = np.where(step != 0, np.sign(step), np.asarray(directions, dtype=float))
+    before = np.clip(q_target - approach * travel, -STROKE, STROKE)
+    return np.array([before, q_target])
 
 
 def check_stroke(q, stroke: float = STROKE) -> np.ndarray:

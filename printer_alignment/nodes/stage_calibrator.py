@@ -1,7 +1,8 @@
 """stage_calibrator: self-calibration of the XY-Theta stage with the machine's own camera.
 
 Service ``stage_calibrator/calibrate`` (RunCalibration) moves the stage through the plan
-(``stage/move``: X, Y and attitude sweeps up and down, then a workspace grid), measures
+(``stage/move``: X, Y and attitude sweeps up and down, then a workspace grid; every chain
+lands afresh at each stop with a 30 um last motion in its direction of travel), measures
 the two calibration Marks on the platform at every stop with the calibrated vision system
 (gantry, two-way camera, detector), then runs the paper's stepwise calibration and the
 parametric identification on the same measurements. The run is recorded to an MCAP bag
@@ -33,6 +34,7 @@ from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
+from printer_alignment.core.stage import landing_path
 from printer_alignment.core.stage_calibration import (
     StageData, StagePlan, calibrate_stage, models_as_dict)
 from printer_alignment.nodes.mark_locator import MarkLocator
@@ -135,8 +137,10 @@ class StageCalibratorNode(Node):
             bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
             self.locator.select_view('substrate')
             home = self.home_marks
+            reached = self._move(targets[0])
             for k, q in enumerate(targets):
-                reached = self._move(q)
+                for waypoint in landing_path(reached.q, q, reached.direction):
+                    reached = self._move(waypoint)
                 marks = self.locator.measure(self._expected_marks(q, home), 'circle')
                 if k == 0:
                     home = marks     # searched from the measured home from now on

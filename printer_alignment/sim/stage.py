@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
-from printer_alignment.core.stage import NOMINAL_LEAD, StageGeometry, check_stroke, platform_points_in_plate
+from printer_alignment.core.stage import (
+    APPROACH, NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, platform_points_in_plate)
 
 NOMINAL_STAGE2PLATE = (-0.140, -0.055, 0.0)   # m, m, rad: where the drawing puts the stage
 NOMINAL_STAGE = StageGeometry(stage2plate=NOMINAL_STAGE2PLATE)
@@ -85,7 +86,6 @@ def measure_marks(stage: StageSim, platform_points=CALIBRATION_MARKS, noise: flo
 
 # Substrate fiducials (platform frame, m) as designed; each load adds a fixing error.
 SUBSTRATE_MARKS = np.array([[0.185, 0.115], [0.295, 0.145]])
-APPROACH = 30e-6      # m: every target is approached from below from this far away
 
 
 def approach_from_below(stage: StageSim, q) -> np.ndarray:
@@ -204,8 +204,10 @@ def simulate_calibration_run(truth: StageGeometry = TRUE_STAGE, plan=None,
                              seed: int = 0):
     """The calibration run of ``plan`` (default :class:`StagePlan`) on a simulated stage,
     measured by a camera with ``camera_noise`` (m, 1 sigma): a
-    :class:`~printer_alignment.core.stage_calibration.StageData`. Moves go straight to
-    each target, so the sweeps approach from both directions."""
+    :class:`~printer_alignment.core.stage_calibration.StageData`. Every chain lands afresh
+    at each target with a short last motion in its direction of travel
+    (:func:`~printer_alignment.core.stage.landing_path`), so the sweeps approach from both
+    directions."""
     from printer_alignment.core.stage_calibration import StageData, StagePlan
     plan = plan or StagePlan()
     stage = StageSim(truth, landing_sigma, seed=seed)
@@ -213,7 +215,8 @@ def simulate_calibration_run(truth: StageGeometry = TRUE_STAGE, plan=None,
     targets = plan.targets()
     marks, directions = [], []
     for q in targets:
-        stage.move(q)
+        for waypoint in landing_path(stage.q, q, stage.directions):
+            stage.move(waypoint)
         marks.append(measure_marks(stage, CALIBRATION_MARKS, camera_noise, rng))
         directions.append(stage.directions.copy())
     return StageData(targets, np.array(directions), np.array(marks))
