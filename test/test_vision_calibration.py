@@ -107,3 +107,38 @@ def test_gantry_model_inverse_puts_the_camera_where_asked():
     np.testing.assert_allclose(model.camera_position(revs), positions, atol=1e-12)
     # the offsets matter: the nominal command would miss by them
     assert np.abs(revs * [NOMINAL_LEAD_X, NOMINAL_LEAD_Y] - positions).max() > 1e-3
+
+
+def _dot_views(distortion, positions, seed=3):
+    from printer_alignment.core.camera_calibration import dot_grid_view
+    from printer_alignment.sim.camera import CameraOptics
+    camera = CameraSim(make_scene('dot_plate'), CameraOptics(distortion=distortion), seed=seed)
+    return [dot_grid_view([[m.u, m.v] for m in detect_marks(camera.capture(np.array(p))).marks],
+                          0.5e-3, 0.5e-3 / 12.5e-6) for p in positions]
+
+
+def test_lens_distortion_from_square_on_dot_plate_views():
+    from printer_alignment.core.camera_calibration import calibrate_intrinsics
+    positions = [(0.05, 0.05), (0.0512, 0.0509), (0.0527, 0.0503), (0.0504, 0.0531)]
+    # True: k1 0.5 on coordinates normalised by 2000 px (4.8 px at the image corner).
+    report = calibrate_intrinsics(_dot_views((0.5, 0, 0, 0), positions), (640, 480),
+                                  focal_px=2000.0).report()
+    p = report['parameters']
+    assert p['k1'] == pytest.approx(0.5, abs=0.01) and abs(p['k2']) < 0.1
+    assert abs(p['p1']) < 2e-3 and abs(p['p2']) < 2e-3
+    assert report['rms_reprojection_px'] < 0.05
+    assert set(report['fixed']) == {'fx', 'fy', 'cx', 'cy', 'k3'}
+    clean = calibrate_intrinsics(_dot_views((0, 0, 0, 0), positions[:3]), (640, 480),
+                                 focal_px=2000.0).report()['parameters']
+    assert abs(clean['k1']) < 0.01
+
+
+def test_dot_grid_view_refuses_a_wrong_pitch():
+    from printer_alignment.core.camera_calibration import dot_grid_view
+    dots = np.array([[i * 40.0 + 100, j * 40.0 + 100] for i in range(4) for j in range(3)])
+    np.testing.assert_allclose(np.ptp(dot_grid_view(dots, 0.5e-3, 40.0).model, axis=0),
+                               [1.5e-3, 1.0e-3])
+    with pytest.raises(CalibrationError, match='pitch'):
+        dot_grid_view(dots, 0.5e-3, 60.0)
+    with pytest.raises(CalibrationError, match='at least 6'):
+        dot_grid_view(dots[:4], 0.5e-3, 40.0)

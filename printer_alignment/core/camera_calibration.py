@@ -2,7 +2,7 @@
 or from images of chessboards and circle grids."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -46,6 +46,7 @@ class IntrinsicsResult:
     per_view_rms_px: np.ndarray
     std_devs: dict
     image_size: tuple[int, int]
+    fixed: dict = field(default_factory=dict)    # name -> why it was not estimated
 
     def report(self) -> dict:
         k, d = self.camera_matrix, self.distortion.ravel()
@@ -55,12 +56,20 @@ class IntrinsicsResult:
                 'units': {n: 'px' if n in ('fx', 'fy', 'cx', 'cy') else '1' for n in INTRINSIC_NAMES},
                 'rms_reprojection_px': self.rms_px,
                 'per_view_rms_px': self.per_view_rms_px.tolist(),
-                'image_size': list(self.image_size), 'num_views': len(self.per_view_rms_px)}
+                'image_size': list(self.image_size), 'num_views': len(self.per_view_rms_px),
+                'fixed': dict(self.fixed)}
 
 
 def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
-                         distortion: bool = True) -> IntrinsicsResult:
+                         distortion: bool = True,
+                         focal_px: float | None = None) -> IntrinsicsResult:
     """Pinhole intrinsics (and k1, k2, p1, p2, k3 if ``distortion``) by cv2.calibrateCameraExtended.
+
+    ``focal_px`` fixes fx = fy at that value (px), the principal point at the image centre
+    and k3 at 0: for views taken square to the plate (a machine camera over a plate), where
+    the focal length trades exactly against the plate distance and the principal point
+    against a tilt of the plate, so only the distortion is determined (relative to the
+    image centre; k1, k2 scale with focal_px squared, the distortion in px does not).
 
     Raises CalibrationError with fewer than 3 views or 6 points in a view."""
     if len(views) < 3:
@@ -75,10 +84,62 @@ def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
     images = [v.pixels.reshape(-1, 1, 2).astype(np.float32) for v in views]
     flags = 0 if distortion else (cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
                                   | cv2.CALIB_ZERO_TANGENT_DIST)
+    guess = None
+    if focal_px is not None:
+        if not (np.isfinite(focal_px) and focal_px > 0):
+            raise InvalidInputError(f'focal_px must be a positive number of px, not {focal_px}')
+        guess = np.array([[focal_px, 0, (image_size[0] - 1) / 2],
+                          [0, focal_px, (image_size[1] - 1) / 2], [0, 0, 1.0]])
+        flags |= (cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_FOCAL_LENGTH
+                  | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_K3)
     rms, k, d, _, _, std_intr, _, per_view = cv2.calibrateCameraExtended(
-        objects, images, tuple(image_size), None, None, flags=flags)
+        objects, images, tuple(image_size), guess, None, flags=flags)
+    fixed = {}
+    if not distortion:
+        fixed.update(dict.fromkeys(('k1', 'k2', 'p1', 'p2', 'k3'), 'no distortion asked for'))
+    if focal_px is not None:
+        fixed.update(dict.fromkeys(('fx', 'fy'), 'views square to the plate: the focal '
+                                   'length trades against the plate distance (given)'))
+        fixed.update(dict.fromkeys(('cx', 'cy'), 'views square to the plate: the principal '
+                                   'point trades against a tilt (image centre)'))
+        fixed.setdefault('k3', 'views square to the plate: kept to k1, k2')
     std = dict(zip(INTRINSIC_NAMES, std_intr.ravel()[:9].astype(float).tolist()))
-    return IntrinsicsResult(k, d.ravel(), float(rms), per_view.ravel(), std, tuple(image_size))
+    std.update(dict.fromkeys(fixed, 0.0))
+    return IntrinsicsResult(k, d.ravel(), float(rms), per_view.ravel(), std, tuple(image_size),
+                            fixed)
+
+
+def dot_grid_view(pixels, pitch: float, pitch_px: float, angle: float = 0.0,
+                  centre=(319.5, 239.5)) -> View:
+    """One view of a square dot grid: each dot's plate coordinates (m), counted in pitches
+    from the dot nearest ``centre`` (px) along the image axes turned by ``angle`` (rad).
+
+    ``pitch_px`` (px per pitch) and ``angle`` need only be good to a few percent and
+    degrees: a dot is assigned to the nearest lattice node, and two dots on one node are an
+    error (the grid is not what was assumed).
+
+    Parameters
+    ----------
+    pixels : array_like (n, 2)
+        Dot centres, px.
+    pitch : float
+        Dot pitch on the plate, m.
+    """
+    pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
+    if not (pitch > 0 and pitch_px > 0):
+        raise InvalidInputError('pitch and pitch_px must be positive')
+    if len(pixels) < 6 or not np.all(np.isfinite(pixels)):
+        raise CalibrationError(f'a dot-grid view needs at least 6 finite dots, got {len(pixels)}')
+    origin = pixels[np.argmin(np.linalg.norm(pixels - np.asarray(centre, float), axis=1))]
+    c, s = np.cos(angle), np.sin(angle)
+    offsets = (pixels - origin) @ np.array([[c, -s], [s, c]]) / pitch_px
+    index = np.round(offsets)
+    if np.abs(offsets - index).max() > 0.3:
+        raise CalibrationError(f'dots lie up to {np.abs(offsets - index).max():.2f} pitch from '
+                               'the assumed grid: check the pitch and the pixel size')
+    if len(np.unique(index, axis=0)) < len(index):
+        raise CalibrationError('two dots fall on one grid node: check the pitch and pixel size')
+    return View(index * pitch, pixels)
 
 
 def target_points(kind: str, cols: int, rows: int, spacing: float) -> np.ndarray:
