@@ -104,3 +104,23 @@ def test_analyze_residuals_finds_the_gantry_backlash(graph):
     assert analysis.rms_after < 0.6 * analysis.rms_before
     assert analysis.applied and (out / 'calibration' / 'vision.v2.yaml').exists()
     assert all(running.alive())
+
+
+def test_intrinsics_service_on_the_dot_plate(graph):
+    running, node, out = graph
+    client = node.create_client(RunCalibration, 'vision_calibrator/calibrate_intrinsics')
+    bad = call(node, client, RunCalibration.Request(plan_yaml='{views: 4}'))
+    assert not bad.success and 'unknown plan keys' in bad.message
+    response = call(node, client, RunCalibration.Request(plan_yaml='{n: 2, step: 0.0013}'),
+                    timeout=120.0)
+    assert response.success, response.message
+    values = dict(zip(response.result.names, response.result.values))
+    # The simulated lens has no distortion (k1 0.5 is recovered in the core test).
+    assert abs(values['k1']) < 0.02 and abs(values['p1']) < 2e-3
+    assert values['fx'] == 2000.0 and values['cx'] == 319.5
+    assert response.result.rms_residual < 0.05 and response.result.num_observations == 4
+    report = json.loads(response.result.report_json)
+    assert 'focal length' in report['fixed']['fx']
+    assert (out / 'calibration' / 'intrinsics.v1.yaml').exists()
+    assert any((out / 'runs').glob('intrinsics_*'))
+    assert all(running.alive())

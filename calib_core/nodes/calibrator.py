@@ -49,9 +49,11 @@ class CalibrationService:
     CalibrationResult message. A failed run is logged and answered with its reason; the
     previous calibration stays in force."""
 
-    def __init__(self, node, kind: str, run: Callable[[dict], object], header: Callable):
+    def __init__(self, node, kind: str, run: Callable[[dict], object], header: Callable,
+                 busy: threading.Lock | None = None):
         self.node, self.kind, self.run, self.header = node, kind, run, header
-        self._busy = threading.Lock()
+        # Services that drive the same machine share one lock.
+        self._busy = busy or threading.Lock()
 
     def __call__(self, request, response):
         if not self._busy.acquire(blocking=False):

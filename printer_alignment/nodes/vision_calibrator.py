@@ -4,7 +4,11 @@ Service ``vision_calibrator/calibrate`` (RunCalibration) drives the gantry over 
 plate (``gantry/move``), detects dots at each stop (``mark_detector/detect``), identifies
 the pixel size and image rotation, then the gantry model (leads Rx, Ry, axis angle,
 non-orthogonality, offset). ``vision_calibrator/calibrate_pixel_size`` does the pixel size
-alone from the current view. Each run is recorded to an MCAP bag, written to an atomic,
+alone from the current view. ``vision_calibrator/calibrate_intrinsics`` measures the lens
+distortion (OpenCV) from an n x n grid of dot-plate views (plan keys ``centre``, ``step``,
+``n``, ``focal_px``) and publishes it on ``vision_calibrator/intrinsics``: views square to
+the plate cannot measure the focal length (parameter ``focal_px``, from the lens) nor the
+principal point (the image centre), and the report says so. Each run is recorded to an MCAP bag, written to an atomic,
 versioned calibration file, published latched on ``vision_calibrator/result``, with
 progress on ``vision_calibrator/progress``. One calibration at a time; a second request
 while one runs is refused. A failed or interrupted run leaves the previous calibration
@@ -41,6 +45,7 @@ from calib_core.nodes.conversions import calibration_result_as_message, failed_r
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import read_calibration, write_calibration
+from printer_alignment.core.camera_calibration import calibrate_intrinsics, dot_grid_view
 from printer_alignment.core.geometry import (
     NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
 from printer_alignment.core.loop_models import GantryData, GantryLoopModel
@@ -51,6 +56,8 @@ from printer_alignment.nodes.conversions import marks_from_message
 OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
 RESULT_TOPIC = '/vision_calibrator/result'
 ANALYSIS_TOPIC = '/vision_calibrator/analysis'
+INTRINSICS_TOPIC = '/vision_calibrator/intrinsics'
+INTRINSICS_OPTIONS = ('centre', 'step', 'n', 'focal_px')
 ANALYSIS_OPTIONS = ('points', 'measure_seed')
 
 
@@ -84,6 +91,10 @@ class VisionCalibratorNode(Node):
         self.declare_parameter('y_range', [0.0, 0.150])
         self.declare_parameter('nominal_pixel_size', NOMINAL_PIXEL_SIZE)
         self.declare_parameter('call_timeout_s', 10.0)
+        # The lens's focal length in px (datasheet focal length / pixel pitch): views square
+        # to the plate cannot measure it, and the distortion coefficients scale with it.
+        self.declare_parameter('focal_px', 2000.0)
+        self.declare_parameter('image_size', [640, 480])
         self.plan = self._plan_from_parameters({})
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.nominal_camera = CameraToPlate(float(self.get_parameter('nominal_pixel_size').value))
@@ -102,6 +113,11 @@ class VisionCalibratorNode(Node):
                             self.calibration_service, callback_group=group)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_pixel_size',
                             self.on_pixel_size, callback_group=group)
+        self.intrinsics_pub = self.create_publisher(CalibrationResult, INTRINSICS_TOPIC, LATCHED)
+        self.create_service(RunCalibration, 'vision_calibrator/calibrate_intrinsics',
+                            CalibrationService(self, 'intrinsics', self._run_intrinsics,
+                                               self._header, self.calibration_service.busy),
+                            callback_group=group)
         self._calibration = None   # (VisionCalibration, file content) of the last run
         self._publish_calibration_in_force()
         self.create_service(AnalyzeResiduals, 'vision_calibrator/analyze_residuals',
@@ -199,6 +215,57 @@ class VisionCalibratorNode(Node):
                        f'done: pixel size {calibration.camera2plate.pixel_size * 1e6:.4f} um, '
                        f'Rx {calibration.gantry.lead_x * 1e3:.4f} mm/rev, '
                        f'Ry {calibration.gantry.lead_y * 1e3:.4f} mm/rev; wrote {path}')
+        return result
+
+    def _run_intrinsics(self, options: dict) -> CalibrationResult:
+        """Lens distortion (OpenCV) from an n x n grid of dot-plate views ``step`` (m)
+        apart around ``centre`` (gantry command, m); the focal length is given
+        (``focal_px``) and the principal point is the image centre, because views square to
+        the plate determine neither."""
+        unknown = set(options) - set(INTRINSICS_OPTIONS)
+        if unknown:
+            raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: '
+                                    f'{list(INTRINSICS_OPTIONS)}')
+        centre = np.asarray(options.get('centre', [0.1, 0.075]), dtype=float)
+        step, n = float(options.get('step', 1.3e-3)), int(options.get('n', 3))
+        focal = float(options.get('focal_px', self.get_parameter('focal_px').value))
+        if centre.shape != (2,) or not np.all(np.isfinite(centre)) or not step > 0 or n < 2:
+            raise InvalidInputError('centre must be (x, y) m, step > 0 m and n >= 2')
+        size = tuple(int(v) for v in self.get_parameter('image_size').value)
+        pitch = float(self.get_parameter('pitch').value)
+        pitch_px = pitch / self.nominal_camera.pixel_size
+        offsets = (np.arange(n) - (n - 1) / 2) * step
+        targets = [centre + [dx, dy] for dy in offsets for dx in offsets]
+        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+        bag_path = Path(self.get_parameter('record_dir').value) / f'intrinsics_{stamp}'
+        views = []
+        with BagWriter(bag_path) as bag:
+            bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/VisionObservation')
+            bag.add_topic(INTRINSICS_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+            for k, (x, y) in enumerate(targets):
+                self._move(x, y)
+                uv = self._observe_and_record(bag)
+                views.append(dot_grid_view(uv, pitch, pitch_px, centre=((size[0] - 1) / 2,
+                                                                         (size[1] - 1) / 2)))
+                self._progress(k + 1, len(targets) + 1, f'view {k + 1}/{len(targets)}: '
+                               f'{len(uv)} dots')
+            report = calibrate_intrinsics(views, size, focal_px=focal).report()
+            content = {'kind': 'intrinsics', 'created': stamp, 'bag': str(bag_path),
+                       'report': report}
+            path, version = write_calibration(self.get_parameter('output_dir').value,
+                                              'intrinsics', content)
+            result = calibration_result_as_message(
+                'intrinsics', self._header(), report['parameters'], report['std_devs'],
+                report['units'], report, report['rms_reprojection_px'],
+                max(report['per_view_rms_px']), 'px', len(views), str(path), version)
+            bag.write(INTRINSICS_TOPIC, self.get_clock().now().nanoseconds,
+                      serialize_message(result))
+        self.intrinsics_pub.publish(result)
+        p = report['parameters']
+        self._progress(len(targets) + 1, len(targets) + 1,
+                       f'done: k1 {p["k1"]:.4g}, k2 {p["k2"]:.4g}, p1 {p["p1"]:.3g}, '
+                       f'p2 {p["p2"]:.3g} (focal {focal:g} px), reprojection RMS '
+                       f'{report["rms_reprojection_px"]:.4f} px; wrote {path}')
         return result
 
     def _measure_for_analysis(self, options: dict) -> GantryLoopModel:
