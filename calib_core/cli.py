@@ -70,6 +70,8 @@ def cmd_detect(args) -> int:
 def cmd_calibrate_camera(args) -> int:
     from printer_alignment.core.camera_calibration import (
         calibrate_intrinsics, infer_image_size, read_correspondences, views_from_images)
+    if args.bag:
+        return _calibrate_camera_from_bag(args)
     failures = []
     if args.data:
         views = read_correspondences(args.data)
@@ -94,6 +96,29 @@ def cmd_calibrate_camera(args) -> int:
     return 0
 
 
+def _calibrate_camera_from_bag(args) -> int:
+    """Rerun a ``vision_calibrator/calibrate_intrinsics`` run from its bag."""
+    from printer_alignment.core.camera_calibration import distortion_from_dot_views
+    from printer_alignment.core.vision_procedure import observation_from_message
+    dots, recorded = _read_run(args.bag, '/observations', lambda m: observation_from_message(m).uv,
+                               'dot-plate views', result_suffix='/intrinsics')
+    if recorded is None or 'setup' not in recorded:
+        raise MachineAlignmentError(f'{args.bag} holds no intrinsics result with its setup '
+                                    '(pitch, focal length, image size): not an intrinsics run?')
+    report = distortion_from_dot_views(dots, recorded['setup']).report()
+    report['setup'] = recorded['setup']
+    p, s = report['parameters'], report['std_devs']
+    print(f'{report["num_views"]} views, reprojection RMS {report["rms_reprojection_px"]:.4f} px')
+    for name in p:
+        why = f'   fixed: {report["fixed"][name]}' if name in report['fixed'] else ''
+        print(f'  {name:>3} = {p[name]: .6g} +- {s[name]:.2g} {report["units"][name]}{why}')
+    live = recorded['parameters']
+    report['max_difference_to_live'] = max(abs(live[n] - v) for n, v in p.items())
+    print(f'same as the live run: max |difference| {report["max_difference_to_live"]:.3g}')
+    _write_json(args.json, report)
+    return 0
+
+
 def _parse_size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(x) for x in text.lower().split('x'))
@@ -102,16 +127,17 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _read_run(bag, stop_suffix: str, convert, what: str) -> tuple[list, dict | None]:
+def _read_run(bag, stop_suffix: str, convert, what: str,
+              result_suffix: str = '/result') -> tuple[list, dict | None]:
     """The stops of a calibrator's recorded run (messages on the topic ending in
     ``stop_suffix``, each passed through ``convert``) and the report of its successful
-    result, None if the run ended without one."""
+    result (topic ending in ``result_suffix``), None if the run ended without one."""
     from calib_core.bags import decode_bag
     stops, recorded = [], None
     for topic, _, msg in decode_bag(bag):
         if topic.endswith(stop_suffix):
             stops.append(convert(msg))
-        elif topic.endswith('/result') and msg.success:
+        elif topic.endswith(result_suffix) and msg.success:
             recorded = json.loads(msg.report_json)
     if not stops:
         raise MachineAlignmentError(f'{bag} holds no {what}')
@@ -436,6 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
     source = camera.add_mutually_exclusive_group(required=True)
     source.add_argument('--data', help='CSV: view, model_x, model_y (m), u, v (px)')
     source.add_argument('--images', nargs='+', help='photos of a calibration target')
+    source.add_argument('--bag', help='a vision_calibrator/calibrate_intrinsics run to rerun')
     camera.add_argument('--target', default='chessboard', choices=['chessboard', 'circles', 'acircles'])
     camera.add_argument('--cols', type=int, help='inner corners / circles per row')
     camera.add_argument('--rows', type=int)

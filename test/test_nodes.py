@@ -14,6 +14,7 @@ from alignment_msgs.srv import (  # noqa: E402
     AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration)
 from sensor_msgs.msg import Image  # noqa: E402
 
+from calib_core.cli import main as cli_main  # noqa: E402
 from calib_core.launcher import printer_graph  # noqa: E402
 from dds import call, running  # noqa: E402
 
@@ -122,5 +123,9 @@ def test_intrinsics_service_on_the_dot_plate(graph):
     report = json.loads(response.result.report_json)
     assert 'focal length' in report['fixed']['fx']
     assert (out / 'calibration' / 'intrinsics.v1.yaml').exists()
-    assert any((out / 'runs').glob('intrinsics_*'))
+    # The recorded run reruns offline through the same code to the same numbers.
+    bag = next((out / 'runs').glob('intrinsics_*'))
+    assert cli_main(['calibrate', 'camera', '--bag', str(bag), '--json',
+                     str(out / 'intrinsics.json')]) == 0
+    assert json.loads((out / 'intrinsics.json').read_text())['max_difference_to_live'] < 1e-9
     assert all(running.alive())

@@ -142,6 +142,28 @@ def dot_grid_view(pixels, pitch: float, pitch_px: float, angle: float = 0.0,
     return View(index * pitch, pixels)
 
 
+def distortion_from_dot_views(dots_per_view, setup: dict) -> IntrinsicsResult:
+    """Lens distortion from views square onto a dot plate, as ``vision_calibrator`` does it
+    live and ``machine-align calibrate camera --bag`` offline.
+
+    Parameters
+    ----------
+    dots_per_view : list of array_like (n, 2)
+        Dot centres per view, px.
+    setup : dict
+        ``pitch_m`` (dot pitch, m), ``pitch_px`` (nominal px per pitch), ``focal_px`` (the
+        lens's focal length, px) and ``image_size`` ([width, height], px).
+    """
+    missing = [k for k in ('pitch_m', 'pitch_px', 'focal_px', 'image_size') if k not in setup]
+    if missing:
+        raise InvalidInputError(f'dot-plate setup lacks {", ".join(missing)}')
+    size = tuple(int(v) for v in setup['image_size'])
+    centre = ((size[0] - 1) / 2, (size[1] - 1) / 2)
+    views = [dot_grid_view(dots, float(setup['pitch_m']), float(setup['pitch_px']),
+                           centre=centre) for dots in dots_per_view]
+    return calibrate_intrinsics(views, size, focal_px=float(setup['focal_px']))
+
+
 def target_points(kind: str, cols: int, rows: int, spacing: float) -> np.ndarray:
     """Model points (m, (cols*rows, 2)) of a chessboard's inner corners or a circle grid,
     in the order OpenCV's finders return them."""

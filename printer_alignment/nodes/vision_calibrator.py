@@ -45,7 +45,7 @@ from calib_core.nodes.conversions import calibration_result_as_message, failed_r
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import read_calibration, write_calibration
-from printer_alignment.core.camera_calibration import calibrate_intrinsics, dot_grid_view
+from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
     NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
 from printer_alignment.core.loop_models import GantryData, GantryLoopModel
@@ -231,25 +231,25 @@ class VisionCalibratorNode(Node):
         focal = float(options.get('focal_px', self.get_parameter('focal_px').value))
         if centre.shape != (2,) or not np.all(np.isfinite(centre)) or not step > 0 or n < 2:
             raise InvalidInputError('centre must be (x, y) m, step > 0 m and n >= 2')
-        size = tuple(int(v) for v in self.get_parameter('image_size').value)
         pitch = float(self.get_parameter('pitch').value)
-        pitch_px = pitch / self.nominal_camera.pixel_size
+        setup = {'pitch_m': pitch, 'pitch_px': pitch / self.nominal_camera.pixel_size,
+                 'focal_px': focal,
+                 'image_size': [int(v) for v in self.get_parameter('image_size').value]}
         offsets = (np.arange(n) - (n - 1) / 2) * step
         targets = [centre + [dx, dy] for dy in offsets for dx in offsets]
         stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
         bag_path = Path(self.get_parameter('record_dir').value) / f'intrinsics_{stamp}'
-        views = []
+        dots = []
         with BagWriter(bag_path) as bag:
             bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/VisionObservation')
             bag.add_topic(INTRINSICS_TOPIC, 'alignment_msgs/msg/CalibrationResult')
             for k, (x, y) in enumerate(targets):
                 self._move(x, y)
-                uv = self._observe_and_record(bag)
-                views.append(dot_grid_view(uv, pitch, pitch_px, centre=((size[0] - 1) / 2,
-                                                                         (size[1] - 1) / 2)))
+                dots.append(self._observe_and_record(bag))
                 self._progress(k + 1, len(targets) + 1, f'view {k + 1}/{len(targets)}: '
-                               f'{len(uv)} dots')
-            report = calibrate_intrinsics(views, size, focal_px=focal).report()
+                               f'{len(dots[-1])} dots')
+            report = distortion_from_dot_views(dots, setup).report()
+            report['setup'] = setup
             content = {'kind': 'intrinsics', 'created': stamp, 'bag': str(bag_path),
                        'report': report}
             path, version = write_calibration(self.get_parameter('output_dir').value,
@@ -257,7 +257,7 @@ class VisionCalibratorNode(Node):
             result = calibration_result_as_message(
                 'intrinsics', self._header(), report['parameters'], report['std_devs'],
                 report['units'], report, report['rms_reprojection_px'],
-                max(report['per_view_rms_px']), 'px', len(views), str(path), version)
+                max(report['per_view_rms_px']), 'px', len(dots), str(path), version)
             bag.write(INTRINSICS_TOPIC, self.get_clock().now().nanoseconds,
                       serialize_message(result))
         self.intrinsics_pub.publish(result)
