@@ -8,9 +8,9 @@ alone from the current view. ``vision_calibrator/calibrate_intrinsics`` measures
 distortion (OpenCV) from an n x n grid of dot-plate views (plan keys ``centre``, ``step``,
 ``n``, ``focal_px``) and publishes it on ``vision_calibrator/intrinsics``: views square to
 the plate cannot measure the focal length (parameter ``focal_px``, from the lens) nor the
-principal point (the image centre), and the report says so. Each run is recorded to an MCAP bag, written to an atomic,
-versioned calibration file, published latched on ``vision_calibrator/result``, with
-progress on ``vision_calibrator/progress``. One calibration at a time; a second request
+principal point (the image centre), and the report says so. Each run is recorded to an
+MCAP bag, written to an atomic, versioned calibration file, published latched on
+``vision_calibrator/result``, with progress on ``vision_calibrator/progress``. One calibration at a time; a second request
 while one runs is refused. A failed or interrupted run leaves the previous calibration
 in force.
 
@@ -95,6 +95,10 @@ class VisionCalibratorNode(Node):
         # to the plate cannot measure it, and the distortion coefficients scale with it.
         self.declare_parameter('focal_px', 2000.0)
         self.declare_parameter('image_size', [640, 480])
+        focal = self.get_parameter('focal_px').value
+        size = list(self.get_parameter('image_size').value)
+        if not (focal > 0 and len(size) == 2 and all(int(v) > 0 for v in size)):
+            raise ValueError('focal_px must be > 0 px and image_size two positive px counts')
         self.plan = self._plan_from_parameters({})
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.nominal_camera = CameraToPlate(float(self.get_parameter('nominal_pixel_size').value))
