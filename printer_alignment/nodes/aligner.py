@@ -39,6 +39,7 @@ MODELS = ('parametric', 'stepwise', 'nominal')
 REPORT_TOPIC = '/aligner/report'
 STAGE_RESULT_TOPIC = '/stage_calibrator/result'
 STATE_TOPIC = '/stage/state'
+MODEL_WAIT_S = 3.0     # s, how long an alignment waits for a stage model it has not seen
 
 
 def _pairs(values, name):
@@ -73,7 +74,7 @@ class AlignerNode(Node):
         self.move_client = self.create_client(MoveStage, 'stage/move', callback_group=group)
         self._models = {'nominal': ParametricModel(NOMINAL_STAGE)}
         self._stage_result = None    # the calibration message in force, recorded with each run
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
         self._busy = threading.Lock()
         self.create_subscription(CalibrationResult, STAGE_RESULT_TOPIC, self._on_stage,
                                  LATCHED, callback_group=group)
@@ -94,6 +95,7 @@ class AlignerNode(Node):
         with self._lock:
             self._models.update(models)
             self._stage_result = msg
+            self._lock.notify_all()
         self.get_logger().info(f'stage calibration v{msg.version} in force')
 
     def _on_state(self, msg):
@@ -102,7 +104,8 @@ class AlignerNode(Node):
 
     def _model(self, name):
         with self._lock:
-            if name not in self._models:
+            # A calibration that just finished may still be in flight on the latched topic.
+            if not self._lock.wait_for(lambda: name in self._models, MODEL_WAIT_S):
                 raise CalibrationError(f'no {name} stage model in force: run '
                                        'stage_calibrator/calibrate first (or use nominal)')
             return self._models[name]
