@@ -80,6 +80,14 @@ def landing_path(q_now, q_target, directions, approach: float = APPROACH) -> np.
     return np.array([before, q_target])
 
 
+def path_from_below(q_target, approach: float = APPROACH) -> np.ndarray:
+    """Two waypoints (m, (2, 3)) that land every chain on ``q_target`` moving upwards: the
+    unidirectional approach of alignment and of ISO 9283 repeatability. The pre-position is
+    clipped to the stroke."""
+    q_target = np.asarray(q_target, dtype=float)
+    return np.array([np.maximum(q_target - approach, -STROKE), q_target])
+
+
 def check_stroke(q, stroke: float = STROKE) -> np.ndarray:
     """``q`` (m, (n, 3)) as an array, or :class:`OutOfTravelError` naming the chain."""
     q = np.atleast_2d(np.asarray(q, dtype=float))

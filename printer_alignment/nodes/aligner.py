@@ -30,7 +30,7 @@ from calib_core.nodes.calibrator import call_service
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
-from printer_alignment.core.stage import APPROACH, STROKE
+from printer_alignment.core.stage import path_from_below
 from printer_alignment.core.stage_calibration import ParametricModel, models_from_dict
 from printer_alignment.nodes.mark_locator import MarkLocator
 from printer_alignment.sim.stage import NOMINAL_STAGE
@@ -150,8 +150,8 @@ class AlignerNode(Node):
         self.locator.select_view('substrate')
         substrate = self.locator.measure(self.substrate_expected, 'circle')
         plan = plan_alignment(model, q_now, substrate, stencil)
-        self._move(np.maximum(plan.q - APPROACH, -STROKE))
-        reached = self._move(plan.q)
+        for waypoint in path_from_below(plan.q):
+            reached = self._move(waypoint)
         # Verify where the moved substrate Marks are expected now.
         c, s = np.cos(plan.angle), np.sin(plan.angle)
         moved = substrate @ np.array([[c, s], [-s, c]]) + plan.translation

@@ -13,7 +13,8 @@ import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
 from printer_alignment.core.stage import (
-    APPROACH, NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, platform_points_in_plate)
+    NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, path_from_below,
+    platform_points_in_plate)
 
 NOMINAL_STAGE2PLATE = (-0.140, -0.055, 0.0)   # m, m, rad: where the drawing puts the stage
 NOMINAL_STAGE = StageGeometry(stage2plate=NOMINAL_STAGE2PLATE)
@@ -89,12 +90,11 @@ SUBSTRATE_MARKS = np.array([[0.185, 0.115], [0.295, 0.145]])
 
 
 def approach_from_below(stage: StageSim, q) -> np.ndarray:
-    """Move to ``q`` with the last motion of every chain upwards (the aligner's and the
-    calibration's unidirectional approach); the pre-position is clipped to the stroke."""
-    from printer_alignment.core.stage import STROKE
-    q = np.asarray(q, dtype=float)
-    stage.move(np.maximum(q - APPROACH, -STROKE))
-    return stage.move(q)
+    """Move to ``q`` with the last motion of every chain upwards
+    (:func:`~printer_alignment.core.stage.path_from_below`)."""
+    before, target = path_from_below(q)
+    stage.move(before)
+    return stage.move(target)
 
 
 def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
