@@ -4,7 +4,7 @@ import pytest
 
 from calib_core.errors import CalibrationError, InvalidInputError, OutOfTravelError
 from calib_core.storage import read_calibration, write_calibration
-from printer_alignment.core.geometry import NOMINAL_LEAD_X, NOMINAL_LEAD_Y
+from printer_alignment.core.geometry import NOMINAL_LEAD_X, NOMINAL_LEADS
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.core.vision_calibration import (
     GantryObservation, calibrate_gantry, calibrate_pixel_size)
@@ -13,7 +13,6 @@ from printer_alignment.sim.camera import CameraSim
 from printer_alignment.sim.gantry import GantrySim
 from printer_alignment.sim.scene import make_scene
 
-NOMINAL_LEADS = np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
 
 
 def _run(gantry, camera, plan):
@@ -106,7 +105,7 @@ def test_gantry_model_inverse_puts_the_camera_where_asked():
     revs = model.revs_for(positions)
     np.testing.assert_allclose(model.camera_position(revs), positions, atol=1e-12)
     # the offsets matter: the nominal command would miss by them
-    assert np.abs(revs * [NOMINAL_LEAD_X, NOMINAL_LEAD_Y] - positions).max() > 1e-3
+    assert np.abs(revs * NOMINAL_LEADS - positions).max() > 1e-3
 
 
 def _dot_views(distortion, positions, seed=3):

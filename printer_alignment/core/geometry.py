@@ -13,6 +13,9 @@ import numpy as np
 NOMINAL_PIXEL_SIZE = 12.5e-6   # m/px, object-space pixel size of the paper's cameras
 NOMINAL_LEAD_X = 0.016         # m/rev (Rx)
 NOMINAL_LEAD_Y = 0.040         # m/rev (Ry)
+# The drive's axis positions (commands and encoder readings, m) are motor angles times
+# these nominal leads.
+NOMINAL_LEADS = np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
 
 
 def rotation(angle: float) -> np.ndarray:

@@ -21,7 +21,7 @@ from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.nodes.calibrator import call_service
 from calib_core.nodes.qos import LATCHED
 from printer_alignment.core.geometry import (
-    NOMINAL_LEAD_X, NOMINAL_LEAD_Y, CameraToPlate, GantryModel)
+    NOMINAL_LEADS, CameraToPlate, GantryModel)
 from printer_alignment.nodes.conversions import marks_from_message
 
 VISION_RESULT_TOPIC = '/vision_calibrator/result'
@@ -90,7 +90,7 @@ class MarkLocator:
         for target in ((x - self.approach, y - self.approach), (x, y)):
             reached = call_service(self.move_client, MoveGantry.Request(
                 x=float(target[0]), y=float(target[1])), 'gantry move', self.timeout)
-        return np.array([reached.x / NOMINAL_LEAD_X, reached.y / NOMINAL_LEAD_Y])
+        return np.array([reached.x, reached.y]) / NOMINAL_LEADS
 
     def measure(self, expected, shape: str = 'circle') -> np.ndarray:
         """Plate positions (m, (k, 2)) of the one Mark of ``shape`` near each expected
@@ -107,12 +107,11 @@ class MarkLocator:
         if not np.all(np.isfinite(expected)):
             raise InvalidInputError('expected Mark positions contain NaN or infinite values')
         out = []
-        nominal_lead = np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
         for x, y in expected:
             # The lattice is in gantry commands (repeatable motor angles); the calibrated
             # model says which command brings the camera over the Mark: the plate frame can
             # sit millimetres from the command frame.
-            command = gantry.revs_for([[x, y]])[0] * nominal_lead
+            command = gantry.revs_for([[x, y]])[0] * NOMINAL_LEADS
             park = np.round(command / self.lattice) * self.lattice
             revs = self._park(*park)
             try:

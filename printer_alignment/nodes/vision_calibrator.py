@@ -47,7 +47,7 @@ from calib_core.nodes.spin import run_node
 from calib_core.storage import read_calibration, write_calibration
 from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
-    NOMINAL_LEAD_X, NOMINAL_LEAD_Y, NOMINAL_PIXEL_SIZE, CameraToPlate)
+    NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate)
 from printer_alignment.core.loop_models import GantryData, GantryLoopModel
 from printer_alignment.core.vision_calibration import calibrate_pixel_size, locate_camera
 from printer_alignment.core.vision_procedure import (
@@ -182,7 +182,7 @@ class VisionCalibratorNode(Node):
         reached = self._call(self.move_client, MoveGantry.Request(x=float(x), y=float(y)),
                              'gantry move')
         # The drive reports axis positions as motor angle times the nominal lead.
-        revs = np.array([reached.x / NOMINAL_LEAD_X, reached.y / NOMINAL_LEAD_Y])
+        revs = np.array([reached.x, reached.y]) / NOMINAL_LEADS
         self._gantry_state = GantryState(header=self._header(), x=reached.x, y=reached.y,
                                          x_rev=float(revs[0]), y_rev=float(revs[1]))
         return revs

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from printer_alignment.core.geometry import NOMINAL_LEAD_X, NOMINAL_LEAD_Y, CameraToPlate, GantryModel
+from printer_alignment.core.geometry import NOMINAL_LEADS, CameraToPlate, GantryModel
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.core.vision_calibration import plate_position
 
@@ -19,7 +19,7 @@ def measure_errors(camera2plate: CameraToPlate, gantry_model: GantryModel, gantr
     """Measured minus true dot positions (m, (n, 2)) at ``targets`` (m, (n, 2))."""
     measured, truth = [], []
     for x, y in targets:
-        revs = gantry.move(x, y) / np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
+        revs = gantry.move(x, y) / NOMINAL_LEADS
         position = gantry.true_camera_position()
         marks = detect_marks(camera.capture(position), shape='circle').marks
         uv = np.array([[m.u, m.v] for m in marks])

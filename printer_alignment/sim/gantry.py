@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
-from printer_alignment.core.geometry import NOMINAL_LEAD_X, NOMINAL_LEAD_Y, GantryModel
+from printer_alignment.core.geometry import NOMINAL_LEADS, GantryModel
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ class GantrySim:
     @property
     def axis_position(self) -> np.ndarray:
         """Encoder reading as axis position (m), shape (2,)."""
-        return self.revs * np.array([NOMINAL_LEAD_X, NOMINAL_LEAD_Y])
+        return self.revs * NOMINAL_LEADS
 
     def move(self, x: float, y: float) -> np.ndarray:
         """Move to axis position (x, y) in m; returns the encoder position reached (m).
@@ -84,7 +84,7 @@ class GantrySim:
                 f'gantry target ({x * 1e3:.3f}, {y * 1e3:.3f}) mm is outside the travel '
                 f'x [{t.x_min * 1e3:.1f}, {t.x_max * 1e3:.1f}] mm, '
                 f'y [{t.y_min * 1e3:.1f}, {t.y_max * 1e3:.1f}] mm; not moved')
-        target = np.array([x / NOMINAL_LEAD_X, y / NOMINAL_LEAD_Y])
+        target = np.array([x, y]) / NOMINAL_LEADS
         step = target - self.revs
         moved = step != 0
         self._direction[moved] = np.sign(step[moved])
