@@ -62,8 +62,13 @@ class IntrinsicsResult:
 
 def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
                          distortion: bool = True,
-                         focal_px: float | None = None) -> IntrinsicsResult:
+                         focal_px: float | None = None,
+                         radial_only: bool = False) -> IntrinsicsResult:
     """Pinhole intrinsics (and k1, k2, p1, p2, k3 if ``distortion``) by cv2.calibrateCameraExtended.
+
+    ``radial_only`` keeps the distortion to k1, k2 (p1 = p2 = k3 = 0): the model BoofCV and
+    many lens data sheets use, and the one to fit when the views are too few to separate
+    tangential terms from a shifted principal point.
 
     ``focal_px`` fixes fx = fy at that value (px), the principal point at the image centre
     and k3 at 0: for views taken square to the plate (a machine camera over a plate), where
@@ -84,6 +89,8 @@ def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
     images = [v.pixels.reshape(-1, 1, 2).astype(np.float32) for v in views]
     flags = 0 if distortion else (cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
                                   | cv2.CALIB_ZERO_TANGENT_DIST)
+    if radial_only:
+        flags |= cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3
     guess = None
     if focal_px is not None:
         if not (np.isfinite(focal_px) and focal_px > 0):
@@ -95,6 +102,8 @@ def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
     rms, k, d, _, _, std_intr, _, per_view = cv2.calibrateCameraExtended(
         objects, images, tuple(image_size), guess, None, flags=flags)
     fixed = {}
+    if radial_only:
+        fixed.update(dict.fromkeys(('p1', 'p2', 'k3'), 'radial k1, k2 only asked for'))
     if not distortion:
         fixed.update(dict.fromkeys(('k1', 'k2', 'p1', 'p2', 'k3'), 'no distortion asked for'))
     if focal_px is not None:
@@ -107,6 +116,34 @@ def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
     std.update(dict.fromkeys(fixed, 0.0))
     return IntrinsicsResult(k, d.ravel(), float(rms), per_view.ravel(), std, tuple(image_size),
                             fixed)
+
+
+def reprojection_errors(camera_matrix, distortion, views: list[View]) -> list[np.ndarray]:
+    """Per view, the (n, 2) px residuals of its points after solving its pose (solvePnP,
+    IPPE then Levenberg-Marquardt) with the given intrinsics: how well intrinsics that were
+    not fitted to these views explain them."""
+    camera_matrix = np.asarray(camera_matrix, float)
+    distortion = np.asarray(distortion, float).ravel()
+    errors = []
+    for k, view in enumerate(views):
+        if len(view.model) < 4:
+            raise CalibrationError(f'view {k} has {len(view.model)} points; a pose needs 4')
+        points = np.hstack([view.model, np.zeros((len(view.model), 1))])
+        found, rvec, tvec = cv2.solvePnP(points, view.pixels, camera_matrix, distortion,
+                                         flags=cv2.SOLVEPNP_IPPE)
+        if not found:
+            raise CalibrationError(f'no pose found for view {k}')
+        rvec, tvec = cv2.solvePnPRefineLM(points, view.pixels, camera_matrix, distortion,
+                                          rvec, tvec)
+        projected, _ = cv2.projectPoints(points, rvec, tvec, camera_matrix, distortion)
+        errors.append(projected.reshape(-1, 2) - view.pixels)
+    return errors
+
+
+def rms_px(errors: list[np.ndarray]) -> float:
+    """Root mean square length (px) of residual vectors pooled over views."""
+    every = np.concatenate(errors)
+    return float(np.sqrt(np.mean(np.sum(every ** 2, axis=1))))
 
 
 def dot_grid_view(pixels, pitch: float, pitch_px: float, angle: float = 0.0,
