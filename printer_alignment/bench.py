@@ -14,7 +14,9 @@ import numpy as np
 import yaml
 
 from calib_core.errors import MachineAlignmentError
-from printer_alignment.core.camera_calibration import calibrate_intrinsics, views_from_images
+from printer_alignment.core.camera_calibration import (
+    calibrate_intrinsics, read_boofcv_intrinsics, reprojection_errors, rms_px, views_from_images)
+from printer_alignment.core.dot_markers import LlahIndex, load_uchiya_markers, read_marker_photos
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.sim.render import MarkShape, coverage, render
 
@@ -122,7 +124,7 @@ def bench_real() -> dict:
                          'boofcv_radial': shipped['radial_tangential']['radial']}
     regular = sorted(glob.glob(str(REAL / 'boofcv_mono/Sony_DSC-HX5V_CircleRegular/*.jpg')))
     counts = {}
-    for path in regular + sorted(glob.glob(str(REAL / 'boofcv_fiducial_dots/random_dots/*.jpg'))):
+    for path in regular:
         image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
         try:
             detection = detect_marks(image)
@@ -134,7 +136,45 @@ def bench_real() -> dict:
     if len(views) >= 3:
         out['circle_grid'] = {'found': f'{len(views)}/{len(regular)}',
                               'rms_px': calibrate_intrinsics(views, size).rms_px}
+    out['random_dots'] = bench_random_dots(REAL / 'boofcv_fiducial_dots/random_dots')
     return out
+
+
+def bench_random_dots(folder: Path) -> dict:
+    """Uchiya random-dot photos: dots, markers matched by LLAH, reprojection with the
+    intrinsics shipped beside them, our k1-k2 calibration from the same photos, and each
+    photo predicted by intrinsics calibrated on the other four."""
+    started = time.perf_counter()
+    index = LlahIndex(load_uchiya_markers(folder / 'descriptions.yaml'))
+    index_s = time.perf_counter() - started
+    started = time.perf_counter()
+    photos, size, failures = read_marker_photos(sorted(folder.glob('*.jpg')), index)
+    match_s = time.perf_counter() - started
+    reference = read_boofcv_intrinsics(folder / 'intrinsic.yaml')
+    ref_k = np.array([[reference['fx'], 0, reference['cx']],
+                      [0, reference['fy'], reference['cy']], [0, 0, 1]])
+    ref_d = [reference[n] for n in ('k1', 'k2', 'p1', 'p2', 'k3')]
+    views = [v for photo in photos for v in photo.views()]
+    ours = calibrate_intrinsics(views, size, radial_only=True)
+    held_out = []
+    for k, photo in enumerate(photos):
+        others = [v for j, p in enumerate(photos) if j != k for v in p.views()]
+        if not photo.matches or len(others) < 3:
+            continue
+        fitted = calibrate_intrinsics(others, size, radial_only=True)
+        held_out.append({
+            'image': Path(photo.path).name, 'views': len(photo.matches),
+            'rms_px_ours': rms_px(reprojection_errors(fitted.camera_matrix, fitted.distortion,
+                                                      photo.views())),
+            'rms_px_reference': rms_px(reprojection_errors(ref_k, ref_d, photo.views())),
+            'ours_fx_px': float(fitted.camera_matrix[0, 0])})
+    return {
+        'photos': [{**photo.summary(), 'image': Path(photo.path).name} for photo in photos],
+        'failures': failures, 'index_build_s': index_s, 'find_and_match_s_per_photo':
+            match_s / max(len(photos), 1),
+        'markers_found': len(views), 'dots_matched': int(sum(len(v.model) for v in views)),
+        'rms_px_with_reference': rms_px(reprojection_errors(ref_k, ref_d, views)),
+        'reference': reference, 'ours_radial': ours.report(), 'held_out_photo': held_out}
 
 
 def main(argv=None) -> None:

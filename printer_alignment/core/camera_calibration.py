@@ -3,9 +3,11 @@ or from images of chessboards and circle grids."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from calib_core.datasets import read_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
@@ -116,6 +118,26 @@ def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
     std.update(dict.fromkeys(fixed, 0.0))
     return IntrinsicsResult(k, d.ravel(), float(rms), per_view.ravel(), std, tuple(image_size),
                             fixed)
+
+
+def read_boofcv_intrinsics(path) -> dict:
+    """fx, fy, cx, cy (px) and k1, k2, p1, p2, k3 from a BoofCV ``intrinsic.yaml``
+    (pinhole_radial_tangential; missing radial terms are 0)."""
+    try:
+        content = yaml.safe_load(Path(path).read_text())
+        pinhole = content['pinhole']
+        distortion = content.get('radial_tangential') or {}
+        radial = list(distortion.get('radial') or []) + [0.0, 0.0, 0.0]
+        values = {'fx': pinhole['fx'], 'fy': pinhole['fy'], 'cx': pinhole['cx'],
+                  'cy': pinhole['cy'], 'k1': radial[0], 'k2': radial[1],
+                  'p1': distortion.get('t1', 0.0), 'p2': distortion.get('t2', 0.0),
+                  'k3': radial[2]}
+        values = {name: float(value) for name, value in values.items()}
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+        raise InvalidInputError(f'{path}: not BoofCV pinhole intrinsics ({exc})') from exc
+    if not all(np.isfinite(list(values.values()))):
+        raise InvalidInputError(f'{path}: intrinsics with NaN or infinite values')
+    return values
 
 
 def reprojection_errors(camera_matrix, distortion, views: list[View]) -> list[np.ndarray]:
