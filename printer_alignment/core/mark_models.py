@@ -47,19 +47,24 @@ def circle_edge_model(params: np.ndarray, u: np.ndarray, v: np.ndarray, u0: floa
     cu, cv, radius, sigma, contrast, background, gu, gv = params
     du, dv = u - cu, v - cv
     rho = np.hypot(du, dv)
-    rho_safe = np.where(rho > 1e-9, rho, 1e-9)
-    z = (rho - radius) / sigma
-    cover = 0.5 * erfc(z / _SQRT2)
-    density = _INV_SQRT_2PI * np.exp(-0.5 * z * z)
-    intensity = background + gu * (u - u0) + gv * (v - v0) + contrast * cover
-    jac = np.empty((u.size, 8))
-    slope = contrast * density / sigma
-    jac[:, 0] = slope * du / rho_safe
-    jac[:, 1] = slope * dv / rho_safe
-    jac[:, 2] = slope
-    jac[:, 3] = slope * z
-    jac[:, 4] = cover
-    jac[:, 5] = 1.0
-    jac[:, 6] = u - u0
-    jac[:, 7] = v - v0
+    inv_rho = 1.0 / np.maximum(rho, 1e-9)
+    z = (rho - radius) * (1.0 / sigma)
+    cover = 0.5 * erfc(z * (1.0 / _SQRT2))
+    slope = np.exp(-0.5 * z * z)
+    slope *= _INV_SQRT_2PI * contrast / sigma
+    # Rows, then one transpose: writing contiguous rows is several times faster than
+    # writing the columns of an (n, 8) array.
+    rows = np.empty((8, u.size))
+    np.multiply(slope, du, out=rows[0])
+    rows[0] *= inv_rho
+    np.multiply(slope, dv, out=rows[1])
+    rows[1] *= inv_rho
+    rows[2] = slope
+    np.multiply(slope, z, out=rows[3])
+    rows[4] = cover
+    rows[5] = 1.0
+    np.subtract(u, u0, out=rows[6])
+    np.subtract(v, v0, out=rows[7])
+    intensity = background + gu * rows[6] + gv * rows[7] + contrast * cover
+    jac = rows.T
     return intensity, jac
