@@ -244,8 +244,9 @@ def _levenberg_marquardt(model, observed, x, max_iterations=100, tolerance=1e-6)
     MINPACK's QR of the full n x 8 Jacobian) was most of the detector's time, so the
     normal equations are solved here (8 x 8) instead. ``model(x)`` returns the values (n,)
     and the Jacobian (n, p). Returns x, residuals, Jacobian at x, and whether it
-    converged: the cost fell by less than ``tolerance`` relatively, or the step, scaled
-    by the Jacobian's column norms as MINPACK does, is below ``tolerance`` of x."""
+    converged: the cost fell by less than ``tolerance`` relatively, the step, scaled
+    by the Jacobian's column norms as MINPACK does, is below ``tolerance`` of x, or the
+    residual is orthogonal to the Jacobian."""
     values, jac = model(x)
     residuals = values - observed
     cost = residuals @ residuals
@@ -254,6 +255,11 @@ def _levenberg_marquardt(model, observed, x, max_iterations=100, tolerance=1e-6)
         normal = jac.T @ jac
         gradient = jac.T @ residuals
         scale = np.maximum(np.diag(normal), 1e-300)
+        # At the optimum the residual is orthogonal to every Jacobian column (MINPACK's
+        # gtol); checked first, because there rounding may keep any step from lowering
+        # the cost.
+        if np.max(np.abs(gradient) / np.sqrt(scale)) <= 1e-10 * np.sqrt(max(cost, 1e-300)):
+            return x, residuals, jac, True
         while True:
             try:
                 step = np.linalg.solve(normal + damping * np.diag(scale), -gradient)
