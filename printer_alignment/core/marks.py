@@ -1,8 +1,9 @@
 """Sub-pixel detection of circular and cross Marks.
 
 Segmentation (Otsu threshold and connected components, OpenCV) finds candidates; each one
-is refined by fitting an intensity model to the raw pixels with
-scipy.optimize.least_squares (Levenberg-Marquardt). Under Gaussian noise that fit is the
+is refined by fitting an intensity model to the raw pixels by Levenberg-Marquardt
+(circles: a small solver on the normal equations, for speed; crosses:
+scipy.optimize.least_squares). Under Gaussian noise that fit is the
 maximum-likelihood estimate, which is what lets the centre error approach the Cramer-Rao
 bound. The covariance of the centre comes from the fit's Jacobian and residual variance.
 
