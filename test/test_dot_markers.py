@@ -5,7 +5,8 @@ import pytest
 import yaml
 
 from calib_core.errors import DetectionError, InvalidInputError
-from printer_alignment.core.camera_calibration import reprojection_errors, rms_px
+from printer_alignment.core.camera_calibration import (
+    read_boofcv_intrinsics, reprojection_errors, rms_px)
 from printer_alignment.core.dot_markers import (
     DotConfig, LlahConfig, LlahIndex, find_dots, load_uchiya_markers, read_marker_photos)
 
@@ -132,6 +133,12 @@ def test_bad_input(tmp_path, rng, index):
         load_uchiya_markers(bad)
     with pytest.raises(InvalidInputError, match='needs more'):
         LlahIndex({0: random_marker(rng, dots=8)})
+    bad.write_text('pinhole: {fx: 600, fy: 600, cx: 320}\n')
+    with pytest.raises(InvalidInputError, match='not BoofCV pinhole'):
+        read_boofcv_intrinsics(bad)
+    bad.write_text('pinhole: {fx: .nan, fy: 600, cx: 320, cy: 240}\n')
+    with pytest.raises(InvalidInputError, match='NaN'):
+        read_boofcv_intrinsics(bad)
     with pytest.raises(InvalidInputError):
         LlahConfig(neighbours=5, combination=6)
     with pytest.raises(InvalidInputError):
