@@ -253,11 +253,12 @@ def find_target(image: np.ndarray, kind: str, cols: int, rows: int) -> np.ndarra
     return corners.reshape(-1, 2).astype(float)
 
 
-def views_from_images(paths: list, kind: str, cols: int, rows: int, spacing: float):
-    """(views, image_size, failures) from image files; unreadable or target-less images
-    are listed in ``failures`` with the reason, not fatal."""
-    views, failures, size = [], [], None
-    model = target_points(kind, cols, rows, spacing)
+def read_images(paths: list, measure):
+    """(results, image_size, failures): ``measure(image)`` for each grey image file of the
+    same size. Unreadable images, images of another size than the first, and images
+    where ``measure`` raises DetectionError are listed in ``failures`` as (path, reason),
+    not fatal; results are (path, measurement) pairs."""
+    results, failures, size = [], [], None
     for path in paths:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if image is None:
@@ -268,7 +269,16 @@ def views_from_images(paths: list, kind: str, cols: int, rows: int, spacing: flo
             continue
         size = (image.shape[1], image.shape[0])
         try:
-            views.append(View(model, find_target(image, kind, cols, rows)))
+            results.append((str(path), measure(image)))
         except DetectionError as exc:
             failures.append((str(path), str(exc)))
-    return views, size, failures
+    return results, size, failures
+
+
+def views_from_images(paths: list, kind: str, cols: int, rows: int, spacing: float):
+    """(views, image_size, failures) from image files; unreadable or target-less images
+    are listed in ``failures`` with the reason, not fatal."""
+    model = target_points(kind, cols, rows, spacing)
+    found, size, failures = read_images(
+        paths, lambda image: View(model, find_target(image, kind, cols, rows)))
+    return [view for _, view in found], size, failures

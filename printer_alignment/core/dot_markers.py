@@ -25,7 +25,7 @@ import yaml
 from scipy.spatial import cKDTree
 
 from calib_core.errors import DetectionError, InvalidInputError
-from printer_alignment.core.camera_calibration import View
+from printer_alignment.core.camera_calibration import View, read_images
 
 UNITS_M = {'m': 1.0, 'cm': 1e-2, 'mm': 1e-3}
 
@@ -413,19 +413,8 @@ def read_marker_photos(paths, index: LlahIndex, config: DotConfig = DotConfig())
     Unreadable photos, photos of another size than the first, and photos without dots are
     listed in ``failures`` as (path, reason) and skipped; a photo with dots but no marker
     is kept with no matches, so the caller can tell it was looked at."""
-    photos, failures, size = [], [], None
-    for path in paths:
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            failures.append((str(path), 'not a readable image'))
-            continue
-        if size is not None and (image.shape[1], image.shape[0]) != size:
-            failures.append((str(path), f'size {image.shape[::-1]} differs from {size}'))
-            continue
-        size = (image.shape[1], image.shape[0])
-        try:
-            dots = find_dots(image, config)
-            photos.append(MarkerPhoto(str(path), dots, index.match(dots)))
-        except DetectionError as exc:
-            failures.append((str(path), str(exc)))
-    return photos, size, failures
+    def measure(image):
+        dots = find_dots(image, config)
+        return dots, index.match(dots)
+    found, size, failures = read_images(paths, measure)
+    return [MarkerPhoto(path, *measured) for path, measured in found], size, failures
