@@ -119,28 +119,19 @@ def _compare_with_reference(path, views, report) -> dict:
     """Reference intrinsics (BoofCV YAML) against ours: parameter differences, and the
     reprojection RMS (px) of the same views with each after solving every view's pose."""
     from printer_alignment.core.camera_calibration import (
-        read_boofcv_intrinsics, reprojection_errors, rms_px)
+        camera_arrays, read_boofcv_intrinsics, reprojection_errors, rms_px)
     reference = read_boofcv_intrinsics(path)
     ours = report['parameters']
-    k = np.array([[ours['fx'], 0, ours['cx']], [0, ours['fy'], ours['cy']], [0, 0, 1]])
-    d = [ours[n] for n in ('k1', 'k2', 'p1', 'p2', 'k3')]
     comparison = {
         'path': str(path), 'parameters': reference,
         'ours_minus_reference': {n: ours[n] - reference[n] for n in reference},
-        'rms_px_with_reference': rms_px(reprojection_errors(
-            *_camera_arrays(reference), views)),
-        'rms_px_with_ours': rms_px(reprojection_errors(k, d, views))}
+        'rms_px_with_reference': rms_px(reprojection_errors(*camera_arrays(reference), views)),
+        'rms_px_with_ours': rms_px(reprojection_errors(*camera_arrays(ours), views))}
     print(f'reference {path}: reprojection RMS {comparison["rms_px_with_reference"]:.3f} px '
           f'(ours {comparison["rms_px_with_ours"]:.3f} px, poses solved per view)')
     for name, diff in comparison['ours_minus_reference'].items():
         print(f'  {name:>3}: ours - reference = {diff: .4g} (reference {reference[name]:.6g})')
     return comparison
-
-
-def _camera_arrays(parameters: dict):
-    p = parameters
-    return (np.array([[p['fx'], 0, p['cx']], [0, p['fy'], p['cy']], [0, 0, 1]]),
-            [p['k1'], p['k2'], p['p1'], p['p2'], p['k3']])
 
 
 def _calibrate_camera_from_bag(args) -> int:

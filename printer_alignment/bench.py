@@ -15,7 +15,7 @@ import yaml
 
 from calib_core.errors import MachineAlignmentError
 from printer_alignment.core.camera_calibration import (
-    calibrate_intrinsics, read_boofcv_intrinsics, reprojection_errors, rms_px, views_from_images)
+    calibrate_intrinsics, camera_arrays, read_boofcv_intrinsics, reprojection_errors, rms_px, views_from_images)
 from printer_alignment.core.dot_markers import LlahIndex, load_uchiya_markers, read_marker_photos
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.sim.render import MarkShape, coverage, render
@@ -151,9 +151,7 @@ def bench_random_dots(folder: Path) -> dict:
     photos, size, failures = read_marker_photos(sorted(folder.glob('*.jpg')), index)
     match_s = time.perf_counter() - started
     reference = read_boofcv_intrinsics(folder / 'intrinsic.yaml')
-    ref_k = np.array([[reference['fx'], 0, reference['cx']],
-                      [0, reference['fy'], reference['cy']], [0, 0, 1]])
-    ref_d = [reference[n] for n in ('k1', 'k2', 'p1', 'p2', 'k3')]
+    ref_k, ref_d = camera_arrays(reference)
     views = [v for photo in photos for v in photo.views()]
     ours = calibrate_intrinsics(views, size, radial_only=True)
     held_out = []

@@ -120,6 +120,14 @@ def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
                             fixed)
 
 
+def camera_arrays(parameters: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(camera matrix (3, 3), distortion (5,) k1, k2, p1, p2, k3) from a dict with the
+    names of ``IntrinsicsResult.report()['parameters']`` or read_boofcv_intrinsics."""
+    p = parameters
+    return (np.array([[p['fx'], 0.0, p['cx']], [0.0, p['fy'], p['cy']], [0.0, 0.0, 1.0]]),
+            np.array([p[name] for name in ('k1', 'k2', 'p1', 'p2', 'k3')]))
+
+
 def read_boofcv_intrinsics(path) -> dict:
     """fx, fy, cx, cy (px) and k1, k2, p1, p2, k3 from a BoofCV ``intrinsic.yaml``
     (pinhole_radial_tangential; missing radial terms are 0)."""

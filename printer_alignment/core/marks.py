@@ -142,17 +142,16 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     if shape not in ('',) + SHAPES:
         raise InvalidInputError(f'shape must be "circle", "cross" or "", not {shape!r}')
     image = _check_image(image)
-    # Pixels become float per Mark patch (_patch), not for the whole frame.
-    pixels = image
-    low, high = float(pixels.min()), float(pixels.max())
+    # The frame stays in its own type; each Mark's pixels become float in its fit.
+    low, high = float(image.min()), float(image.max())
     full = _full_scale(image)
     if full is not None and np.mean(image >= full) > 0.5:
         raise DetectionError('image is saturated: more than half of the pixels are at full scale')
-    noise = max(estimate_noise(pixels), 1e-12 * max(abs(high), 1.0))
+    noise = max(estimate_noise(image), 1e-12 * max(abs(high), 1.0))
     if high - low < 2 * config.min_snr * noise or high == low:
         raise DetectionError('image has no contrast (empty or uniform): no Mark can be seen')
 
-    scaled = cv2.normalize(pixels, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+    scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     smoothed = cv2.GaussianBlur(scaled, (5, 5), 1.0)
     threshold, dark_mask = cv2.threshold(smoothed, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
     polarity = config.polarity
@@ -192,10 +191,10 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             continue
         try:
             if kind == 'circle':
-                mark = _fit_circle(pixels, x0, y0, w, h, area, centroids[label], polarity, full)
+                mark = _fit_circle(image, x0, y0, w, h, area, centroids[label], polarity, full)
             else:
                 component = labels[y0:y0 + h, x0:x0 + w] == label
-                mark = _fit_cross(pixels, x0, y0, component, area, polarity, noise, full)
+                mark = _fit_cross(image, x0, y0, component, area, polarity, noise, full)
         except DetectionError as exc:
             rejected.append(f'{exc} {where}')
             continue
@@ -219,10 +218,15 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     return Detection(marks=marks, rejected=rejected, noise_sigma=noise)
 
 
+def _window(shape, x0, y0, w, h, pad):
+    """Rows r0:r1 and columns c0:c1 of the bounding box grown by ``pad``, inside the image."""
+    height, width = shape
+    return (max(y0 - pad, 0), min(y0 + h + pad, height),
+            max(x0 - pad, 0), min(x0 + w + pad, width))
+
+
 def _patch(pixels, x0, y0, w, h, pad):
-    height, width = pixels.shape
-    r0, r1 = max(y0 - pad, 0), min(y0 + h + pad, height)
-    c0, c1 = max(x0 - pad, 0), min(x0 + w + pad, width)
+    r0, r1, c0, c1 = _window(pixels.shape, x0, y0, w, h, pad)
     vv, uu = np.mgrid[r0:r1, c0:c1]
     return pixels[r0:r1, c0:c1].astype(np.float64), uu.astype(float), vv.astype(float)
 
@@ -289,9 +293,7 @@ def _levenberg_marquardt(model, observed, x, max_iterations=100, tolerance=1e-6)
 def _fit_circle(pixels, x0, y0, w, h, area, centroid, polarity, full) -> Mark:
     radius0 = np.sqrt(area / np.pi)
     pad = int(np.ceil(4 + 0.15 * radius0))
-    height, width = pixels.shape
-    r0, r1 = max(y0 - pad, 0), min(y0 + h + pad, height)
-    c0, c1 = max(x0 - pad, 0), min(x0 + w + pad, width)
+    r0, r1, c0, c1 = _window(pixels.shape, x0, y0, w, h, pad)
     cu0, cv0 = centroid
     rho0 = np.hypot((np.arange(c0, c1) - cu0)[None, :], (np.arange(r0, r1) - cv0)[:, None])
     # The centre is in the edge; the flat interior adds nothing but time.
