@@ -28,15 +28,22 @@ def test_centre_error_below_one_fiftieth_pixel(rng, kind, size, blur):
     assert mark.shape == kind
 
 
-def test_reported_covariance_matches_scatter(rng):
-    errors, sigmas = [], []
+# Radius 40 px takes the two-step fit (rough fit on part of the edge band, one
+# Gauss-Newton step on all of it); its covariance comes from the full band.
+@pytest.mark.parametrize('size,blur,noise', [(10, 1.0, 0.05), (40, 1.5, 0.05)])
+def test_reported_covariance_matches_scatter(rng, size, blur, noise):
+    errors, sigmas, radii = [], [], []
     for _ in range(40):
-        image, truth = _frame(rng, 'circle', 10, 1.0, 0.05)
+        image, truth = _frame(rng, 'circle', size, blur, noise)
         mark = detect_marks(image, expected_count=1).marks[0]
         errors.append(mark.u - truth[0].u)
         sigmas.append(np.sqrt(mark.covariance[0, 0]))
+        radii.append(mark.size)
     ratio = np.std(errors) / np.mean(sigmas)
     assert 0.7 < ratio < 1.4
+    # The straight-edge profile reads a blurred disk about sigma^2 / (2 r) small
+    # (0.05 px at 10 px, blur 1).
+    assert abs(np.mean(radii) - size) < 0.1
 
 
 def test_bright_marks_on_dark_background(rng):
