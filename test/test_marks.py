@@ -46,17 +46,6 @@ def test_reported_covariance_matches_scatter(rng, size, blur, noise):
     assert abs(np.mean(radii) - size) < 0.1
 
 
-@pytest.mark.parametrize('size', [5, 10, 40])
-def test_single_mark_under_illumination_falloff(rng, size):
-    """One Mark in view and 32 % less light from one side of the frame to the other: the
-    Mark is found where it is (Otsu's threshold split the background instead)."""
-    truth = MarkShape('circle', 300.3, 220.2, size)
-    image = render([truth], 640, 480, 1.0, 200.0, -150.0, gradient=(5e-4, 0.0))
-    image = np.clip(np.round(image + rng.normal(0, 2, image.shape)), 0, 255).astype(np.uint8)
-    mark = detect_marks(image, expected_count=1).marks[0]
-    assert np.hypot(mark.u - truth.u, mark.v - truth.v) < 0.05
-
-
 def test_bright_marks_on_dark_background(rng):
     image, truth = _frame(rng, 'circle', 12, 1.0, 0.02, contrast=+120.0)
     image -= 150.0

@@ -1,7 +1,6 @@
 """Sub-pixel detection of circular and cross Marks.
 
-Segmentation (a threshold halfway between background and Marks, and connected
-components, OpenCV) finds candidates; each one
+Segmentation (Otsu threshold and connected components, OpenCV) finds candidates; each one
 is refined by fitting an intensity model to the raw pixels by Levenberg-Marquardt
 (circles: a small solver on the normal equations, for speed; crosses:
 scipy.optimize.least_squares). Under Gaussian noise that fit is the
@@ -39,8 +38,8 @@ class DetectorConfig:
     min_size_px, max_size_px : float
         Accepted circle radius / cross half-length, px.
     polarity : str
-        ``"dark"`` (Marks darker than background), ``"bright"`` or ``"auto"`` (the side of
-        the background, its median, with the larger excursion).
+        ``"dark"`` (Marks darker than background), ``"bright"`` or ``"auto"`` (the minority
+        class of the Otsu threshold).
     min_snr : float
         Minimum fitted contrast over the image noise sigma.
     border_margin_px : float
@@ -154,20 +153,11 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
 
     scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     smoothed = cv2.GaussianBlur(scaled, (5, 5), 1.0)
-    # Threshold halfway between the background (the median: Marks are the minority) and
-    # the Marks' extreme. Otsu's threshold, used before, splits a gently shaded background
-    # rather than isolate one small Mark: a single 10 px Mark under a 13 % illumination
-    # fall-off across the frame was lost or replaced by a false one.
-    darkest, brightest = (float(x) for x in cv2.minMaxLoc(smoothed)[:2])
-    cumulative = np.cumsum(cv2.calcHist([smoothed], [0], None, [256], [0, 256]).ravel())
-    median = float(np.searchsorted(cumulative, cumulative[-1] / 2))
+    threshold, dark_mask = cv2.threshold(smoothed, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
     polarity = config.polarity
     if polarity == 'auto':
-        polarity = 'dark' if median - darkest >= brightest - median else 'bright'
-    if polarity == 'dark':
-        mask = cv2.threshold(smoothed, (median + darkest) / 2, 255, cv2.THRESH_BINARY_INV)[1]
-    else:
-        mask = cv2.threshold(smoothed, (median + brightest) / 2, 255, cv2.THRESH_BINARY)[1]
+        polarity = 'dark' if np.count_nonzero(dark_mask) < dark_mask.size / 2 else 'bright'
+    mask = dark_mask if polarity == 'dark' else cv2.bitwise_not(dark_mask)
     count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
 
     height, width = image.shape
