@@ -131,9 +131,9 @@ def bench_synthetic(frames: int, seed: int = 1, repeats: int = 3) -> list[dict]:
                     sigma_dn = np.sqrt(sigma ** 2 + 1 / 12)
                     crb.append([cramer_rao(marks[4], blur, sigma_dn),
                                 cramer_rao(marks[4], blur, sigma_dn, gradient=True)])
+                crb_flat, crb_gradient = np.mean(crb, axis=0)
                 row = {'radius_px': radius, 'blur_px': blur, 'noise_fraction': noise,
-                       'crb_rms_px': float(np.mean(crb, axis=0)[0]),
-                       'crb_with_gradient_rms_px': float(np.mean(crb, axis=0)[1])}
+                       'crb_rms_px': float(crb_flat), 'crb_with_gradient_rms_px': float(crb_gradient)}
                 for name, e in err.items():
                     e = np.concatenate(e)
                     good = e[~np.isnan(e).any(axis=1)]

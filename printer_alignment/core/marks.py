@@ -341,9 +341,7 @@ def _fit_circle(pixels, x0, y0, w, h, area, centroid, polarity, full) -> Mark:
     x, residuals, jac, converged = _levenberg_marquardt(
         lambda p: circle_edge_model(p, u_part, v_part, cu0, cv0), z_part, x_init,
         tolerance=1e-4 if one_step else 1e-6)
-    if not one_step:
-        normal = jac.T @ jac
-    else:
+    if one_step:
         values, jac = circle_edge_model(x, u, v, cu0, cv0)
         residuals = values - z
         normal = jac.T @ jac
@@ -353,6 +351,8 @@ def _fit_circle(pixels, x0, y0, w, h, area, centroid, polarity, full) -> Mark:
             converged = False
         else:
             x, residuals = x + step, residuals + jac @ step
+    else:
+        normal = jac.T @ jac
     cu, cv, radius, sigma, contrast = x[:5]
     if (not converged or abs(sigma) > radius or radius <= 0
             or np.hypot(cu - cu0, cv - cv0) > 0.5 * radius0):
