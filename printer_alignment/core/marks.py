@@ -27,6 +27,18 @@ EDGE_BAND_PX = 6.0
 # Edge bands with more pixels than this are fitted in two steps (see _fit_circle).
 ONE_STEP_ABOVE_PX = 1500
 ROUGH_FIT_PX = 750
+# Segmentation: the illumination surface is fitted to means of blocks this wide (px),
+# with this many rounds of outlier rejection.
+TREND_BLOCK_PX = 16
+TREND_ITERATIONS = 4
+SURFACE_STEP_PX = 4
+# The 5x5, sigma 1 px Gaussian smoothing before the threshold scales white noise by this.
+SMOOTHING_NOISE_GAIN = 0.287
+# The threshold stays at least this many smoothed-noise sigma from the background.
+MIN_THRESHOLD_SIGMA = 5.0
+# The darkest (brightest) level of a frame is the one with this many pixels beyond it:
+# fewer than the smallest Mark has, more than a hot pixel.
+EXTREME_PIXELS = 4
 
 
 @dataclass(frozen=True)
@@ -151,14 +163,8 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     if high - low < 2 * config.min_snr * noise or high == low:
         raise DetectionError('image has no contrast (empty or uniform): no Mark can be seen')
 
-    scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
-    smoothed = cv2.GaussianBlur(scaled, (5, 5), 1.0)
-    threshold, dark_mask = cv2.threshold(smoothed, 0, 255, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
-    polarity = config.polarity
-    if polarity == 'auto':
-        polarity = 'dark' if np.count_nonzero(dark_mask) < dark_mask.size / 2 else 'bright'
-    mask = dark_mask if polarity == 'dark' else cv2.bitwise_not(dark_mask)
-    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    noise_scaled = noise * 255.0 / (high - low)
+    polarity, count, labels, stats, centroids, flat = _segment(image, noise_scaled, config)
 
     height, width = image.shape
     marks: list[Mark] = []
@@ -189,6 +195,10 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             continue
         if shape and kind != shape:
             continue
+        # A Mark at the lowest accepted contrast stands out of the smoothed frame by at
+        # least half of it; a noise speck does not, and is dropped before a costly fit.
+        if _depth(flat, x0, y0, w, h, polarity) < 0.5 * config.min_snr * noise_scaled:
+            continue
         try:
             if kind == 'circle':
                 mark = _fit_circle(image, x0, y0, w, h, area, centroids[label], polarity, full)
@@ -216,6 +226,137 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         raise DetectionError(f'expected {expected_count} Mark(s), found {len(marks)}: ambiguous'
                              f'{detail}')
     return Detection(marks=marks, rejected=rejected, noise_sigma=noise)
+
+
+def _flatten(smoothed, tolerance):
+    """``smoothed`` (uint8) less a robust quadratic illumination surface, at 128 (uint8).
+
+    The surface is fitted by least squares to block means of the frame, dropping blocks
+    more than 3 robust sigma off it (the Marks, and in photos the scene around the plate),
+    so a fall-off of light across the frame does not split the background in two at the
+    threshold. Frames whose block means (10th to 90th percentile) vary less than
+    ``tolerance`` are returned unchanged."""
+    height, width = smoothed.shape
+    rows, cols = max(height // TREND_BLOCK_PX, 3), max(width // TREND_BLOCK_PX, 3)
+    means = cv2.resize(smoothed, (cols, rows), interpolation=cv2.INTER_AREA).ravel().astype(np.float64)
+    low, high = np.percentile(means, [10, 90])
+    if high - low < tolerance:
+        return smoothed
+    y, x = np.divmod(np.arange(rows * cols), cols)
+    # Block centres in full-frame px, scaled to [-1, 1] for conditioning.
+    x = ((x + 0.5) * width / cols - 0.5) / width * 2 - 1
+    y = ((y + 0.5) * height / rows - 0.5) / height * 2 - 1
+    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+    keep = np.ones(means.size, dtype=bool)
+    for _ in range(TREND_ITERATIONS):
+        kept = design[keep]
+        coef = np.linalg.solve(kept.T @ kept, kept.T @ means[keep])
+        residual = means - design @ coef
+        centre = np.median(residual[keep])
+        spread = 1.4826 * np.median(np.abs(residual[keep] - centre))
+        keep = np.abs(residual - centre) < max(3 * spread, 1.0)
+    # The surface is evaluated every SURFACE_STEP_PX px and interpolated up: cv2.resize
+    # puts the coarse sample j at full-frame px SURFACE_STEP_PX * j + (SURFACE_STEP_PX - 1) / 2.
+    step = SURFACE_STEP_PX
+    u = ((np.arange(-(-width // step)) * step + (step - 1) / 2) / width * 2 - 1).astype(np.float32)
+    v = ((np.arange(-(-height // step)) * step + (step - 1) / 2) / height * 2 - 1).astype(np.float32)
+    c0, cu, cv_, cuu, cuv, cvv = coef.astype(np.float32)
+    coarse = np.add.outer(cv_ * v + cvv * v * v, c0 + cu * u + cuu * u * u) + cuv * np.outer(v, u)
+    surface = cv2.resize(np.clip(coarse, 0, 255).astype(np.uint8),
+                         (len(u) * step, len(v) * step), interpolation=cv2.INTER_LINEAR)
+    return cv2.addWeighted(smoothed, 1.0, surface[:height, :width], -1.0, 128.0)
+
+
+def _segment(image, noise_scaled, config):
+    """Candidate Marks: the connected components of the thresholded, flattened frame.
+
+    Returns the polarity, ``cv2.connectedComponentsWithStats``'s count, labels, stats
+    and centroids, and the flattened frame (uint8). The threshold is Otsu's unless that
+    splits the background's noise (see _threshold). ``auto``
+    polarity takes the class with more Mark-shaped components (the minority class is not
+    it when a dense dot grid and a dark table fill most of a photo)."""
+    scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+    smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
+    guard = MIN_THRESHOLD_SIGMA * smoothed_noise
+    flat = _flatten(cv2.GaussianBlur(scaled, (5, 5), 1.0), smoothed_noise)
+    histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
+    otsu = _otsu(histogram)
+    candidates = []
+    polarities = ('dark', 'bright') if config.polarity == 'auto' else (config.polarity,)
+    for polarity in polarities:
+        # cv2.threshold floors the level on 8-bit frames and keeps src > level (src <= level
+        # inverted); the masks are flat < dark level and flat > bright level.
+        if polarity == 'dark':
+            level = np.ceil(_threshold(histogram, otsu, guard)) - 1
+            _, mask = cv2.threshold(flat, level, 1, cv2.THRESH_BINARY_INV)
+        else:
+            level = 255 - _threshold(histogram[::-1], 255 - otsu, guard)
+            _, mask = cv2.threshold(flat, level, 1, cv2.THRESH_BINARY)
+        candidates.append((_mark_shaped(mask, config) if len(polarities) > 1 else 0, polarity, mask))
+    _, polarity, mask = max(candidates, key=lambda c: c[0])
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    return polarity, count, labels, stats, centroids, flat
+
+
+def _otsu(histogram) -> int:
+    """Otsu's threshold of a 256-bin histogram: the level t that maximises the variance
+    between the classes <= t and > t (as cv2.THRESH_OTSU, which would also binarise)."""
+    levels = np.arange(histogram.size)
+    weight = np.cumsum(histogram)
+    moment = np.cumsum(histogram * levels)
+    total, total_moment = weight[-1], moment[-1]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        between = (total_moment * weight - total * moment) ** 2 / (weight * (total - weight))
+    return int(np.argmax(np.nan_to_num(between[:-1], nan=-1.0, posinf=-1.0)))
+
+
+def _threshold(histogram, otsu, guard) -> float:
+    """Grey level below which a pixel belongs to a dark Mark, from the flattened frame's
+    histogram (256 bins; mirror it for bright Marks) and Otsu's threshold.
+
+    Otsu's threshold is kept when it lies at least ``guard`` below the median of the
+    class above it. Otherwise it has split the background's noise (one small Mark in
+    view), and the level is halfway between that median and the darkest pixels: the
+    Mark's edge, as Otsu's threshold would have put it."""
+    above = np.cumsum(histogram[int(otsu) + 1:])
+    if not above.size or above[-1] == 0:
+        return otsu
+    background = int(otsu) + 1 + int(np.searchsorted(above, above[-1] / 2))
+    if otsu <= background - guard:
+        return otsu
+    darkest = int(np.searchsorted(np.cumsum(histogram), EXTREME_PIXELS))
+    return min(background - guard, (background + darkest) / 2)
+
+
+def _mark_shaped(mask, config) -> int:
+    """How many blobs of ``mask`` have a Mark's size, aspect and fill. From the blobs'
+    outer contours, which cost a tenth of connected components with statistics (with
+    RETR_CCOMP every blob's outer contour is at the top level, also a Mark's inside a
+    hole of another blob, as dots on a plate framed by a table)."""
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    contours = [c for c, link in zip(contours, hierarchy[0] if contours else []) if link[3] < 0]
+    if not contours:
+        return 0
+    boxes = np.array([cv2.boundingRect(c) for c in contours], dtype=float)
+    w, h = boxes[:, 2], boxes[:, 3]
+    # A contour's polygon runs through the boundary pixels' centres, so it encloses about
+    # half a pixel less than the blob all round.
+    area = np.array([cv2.contourArea(c) for c in contours]) + (w + h)
+    half = np.maximum(w, h) / 2.0
+    fill = area / (w * h)
+    return int(np.count_nonzero(
+        (half >= 0.8 * config.min_size_px) & (half <= 1.2 * config.max_size_px)
+        & (np.maximum(w, h) < 1.35 * np.minimum(w, h)) & (fill > 0.12)))
+
+
+def _depth(flat, x0, y0, w, h, polarity):
+    """How far the component's extreme in the flattened frame lies from the median of a
+    2 px ring around its box (smoothed, scaled units)."""
+    r0, r1, c0, c1 = _window(flat.shape, x0, y0, w, h, 2)
+    patch = flat[r0:r1, c0:c1]
+    ring = np.concatenate([patch[0], patch[-1], patch[:, 0], patch[:, -1]])
+    level = float(np.median(ring))
+    return level - float(patch.min()) if polarity == 'dark' else float(patch.max()) - level
 
 
 def _window(shape, x0, y0, w, h, pad):
