@@ -28,16 +28,24 @@ def cross_coverage(du: np.ndarray, dv: np.ndarray, angle: float, half_length: fl
 
 
 def circle_edge_model(params: np.ndarray, u: np.ndarray, v: np.ndarray, u0: float, v0: float):
-    """Blurred disk with a straight-edge (erfc) profile and a linear background.
+    """Blurred disk with a straight-edge (erfc) profile, lit by a linear illumination
+    gradient.
+
+    ``(background + contrast * cover) * (1 + grad_u (u - u0) + grad_v (v - v0))``: the
+    gradient multiplies the Mark as it does the background, as uneven light on a
+    reflecting (or back-lit) plate does. With an additive background slope instead, the
+    Mark's side in the brighter light reads too dark, and a 13 % fall-off across a
+    640 px frame moves a 40 px Mark's centre by 0.008 px (0.028 px at 64 %).
 
     Parameters
     ----------
     params : (cu, cv, radius, sigma, contrast, background, grad_u, grad_v)
-        Centre (px), radius (px), edge sigma (px), intensities and background slope per px.
+        Centre (px), radius (px), edge sigma (px), intensities, and the relative
+        illumination gradient (1/px).
     u, v : ndarray, shape (n,)
         Pixel coordinates.
     u0, v0 : float
-        Reference point of the background slope.
+        Point where the illumination factor is 1.
 
     Returns
     -------
@@ -50,21 +58,25 @@ def circle_edge_model(params: np.ndarray, u: np.ndarray, v: np.ndarray, u0: floa
     inv_rho = 1.0 / np.maximum(rho, 1e-9)
     z = (rho - radius) * (1.0 / sigma)
     cover = 0.5 * erfc(z * (1.0 / _SQRT2))
-    slope = np.exp(-0.5 * z * z)
-    slope *= _INV_SQRT_2PI * contrast / sigma
     # Rows, then one transpose: writing contiguous rows is several times faster than
     # writing the columns of an (n, 8) array.
     rows = np.empty((8, u.size))
+    np.subtract(u, u0, out=rows[6])
+    np.subtract(v, v0, out=rows[7])
+    light = 1.0 + gu * rows[6] + gv * rows[7]
+    slope = np.exp(-0.5 * z * z)
+    slope *= (_INV_SQRT_2PI * contrast / sigma) * light
     np.multiply(slope, du, out=rows[0])
     rows[0] *= inv_rho
     np.multiply(slope, dv, out=rows[1])
     rows[1] *= inv_rho
     rows[2] = slope
     np.multiply(slope, z, out=rows[3])
-    rows[4] = cover
-    rows[5] = 1.0
-    np.subtract(u, u0, out=rows[6])
-    np.subtract(v, v0, out=rows[7])
-    intensity = background + gu * rows[6] + gv * rows[7] + contrast * cover
+    np.multiply(cover, light, out=rows[4])
+    rows[5] = light
+    lit = background + contrast * cover
+    rows[6] *= lit
+    rows[7] *= lit
+    intensity = lit * light
     jac = rows.T
     return intensity, jac

@@ -1,7 +1,9 @@
 """Sub-pixel detection of circular and cross Marks.
 
-Segmentation (Otsu threshold and connected components, OpenCV) finds candidates; each one
-is refined by fitting an intensity model to the raw pixels by Levenberg-Marquardt
+Segmentation finds candidates: the frame is smoothed, a robust quadratic illumination
+surface is taken off, and the connected components below (above) a threshold are the
+dark (bright) candidates; the threshold is Otsu's unless that splits the background's
+noise. Each candidate is refined by fitting an intensity model to the raw pixels by Levenberg-Marquardt
 (circles: a small solver on the normal equations, for speed; crosses:
 scipy.optimize.least_squares). Under Gaussian noise that fit is the
 maximum-likelihood estimate, which is what lets the centre error approach the Cramer-Rao
@@ -272,9 +274,9 @@ def _segment(image, noise_scaled, config):
 
     Returns the polarity, ``cv2.connectedComponentsWithStats``'s count, labels, stats
     and centroids, and the flattened frame (uint8). The threshold is Otsu's unless that
-    splits the background's noise (see _threshold). ``auto``
-    polarity takes the class with more Mark-shaped components (the minority class is not
-    it when a dense dot grid and a dark table fill most of a photo)."""
+    splits the background's noise (see _threshold). ``auto`` polarity takes the class
+    with more Mark-shaped blobs: the minority class is not the Marks when a dense dot
+    grid and a dark table fill most of a photo."""
     scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
     guard = MIN_THRESHOLD_SIGMA * smoothed_noise
