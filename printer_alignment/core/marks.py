@@ -159,7 +159,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     # The frame stays in its own type; each Mark's pixels become float in its fit.
     low, high = float(image.min()), float(image.max())
     full = _full_scale(image)
-    if full is not None and np.mean(image >= full) > 0.5:
+    if full is not None and high >= full and np.count_nonzero(image >= full) > image.size / 2:
         raise DetectionError('image is saturated: more than half of the pixels are at full scale')
     noise = max(estimate_noise(image), 1e-12 * max(abs(high), 1.0))
     if high - low < 2 * config.min_snr * noise or high == low:
