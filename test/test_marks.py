@@ -76,7 +76,7 @@ def test_large_mark_under_strong_falloff_is_not_biased(rng):
 
 def test_small_mark_alone_in_strong_noise(rng):
     """Radius 3 px at 5 % noise: Otsu's threshold falls inside the noise, which must not
-    turn into false Marks (it found 6 before the threshold was guarded)."""
+    turn into false Marks (3 Marks were found here before the threshold was guarded)."""
     truth = MarkShape('circle', 200.4, 300.7, 3)
     image = render([truth], 640, 480, 1.0, 200.0, -150.0) + rng.normal(0, 7.5, (480, 640))
     mark = detect_marks(image, expected_count=1).marks[0]
