@@ -251,12 +251,15 @@ def _flatten(smoothed, tolerance):
     design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
     keep = np.ones(means.size, dtype=bool)
     for _ in range(TREND_ITERATIONS):
-        kept = design[keep]
-        coef = np.linalg.solve(kept.T @ kept, kept.T @ means[keep])
+        # lstsq, not the normal equations: the kept blocks may not pin every term.
+        coef = np.linalg.lstsq(design[keep], means[keep], rcond=None)[0]
         residual = means - design @ coef
         centre = np.median(residual[keep])
         spread = 1.4826 * np.median(np.abs(residual[keep] - centre))
-        keep = np.abs(residual - centre) < max(3 * spread, 1.0)
+        keep_next = np.abs(residual - centre) < max(3 * spread, 1.0)
+        if np.count_nonzero(keep_next) < 2 * design.shape[1]:
+            break
+        keep = keep_next
     # The surface is evaluated every SURFACE_STEP_PX px and interpolated up: cv2.resize
     # puts the coarse sample j at full-frame px SURFACE_STEP_PX * j + (SURFACE_STEP_PX - 1) / 2.
     step = SURFACE_STEP_PX
