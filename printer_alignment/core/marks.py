@@ -3,9 +3,9 @@
 Segmentation finds candidates: the frame is smoothed, a robust quadratic illumination
 surface is taken off, and the connected components below (above) a threshold are the
 dark (bright) candidates; the threshold is Otsu's unless that splits the background's
-noise. Each candidate is refined by fitting an intensity model to the raw pixels by Levenberg-Marquardt
-(circles: a small solver on the normal equations, for speed; crosses:
-scipy.optimize.least_squares). Under Gaussian noise that fit is the
+noise. Each candidate is refined by fitting an intensity model to the raw pixels by
+Levenberg-Marquardt (circles: a small solver on the normal equations, for speed;
+crosses: scipy.optimize.least_squares). Under Gaussian noise that fit is the
 maximum-likelihood estimate, which is what lets the centre error approach the Cramer-Rao
 bound. The covariance of the centre comes from the fit's Jacobian and residual variance.
 
@@ -52,8 +52,8 @@ class DetectorConfig:
     min_size_px, max_size_px : float
         Accepted circle radius / cross half-length, px.
     polarity : str
-        ``"dark"`` (Marks darker than background), ``"bright"`` or ``"auto"`` (the minority
-        class of the Otsu threshold).
+        ``"dark"`` (Marks darker than background), ``"bright"`` or ``"auto"`` (the class
+        with more Mark-shaped blobs; setting it saves that look, about 0.3 ms a frame).
     min_snr : float
         Minimum fitted contrast over the image noise sigma.
     border_margin_px : float
