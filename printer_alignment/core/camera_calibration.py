@@ -101,8 +101,16 @@ def calibrate_intrinsics(views: list[View], image_size: tuple[int, int],
                           [0, focal_px, (image_size[1] - 1) / 2], [0, 0, 1.0]])
         flags |= (cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_FOCAL_LENGTH
                   | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_K3)
-    rms, k, d, _, _, std_intr, _, per_view = cv2.calibrateCameraExtended(
-        objects, images, tuple(image_size), guess, None, flags=flags)
+    # With several threads OpenCV's reductions make the last digits depend on scheduling
+    # (k1 of the chessboard photos varied by 6e-10 between runs). On one thread a replay
+    # from a bag reproduces the live run exactly.
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        rms, k, d, _, _, std_intr, _, per_view = cv2.calibrateCameraExtended(
+            objects, images, tuple(image_size), guess, None, flags=flags)
+    finally:
+        cv2.setNumThreads(threads)
     fixed = {}
     if radial_only:
         fixed.update(dict.fromkeys(('p1', 'p2', 'k3'), 'radial k1, k2 only asked for'))
