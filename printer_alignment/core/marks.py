@@ -38,6 +38,12 @@ SURFACE_STEP_PX = 4
 SMOOTHING_NOISE_GAIN = 0.287
 # The threshold stays at least this many smoothed-noise sigma from the background.
 MIN_THRESHOLD_SIGMA = 5.0
+# A candidate blob's box: its half-size within these factors of the accepted Mark sizes
+# (the threshold makes blobs a little smaller or larger than the Mark), its sides within
+# this aspect ratio, and at least this share of it filled (a thin cross's least).
+SIZE_SLACK = (0.8, 1.2)
+MAX_ASPECT = 1.35
+MIN_FILL = 0.12
 # The darkest (brightest) level of a frame is the one with this many pixels beyond it:
 # fewer than the smallest Mark has, more than a hot pixel.
 EXTREME_PIXELS = 4
@@ -174,10 +180,10 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     for label in range(1, count):
         x0, y0, w, h, area = stats[label]
         half = max(w, h) / 2.0
-        if half < config.min_size_px * 0.8 or area < 4:
+        if half < config.min_size_px * SIZE_SLACK[0] or area < 4:
             continue  # noise speck
         where = f'near ({centroids[label][0]:.0f}, {centroids[label][1]:.0f}) px'
-        if half > config.max_size_px * 1.2:
+        if half > config.max_size_px * SIZE_SLACK[1]:
             rejected.append(f'too large ({half:.0f} px) {where}')
             continue
         if (x0 < config.border_margin_px or y0 < config.border_margin_px
@@ -187,9 +193,9 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             continue
         aspect = max(w, h) / max(min(w, h), 1)
         fill = area / float(w * h)
-        if aspect < 1.35 and fill > 0.62:
+        if aspect < MAX_ASPECT and fill > 0.62:
             kind = 'circle'
-        elif aspect < 1.35 and 0.12 < fill < 0.6:
+        elif aspect < MAX_ASPECT and MIN_FILL < fill < 0.6:
             kind = 'cross'
         else:
             rejected.append(f'ambiguous shape (aspect {aspect:.2f}, fill {fill:.2f}; '
@@ -286,21 +292,26 @@ def _segment(image, noise_scaled, config):
     flat = _flatten(cv2.GaussianBlur(scaled, (5, 5), 1.0), smoothed_noise)
     histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
     otsu = _otsu(histogram)
-    candidates = []
     polarities = ('dark', 'bright') if config.polarity == 'auto' else (config.polarity,)
-    for polarity in polarities:
-        # cv2.threshold floors the level on 8-bit frames and keeps src > level (src <= level
-        # inverted); the masks are flat < dark level and flat > bright level.
-        if polarity == 'dark':
-            level = np.ceil(_threshold(histogram, otsu, guard)) - 1
-            _, mask = cv2.threshold(flat, level, 1, cv2.THRESH_BINARY_INV)
-        else:
-            level = 255 - _threshold(histogram[::-1], 255 - otsu, guard)
-            _, mask = cv2.threshold(flat, level, 1, cv2.THRESH_BINARY)
-        candidates.append((_mark_shaped(mask, config) if len(polarities) > 1 else 0, polarity, mask))
-    _, polarity, mask = max(candidates, key=lambda c: c[0])
-    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    masks = {p: _mask(flat, histogram, otsu, guard, p) for p in polarities}
+    # Ties go to dark Marks, the first.
+    polarity = (max(polarities, key=lambda p: _mark_shaped(masks[p], config))
+                if len(polarities) > 1 else polarities[0])
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(masks[polarity],
+                                                                       connectivity=8)
     return polarity, count, labels, stats, centroids, flat
+
+
+def _mask(flat, histogram, otsu, guard, polarity):
+    """1 on the flattened frame's pixels of ``polarity`` Marks, else 0 (uint8).
+
+    cv2.threshold floors the level on 8-bit frames and keeps src > level (src <= level
+    inverted); the masks are flat < dark level and flat > bright level."""
+    if polarity == 'dark':
+        level = np.ceil(_threshold(histogram, otsu, guard)) - 1
+        return cv2.threshold(flat, level, 1, cv2.THRESH_BINARY_INV)[1]
+    level = 255 - _threshold(histogram[::-1], 255 - otsu, guard)
+    return cv2.threshold(flat, level, 1, cv2.THRESH_BINARY)[1]
 
 
 def _otsu(histogram) -> int:
@@ -350,8 +361,8 @@ def _mark_shaped(mask, config) -> int:
     half = np.maximum(w, h) / 2.0
     fill = area / (w * h)
     return int(np.count_nonzero(
-        (half >= 0.8 * config.min_size_px) & (half <= 1.2 * config.max_size_px)
-        & (np.maximum(w, h) < 1.35 * np.minimum(w, h)) & (fill > 0.12)))
+        (half >= SIZE_SLACK[0] * config.min_size_px) & (half <= SIZE_SLACK[1] * config.max_size_px)
+        & (np.maximum(w, h) < MAX_ASPECT * np.minimum(w, h)) & (fill > MIN_FILL)))
 
 
 def _depth(flat, x0, y0, w, h, polarity):
@@ -359,9 +370,13 @@ def _depth(flat, x0, y0, w, h, polarity):
     2 px ring around its box (smoothed, scaled units)."""
     r0, r1, c0, c1 = _window(flat.shape, x0, y0, w, h, 2)
     patch = flat[r0:r1, c0:c1]
-    ring = np.concatenate([patch[0], patch[-1], patch[:, 0], patch[:, -1]])
-    level = float(np.median(ring))
+    level = float(np.median(_border(patch)))
     return level - float(patch.min()) if polarity == 'dark' else float(patch.max()) - level
+
+
+def _border(patch):
+    """The outermost rows and columns of a 2-D patch, as one 1-D array."""
+    return np.concatenate([patch[0], patch[-1], patch[:, 0], patch[:, -1]])
 
 
 def _window(shape, x0, y0, w, h, pad):
@@ -523,8 +538,7 @@ def _fit_cross(pixels, x0, y0, component, area, polarity, noise, full) -> Mark:
     values, uu, vv = _patch(pixels, x0, y0, w, h, pad)
     u, v, z = uu.ravel(), vv.ravel(), values.ravel()
     _check_saturation(z, full)
-    border = np.concatenate([values[0], values[-1], values[:, 0], values[:, -1]])
-    background = float(np.median(border))
+    background = float(np.median(_border(values)))
     level = float(np.median(pixels[y0 + rows, x0 + cols]))
     x_init = np.array([cu0, cv0, angle0, half0, width0, 0.8, level - background, background])
 
