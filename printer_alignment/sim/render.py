@@ -18,9 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import ncx2
 
-from printer_alignment.core.mark_models import cross_coverage
-
-PIXEL_APERTURE_VARIANCE = 1.0 / 12.0  # px^2, variance of a unit box
+from printer_alignment.core.mark_models import cross_coverage, edge_sigma
 
 
 @dataclass(frozen=True)
@@ -49,14 +47,9 @@ class MarkShape:
     angle: float = 0.0
 
 
-def total_sigma(blur_sigma: float) -> float:
-    """Gaussian sigma (px) of optical blur and pixel aperture combined."""
-    return float(np.sqrt(blur_sigma ** 2 + PIXEL_APERTURE_VARIANCE))
-
-
 def coverage(mark: MarkShape, u: np.ndarray, v: np.ndarray, blur_sigma: float) -> np.ndarray:
     """Blurred coverage in [0, 1] of ``mark`` at pixel coordinates ``u``, ``v`` (any shape)."""
-    sigma = total_sigma(blur_sigma)
+    sigma = float(edge_sigma(blur_sigma))
     du = np.asarray(u, dtype=float) - mark.u
     dv = np.asarray(v, dtype=float) - mark.v
     if mark.kind == 'circle':
@@ -85,7 +78,7 @@ def render(marks: list[MarkShape], width: int, height: int, blur_sigma: float,
     vv, uu = np.mgrid[0:height, 0:width].astype(float)
     ideal_u, ideal_v = (uu, vv) if undistort is None else undistort(uu, vv)
     image = np.full((height, width), float(background))
-    sigma = total_sigma(blur_sigma)
+    sigma = float(edge_sigma(blur_sigma))
     for mark in marks:
         reach = mark.size + 6.0 * sigma + 2.0
         if undistort is None:
