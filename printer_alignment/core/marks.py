@@ -7,7 +7,8 @@ noise. Each candidate is refined by fitting an intensity model to the raw pixels
 Levenberg-Marquardt (circles: a small solver on the normal equations that fits all of a
 frame's circles at once, for speed; crosses: scipy.optimize.least_squares). Under
 Gaussian noise that fit is the maximum-likelihood estimate, which is what lets the centre
-error approach the Cramer-Rao bound. The covariance of the centre comes from the fit's Jacobian and residual variance.
+error approach the Cramer-Rao bound. The covariance of the centre comes from the fit's
+Jacobian and residual variance.
 
 Pixels follow OpenCV's convention: the centre of the top-left pixel is (0, 0).
 """
@@ -51,6 +52,7 @@ CROSS_MAX_EVALUATIONS = 40
 # over union): 0.84-0.99 on rendered crosses of 5-40 px at 5 % noise, at most 0.5 on the
 # touching dots of a random-dot photo, apart from a few tiny blobs.
 MIN_QUARTER_TURN_OVERLAP = 0.7
+DEGENERATE_FIT = 'degenerate fit: the pixels do not determine the centre'
 # A fit whose centre's 1-sigma uncertainty exceeds this share of the Mark's size has not
 # found the centre (a blob the model does not describe): the weakest Mark accepted, at
 # min_snr and the smallest size, is determined to a few hundredths of its size.
@@ -178,12 +180,14 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     full = _full_scale(image)
     if full is not None and high >= full and np.count_nonzero(image >= full) > image.size / 2:
         raise DetectionError('image is saturated: more than half of the pixels are at full scale')
+    if full is not None and high < full:
+        full = None  # nothing is clipped: no Mark needs the saturation check
     noise = max(estimate_noise(image), 1e-12 * max(abs(high), 1.0))
     if high - low < 2 * config.min_snr * noise or high == low:
         raise DetectionError('image has no contrast (empty or uniform): no Mark can be seen')
 
     noise_scaled = noise * 255.0 / (high - low)
-    polarity, count, labels, stats, centroids, flat = _segment(image, noise_scaled, config)
+    polarity, labels, boxes, seeds, flat = _segment(image, noise_scaled, config)
 
     height, width = image.shape
     marks: list[Mark] = []
@@ -202,12 +206,17 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         else:
             marks.append(mark)
 
-    for label in range(1, count):
-        x0, y0, w, h, area = stats[label]
+    for (x0, y0, w, h), (seed_u, seed_v) in zip(boxes, seeds):
         half = max(w, h) / 2.0
-        if half < config.min_size_px * SIZE_SLACK[0] or area < 4:
+        if half < config.min_size_px * SIZE_SLACK[0]:
             continue  # noise speck
-        where = f'near ({centroids[label][0]:.0f}, {centroids[label][1]:.0f}) px'
+        component = labels[y0:y0 + h, x0:x0 + w] == labels[seed_v, seed_u]
+        rows, cols = np.nonzero(component)
+        area = rows.size
+        if area < 4:
+            continue
+        centroid = (x0 + cols.mean(), y0 + rows.mean())
+        where = f'near ({centroid[0]:.0f}, {centroid[1]:.0f}) px'
         if half > config.max_size_px * SIZE_SLACK[1]:
             rejected.append(f'too large ({half:.0f} px) {where}')
             continue
@@ -234,10 +243,9 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             continue
         try:
             if kind == 'circle':
-                circles.append((_circle_start(image, x0, y0, w, h, area, centroids[label],
+                circles.append((_circle_start(image, x0, y0, w, h, area, centroid,
                                               polarity, full), where))
             else:
-                component = labels[y0:y0 + h, x0:x0 + w] == label
                 accept(_fit_cross(image, x0, y0, component, area, polarity, noise, full),
                        kind, where)
         except DetectionError as exc:
@@ -306,8 +314,11 @@ def _flatten(smoothed, tolerance):
 def _segment(image, noise_scaled, config):
     """Candidate Marks: the connected components of the thresholded, flattened frame.
 
-    Returns the polarity, ``cv2.connectedComponentsWithStats``'s count, labels, stats
-    and centroids, and the flattened frame (uint8). The threshold is Otsu's unless that
+    Returns the polarity; the labels of the Marks' mask (int32, 8-connected); each
+    blob's bounding box (k, 4: x, y, width, height, px) and one pixel of it (k, 2: u, v),
+    from its outer contour; and the flattened frame (uint8). Labels and contours cost a
+    fifth of connected components with statistics, which sum over every pixel of the
+    frame. The threshold is Otsu's unless that
     splits the background's noise (see _threshold). ``auto`` polarity takes the class
     with more Mark-shaped blobs: the minority class is not the Marks when a dense dot
     grid and a dark table fill most of a photo."""
@@ -319,12 +330,14 @@ def _segment(image, noise_scaled, config):
     otsu = _otsu(histogram)
     polarities = ('dark', 'bright') if config.polarity == 'auto' else (config.polarity,)
     masks = {p: _mask(flat, histogram, otsu, guard, p) for p in polarities}
+    blobs = {p: _blobs(masks[p]) for p in polarities}
     # Ties go to dark Marks, the first.
-    polarity = (max(polarities, key=lambda p: _mark_shaped(masks[p], config))
+    polarity = (max(polarities, key=lambda p: _mark_shaped(*blobs[p][:2], config))
                 if len(polarities) > 1 else polarities[0])
-    count, labels, stats, centroids = cv2.connectedComponentsWithStats(masks[polarity],
-                                                                       connectivity=8)
-    return polarity, count, labels, stats, centroids, flat
+    labels = cv2.connectedComponents(masks[polarity], connectivity=8)[1]
+    contours, boxes = blobs[polarity]
+    seeds = np.array([c[0, 0] for c in contours], dtype=int).reshape(-1, 2)
+    return polarity, labels, boxes, seeds, flat
 
 
 def _mask(flat, histogram, otsu, guard, polarity):
@@ -369,17 +382,21 @@ def _threshold(histogram, otsu, guard) -> float:
     return min(background - guard, (background + darkest) / 2)
 
 
-def _mark_shaped(mask, config) -> int:
-    """How many blobs of ``mask`` have a Mark's size, aspect and fill. From the blobs'
-    outer contours, which cost a tenth of connected components with statistics (with
-    RETR_CCOMP every blob's outer contour is at the top level, also a Mark's inside a
-    hole of another blob, as dots on a plate framed by a table)."""
+def _blobs(mask):
+    """The outer contours of a mask's blobs and their bounding boxes (k, 4: x, y, width,
+    height, px). With RETR_CCOMP every blob's outer contour is at the top level, also a
+    Mark's inside a hole of another blob, as dots on a plate framed by a table."""
     contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     contours = [c for c, link in zip(contours, hierarchy[0] if contours else []) if link[3] < 0]
+    return contours, np.array([cv2.boundingRect(c) for c in contours], dtype=int).reshape(-1, 4)
+
+
+def _mark_shaped(contours, boxes, config) -> int:
+    """How many of the blobs (outer contours and bounding boxes) have a Mark's size,
+    aspect and fill."""
     if not contours:
         return 0
-    boxes = np.array([cv2.boundingRect(c) for c in contours], dtype=float)
-    w, h = boxes[:, 2], boxes[:, 3]
+    w, h = boxes[:, 2].astype(float), boxes[:, 3].astype(float)
     # A contour's polygon runs through the boundary pixels' centres, so it encloses about
     # half a pixel less than the blob all round.
     area = np.array([cv2.contourArea(c) for c in contours]) + (w + h)
@@ -395,8 +412,15 @@ def _depth(flat, x0, y0, w, h, polarity):
     2 px ring around its box (smoothed, scaled units)."""
     r0, r1, c0, c1 = _window(flat.shape, x0, y0, w, h, 2)
     patch = flat[r0:r1, c0:c1]
-    level = float(np.median(_border(patch)))
+    level = _middle(_border(patch))
     return level - float(patch.min()) if polarity == 'dark' else float(patch.max()) - level
+
+
+def _middle(values) -> float:
+    """The median of a 1-D array of odd size; of even size, the upper of the two middle
+    values. For starting values and ring levels, at a tenth of np.median's call cost."""
+    middle = values.size // 2
+    return float(np.partition(values, middle)[middle])
 
 
 def _border(patch):
@@ -422,22 +446,24 @@ def _check_saturation(values, full):
         raise DetectionError('saturated Mark (clipped intensities bias the centre)')
 
 
-def _covariance(normal, residuals):
-    """Centre covariance (px^2) from the normal matrix J^T J (p, p) and the residuals.
-
-    Raises DetectionError when it is not a covariance (not finite, or not positive
-    definite): then the pixels did not determine the centre, whatever the fit says."""
-    dof = max(residuals.size - len(normal), 1)
-    sigma2 = float(residuals @ residuals) / dof
+def _covariances(normals, residual_variances):
+    """Centre covariances (k, 2, 2), px^2, from normal matrices J^T J (k, p, p) and the
+    fits' residual variances (k,), and which of them are covariances: finite and positive
+    definite. Where one is not, the pixels did not determine the centre, whatever the
+    fit says."""
     try:
-        inverse = np.linalg.inv(normal)
+        inverse = np.linalg.inv(normals)
     except np.linalg.LinAlgError:
-        inverse = np.linalg.pinv(normal)
+        inverse = np.linalg.pinv(normals)
     with np.errstate(over='ignore', invalid='ignore'):
-        covariance = inverse[:2, :2] * sigma2
-    if not (np.all(np.isfinite(covariance)) and np.linalg.eigvalsh(covariance)[0] > 0):
-        raise DetectionError('degenerate fit: the pixels do not determine the centre')
-    return covariance
+        covariances = inverse[:, :2, :2] * residual_variances[:, None, None]
+        uu, uv, vv = covariances[:, 0, 0], covariances[:, 0, 1], covariances[:, 1, 1]
+        valid = np.isfinite(covariances).all(axis=(1, 2)) & (uu > 0) & (uu * vv - uv * uv > 0)
+    return covariances, valid
+
+
+def _residual_variance(residuals, parameters):
+    return float(residuals @ residuals) / max(residuals.size - parameters, 1)
 
 
 def _levenberg_marquardt(model, observed, valid, x, tolerance, max_iterations=100):
@@ -484,8 +510,8 @@ def _levenberg_marquardt(model, observed, valid, x, tolerance, max_iterations=10
             residuals = values - observed[rows]
             residuals *= weight[rows]
             jac *= weight[rows, None, :]
-            return (residuals, jac @ jac.transpose(0, 2, 1),
-                    (jac @ residuals[..., None])[..., 0], np.einsum('mn,mn->m', residuals, residuals))
+            return (residuals, jac @ jac.transpose(0, 2, 1), (jac @ residuals[..., None])[..., 0],
+                    np.einsum('mn,mn->m', residuals, residuals))
 
     x = x.copy()
     residuals, normal, gradient, cost = evaluate(x, np.arange(len(x)))
@@ -579,8 +605,8 @@ def _circle_start(pixels, x0, y0, w, h, area, centroid, polarity, full) -> _Circ
     rho0 = np.hypot(u_part - cu0, v_part - cv0)
     in_mark = z_part[rho0 < radius0 - 1.5]
     outside = z_part[rho0 > radius0 + 1.5]
-    background = float(np.median(outside if outside.size else z_part))
-    level = (float(np.median(in_mark)) if in_mark.size
+    background = _middle(outside if outside.size else z_part)
+    level = (_middle(in_mark) if in_mark.size
              else float(z_part.min() if polarity == 'dark' else z_part.max()))
     if level == background:
         raise DetectionError('no contrast between the Mark and its surroundings')
@@ -640,7 +666,7 @@ def _fit_circle_group(starts: list[_CircleStart]) -> list[Mark | DetectionError]
     x, residuals, normals, converged = _levenberg_marquardt(
         lambda p, rows: circle_edge_model(p, u[rows], v[rows], reference[rows]),
         z, valid, x_init, tolerance)
-    results: list[Mark | DetectionError] = []
+    fits = []
     for k, start in enumerate(starts):
         ok, xk = bool(converged[k]), x[k]
         if start.one_step:
@@ -657,19 +683,22 @@ def _fit_circle_group(starts: list[_CircleStart]) -> list[Mark | DetectionError]
                 xk, residuals_k = xk + step, residuals_k + step @ jac_k
         else:
             residuals_k, normal = residuals[k, :start.z.size], normals[k]
+        fits.append((ok, xk, residuals_k, normal))
+    covariances, determined = _covariances(
+        np.array([normal for *_, normal in fits]),
+        np.array([_residual_variance(r, x.shape[1]) for _, _, r, _ in fits]))
+    results: list[Mark | DetectionError] = []
+    for k, (ok, xk, residuals_k, _) in enumerate(fits):
         cu, cv, radius, sigma, contrast = xk[:5]
         if (not ok or abs(sigma) > radius or radius <= 0
-                or np.hypot(cu - reference[k, 0], cv - reference[k, 1]) > 0.5 * start.radius0):
+                or np.hypot(cu - reference[k, 0], cv - reference[k, 1]) > 0.5 * starts[k].radius0):
             results.append(DetectionError('circle fit did not converge'))
-            continue
-        try:
-            covariance = _covariance(normal, residuals_k)
-        except DetectionError as exc:
-            results.append(exc)
-            continue
-        rms = float(np.sqrt(np.mean(residuals_k ** 2)))
-        results.append(Mark('circle', float(cu), float(cv), covariance, float(radius),
-                            float(contrast), float(np.clip(1 - rms / abs(contrast), 0, 1))))
+        elif not determined[k]:
+            results.append(DetectionError(DEGENERATE_FIT))
+        else:
+            rms = float(np.sqrt(np.mean(residuals_k ** 2)))
+            results.append(Mark('circle', float(cu), float(cv), covariances[k], float(radius),
+                                float(contrast), float(np.clip(1 - rms / abs(contrast), 0, 1))))
     return results
 
 
@@ -699,13 +728,14 @@ def _fit_cross(pixels, x0, y0, component, area, polarity, noise, full) -> Mark:
     values, uu, vv = _patch(pixels, x0, y0, w, h, pad)
     u, v, z = uu.ravel(), vv.ravel(), values.ravel()
     _check_saturation(z, full)
-    background = float(np.median(_border(values)))
-    level = float(np.median(pixels[y0 + rows, x0 + cols]))
+    background = _middle(_border(values))
+    level = _middle(pixels[y0 + rows, x0 + cols])
     x_init = np.array([cu0, cv0, angle0, half0, width0, 0.8, level - background, background])
 
     def residual(p):
         cu, cv, angle, half, width, sigma, contrast, bg = p
-        return bg + contrast * cross_coverage(u - cu, v - cv, angle, half, width, edge_sigma(sigma)) - z
+        cover = cross_coverage(u - cu, v - cv, angle, half, width, edge_sigma(sigma))
+        return bg + contrast * cover - z
 
     # A cross converges in 5-8 evaluations; a blob that is no cross (touching dots) can
     # wander for hundreds, at a few ms each.
@@ -714,6 +744,10 @@ def _fit_cross(pixels, x0, y0, component, area, polarity, noise, full) -> Mark:
     cu, cv, angle, half, width, sigma, contrast, _ = result.x
     if not result.success or half <= 0 or width <= 0 or np.hypot(cu - cu0, cv - cv0) > 0.5 * half0:
         raise DetectionError('cross fit did not converge')
+    covariance, determined = _covariances((result.jac.T @ result.jac)[None],
+                                          np.array([_residual_variance(result.fun, x_init.size)]))
+    if not determined[0]:
+        raise DetectionError(DEGENERATE_FIT)
     rms = float(np.sqrt(np.mean(result.fun ** 2)))
-    return Mark('cross', float(cu), float(cv), _covariance(result.jac.T @ result.jac, result.fun),
+    return Mark('cross', float(cu), float(cv), covariance[0],
                 float(half), float(contrast), float(np.clip(1 - rms / abs(contrast), 0, 1)))
