@@ -332,7 +332,7 @@ def _segment(image, noise_scaled, config):
     masks = {p: _mask(flat, histogram, otsu, guard, p) for p in polarities}
     blobs = {p: _blobs(masks[p]) for p in polarities}
     # Ties go to dark Marks, the first.
-    polarity = (max(polarities, key=lambda p: _mark_shaped(*blobs[p][:2], config))
+    polarity = (max(polarities, key=lambda p: _mark_shaped(*blobs[p], config))
                 if len(polarities) > 1 else polarities[0])
     labels = cv2.connectedComponents(masks[polarity], connectivity=8)[1]
     contours, boxes = blobs[polarity]
@@ -463,6 +463,7 @@ def _covariances(normals, residual_variances):
 
 
 def _residual_variance(residuals, parameters):
+    """Residual variance of a fit of ``parameters`` unknowns (image units^2)."""
     return float(residuals @ residuals) / max(residuals.size - parameters, 1)
 
 
@@ -570,8 +571,8 @@ class _CircleStart:
     u: np.ndarray
     v: np.ndarray
     z: np.ndarray
-    part: np.ndarray | slice  # the pixels of the first, rough fit (see _fit_circles)
-    x: np.ndarray  # (cu, cv, radius, sigma, contrast, background, grad_u, grad_v)
+    part: np.ndarray | slice  # the pixels of the first, rough fit (see _circle_start)
+    x: np.ndarray  # (cu, cv, radius, blur, contrast, background, grad_u, grad_v)
     radius0: float  # from the candidate's area, px
 
     @property
