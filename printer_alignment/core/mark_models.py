@@ -50,9 +50,8 @@ def circle_edge_model(params: np.ndarray, u: np.ndarray, v: np.ndarray, referenc
     ----------
     params : ndarray, shape (m, 8)
         Per Mark: centre cu, cv (px), radius (px), optical blur sigma (px; the pixel
-        aperture is added, see ``edge_sigma``), contrast and
-        background (intensity), and the relative illumination gradient grad_u, grad_v
-        (1/px).
+        aperture is added, see ``edge_sigma``), contrast and background (intensity),
+        and the relative illumination gradient grad_u, grad_v (1/px).
     u, v : ndarray, shape (m, n)
         Pixel coordinates, px.
     reference : ndarray, shape (m, 2)
