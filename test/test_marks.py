@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib_core.errors import DetectionError, InvalidInputError
-from printer_alignment.core.mark_models import circle_edge_model
+from printer_alignment.core.mark_models import dot_edge_model
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.sim.render import MarkShape, render
 
@@ -202,14 +202,14 @@ def test_circle_model_jacobian_matches_finite_differences(rng):
     u = rng.uniform(5, 65, (2, 400))
     v = rng.uniform(5, 35, (2, 400))
     reference = params[:, :2] + 0.5
-    _, jac = circle_edge_model(params, u, v, reference)
+    _, jac = dot_edge_model(params, u, v, reference)
     steps = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-5, 1e-5, 1e-9, 1e-9])
     for k, step in enumerate(steps):
         plus, minus = params.copy(), params.copy()
         plus[:, k] += step
         minus[:, k] -= step
-        numeric = (circle_edge_model(plus, u, v, reference)[0]
-                   - circle_edge_model(minus, u, v, reference)[0]) / (2 * step)
+        numeric = (dot_edge_model(plus, u, v, reference)[0]
+                   - dot_edge_model(minus, u, v, reference)[0]) / (2 * step)
         scale = np.max(np.abs(numeric), axis=1, keepdims=True)
         assert np.max(np.abs(jac[:, k] - numeric) / scale) < 1e-6, k
 
