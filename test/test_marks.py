@@ -7,7 +7,7 @@ import pytest
 from calib_core.errors import DetectionError, InvalidInputError
 from printer_alignment.core.mark_models import dot_edge_model
 from printer_alignment.core.marks import detect_marks
-from printer_alignment.sim.render import MarkShape, render
+from printer_alignment.sim.render import MarkShape, coverage, render
 
 
 def _frame(rng, kind, size, blur, noise_fraction, contrast=-150.0, n=1):
@@ -93,13 +93,13 @@ def test_falloff_without_marks_finds_nothing(rng):
 def test_dense_dot_grid_photos_on_a_dark_table(real_data):
     """336-dot hexagonal grid: dots and table fill most of each photo, so the minority
     class of the threshold is the paper (0-2 dots were found when polarity was chosen
-    that way). Nearly every dot must be found in each of the 7 photos (336/336/336/336/333/
-336/312 when this test was written), and nothing else."""
+    that way). Every dot must be found in each of the 7 photos, and nothing else (336/336/
+336/336/333/336/312 before the dots seen at an angle were fitted as ellipses)."""
     photos = sorted((real_data / 'boofcv_mono' / 'Sony_DSC-HX5V_CircleHexagonal').glob('*.jpg'))
     assert len(photos) == 7
     for photo in photos:
         marks = detect_marks(cv2.imread(str(photo), cv2.IMREAD_GRAYSCALE)).marks
-        assert 310 <= len(marks) <= 336, photo.name
+        assert len(marks) == 336, photo.name
         assert all(m.contrast < 0 for m in marks)
 
 
@@ -126,12 +126,16 @@ def test_real_photos_report_determined_centres(real_data):
 
 
 def test_regular_dot_grid_photos(real_data):
-    """80-dot grid photos, some at steep angles (dots become ellipses and are refused as
-    ambiguous): the counts found when this test was written were 68/79/80/80/53/80."""
+    """80-dot grid photos, some at steep angles, where the dots are ellipses of aspect up
+    to 1.7. Before they were fitted as ellipses they were refused as ambiguous (68/79/80/
+    80/53/80 found) or fitted as disks with a median quality of 0.83; now every dot is
+    found, and fitted to the JPEG's pixels about as well as the model allows."""
     photos = sorted((real_data / 'boofcv_mono' / 'Sony_DSC-HX5V_CircleRegular').glob('*.jpg'))
-    counts = [len(detect_marks(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)).marks) for p in photos]
-    assert len(counts) == 6 and min(counts) >= 50 and sum(counts) >= 430
-    assert max(counts) <= 80
+    assert len(photos) == 6
+    for photo in photos:
+        marks = detect_marks(cv2.imread(str(photo), cv2.IMREAD_GRAYSCALE)).marks
+        assert len(marks) == 80, photo.name
+        assert np.median([m.quality for m in marks]) > 0.93, photo.name
 
 
 def test_bright_marks_on_dark_background(rng):
@@ -193,18 +197,20 @@ def test_bad_arrays_are_refused():
         detect_marks(np.zeros((50, 50)), shape='square')
 
 
-def test_circle_model_jacobian_matches_finite_differences(rng):
+@pytest.mark.parametrize('shape', [(), (0.35, -0.2)], ids=['disk', 'ellipse'])
+def test_dot_model_jacobian_matches_finite_differences(rng, shape):
     """Two Marks evaluated as one stack, one of them nearly as sharp as a pixel sees
-    (blur 0.05 px) and lit unevenly: every analytic derivative within 1e-6 of the
-    central difference, relative to the column's size."""
-    params = np.array([[20.3, 19.8, 8.2, 0.05, -120.0, 190.0, 2e-3, -1e-3],
-                       [50.1, 20.4, 12.7, 1.3, 90.0, 60.0, -4e-3, 3e-3]])
+    (blur 0.05 px) and lit unevenly, as disks and as ellipses (aspect 1.5): every
+    analytic derivative within 1e-6 of the central difference, relative to the
+    column's size."""
+    params = np.array([[20.3, 19.8, 8.2, 0.05, -120.0, 190.0, 2e-3, -1e-3, *shape],
+                       [50.1, 20.4, 12.7, 1.3, 90.0, 60.0, -4e-3, 3e-3, *shape[::-1]]])
     u = rng.uniform(5, 65, (2, 400))
     v = rng.uniform(5, 35, (2, 400))
     reference = params[:, :2] + 0.5
     _, jac = dot_edge_model(params, u, v, reference)
-    steps = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-5, 1e-5, 1e-9, 1e-9])
-    for k, step in enumerate(steps):
+    steps = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-5, 1e-5, 1e-9, 1e-9, 1e-7, 1e-7])
+    for k, step in enumerate(steps[:params.shape[1]]):
         plus, minus = params.copy(), params.copy()
         plus[:, k] += step
         minus[:, k] -= step
@@ -240,3 +246,52 @@ def test_turned_crosses_in_noise_are_found(rng, size, width):
         image = render([truth], 640, 480, 1.0, 200.0, -150.0) + rng.normal(0, 7.5, (480, 640))
         mark, = detect_marks(image, shape='cross').marks
         assert np.hypot(mark.u - truth.u, mark.v - truth.v) < 0.1
+
+
+@pytest.mark.parametrize('size,blur', [(3.0, 0.3), (20.0, 1.5), (60.0, 0.5)])
+def test_ellipse_rendering_agrees_with_the_exact_disk(rng, size, blur):
+    """The simulator's ellipse quadrature, at aspect 1, against the disk's exact
+    non-central chi-square form: the truth of the ellipse tests below."""
+    u, v = rng.uniform(-size - 6, size + 6, (2, 5000))
+    disk = coverage(MarkShape('circle', 0.0, 0.0, size), u, v, blur)
+    quadrature = coverage(MarkShape('circle', 0.0, 0.0, size, aspect=1 + 1e-12), u, v, blur)
+    assert np.max(np.abs(quadrature - disk)) < 1e-5
+
+
+@pytest.mark.parametrize('size,aspect', [(4.0, 2.3), (8.0, 1.3), (10.0, 1.7), (25.0, 2.4)])
+def test_dots_seen_at_an_angle_are_fitted_as_ellipses(rng, size, aspect):
+    """Dots of a plate seen obliquely are ellipses, at every orientation; 2 % noise. The
+    centre (the ellipse's, which perspective moves off the dot's own by a known amount)
+    must be unbiased with its error explained by the reported covariance, and the size
+    must be the mean radius sqrt(A B), less the straight-edge model's curvature bias
+    sigma^2 / (2 R). Before, aspects over 1.35 were refused as ambiguous."""
+    errors, chi2 = [], []
+    for _ in range(4):
+        truth = [MarkShape('circle', 120 + 200 * (k % 3) + rng.uniform(-1, 1),
+                           100 + 140 * (k // 3) + rng.uniform(-1, 1), size,
+                           angle=rng.uniform(0, np.pi), aspect=aspect) for k in range(9)]
+        image = render(truth, 640, 480, 1.0, 200.0, -150.0) + rng.normal(0, 3.0, (480, 640))
+        marks = detect_marks(image, expected_count=9).marks
+        for mark in marks:
+            nearest = min(truth, key=lambda t: np.hypot(t.u - mark.u, t.v - mark.v))
+            error = np.array([mark.u - nearest.u, mark.v - nearest.v])
+            errors.append(error)
+            chi2.append(error @ np.linalg.solve(mark.covariance, error))
+            assert abs(mark.size - size) < 0.8 / size + 0.02
+    errors = np.array(errors)
+    rms = np.sqrt(np.mean(errors ** 2))
+    assert rms < 0.02
+    # Normalised by the reported covariance the squared errors average 2 (two axes).
+    assert 0.5 < np.mean(chi2) / 2 < 1.8
+    assert np.all(np.abs(errors.mean(axis=0)) < 3 * rms / np.sqrt(len(errors)) + 1e-3)
+
+
+def test_touching_ellipses_stay_ambiguous(rng):
+    """Two dots seen at an angle, touching side by side: the blob is elongated like one
+    ellipse (aspect about 1.3), but overlaps its moment ellipse by less than 0.9."""
+    marks = [MarkShape('circle', 300.0, 240.0, 12, angle=0.3 + np.pi / 2, aspect=1.5),
+             MarkShape('circle', 300.0 + 19 * np.cos(0.3), 240.0 + 19 * np.sin(0.3), 12,
+                       angle=0.3 + np.pi / 2, aspect=1.5)]
+    image = render(marks, 640, 480, 1.0, 200.0, -150.0) + rng.normal(0, 2, (480, 640))
+    with pytest.raises(DetectionError, match='ambiguous'):
+        detect_marks(image)

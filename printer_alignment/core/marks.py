@@ -5,7 +5,10 @@ surface is taken off, and the connected components below (above) a threshold are
 dark (bright) candidates; the threshold is Otsu's unless that splits the background's
 noise. Each candidate is refined by fitting an intensity model to the raw pixels by
 Levenberg-Marquardt (circles: a small solver on the normal equations that fits all of a
-frame's circles at once, for speed; crosses: scipy.optimize.least_squares). Under
+frame's circles at once, for speed; crosses: scipy.optimize.least_squares). A circular
+dot seen at an angle is an ellipse; a blob shaped like one (by its second moments) is
+fitted with the ellipse's two shape parameters added, and reported as a circle of its
+mean radius. Under
 Gaussian noise that fit is the maximum-likelihood estimate, which is what lets the centre
 error approach the Cramer-Rao bound. The covariance of the centre comes from the fit's
 Jacobian and residual variance.
@@ -239,6 +242,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             continue
         aspect = max(w, h) / max(min(w, h), 1)
         fill = area / float(w * h)
+        # Disks (fill > 0.62) always have their moments: ELLIPSE_MIN_FILL is 0.49.
         ellipse = _moment_shape(rows, cols) if fill > ELLIPSE_MIN_FILL else None
         if fill > 0.62 and aspect < MAX_ASPECT and ellipse.aspect < ELLIPSE_ABOVE_ASPECT:
             kind, ellipse = 'circle', None

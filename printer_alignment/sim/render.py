@@ -8,6 +8,10 @@ shows on these images is the detector's. Pixel centres are at integer coordinate
 
 - circle of radius R: intensity at distance rho is P(|X| <= R), X ~ N((rho, 0), s^2 I), the
   non-central chi-square CDF with 2 degrees of freedom (scipy.stats.ncx2), exact.
+- ellipse (a circular dot seen at an angle) of semi-axes A, B: P(X in ellipse) as a 1-D
+  integral over the ellipse's chords, by Gauss-Legendre quadrature. At A = B it agrees with
+  the circle's exact form to 2e-6 of the contrast (radius 3-80 px, blur 0-1.5 px); the
+  quadrature is point-symmetric about the centre, so its error does not move the centre.
 - cross of half-length L and bar width w at angle theta: the union of two bars, rendered as
   bar1 + bar2 - overlap, each a separable product of erf differences, exact.
 """
@@ -16,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import erf
 from scipy.stats import ncx2
 
 from printer_alignment.core.mark_models import cross_coverage, edge_sigma
@@ -32,11 +37,13 @@ class MarkShape:
     u, v : float
         Centre, px.
     size : float
-        Circle radius or cross half-length, px.
+        Circle radius (an ellipse's mean radius, sqrt(A B)) or cross half-length, px.
     width : float
         Cross bar width, px (ignored for circles).
     angle : float
-        Cross rotation, rad (ignored for circles).
+        Cross rotation, or the direction of an ellipse's major axis, rad.
+    aspect : float
+        A circle's axis ratio A / B >= 1: above 1, the ellipse of a dot seen at an angle.
     """
 
     kind: str
@@ -45,6 +52,7 @@ class MarkShape:
     size: float
     width: float = 0.0
     angle: float = 0.0
+    aspect: float = 1.0
 
 
 def coverage(mark: MarkShape, u: np.ndarray, v: np.ndarray, blur_sigma: float) -> np.ndarray:
@@ -52,12 +60,45 @@ def coverage(mark: MarkShape, u: np.ndarray, v: np.ndarray, blur_sigma: float) -
     sigma = float(edge_sigma(blur_sigma))
     du = np.asarray(u, dtype=float) - mark.u
     dv = np.asarray(v, dtype=float) - mark.v
+    if mark.kind == 'circle' and mark.aspect != 1.0:
+        c, s = np.cos(mark.angle), np.sin(mark.angle)
+        root = np.sqrt(mark.aspect)
+        return ellipse_coverage(c * du + s * dv, -s * du + c * dv, mark.size * root,
+                                mark.size / root, sigma)
     if mark.kind == 'circle':
         rho2 = (du ** 2 + dv ** 2) / sigma ** 2
         return ncx2.cdf((mark.size / sigma) ** 2, 2, rho2)
     if mark.kind == 'cross':
         return cross_coverage(du, dv, mark.angle, mark.size, mark.width, sigma)
     raise ValueError(f'unknown Mark kind {mark.kind!r}; use "circle" or "cross"')
+
+
+# Gauss-Legendre nodes over each pixel's chords (see ellipse_coverage).
+_CHORD_NODES = np.polynomial.legendre.leggauss(96)
+
+
+def ellipse_coverage(x: np.ndarray, y: np.ndarray, major: float, minor: float,
+                     sigma: float) -> np.ndarray:
+    """P(p + X in ellipse), X ~ N(0, sigma^2 I): the coverage of the ellipse of semi-axes
+    ``major`` along x and ``minor`` along y (px), centred at 0, blurred by an isotropic
+    Gaussian of ``sigma`` (px), at points ``(x, y)`` (px, any shape).
+
+    Integrated over the ellipse's chords at heights t = minor sin(theta), where the
+    chord is |x| <= major cos(theta) and the Gaussian in x integrates exactly to erfs;
+    only heights within 8 sigma of y carry weight. The sharpest feature in theta is a
+    chord's end passing x near the poles, sigma / major wide; 96 nodes hold the error
+    to 2e-6 (see the module docstring)."""
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    nodes, weights = _CHORD_NODES
+    low = np.arcsin(np.clip((y - 8 * sigma) / minor, -1, 1))[..., None]
+    high = np.arcsin(np.clip((y + 8 * sigma) / minor, -1, 1))[..., None]
+    theta = low + (high - low) * (nodes + 1) / 2
+    height, half_chord = minor * np.sin(theta), major * np.cos(theta)
+    k = 1.0 / (np.sqrt(2.0) * sigma)
+    across = 0.5 * (erf((half_chord - x[..., None]) * k) + erf((half_chord + x[..., None]) * k))
+    along = np.exp(-0.5 * ((height - y[..., None]) / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma)
+    # dt = minor cos(theta) dtheta, and the nodes span theta's interval of width high - low.
+    return np.sum(weights * across * along * minor * np.cos(theta), axis=-1) * (high - low)[..., 0] / 2
 
 
 def render(marks: list[MarkShape], width: int, height: int, blur_sigma: float,
@@ -80,7 +121,8 @@ def render(marks: list[MarkShape], width: int, height: int, blur_sigma: float,
     image = np.full((height, width), float(background))
     sigma = float(edge_sigma(blur_sigma))
     for mark in marks:
-        reach = mark.size + 6.0 * sigma + 2.0
+        # An ellipse reaches out to its major semi-axis.
+        reach = mark.size * np.sqrt(mark.aspect) + 6.0 * sigma + 2.0
         if undistort is None:
             rows = slice(max(int(mark.v - reach), 0), max(int(mark.v + reach) + 2, 0))
             cols = slice(max(int(mark.u - reach), 0), max(int(mark.u + reach) + 2, 0))
