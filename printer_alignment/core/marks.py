@@ -226,11 +226,11 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         if half < config.min_size_px * SIZE_SLACK[0]:
             continue  # noise speck
         component = labels[y0:y0 + h, x0:x0 + w] == labels[seed_v, seed_u]
-        rows, cols = np.nonzero(component)
-        area = rows.size
+        moments = _moment_shape(component)
+        area = moments.area
         if area < 4:
             continue
-        centroid = (x0 + cols.mean(), y0 + rows.mean())
+        centroid = (x0 + moments.cu, y0 + moments.cv)
         where = f'near ({centroid[0]:.0f}, {centroid[1]:.0f}) px'
         if half > config.max_size_px * SIZE_SLACK[1]:
             rejected.append(f'too large ({half:.0f} px) {where}')
@@ -242,13 +242,12 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             continue
         aspect = max(w, h) / max(min(w, h), 1)
         fill = area / float(w * h)
-        # Disks (fill > 0.62) always have their moments: ELLIPSE_MIN_FILL is 0.49.
-        ellipse = _moment_shape(rows, cols) if fill > ELLIPSE_MIN_FILL else None
-        if fill > 0.62 and aspect < MAX_ASPECT and ellipse.aspect < ELLIPSE_ABOVE_ASPECT:
-            kind, ellipse = 'circle', None
-        elif (ellipse is not None and ellipse.aspect <= MAX_ELLIPSE_ASPECT
-              and ellipse.overlap(component, rows, cols) >= MIN_ELLIPSE_OVERLAP):
+        ellipse = None
+        if fill > 0.62 and aspect < MAX_ASPECT and moments.aspect < ELLIPSE_ABOVE_ASPECT:
             kind = 'circle'
+        elif (fill > ELLIPSE_MIN_FILL and moments.aspect <= MAX_ELLIPSE_ASPECT
+              and moments.overlap(component) >= MIN_ELLIPSE_OVERLAP):
+            kind, ellipse = 'circle', moments
         elif aspect < MAX_ASPECT and MIN_FILL < fill < 0.6:
             kind = 'cross'
         else:
@@ -429,10 +428,13 @@ def _mark_shaped(contours, boxes, config) -> int:
 
 @dataclass(frozen=True)
 class _MomentShape:
-    """A blob's second central moments (px^2, with the pixel's own 1/12 px^2 added), seen
-    as the ellipse of the same moments: ``{d : d^T C^-1 d <= 4}``, which is the blob
-    itself for a filled ellipse."""
+    """A blob's area (px^2), centroid (px, in its box) and second central moments (px^2,
+    with the pixel's own 1/12 px^2 added), seen as the ellipse of the same moments:
+    ``{d : d^T C^-1 d <= 4}``, which is the blob itself for a filled ellipse."""
 
+    area: float
+    cu: float
+    cv: float
     uu: float
     uv: float
     vv: float
@@ -453,25 +455,29 @@ class _MomentShape:
         """(a, b) of dot_edge_model: its P is C^-1 scaled to a trace of 2."""
         return ((self.vv - self.uu) / (self.uu + self.vv), -2 * self.uv / (self.uu + self.vv))
 
-    def overlap(self, component, rows, cols) -> float:
-        """Intersection over union of the blob (``component``, a boolean box; ``rows``,
-        ``cols`` its pixels) and its moment ellipse."""
+    def overlap(self, component) -> float:
+        """Intersection over union of the blob (``component``, its boolean box) and its
+        moment ellipse."""
         h, w = component.shape
-        dv = np.arange(-1, h + 1) - rows.mean()
-        du = np.arange(-1, w + 1) - cols.mean()
+        dv = np.arange(-1, h + 1) - self.cv
+        du = np.arange(-1, w + 1) - self.cu
         det = self.uu * self.vv - self.uv * self.uv
         form = (np.add.outer(self.uu * dv * dv, self.vv * du * du)
                 - 2 * self.uv * np.outer(dv, du)) / det
         inside = form <= 4.0
         common = np.count_nonzero(inside[1:-1, 1:-1] & component)
-        return common / (np.count_nonzero(inside) + rows.size - common)
+        return common / (np.count_nonzero(inside) + self.area - common)
 
 
-def _moment_shape(rows, cols) -> _MomentShape:
-    du, dv = cols - cols.mean(), rows - rows.mean()
+def _moment_shape(component) -> _MomentShape:
+    """The moments of a blob, ``component`` its boolean box (C-contiguous)."""
+    m = cv2.moments(component.view(np.uint8), binaryImage=True)
+    area = m['m00']
+    if area == 0:
+        return _MomentShape(0.0, 0.0, 0.0, 1.0, 0.0, 1.0)
     pixel = 1.0 / 12.0
-    return _MomentShape(float(du @ du) / du.size + pixel, float(du @ dv) / du.size,
-                        float(dv @ dv) / du.size + pixel)
+    return _MomentShape(area, m['m10'] / area, m['m01'] / area, m['mu20'] / area + pixel,
+                        m['mu11'] / area, m['mu02'] / area + pixel)
 
 
 def _depth(flat, x0, y0, w, h, polarity):
@@ -664,11 +670,23 @@ def _circle_start(pixels, x0, y0, w, h, area, centroid, polarity, full,
     pad = int(np.ceil(4 + 0.15 * semi_axes[1]))
     r0, r1, c0, c1 = _window(pixels.shape, x0, y0, w, h, pad)
     cu0, cv0 = centroid
-    # The centre is in the edge; the flat interior adds nothing but time.
-    distance = _edge_distance(np.arange(c0, c1)[None, :] - cu0, np.arange(r0, r1)[:, None] - cv0,
-                              radius0 * scale, shape)
-    rows, cols = np.nonzero(np.abs(distance) < EDGE_BAND_PX)
-    distance = distance[rows, cols]
+    # The centre is in the edge; the flat interior adds nothing but time. The norm's
+    # gradient is between sqrt(1 - e) and sqrt(1 + e) long, which bounds the band in
+    # squared norms, so that the distance is taken only near the edge.
+    du, dv = np.arange(c0, c1) - cu0, np.arange(r0, r1) - cv0
+    a, b = shape
+    norm2 = np.add.outer((1 - a) * dv * dv, (1 + a) * du * du)
+    if b:
+        norm2 += 2 * b * np.outer(dv, du)
+    radius, reach = radius0 * scale, EDGE_BAND_PX * np.sqrt(1 + e)
+    inner = (radius - reach) ** 2 if radius > reach else -1.0
+    rows, cols = np.nonzero((norm2 > inner) & (norm2 < (radius + reach) ** 2))
+    if ellipse is None:
+        distance = np.sqrt(norm2[rows, cols]) - radius
+    else:
+        distance = _edge_distance(du[cols], dv[rows], radius, shape)
+        band = np.abs(distance) < EDGE_BAND_PX
+        rows, cols, distance = rows[band], cols[band], distance[band]
     rows += r0
     cols += c0
     u, v = cols.astype(np.float64), rows.astype(np.float64)
