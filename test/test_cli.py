@@ -80,3 +80,20 @@ def test_csv_with_nan_or_text_is_refused(tmp_path):
     text.write_text('command,measured\n0.0,abc\n')
     with pytest.raises(InvalidInputError, match='not a number'):
         read_columns(text, ['command', 'measured'])
+
+
+def test_camera_calibration_on_real_circle_grid_photos(real_data, tmp_path):
+    """The 10 x 8 dot grid photos. findCirclesGrid on the photos themselves found the
+    grid in 4 of the 6 (not in the two steepest); on our Marks it is found in all."""
+    photos = sorted((real_data / 'boofcv_mono' / 'Sony_DSC-HX5V_CircleRegular').glob('*.jpg'))
+    out = tmp_path / 'camera.json'
+    assert cli_main(['calibrate', 'camera', '--images', *map(str, photos), '--target',
+                     'circles', '--cols', '10', '--rows', '8', '--spacing', '0.025',
+                     '--json', str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report['num_views'] == len(photos) == 6
+    # The printed paper is not flat: residuals up to 1 px that jump from dot to dot,
+    # in ours and in OpenCV's own centres alike (they agree to 0.05 px RMS).
+    assert report['rms_reprojection_px'] < 0.55
+    # The camera's widest zoom: 71.5 degrees across 640 px.
+    assert report['parameters']['fx'] == pytest.approx(445, abs=20)

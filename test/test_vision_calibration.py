@@ -141,3 +141,45 @@ def test_dot_grid_view_refuses_a_wrong_pitch():
         dot_grid_view(dots, 0.5e-3, 60.0)
     with pytest.raises(CalibrationError, match='at least 6'):
         dot_grid_view(dots[:4], 0.5e-3, 40.0)
+
+
+def _tilted_grid(rng, tilt_rad, cols=10, rows=8, pitch=0.025, dot_radius=0.0075):
+    """A 10 x 8 dot grid seen through a homography (the plate turned by ``tilt_rad`` about
+    its x axis): each dot rendered as the ellipse the homography's local affine map
+    makes of it. Returns the image and the ellipse centres (px) in target_points order."""
+    from printer_alignment.core.camera_calibration import target_points
+    from printer_alignment.sim.render import MarkShape, render
+    model = target_points('circles', cols, rows, pitch) - [pitch * (cols - 1) / 2, pitch * (rows - 1) / 2]
+    focal, distance = 500.0, 0.45
+    c, s = np.cos(tilt_rad), np.sin(tilt_rad)
+
+    def project(xy):
+        x, y = xy[..., 0], xy[..., 1]
+        depth = distance + s * y
+        return np.stack([320 + focal * x / depth, 240 + focal * c * y / depth], -1)
+
+    centres = project(model)
+    marks = []
+    for point, centre in zip(model, centres):
+        step = 1e-6
+        jac = np.column_stack([(project(point + [step, 0]) - project(point - [step, 0])),
+                               (project(point + [0, step]) - project(point - [0, step]))]) / (2 * step)
+        axes, vectors = np.linalg.svd(jac * dot_radius)[0:2]
+        marks.append(MarkShape('circle', *centre, float(np.sqrt(vectors[0] * vectors[1])),
+                               angle=float(np.arctan2(axes[1, 0], axes[0, 0])),
+                               aspect=float(vectors[0] / vectors[1])))
+    image = render(marks, 640, 480, 0.8, 200.0, -150.0) + rng.normal(0, 2.0, (480, 640))
+    return image, np.array([(m.u, m.v) for m in marks])
+
+
+@pytest.mark.parametrize('tilt_deg', [0.0, 50.0])
+def test_circle_grid_points_are_our_marks_in_grid_order(rng, tilt_deg):
+    """find_target on a circle grid returns our detector's centres (ellipses on the
+    tilted plate, up to aspect 1.6 here) in OpenCV's grid order: every point within
+    0.03 px of its dot, in target_points order (or turned by 180 degrees, which a
+    symmetric grid cannot tell apart)."""
+    from printer_alignment.core.camera_calibration import find_target
+    image, truth = _tilted_grid(rng, np.radians(tilt_deg))
+    points = find_target(image, 'circles', 10, 8)
+    errors = min((points - truth, points - truth[::-1]), key=lambda e: np.abs(e).max())
+    assert np.abs(errors).max() < 0.03

@@ -11,6 +11,7 @@ import yaml
 
 from calib_core.datasets import read_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
+from printer_alignment.core.marks import detect_marks
 
 INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3')
 
@@ -252,7 +253,8 @@ def find_target(image: np.ndarray, kind: str, cols: int, rows: int) -> np.ndarra
     """Pixels (px, (n, 2)) of the target's points in a grey image.
 
     ``kind``: ``chessboard`` (inner corners, refined by cornerSubPix), ``circles``
-    (symmetric grid) or ``acircles`` (asymmetric grid). Raises DetectionError if not found."""
+    (symmetric grid) or ``acircles`` (asymmetric grid; both: the centres of our
+    detector's Marks, see _circle_grid). Raises DetectionError if not found."""
     if kind == 'chessboard':
         found, corners = cv2.findChessboardCorners(
             image, (cols, rows), cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
@@ -260,13 +262,45 @@ def find_target(image: np.ndarray, kind: str, cols: int, rows: int) -> np.ndarra
             corners = cv2.cornerSubPix(image, corners, (5, 5), (-1, -1),
                                        (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3))
     elif kind in ('circles', 'acircles'):
-        flag = cv2.CALIB_CB_SYMMETRIC_GRID if kind == 'circles' else cv2.CALIB_CB_ASYMMETRIC_GRID
-        found, corners = cv2.findCirclesGrid(image, (cols, rows), flags=flag)
+        return _circle_grid(image, kind, cols, rows)
     else:
         raise InvalidInputError(f'unknown target {kind!r}; use chessboard, circles or acircles')
     if not found:
         raise DetectionError(f'{kind} {cols}x{rows} not found in the image')
     return corners.reshape(-1, 2).astype(float)
+
+
+def _circle_grid(image, kind, cols, rows):
+    """A circle grid's dot centres from our Mark detector (sub-pixel, ellipses where the
+    plate is tilted), put in OpenCV's grid order.
+
+    findCirclesGrid orders what its blob detector finds, and on the photos it takes
+    centroids of thresholded blobs, and misses grids seen steeply (2 of the 6 regular-grid
+    photos). Here it orders a clean drawing of our Marks alone, first with its grid
+    search, then with its clustering (which copes with strong perspective), and each
+    grid point is the Mark drawn there."""
+    marks = detect_marks(image, shape='circle').marks
+    centres = np.array([(m.u, m.v) for m in marks])
+    # 4 fractional bits: cv2.circle draws at 1/16 px.
+    clean = np.full(image.shape[:2], 255, np.uint8)
+    for mark in marks:
+        cv2.circle(clean, (int(round(mark.u * 16)), int(round(mark.v * 16))),
+                   int(round(np.clip(mark.size, 4.0, 40.0) * 16)), 0, -1, cv2.LINE_AA, 4)
+    grid = cv2.CALIB_CB_SYMMETRIC_GRID if kind == 'circles' else cv2.CALIB_CB_ASYMMETRIC_GRID
+    for flags in (grid, grid | cv2.CALIB_CB_CLUSTERING):
+        found, corners = cv2.findCirclesGrid(clean, (cols, rows), flags=flags)
+        if found:
+            break
+    else:
+        raise DetectionError(f'{kind} {cols}x{rows} not found among the {len(marks)} dots')
+    corners = corners.reshape(-1, 2)
+    distances = np.linalg.norm(corners[:, None, :] - centres[None], axis=2)
+    nearest = distances.argmin(axis=1)
+    # Each grid point is a drawn disk's centre, found again within a pixel.
+    if (np.unique(nearest).size != nearest.size
+            or distances[np.arange(nearest.size), nearest].max() > 1.0):
+        raise DetectionError(f'{kind} {cols}x{rows}: the grid found does not match the dots')
+    return centres[nearest]
 
 
 def read_images(paths: list, measure):
