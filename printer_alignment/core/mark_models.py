@@ -36,6 +36,23 @@ def cross_coverage(du: np.ndarray, dv: np.ndarray, angle: float, half_length: fl
     return long_x * thin_y + thin_x * long_y - thin_x * thin_y
 
 
+def _ellipse_norm(du, dv, a, b):
+    """``P d`` (two arrays), the norm ``n = sqrt(d^T P d)`` and ``W = |P d| = n |grad n|``
+    at offsets ``d = (du, dv)`` (px) for ``P = [[1 + a, b], [b, 1 - a]]``; n and W are
+    held off zero, so that at the centre the distance below is -radius."""
+    w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
+    norm = np.sqrt(np.maximum(du * w_u + dv * w_v, 1e-18))
+    slope_norm = np.sqrt(np.maximum(w_u * w_u + w_v * w_v, 1e-18))
+    return w_u, w_v, norm, slope_norm
+
+
+def ellipse_edge_distance(du, dv, radius, shape):
+    """Sampson's distance (px, negative inside) from the edge of dot_edge_model's ellipse
+    of ``radius`` (px) and ``shape`` (a, b), centred at 0, at offsets ``du``, ``dv`` (px)."""
+    _, _, norm, slope_norm = _ellipse_norm(du, dv, *shape)
+    return (norm - radius) * norm / slope_norm
+
+
 def dot_edge_model(params: np.ndarray, u: np.ndarray, v: np.ndarray, reference: np.ndarray):
     """Blurred disks or ellipses with a straight-edge (erfc) profile, lit by a linear
     illumination gradient; a stack of independent Marks, evaluated at once.
@@ -86,9 +103,7 @@ def dot_edge_model(params: np.ndarray, u: np.ndarray, v: np.ndarray, reference: 
         jac[:, 2] = 1.0
     else:
         a, b = params[:, 8, None], params[:, 9, None]
-        w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv  # P d
-        norm = np.sqrt(np.maximum(du * w_u + dv * w_v, 1e-18))
-        slope_norm = np.sqrt(np.maximum(w_u * w_u + w_v * w_v, 1e-18))  # n |grad n|
+        w_u, w_v, norm, slope_norm = _ellipse_norm(du, dv, a, b)
         distance = (norm - radius) * norm / slope_norm
         # d distance = ((2 n - radius) dn - n d radius) / W - distance dW / W, with W the
         # slope_norm; dn and dW by each parameter from n^2 = d^T P d and W^2 = |P d|^2.

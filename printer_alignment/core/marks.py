@@ -25,7 +25,8 @@ from scipy.optimize import least_squares
 
 from calib_core.errors import DetectionError, InvalidInputError
 from printer_alignment.core.mark_models import (PIXEL_APERTURE_VARIANCE, cross_coverage,
-                                                dot_edge_model, edge_sigma)
+                                                dot_edge_model, edge_sigma,
+                                                ellipse_edge_distance)
 
 SHAPES = ('circle', 'cross')
 # Half-width of the ring of pixels around a circle's edge used by the fit, px: covers the
@@ -474,11 +475,10 @@ class _MomentShape:
 
 
 def _moment_shape(component) -> _MomentShape:
-    """The moments of a blob, ``component`` its boolean box (C-contiguous)."""
+    """The moments of a blob, ``component`` its boolean box (C-contiguous). It holds at
+    least its seed, a pixel of the blob's contour."""
     m = cv2.moments(component.view(np.uint8), binaryImage=True)
     area = m['m00']
-    if area == 0:
-        return _MomentShape(0.0, 0.0, 0.0, 1.0, 0.0, 1.0)
     pixel = 1.0 / 12.0
     return _MomentShape(area, m['m10'] / area, m['m01'] / area, m['mu20'] / area + pixel,
                         m['mu11'] / area, m['mu02'] / area + pixel)
@@ -660,7 +660,7 @@ class _CircleStart:
 
 
 def _circle_start(pixels, x0, y0, w, h, area, centroid, polarity, full,
-                  ellipse: _MomentShape | None = None, segmentation=None) -> _CircleStart:
+                  ellipse: _MomentShape | None, segmentation) -> _CircleStart:
     """The edge band and starting parameters of a dot of ``area`` px whose blob has its
     box at x0, y0, w, h and its centroid at ``centroid`` (px); a disk, or with
     ``ellipse`` the ellipse of those moments. ``segmentation``: the frame's labels and
@@ -689,17 +689,15 @@ def _circle_start(pixels, x0, y0, w, h, area, centroid, polarity, full,
     if ellipse is None:
         distance = np.sqrt(norm2[rows, cols]) - radius
     else:
-        distance = _edge_distance(du[cols], dv[rows], radius, shape)
+        distance = ellipse_edge_distance(du[cols], dv[rows], radius, shape)
         band = np.abs(distance) < EDGE_BAND_PX
         rows, cols, distance = rows[band], cols[band], distance[band]
-    if segmentation is not None:
-        clear = _clear_of_neighbours(segmentation, r0, r1, c0, c1)
-        if clear is not None:
-            keep = clear[rows, cols]
-            if np.count_nonzero(keep) < MIN_BAND_PX:
-                raise DetectionError('crowded: other blobs are nearer than it to most of '
-                                     'its edge')
-            rows, cols, distance = rows[keep], cols[keep], distance[keep]
+    clear = _clear_of_neighbours(segmentation, r0, r1, c0, c1)
+    if clear is not None:
+        keep = clear[rows, cols]
+        if np.count_nonzero(keep) < MIN_BAND_PX:
+            raise DetectionError('crowded: other blobs are nearer than it to most of its edge')
+        rows, cols, distance = rows[keep], cols[keep], distance[keep]
     rows += r0
     cols += c0
     u, v = cols.astype(np.float64), rows.astype(np.float64)
@@ -754,18 +752,6 @@ def _clear_of_neighbours(segmentation, r0, r1, c0, c1):
     to_others = cv2.distanceTransform((~others).view(np.uint8), cv2.DIST_L2,
                                       cv2.DIST_MASK_PRECISE)
     return to_own <= to_others
-
-
-def _edge_distance(du, dv, radius, shape):
-    """Distance (px, negative inside) from the edge of the ellipse of dot_edge_model's
-    ``radius`` (px) and ``shape`` (a, b) centred at 0, at offsets ``du``, ``dv`` (px)."""
-    a, b = shape
-    w_u, w_v = (1 + a) * du + b * dv, b * du + (1 - a) * dv
-    norm = np.sqrt(du * w_u + dv * w_v)
-    # The norm's gradient has no direction at the centre; there any length will do.
-    with np.errstate(divide='ignore', invalid='ignore'):
-        gradient = np.where(norm > 1e-9, np.hypot(w_u, w_v) / norm, 1.0)
-    return (norm - radius) / gradient
 
 
 def _stack(arrays):
