@@ -20,13 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.polynomial import legendre
 from scipy import stats
 from scipy.optimize import least_squares
-from scipy.signal import lombscargle
 
-from calib_core.effects import LIBRARY
+from calib_core.effects import CATEGORICAL_COVARIATES, LIBRARY
 from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.loop_structure import structure_tests
 from calib_core.parameters import ParameterSet
 
 
@@ -44,6 +43,7 @@ class MachineModel:
     unit = 'm'
     channels: tuple = ()
     candidates: tuple = ()
+    min_effect = 50e-9   # smallest effect worth adding, RMS in the residuals' unit
 
     def __len__(self) -> int:
         raise NotImplementedError
@@ -81,20 +81,31 @@ class MachineModel:
         return None
 
 
-SCALAR_COVARIATES = ('time', 'temperature')
+SCALAR_COVARIATES = ('time', 'temperature', 'sequence') + CATEGORICAL_COVARIATES
+
+
+def _is_reference(key: str) -> bool:
+    """Context entries that are one value for the whole dataset, not a column."""
+    return key.endswith(('_ref', '_start'))
 
 
 def scalar_covariates(covariates: dict) -> dict:
-    """The time (s) and temperature (K) columns of a dataset, with their means as the
-    reference values the drift effects use (``time_ref``, ``temperature_ref``)."""
+    """The per-row covariates of a dataset the effects use: time (s), temperature (K),
+    sequence (approach number, 0 first) and the categorical columns (block, setup, run,
+    cycle), with the reference values the effects need: the means of time and temperature
+    (``time_ref``, ``temperature_ref``) and the starts of time and sequence
+    (``time_start``, ``sequence_start``), all over every row of the dataset."""
     out = {k: np.asarray(covariates[k], float) for k in SCALAR_COVARIATES if k in covariates}
-    out.update({f'{k}_ref': float(np.mean(v)) for k, v in list(out.items())})
+    references = {f'{k}_ref': float(np.mean(out[k])) for k in ('time', 'temperature') if k in out}
+    references.update({f'{k}_start': float(np.min(out[k])) for k in ('time', 'sequence')
+                       if k in out})
+    out.update(references)
     return out
 
 
 def select_rows(covariates: dict, rows: np.ndarray) -> dict:
     """``covariates`` from :func:`scalar_covariates` restricted to ``rows``."""
-    return {k: v if k.endswith('_ref') else v[rows] for k, v in covariates.items()}
+    return {k: v if _is_reference(k) else v[rows] for k, v in covariates.items()}
 
 
 @dataclass(frozen=True)
@@ -112,7 +123,15 @@ class LoopConfig:
     max_effects : int
         Stop after adding this many effects.
     seed : int
-        Of the random hold-out and fold assignment.
+        Of the first random hold-out and fold assignment; split k uses ``seed + k``.
+    splits : int
+        Hold-out splits the selection is repeated over.
+    min_frequency : float
+        An effect is added only if the selection chose it in at least this share of the
+        splits.
+    min_effect : float or None
+        Smallest effect worth adding, as the RMS of the structure it explains, in the
+        residuals' unit (m or px); None takes the machine's ``min_effect``.
     """
 
     holdout_fraction: float = 0.3
@@ -120,6 +139,9 @@ class LoopConfig:
     alpha: float = 1e-3
     max_effects: int = 4
     seed: int = 0
+    splits: int = 5
+    min_frequency: float = 0.6
+    min_effect: float | None = None
 
     def __post_init__(self):
         if not 0.05 <= self.holdout_fraction <= 0.6:
@@ -130,6 +152,13 @@ class LoopConfig:
             raise InvalidInputError('alpha must be in (0, 0.5)')
         if self.max_effects < 0:
             raise InvalidInputError('max_effects must be >= 0')
+        if self.splits < 1:
+            raise InvalidInputError('splits must be at least 1')
+        if not 0 < self.min_frequency <= 1:
+            raise InvalidInputError('min_frequency must be in (0, 1]')
+        if self.min_effect is not None and not (np.isfinite(self.min_effect)
+                                                and self.min_effect >= 0):
+            raise InvalidInputError('min_effect must be a finite number >= 0')
 
 
 @dataclass
@@ -148,10 +177,20 @@ class _Fit:
     def parameter_count(self) -> int:
         return len(self.base.free_names) + sum(len(v) for v in self.values)
 
-    def std_devs(self) -> np.ndarray:
+    def covariance(self) -> np.ndarray:
         dof = max(self.residuals.size - self.parameter_count, 1)
-        cov = np.linalg.pinv(self.jacobian.T @ self.jacobian) * self.rss / dof
-        return np.sqrt(np.clip(np.diag(cov), 0, None))
+        return np.linalg.pinv(self.jacobian.T @ self.jacobian) * self.rss / dof
+
+    def std_devs(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance()), 0, None))
+
+    def effect_slice(self, k: int) -> slice:
+        """Where effect ``k``'s parameters sit in the fit's vector."""
+        start = len(self.base.free_names) + sum(len(v) for v in self.values[:k])
+        return slice(start, start + len(self.values[k]))
+
+    def names(self) -> list:
+        return [e.effect.name for e in self.effects]
 
 
 def _delta(machine, effects, values, context, count) -> np.ndarray:
@@ -206,6 +245,12 @@ def _fit(machine: MachineModel, base: ParameterSet, effects: list, values: list,
     return _Fit(b, list(effects), parts, solution.fun.reshape(len(rows), -1), solution.jac)
 
 
+def _without(fit: _Fit, names) -> tuple[list, list]:
+    """``fit``'s effects and values, less those named."""
+    kept = [k for k, e in enumerate(fit.effects) if e.effect.name not in names]
+    return [fit.effects[k] for k in kept], [fit.values[k] for k in kept]
+
+
 def _split(labels: np.ndarray, parts: int, rng) -> np.ndarray:
     """A part number per row, balanced within each label."""
     out = np.empty(len(labels), dtype=int)
@@ -234,21 +279,22 @@ def _summary(machine, residuals: np.ndarray) -> dict:
 
 @dataclass
 class LoopResult:
-    """Outcome of :func:`analyze`: the report (JSON-ready, SI units) and the arrays the
-    plots need (all rows)."""
+    """Outcome of :func:`analyze`: the report (JSON-ready, SI units), the arrays the
+    plots need (all rows) and the extended model as fitted on the fitting rows."""
 
     report: dict
     holdout: np.ndarray                 # bool (N,)
     residuals_before: np.ndarray        # (N, k), base model fitted on the training rows
     residuals_after: np.ndarray         # (N, k), extended model
     covariates: dict = field(default_factory=dict)   # name -> (N,)
+    fit: _Fit | None = None
 
 
 def _covariate_columns(machine, context: dict) -> dict:
     """Flatten a context into named scalar covariates per row."""
     out = {}
     for key, value in context.items():
-        if key.endswith('_ref'):
+        if _is_reference(key):
             continue
         value = np.asarray(value, float)
         if value.ndim == 1:
@@ -261,56 +307,266 @@ def _covariate_columns(machine, context: dict) -> dict:
     return out
 
 
-def _structure_tests(machine, residuals: np.ndarray, covariates: dict, alpha: float) -> list:
-    """Structure left in channel ``residuals`` (n, C) against each covariate: a cubic trend (a step
-    for two-valued covariates) and, against positions, a sinusoid at the periodogram's
-    peak; F-tests, Bonferroni-corrected over the periods scanned and every test made."""
-    n = len(residuals)
-    tests = []
-    for covariate, z in covariates.items():
-        distinct = len(np.unique(z))
-        if distinct < 2:
-            continue
-        span = float(np.ptp(z))
-        scaled = 2 * (z - z.min()) / span - 1
-        degree = min(3, distinct - 1)
-        for j, component in enumerate(machine.channels):
-            r = residuals[:, j] - residuals[:, j].mean()
-            candidates = [('trend' if degree > 1 else 'step',
-                           legendre.legvander(scaled, degree)[:, 1:], 1.0)]
-            if covariate.startswith('position') and n >= 20:
-                freqs = np.linspace(2 / span, max(2 / span, n / (2 * span)), 400)
-                omega = 2 * np.pi * freqs[np.argmax(
-                    lombscargle(z, r, 2 * np.pi * freqs, floating_mean=True))]
-                candidates.append(('periodic', np.column_stack(
-                    [np.cos(omega * z), np.sin(omega * z)]), max((freqs[-1] - freqs[0]) * span, 1.0)))
-            for kind, basis, trials in candidates:
-                basis = basis - basis.mean(axis=0)
-                fitted = basis @ np.linalg.lstsq(basis, r, rcond=None)[0]
-                rss1 = float(np.sum((r - fitted) ** 2))
-                p, dof = basis.shape[1], n - basis.shape[1] - 1
-                if dof <= 0 or rss1 <= 0:
-                    continue
-                f_stat = (float(r @ r) - rss1) / p / (rss1 / dof)
-                tests.append({'covariate': covariate, 'component': f'residual_{component}',
-                              'kind': kind,
-                              'p_value': min(1.0, float(stats.f.sf(f_stat, p, dof)) * trials),
-                              'structure_rms': float(np.sqrt(np.mean(fitted ** 2))),
-                              'residual_rms': float(np.sqrt(np.mean(r ** 2)))})
-    count = max(len(tests), 1)
-    found = [dict(t, p_value=min(1.0, t['p_value'] * count)) for t in tests
-             if t['p_value'] * count < alpha]
-    return sorted(found, key=lambda t: t['p_value'])
-
-
 def _minimum_residuals(parameter_count: int) -> int:
     """Residuals needed to test a model with ``parameter_count`` parameters: twice as many,
     and at least 10 degrees of freedom left."""
     return max(2 * parameter_count, parameter_count + 10)
 
 
+MAX_TERM_UNCERTAINTY = 0.5
+"""An effect's term is undetermined when its standard deviation (RMS over the rows) is
+more than this share of the term's own RMS."""
+
+
+def _rank(jacobian: np.ndarray) -> int:
+    """Numerical rank of a Jacobian with its columns scaled to unit norm."""
+    norms = np.linalg.norm(jacobian, axis=0)
+    scaled = jacobian[:, norms > 0] / norms[norms > 0]
+    if scaled.size == 0:
+        return 0
+    return int(np.linalg.matrix_rank(scaled, tol=1e-8 * np.linalg.norm(scaled, 2)))
+
+
+def _term_spread(prepared, values: np.ndarray, covariance: np.ndarray, context: dict):
+    """RMS of an effect's term over the rows and the RMS of its standard deviation
+    (first-order propagation of the parameters' covariance)."""
+    term = prepared.term(values, context).ravel()
+    sensitivity = np.empty((term.size, len(values)))
+    for j in range(len(values)):
+        step = 1e-6 * max(abs(values[j]), 1e-9)
+        shifted = np.array(values, float)
+        shifted[j] += step
+        sensitivity[:, j] = (prepared.term(shifted, context).ravel() - term) / step
+    variance = np.sum((sensitivity @ covariance) * sensitivity, axis=1)
+    return float(np.sqrt(np.mean(term ** 2))), float(np.sqrt(np.mean(variance)))
+
+
+def _undetermined(machine, current: _Fit, extended: _Fit, rows) -> str | None:
+    """Why the effect last in ``extended`` is not identifiable from the data, or None.
+
+    Three checks: its parameters add as many independent directions to the joint fit's
+    Jacobian as they are many (else they are not separable from the model's); the term
+    they make is known to better than :data:`MAX_TERM_UNCERTAINTY` of its size (the
+    covariance is the joint fit's, so correlation with the base model counts); and a
+    fitted period is known to 10 %.
+    """
+    k = len(extended.effects) - 1
+    prepared, values = extended.effects[k], extended.values[k]
+    columns = extended.effect_slice(k)
+    kept = _without(current, prepared.effect.supersedes)[1]
+    extra = len(values) - (current.parameter_count - len(current.base.free_names)
+                           - sum(len(v) for v in kept))
+    gained = _rank(extended.jacobian) - _rank(current.jacobian)
+    if gained < extra:
+        return (f'its parameters are not separable from the model\'s: they add {gained} '
+                f'of {extra} independent directions to the fit')
+    covariance = extended.covariance()[columns, columns]
+    size, spread = _term_spread(prepared, values, covariance,
+                                machine.context(extended.base, rows))
+    if not spread <= MAX_TERM_UNCERTAINTY * size:
+        return (f'undetermined: its term (RMS {size:.3g}) has a standard deviation of '
+                f'{spread:.3g}: correlated with the base model, or too few distinct '
+                f'positions')
+    sigma = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    for name, value, s in zip(prepared.names, values, sigma):
+        if name.startswith('period_') and not s <= 0.1 * abs(value):
+            return f'period not determined: {name} = {value:.4g} +- {s:.2g} m'
+    return None
+
+
+@dataclass
+class _Split:
+    """One hold-out split and the selection made on it."""
+
+    holdout: np.ndarray       # bool (N,)
+    train: np.ndarray         # row indices
+    folds: np.ndarray         # fold per training row
+    base_fit: _Fit
+    fit: _Fit
+    added: list               # dicts: prepared, round, evidence
+    rounds: list
+    skipped: dict
+    not_identifiable: dict
+    too_small: dict
+
+
+def _make_split(machine, config: LoopConfig, seed: int):
+    """Hold-out rows, fitting rows, folds and the base model's fit for one seed."""
+    rng = np.random.default_rng(seed)
+    every = np.arange(len(machine))
+    holdout_parts = max(2, int(round(1 / config.holdout_fraction)))
+    holdout = _split(machine.strata(), holdout_parts, rng) == 0
+    train = every[~holdout]
+    base = machine.initial()
+    needed = _minimum_residuals(len(base.free_names))
+    probe = _residuals(machine, base, [], [], train[:1])
+    if len(train) * probe.shape[1] < needed or holdout.sum() == 0:
+        raise CalibrationError(
+            f'{len(machine)} rows are too few for the base model ({len(base.free_names)} '
+            f'parameters) with {config.holdout_fraction:.0%} held out: the fitting rows give '
+            f'{len(train) * probe.shape[1]} residuals, {needed} are needed')
+    folds = _split(machine.strata()[train], config.folds, rng)
+    return holdout, train, folds, _fit(machine, base, [], [], train)
+
+
+def _try_candidate(machine, current: _Fit, name: str, train, context, channel_residuals):
+    """Prepare effect ``name`` on the current residuals and refit it jointly (replacing
+    any effect it supersedes). Returns a scored entry, or a string: why it was not tested."""
+    prepared = LIBRARY[name].prepare(context, machine.channels, channel_residuals)
+    if isinstance(prepared, str):
+        return prepared
+    effects, values = _without(current, prepared.effect.supersedes)
+    extra = len(prepared.names) - (current.parameter_count - len(current.base.free_names)
+                                   - sum(len(v) for v in values))
+    size = current.parameter_count + extra
+    residual_count = current.residuals.size
+    if extra <= 0:
+        return 'it adds no parameter to the model in force'
+    if residual_count < _minimum_residuals(size):
+        return (f'too little data to test it: {residual_count} residuals for {size} '
+                f'parameters, {_minimum_residuals(size)} needed')
+    try:
+        extended = _fit(machine, current.base, effects + [prepared],
+                        values + [prepared.initial], train)
+    except (ValueError, np.linalg.LinAlgError) as error:
+        return f'the joint fit failed: {error}'
+    dof = residual_count - size
+    rss0, rss1 = current.rss, extended.rss
+    f_stat = max(rss0 - rss1, 0.0) / extra / max(rss1 / dof, 1e-300)
+    return {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
+            'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
+            'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train)))}
+
+
+def _judge(machine, current: _Fit, entry: dict, train, min_effect: float, alpha: float,
+           tested: int) -> str:
+    """Status of a scored candidate: 'candidate', or why it cannot be added."""
+    entry['p_value'] = min(1.0, entry['p_value_raw'] * max(tested, 1))
+    entry['significant'] = bool(entry['p_value'] < alpha)
+    if not entry['significant']:
+        return 'not significant'
+    entry['reason'] = _undetermined(machine, current, entry['fit'], train)
+    if entry['reason']:
+        return 'not identifiable'
+    if entry['size'] < min_effect:
+        return 'below the minimum effect size'
+    return 'candidate'
+
+
+def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=None) -> _Split:
+    """Forward selection on one hold-out split (steps 2 and 3 of the module's list)."""
+    holdout, train, folds, base_fit = _make_split(machine, config, seed)
+    current = base_fit
+    current_cv = _cv_rms(machine, current, train, folds)
+    rounds, skipped, added, not_identifiable, too_small = [], {}, [], {}, {}
+    remaining = list(machine.candidates)
+    while remaining and len(added) < config.max_effects:
+        context = machine.context(current.base, train)
+        channel_residuals = _channel_residuals(machine, current, train)
+        scored = []
+        for i, name in enumerate(remaining):
+            if progress:
+                progress(i, len(remaining), f'round {len(rounds) + 1}: {name}')
+            entry = _try_candidate(machine, current, name, train, context, channel_residuals)
+            if isinstance(entry, str):
+                skipped[name] = entry
+                continue
+            skipped.pop(name, None)
+            scored.append(entry)
+        for entry in scored:
+            entry['status'] = _judge(machine, current, entry, train, min_effect, config.alpha,
+                                     len(scored))
+            if entry['status'] == 'not identifiable':
+                not_identifiable[entry['effect']] = entry['reason']
+            elif entry['status'] == 'below the minimum effect size':
+                too_small[entry['effect']] = entry['size']
+            entry['cv_rms'] = (_cv_rms(machine, entry['fit'], train, folds)
+                               if entry['status'] == 'candidate' else None)
+        rounds.append({'cv_rms_current': current_cv, 'candidates': [
+            {k: entry[k] for k in ('effect', 'f_statistic', 'p_value', 'cv_rms', 'significant',
+                                   'size', 'status')} for entry in scored]})
+        accepted = [e for e in scored if e['status'] == 'candidate' and e['cv_rms'] < current_cv]
+        if not accepted:
+            break
+        best = min(accepted, key=lambda e: e['cv_rms'])
+        added.append({'prepared': best['prepared'], 'round': len(rounds), 'evidence': {
+            'f_statistic': best['f_statistic'], 'p_value': best['p_value'],
+            'periods_searched': best['prepared'].trials,
+            'cv_rms_before': current_cv, 'cv_rms_after': best['cv_rms'],
+            'explained_rms': best['size'],
+            'training_rms_before': float(np.sqrt(np.mean(current.residuals ** 2))),
+            'training_rms_after': float(np.sqrt(np.mean(best['fit'].residuals ** 2)))}})
+        current, current_cv = best['fit'], best['cv_rms']
+        gone = {best['effect'], *best['prepared'].effect.supersedes}
+        remaining = [name for name in remaining if name not in gone]
+    return _Split(holdout, train, folds, base_fit, current, added, rounds, skipped,
+                  not_identifiable, too_small)
+
+
+def _heldout_ss(machine, splits: list, effects: list, values: list, start: _Fit) -> tuple:
+    """Sum of squared held-out residuals over ``splits`` of the model with ``effects``,
+    refitted on each split's fitting rows, and the number of residuals summed."""
+    total, count = 0.0, 0
+    for split in splits:
+        fit = _fit(machine, start.base, effects, values, split.train)
+        r = evaluate(machine, fit, np.flatnonzero(split.holdout))
+        total += float(np.sum(r ** 2))
+        count += r.size
+    return total, count
+
+
+def _build(machine, primary: _Split, chosen: list):
+    """The effects ``chosen`` added in order on the first split's fitting rows; those that
+    cannot be prepared or are not identifiable there are left out, with the reason."""
+    current, evidence, not_identifiable, rejected = primary.base_fit, {}, {}, {}
+    first = {item['prepared'].effect.name: item for item in primary.added}
+    for name in chosen:
+        context = machine.context(current.base, primary.train)
+        entry = _try_candidate(machine, current, name, primary.train, context,
+                               _channel_residuals(machine, current, primary.train))
+        if isinstance(entry, str):
+            rejected[name] = f'chosen on other splits, but on the first: {entry}'
+            continue
+        reason = _undetermined(machine, current, entry['fit'], primary.train)
+        if reason:
+            not_identifiable[name] = reason
+            continue
+        current = entry['fit']
+        evidence[name] = first.get(name, {'round': None, 'evidence': {
+            'f_statistic': entry['f_statistic'], 'p_value': entry['p_value_raw'],
+            'explained_rms': entry['size']}})
+    return current, evidence, not_identifiable, rejected
+
+
+def _prune(machine, splits: list, current: _Fit, rejected: dict) -> _Fit:
+    """Reject, one at a time, each effect whose removal lowers the held-out error summed
+    over every split; the reason goes into ``rejected``."""
+    while current.effects:
+        with_all, count = _heldout_ss(machine, splits, current.effects, current.values, current)
+        worst = None
+        for name in current.names():
+            effects, values = _without(current, (name,))
+            without = _heldout_ss(machine, splits, effects, values, current)[0]
+            if without < with_all and (worst is None or without < worst[1]):
+                worst = (name, without)
+        if worst is None:
+            return current
+        rejected[worst[0]] = (f'it makes the held-out error worse: RMS over the splits '
+                              f'{np.sqrt(with_all / count):.3g} with it, '
+                              f'{np.sqrt(worst[1] / count):.3g} without')
+        effects, values = _without(current, (worst[0],))
+        current = _fit(machine, current.base, effects, values, splits[0].train)
+    return current
+
+
 def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=None) -> LoopResult:
     """Run the closed loop on ``machine``'s data.
+
+    The selection (steps 2-3 of the module's list) runs on ``config.splits`` hold-out
+    splits; an effect is added only if it was chosen in ``config.min_frequency`` of them,
+    is identifiable on the first split, explains at least ``min_effect`` and does not make
+    the held-out error summed over the splits worse. Before/after are reported on the
+    first split's held-out rows, with the spread over all splits.
 
     ``progress(done, total, label)`` is called as candidates are scored.
 
@@ -322,126 +578,106 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     unknown = [name for name in machine.candidates if name not in LIBRARY]
     if unknown:
         raise InvalidInputError(f'unknown effect(s) {", ".join(unknown)}')
-    rng = np.random.default_rng(config.seed)
-    count = len(machine)
-    every = np.arange(count)
-    holdout_parts = max(2, int(round(1 / config.holdout_fraction)))
-    holdout = _split(machine.strata(), holdout_parts, rng) == 0
-    train, test = every[~holdout], every[holdout]
-    base = machine.initial()
-    needed = _minimum_residuals(len(base.free_names))
-    probe = _residuals(machine, base, [], [], train[:1])
-    if len(train) * probe.shape[1] < needed or len(test) == 0:
-        raise CalibrationError(
-            f'{count} rows are too few for the base model ({len(base.free_names)} parameters) '
-            f'with {config.holdout_fraction:.0%} held out: the fitting rows give '
-            f'{len(train) * probe.shape[1]} residuals, {needed} are needed')
-    folds = _split(machine.strata()[train], config.folds, rng)
+    min_effect = machine.min_effect if config.min_effect is None else config.min_effect
+    splits = []
+    for k in range(config.splits):
+        report = (lambda done, total, label, k=k: progress(
+            done, total, f'split {k + 1}/{config.splits}, {label}')) if progress else None
+        splits.append(_select(machine, config, config.seed + k, min_effect, report))
+    positions = {}
+    for split in splits:
+        for position, item in enumerate(split.added):
+            positions.setdefault(item['prepared'].effect.name, []).append(position)
+    frequency = {name: len(v) / config.splits for name, v in positions.items()}
+    chosen = sorted((n for n in positions if frequency[n] >= config.min_frequency),
+                    key=lambda n: (-frequency[n], np.mean(positions[n])))
+    final, evidence, not_identifiable, rejected = _build(machine, splits[0], chosen)
+    final = _prune(machine, splits, final, rejected)
+    for name in positions:
+        if frequency[name] < config.min_frequency:
+            rejected[name] = (f'chosen in {len(positions[name])} of {config.splits} hold-out '
+                              f'splits, fewer than {config.min_frequency:.0%}: the data do '
+                              f'not decide it')
+    for split in splits:
+        for name, reason in split.not_identifiable.items():
+            if name not in final.names():
+                not_identifiable.setdefault(name, reason)
+    return _result(machine, config, splits, final, evidence, frequency, not_identifiable,
+                   rejected, min_effect)
 
-    base_fit = _fit(machine, base, [], [], train)
-    current = base_fit
-    current_cv = _cv_rms(machine, current, train, folds)
-    rounds, skipped, added = [], {}, []
-    remaining = list(machine.candidates)
-    while remaining and len(added) < config.max_effects:
-        context = machine.context(current.base, train)
-        channel_residuals = _channel_residuals(machine, current, train)
-        scored = []
-        for i, name in enumerate(remaining):
-            if progress:
-                progress(i, len(remaining), f'round {len(rounds) + 1}: {name}')
-            prepared = LIBRARY[name].prepare(context, machine.channels, channel_residuals)
-            if isinstance(prepared, str):
-                skipped[name] = prepared
-                continue
-            size = current.parameter_count + len(prepared.names)
-            residual_count = current.residuals.size
-            if residual_count < _minimum_residuals(size):
-                skipped[name] = (f'too little data to test it: {residual_count} residuals for '
-                                 f'{size} parameters, {_minimum_residuals(size)} needed')
-                continue
-            try:
-                extended = _fit(machine, current.base, current.effects + [prepared],
-                                current.values + [prepared.initial], train)
-            except (ValueError, np.linalg.LinAlgError) as error:
-                skipped[name] = f'the joint fit failed: {error}'
-                continue
-            skipped.pop(name, None)
-            p = len(prepared.names)
-            dof = residual_count - size
-            rss0, rss1 = current.rss, extended.rss
-            f_stat = max(rss0 - rss1, 0.0) / p / max(rss1 / dof, 1e-300)
-            p_value = min(1.0, float(stats.f.sf(f_stat, p, dof)) * prepared.trials)
-            scored.append({'effect': name, 'prepared': prepared, 'fit': extended,
-                           'f_statistic': f_stat, 'p_value_raw': p_value})
-        tested = len(scored)
-        for entry in scored:
-            entry['p_value'] = min(1.0, entry['p_value_raw'] * max(tested, 1))
-            entry['significant'] = bool(entry['p_value'] < config.alpha)
-            entry['cv_rms'] = (_cv_rms(machine, entry['fit'], train, folds)
-                               if entry['significant'] else None)
-        if progress:
-            progress(len(remaining), len(remaining), f'round {len(rounds) + 1} scored')
-        rounds.append({'cv_rms_current': current_cv, 'candidates': [
-            {k: entry[k] for k in ('effect', 'f_statistic', 'p_value', 'cv_rms', 'significant')}
-            for entry in scored]})
-        accepted = [e for e in scored if e['significant'] and e['cv_rms'] < current_cv]
-        if not accepted:
-            break
-        best = min(accepted, key=lambda e: e['cv_rms'])
-        added.append({'prepared': best['prepared'], 'round': len(rounds),
-                      'evidence': {'f_statistic': best['f_statistic'],
-                                   'p_value': best['p_value'],
-                                   'periods_searched': best['prepared'].trials,
-                                   'cv_rms_before': current_cv, 'cv_rms_after': best['cv_rms'],
-                                   'training_rms_before': float(np.sqrt(np.mean(current.residuals ** 2))),
-                                   'training_rms_after': float(np.sqrt(np.mean(best['fit'].residuals ** 2)))}})
-        current, current_cv = best['fit'], best['cv_rms']
-        remaining.remove(best['effect'])
 
-    before_all = evaluate(machine, base_fit, every)
-    after_all = evaluate(machine, current, every)
-    covariates = _covariate_columns(machine, machine.context(current.base, every))
-    unexplained = _structure_tests(
-        machine, _channel_residuals(machine, current, train),
+def _merged(splits: list, attribute: str, keep: list) -> dict:
+    """A per-split dict merged over the splits (first split first), less the ``keep`` names."""
+    out = {}
+    for split in splits:
+        for name, value in getattr(split, attribute).items():
+            if name not in keep and name not in out:
+                out[name] = value
+    return out
+
+
+def _result(machine, config, splits: list, final: _Fit, evidence: dict, frequency: dict,
+            not_identifiable: dict, rejected: dict, min_effect: float) -> LoopResult:
+    """The report and arrays of :func:`analyze` (step 4 of the module's list)."""
+    primary = splits[0]
+    every = np.arange(len(machine))
+    holdout, train = primary.holdout, primary.train
+    before_all = evaluate(machine, primary.base_fit, every)
+    after_all = evaluate(machine, final, every)
+    covariates = _covariate_columns(machine, machine.context(final.base, every))
+    unexplained = structure_tests(
+        machine.channels, _channel_residuals(machine, final, train),
         {k: v[train] for k, v in covariates.items()}, config.alpha)
-    std = current.std_devs()
-    nb = len(current.base.free_names)
+    std = final.std_devs()
+    nb = len(final.base.free_names)
     effects_added = []
-    for item in added:
-        prepared = item['prepared']
-        k = current.effects.index(prepared)
-        values = current.values[k]
-        offset = nb + sum(len(v) for v in current.values[:k])
-        entry = prepared.describe(values, std[offset:offset + len(values)])
+    for k, prepared in enumerate(final.effects):
+        item = evidence[prepared.effect.name]
+        entry = prepared.describe(final.values[k], std[final.effect_slice(k)])
         entry['round'] = item['round']
-        entry['evidence'] = item['evidence']
+        entry['evidence'] = dict(item['evidence'],
+                                 selection_frequency=frequency.get(prepared.effect.name, 0.0))
         effects_added.append(entry)
+    by_split = []
+    for split in splits:
+        rows = np.flatnonzero(split.holdout)
+        refit = _fit(machine, final.base, final.effects, final.values, split.train)
+        by_split.append({'rms_before': _summary(machine, evaluate(machine, split.base_fit, rows))['rms'],
+                         'rms_after': _summary(machine, evaluate(machine, refit, rows))['rms']})
     held_before, held_after = _summary(machine, before_all[holdout]), _summary(machine, after_all[holdout])
+    names = final.names()
     report = {
         'machine': machine.name,
         'base_model': machine.base_model,
         'unit': machine.unit,
         'channels': list(machine.channels),
-        'rows': {'total': count, 'fitting': int(len(train)), 'held_out': int(len(test))},
+        'rows': {'total': len(machine), 'fitting': int(len(train)),
+                 'held_out': int(holdout.sum())},
         'config': {'holdout_fraction': config.holdout_fraction, 'folds': config.folds,
                    'alpha': config.alpha, 'max_effects': config.max_effects,
-                   'seed': config.seed},
+                   'seed': config.seed, 'splits': config.splits,
+                   'min_frequency': config.min_frequency, 'min_effect': min_effect},
         'effects_added': effects_added,
         'rms_before': held_before['rms'], 'max_before': held_before['max'],
         'rms_after': held_after['rms'], 'max_after': held_after['max'],
+        'held_out_by_split': by_split,
         'fitting_rms_before': _summary(machine, before_all[~holdout])['rms'],
         'fitting_rms_after': _summary(machine, after_all[~holdout])['rms'],
-        'base_parameters': {'before': base_fit.base.as_dict(), 'after': current.base.as_dict(),
-                            'units': current.base.units(),
-                            'std_devs_after': dict(zip(current.base.free_names,
+        'base_parameters': {'before': primary.base_fit.base.as_dict(),
+                            'after': final.base.as_dict(),
+                            'units': final.base.units(),
+                            'std_devs_after': dict(zip(final.base.free_names,
                                                        map(float, std[:nb])))},
         'candidates': list(machine.candidates),
-        'skipped': skipped,
-        'rounds': rounds,
+        'selection_frequency': frequency,
+        'skipped': _merged(splits, 'skipped', names),
+        'not_identifiable': not_identifiable,
+        'rejected': rejected,
+        'below_minimum_effect': _merged(splits, 'too_small', names),
+        'rounds': primary.rounds,
         'unexplained': unexplained,
     }
-    return LoopResult(_plain(report), holdout, before_all, after_all, covariates)
+    return LoopResult(_plain(report), holdout, before_all, after_all, covariates, final)
 
 
 def _plain(value):

@@ -82,6 +82,7 @@ class Effect:
     name = ''
     meaning = ''
     requires: tuple = ()
+    supersedes: tuple = ()   # effects this one includes and replaces when added
 
     def prepare(self, context: dict, channels: tuple, channel_residuals: np.ndarray):
         """A :class:`Prepared` for this data, or a string saying why the effect cannot be
@@ -316,66 +317,324 @@ class DriftTemperature(Effect):
                         np.zeros(2 * count), term)
 
 
+def resolvable_periods(position: np.ndarray) -> tuple[float, float, str]:
+    """The periods (m) the distinct positions of one channel can resolve.
+
+    The shortest is twice the median spacing of the distinct positions (their Nyquist
+    period; a shorter period aliases onto a longer one on a regular grid); the longest
+    is half the travel (a longer one is a trend that scale and offset already describe).
+
+    Returns
+    -------
+    shortest, longest : float
+        m; ``shortest >= longest`` when no period is resolvable.
+    need : str
+        What the data would need to resolve periods, for the report.
+    """
+    distinct = np.unique(position)
+    span = float(np.ptp(distinct)) if len(distinct) else 0.0
+    if len(distinct) < 3 or span <= 0:
+        return np.inf, 0.0, 'positions at three or more distinct targets'
+    spacing = float(np.median(np.diff(distinct)))
+    shortest, longest = 2 * spacing, span / 2
+    need = (f'targets every {spacing * 1e3:.3g} mm resolve periods from '
+            f'{shortest * 1e3:.3g} mm to {longest * 1e3:.3g} mm (half the travel); targets '
+            f'every P/2 or closer (irregularly spaced, as ISO 230-2 recommends) resolve '
+            f'periods down to P')
+    return shortest, longest, need
+
+
 class Periodic(Effect):
-    """Cyclic error per channel; its period comes from a Lomb-Scargle periodogram of the
-    channel residuals against channel position and is then refined in the joint fit."""
+    """Cyclic error per channel, with its harmonics where the positions resolve them.
+
+    The period comes from a Lomb-Scargle periodogram of the channel residuals against the
+    channel position, searched only over the periods the distinct positions resolve
+    (:func:`resolvable_periods`), then refined in the joint fit. A period whose
+    periodogram has another peak almost as high (an alias, or two periods the data fit
+    equally) is refused as not determined. Harmonics 2 and 3 enter when their period is
+    still resolvable and the Bayesian information criterion prefers them.
+    """
 
     name = 'periodic'
     meaning = ('cyclic error per channel (lead-screw wobble, encoder interpolation), '
-               'amplitude and period found from the data')
+               'amplitude, period and harmonics found from the data')
     requires = ('position',)
     min_samples = 20
+    parameters_per_position = 2   # distinct positions needed per amplitude parameter
+    alias_ratio = 0.9             # a second peak this high makes the period ambiguous
+    max_harmonics = 3
+
+    def _channel(self, x: np.ndarray, r: np.ndarray):
+        """(period, harmonics, trials) for one channel, or a reason string."""
+        shortest, longest, need = resolvable_periods(x)
+        distinct = len(np.unique(x))
+        if shortest >= longest:
+            return f'no period is resolvable: {need}'
+        # offset, scale and one sine (2 amplitudes + period) must leave position means over
+        needed = 2 + self.parameters_per_position * 3
+        if distinct < needed:
+            return (f'{distinct} distinct positions are too few for a free-period sine '
+                    f'on top of offset and scale (needs {needed}): {need}')
+        f_low, f_high = 1 / longest, 1 / shortest
+        span = float(np.ptp(x))
+        count = int(min(20000, max(200, 10 * (f_high - f_low) * span)))
+        freqs = np.linspace(f_low, f_high, count)
+        power = lombscargle(x, r - r.mean(), 2 * np.pi * freqs, floating_mean=True)
+        best = int(np.argmax(power))
+        # Peaks closer than 1/span are one peak; harmonics of the best are not rivals.
+        separation = 1.0 / span
+        related = [freqs[best] * k for k in (1, 2, 3, 1 / 2, 1 / 3)]
+        apart = np.all([np.abs(freqs - f) > separation for f in related], axis=0)
+        rivals = power[apart]
+        if rivals.size and rivals.max() >= self.alias_ratio * power[best]:
+            rival = freqs[apart][np.argmax(rivals)]
+            return (f'period not determined: {1e3 / freqs[best]:.4g} mm and '
+                    f'{1e3 / rival:.4g} mm fit the data almost equally ({need})')
+        period = 1.0 / freqs[best]
+        harmonics = [h for h in range(1, self.max_harmonics + 1) if period / h >= shortest
+                     and distinct >= 2 + self.parameters_per_position * (2 * h + 1)]
+        criterion = []
+        for h in harmonics:
+            design = np.column_stack([np.ones_like(x)] + _harmonic_columns(x, period, h))
+            rss = float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
+            criterion.append(len(x) * np.log(max(rss, 1e-300) / len(x))
+                             + design.shape[1] * np.log(len(x)))
+        chosen = harmonics[int(np.argmin(criterion))]
+        return period, chosen, max((f_high - f_low) * span, 1.0) * len(harmonics)
 
     def _prepare(self, context, channels, channel_residuals):
         position = context['position']
         if len(position) < self.min_samples:
             return (f'{len(position)} rows are too few to find a period '
                     f'(needs {self.min_samples})')
-        periods, trials, index = [], 1.0, []
+        found, reasons, trials = [], [], 1.0
         for c in range(position.shape[1]):
+            result = self._channel(position[:, c], channel_residuals[:, c])
+            if isinstance(result, str):
+                reasons.append(f'{channels[c]}: {result}' if len(channels) > 1 else result)
+                continue
+            period, harmonics, searched = result
+            found.append((c, period, harmonics))
+            trials *= searched
+        if not found:
+            return '; '.join(reasons)
+        width = len(channels)
+        names, units, initial, layout = [], [], [], []
+        for c, period, harmonics in found:
             x, r = position[:, c], channel_residuals[:, c]
-            span = np.ptp(x)
-            if span <= 0:
+            columns = _harmonic_columns(x, period, harmonics)
+            design = np.column_stack([np.ones_like(x)] + columns)
+            amplitudes = np.linalg.lstsq(design, r, rcond=None)[0][1:]
+            for h in range(1, harmonics + 1):
+                suffix = '' if h == 1 else str(h)
+                names += [f'cos{suffix}_{channels[c]}', f'sin{suffix}_{channels[c]}']
+            names.append(f'period_{channels[c]}')
+            units += ['m'] * (2 * harmonics + 1)
+            initial += list(amplitudes) + [period]
+            layout.append((c, harmonics))
+
+        def term(params, ctx):
+            out = np.zeros((len(ctx['position']), width))
+            start = 0
+            for c, harmonics in layout:
+                amplitudes = params[start:start + 2 * harmonics]
+                period = params[start + 2 * harmonics]
+                columns = _harmonic_columns(ctx['position'][:, c], period, harmonics)
+                out[:, c] = np.column_stack(columns) @ amplitudes
+                start += 2 * harmonics + 1
+            return out
+
+        notes = {'harmonics': {channels[c]: h for c, h in layout}}
+        if reasons:
+            notes['channels_not_tested'] = reasons
+        return Prepared(self, tuple(names), tuple(units), np.array(initial, float), term,
+                        trials=trials, notes=notes)
+
+
+def _harmonic_columns(x: np.ndarray, period: float, harmonics: int) -> list:
+    """cos and sin of harmonics 1..``harmonics`` of ``period`` at ``x``."""
+    columns = []
+    for h in range(1, harmonics + 1):
+        phase = 2 * np.pi * h * x / period
+        columns += [np.cos(phase), np.sin(phase)]
+    return columns
+
+
+def _legendre_scaled(x: np.ndarray, low: float, high: float, degree: int) -> np.ndarray:
+    """Legendre polynomials 1..``degree`` of x mapped from [low, high] onto [-1, 1], (n, degree)."""
+    scaled = 2 * (np.asarray(x, float) - low) / (high - low) - 1
+    return np.polynomial.legendre.legvander(scaled, degree)[:, 1:]
+
+
+class ReversalByPosition(Effect):
+    """Reversal (lost motion) that changes along the travel: ISO 230-2's reversal per
+    target B_i as a smooth function of position. Term per channel:
+    -1/2 direction (b0 + sum_k b_k P_k(x)), P_k Legendre polynomials over the travel; the
+    degree (up to one less than the targets approached both ways, at most 4) is chosen by
+    the Bayesian information criterion. It includes constant ``reversal``, which it
+    replaces when added."""
+
+    name = 'reversal_by_position'
+    meaning = ('reversal (backlash, lost motion) that changes along the travel: '
+               '-1/2 direction (b0 + sum_k b_k P_k(x)), Legendre P_k over the travel')
+    requires = ('direction', 'position')
+    supersedes = ('reversal',)
+    max_degree = 4
+
+    def _prepare(self, context, channels, channel_residuals):
+        position, direction = context['position'], context['direction']
+        layout, names, reasons, trials = [], [], [], 1.0
+        for c in range(position.shape[1]):
+            x, d, r = position[:, c], direction[:, c], channel_residuals[:, c]
+            targets = np.unique(x)
+            both = [t for t in targets if (d[x == t] > 0).sum() >= 2 and (d[x == t] < 0).sum() >= 2]
+            continuous = len(targets) > len(x) / 2       # random positions, not targets
+            if continuous:
+                both = targets if _both_signs(d[:, None])[0] else []
+            top = min(self.max_degree, (len(both) - 1) if not continuous else self.max_degree)
+            if top < 1:
+                reasons.append(f'{channels[c]}: needs three or more targets each approached '
+                               f'at least twice from both directions ({len(both)} are)')
                 continue
-            distinct = np.unique(x)
-            # Periods down to the mean target spacing, or twice the median one; irregular
-            # targets (as ISO 230-2 asks for) resolve periods down to there.
-            f_low = 2.0 / span
-            f_high = max(len(distinct) / span, 0.5 / np.median(np.diff(distinct))) \
-                if len(distinct) > 2 else f_low
-            if f_high <= f_low:
-                continue
-            count = int(min(20000, max(200, 10 * (f_high - f_low) * span)))
-            freqs = np.linspace(f_low, f_high, count)
-            power = lombscargle(x, r, 2 * np.pi * freqs, floating_mean=True)
-            periods.append(1.0 / freqs[np.argmax(power)])
-            trials *= max((f_high - f_low) * span, 1.0)
-            index.append(c)
-        if not index:
-            return 'no channel moves far enough to show a period'
-        index = np.array(index)
-        count = len(index)
+            low, high = float(targets.min()), float(targets.max())
+            criterion = []
+            for degree in range(1, top + 1):
+                design = np.column_stack([np.ones_like(x), -0.5 * d[:, None] * np.column_stack(
+                    [np.ones_like(x), _legendre_scaled(x, low, high, degree)])])
+                rss = float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
+                criterion.append(len(x) * np.log(max(rss, 1e-300) / len(x))
+                                 + design.shape[1] * np.log(len(x)))
+            degree = 1 + int(np.argmin(criterion))
+            layout.append((c, degree, low, high))
+            names += [f'backlash_{channels[c]}'] + [f'backlash_p{k}_{channels[c]}'
+                                                     for k in range(1, degree + 1)]
+            trials *= top
+        if not layout:
+            return '; '.join(reasons)
         width = len(channels)
 
         def term(params, ctx):
-            a, b, period = params[:count], params[count:2 * count], params[2 * count:]
-            phase = 2 * np.pi * ctx['position'][:, index] / period
-            out = np.zeros((len(phase), width))
-            out[:, index] = a * np.cos(phase) + b * np.sin(phase)
+            out = np.zeros((len(ctx['position']), width))
+            start = 0
+            for c, degree, low, high in layout:
+                basis = np.column_stack([np.ones(len(out)), _legendre_scaled(
+                    ctx['position'][:, c], low, high, degree)])
+                out[:, c] = -0.5 * ctx['direction'][:, c] * (basis @ params[start:start + degree + 1])
+                start += degree + 1
             return out
 
-        initial = []
-        for c, period in zip(index, periods):
-            phase = 2 * np.pi * position[:, c] / period
-            design = np.column_stack([np.cos(phase), np.sin(phase), np.ones_like(phase)])
-            initial.append(np.linalg.lstsq(design, channel_residuals[:, c], rcond=None)[0][:2])
-        initial = np.array(initial)
-        names = (tuple(f'cos_{channels[i]}' for i in index) + tuple(f'sin_{channels[i]}' for i in index)
-                 + tuple(f'period_{channels[i]}' for i in index))
-        units = ('m',) * (2 * count) + ('m',) * count
-        return Prepared(self, names, units,
-                        np.concatenate([initial[:, 0], initial[:, 1], periods]), term,
-                        trials=trials)
+        notes = {'degree': {channels[c]: deg for c, deg, _, _ in layout},
+                 'travel_m': {channels[c]: [low, high] for c, _, low, high in layout}}
+        if reasons:
+            notes['channels_not_tested'] = reasons
+        return Prepared(self, tuple(names), ('m',) * len(names), np.zeros(len(names)), term,
+                        trials=trials, notes=notes)
+
+
+CATEGORICAL_COVARIATES = ('block', 'setup', 'run', 'cycle')
+"""Covariate columns read as categories (labels, not quantities): a step between their
+levels is the ``block_step`` effect and a structure test."""
+
+
+class BlockStep(Effect):
+    """A step between measurement blocks or set-ups: a constant shift per level of a
+    categorical covariate, the first level the reference (its shift is the base model's
+    offset). The covariate that explains most is chosen among those present."""
+
+    name = 'block_step'
+    meaning = ('step between measurement blocks or set-ups: a constant shift per level of '
+               'a categorical covariate (block, setup, run or cycle), first level = reference')
+    min_rows_per_level = 3
+
+    def prepare(self, context, channels, channel_residuals):
+        present = [k for k in CATEGORICAL_COVARIATES if k in context]
+        if not present:
+            return ('needs a categorical covariate (block, setup, run or cycle), which the '
+                    'data lack')
+        usable, reasons = [], []
+        for key in present:
+            levels, counts = np.unique(context[key], return_counts=True)
+            if len(levels) < 2:
+                reasons.append(f'{key} takes one value')
+            elif counts.min() < self.min_rows_per_level:
+                reasons.append(f'{key} has a level with {counts.min()} row(s), '
+                               f'{self.min_rows_per_level} needed per level')
+            else:
+                usable.append((key, levels))
+        if not usable:
+            return '; '.join(reasons)
+        best = None
+        for key, levels in usable:
+            design = np.column_stack([np.ones(len(context[key]))]
+                                     + [context[key] == level for level in levels[1:]])
+            rss = sum(float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
+                      for r in channel_residuals.T)
+            if best is None or rss < best[0]:
+                best = (rss, key, levels)
+        _, key, levels = best
+        width = len(channels)
+        steps = levels[1:]
+
+        def term(params, ctx):
+            indicator = np.column_stack([ctx[key] == level for level in steps]).astype(float)
+            return indicator @ params.reshape(len(steps), width)
+
+        names = tuple(f'step_{key}{_label(level)}_{channel}' for level in steps
+                      for channel in channels)
+        return Prepared(self, names, ('m',) * len(names), np.zeros(len(names)), term,
+                        trials=float(len(usable)),
+                        notes={'covariate': key, 'reference_level': _label(levels[0])})
+
+
+def _label(level: float) -> str:
+    return str(int(level)) if float(level).is_integer() else f'{level:g}'
+
+
+class WarmUp(Effect):
+    """A transient at the start of a run (warm-up, the first approach from far away):
+    term = a exp(-s / tau) per channel, s the approach number from the start of the run
+    (``sequence``, 0 first) or the time since the start; tau is searched over a grid."""
+
+    name = 'warm_up'
+    meaning = ('transient at the start of a run (warm-up, first approach): '
+               'a exp(-s / tau), s the approach number or time since the start')
+    sequence_taus = (0.5, 1.0, 2.0, 4.0, 8.0)         # approaches
+    time_fractions = (0.01, 0.03, 0.1, 0.3)            # of the run's duration
+
+    def prepare(self, context, channels, channel_residuals):
+        if 'sequence' in context:
+            key, taus, unit = 'sequence', self.sequence_taus, 'approaches'
+        elif 'time' in context:
+            key, unit = 'time', 's'
+            taus = tuple(f * max(float(np.ptp(context['time'])), 1e-9) for f in self.time_fractions)
+        else:
+            return 'needs covariate sequence (approach number) or time, which the data lack'
+        since = context[key] - context.get(f'{key}_start', float(np.min(context[key])))
+        if np.ptp(since) <= 0:
+            return f'{key} is constant in the data'
+        best = None
+        for tau in taus:
+            basis = np.exp(-since / tau)
+            if np.sum(basis > 0.05) < 1:
+                continue
+            design = np.column_stack([np.ones_like(basis), basis])
+            rss = sum(float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
+                      for r in channel_residuals.T)
+            if best is None or rss < best[0]:
+                best = (rss, tau)
+        if best is None:
+            return f'no approach lies near the start of the run ({key})'
+        tau = best[1]
+        width = len(channels)
+        start = context.get(f'{key}_start', float(np.min(context[key])))
+
+        def term(params, ctx):
+            return np.exp(-(ctx[key] - start) / tau)[:, None] * params[None, :width]
+
+        return Prepared(self, tuple(f'amplitude_{c}' for c in channels), ('m',) * width,
+                        np.zeros(width), term, trials=float(len(taus)),
+                        notes={'time_constant': tau, 'time_constant_unit': unit,
+                               'covariate': key})
 
 
 class RadialDistortion(_FixedParameters):
@@ -403,5 +662,6 @@ class TangentialDistortion(_FixedParameters):
 
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
+                               ReversalByPosition(), BlockStep(), WarmUp(),
                                DriftTime(), DriftTemperature(), RadialDistortion(),
                                TangentialDistortion(), LegPlay(), Compliance())}

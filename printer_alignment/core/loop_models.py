@@ -156,6 +156,7 @@ class CameraLoopModel(MachineModel):
     name = 'camera'
     base_model = 'pinhole without distortion: fx, fy, cx, cy (px) and one pose per view'
     unit = 'px'
+    min_effect = 0.01   # px
     channels = ('x_n', 'y_n')
     candidates = ('radial_distortion', 'tangential_distortion')
 
