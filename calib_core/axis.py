@@ -73,7 +73,8 @@ class AxisModel(MachineModel):
     name = 'axis'
     base_model = 'measured = command + offset + scale * command (m)'
     channels = ('axis',)
-    candidates = ('reversal', 'periodic', 'drift_time', 'drift_temperature')
+    candidates = ('reversal', 'reversal_by_position', 'periodic', 'lead_error', 'block_step',
+                  'warm_up', 'drift_time', 'drift_temperature')
 
     def __init__(self, data: AxisData):
         self.data = data
@@ -90,6 +91,11 @@ class AxisModel(MachineModel):
         context = {'position': d.command[rows, None], 'direction': d.direction[rows, None]}
         context.update(select_rows(self._scalars, rows))
         return context
+
+    def replicates(self):
+        """Rows at one target approached from one direction repeat one setting."""
+        settings = np.column_stack([self.data.command, self.data.direction])
+        return np.unique(settings, axis=0, return_inverse=True)[1].ravel()
 
     def residuals(self, base, delta, rows, context):
         d = self.data

@@ -72,6 +72,13 @@ class MachineModel:
         """Label per row; hold-out and folds sample every label (e.g. camera views)."""
         return np.zeros(len(self), dtype=int)
 
+    def replicates(self) -> np.ndarray | None:
+        """A label per row that repeated measurements of one setting share (an ISO 230-2
+        target approached from one direction), or None. With replicates, the loop's
+        F-tests take the noise from the scatter within them (pure error), which structure
+        not yet modelled does not inflate."""
+        return None
+
     def row_errors(self, residuals: np.ndarray) -> np.ndarray:
         """Error magnitudes in which to report max and RMS: the norm per row."""
         return np.linalg.norm(residuals, axis=1)
@@ -177,9 +184,11 @@ class _Fit:
     def parameter_count(self) -> int:
         return len(self.base.free_names) + sum(len(v) for v in self.values)
 
-    def covariance(self) -> np.ndarray:
-        dof = max(self.residuals.size - self.parameter_count, 1)
-        return np.linalg.pinv(self.jacobian.T @ self.jacobian) * self.rss / dof
+    def covariance(self, noise_variance: float | None = None) -> np.ndarray:
+        """Parameter covariance; the noise variance defaults to the residuals'."""
+        if noise_variance is None:
+            noise_variance = self.rss / max(self.residuals.size - self.parameter_count, 1)
+        return np.linalg.pinv(self.jacobian.T @ self.jacobian) * noise_variance
 
     def std_devs(self) -> np.ndarray:
         return np.sqrt(np.clip(np.diag(self.covariance()), 0, None))
@@ -344,7 +353,8 @@ def _term_spread(prepared, values: np.ndarray, covariance: np.ndarray, context: 
 def _undetermined(machine, current: _Fit, extended: _Fit, rows) -> str | None:
     """Why the effect last in ``extended`` is not identifiable from the data, or None.
 
-    Three checks: its parameters add as many independent directions to the joint fit's
+    The noise is the one its F-test used (:func:`_noise_variance`). Three checks: its
+    parameters add as many independent directions to the joint fit's
     Jacobian as they are many (else they are not separable from the model's); the term
     they make is known to better than :data:`MAX_TERM_UNCERTAINTY` of its size (the
     covariance is the joint fit's, so correlation with the base model counts); and a
@@ -360,7 +370,9 @@ def _undetermined(machine, current: _Fit, extended: _Fit, rows) -> str | None:
     if gained < extra:
         return (f'its parameters are not separable from the model\'s: they add {gained} '
                 f'of {extra} independent directions to the fit')
-    covariance = extended.covariance()[columns, columns]
+    noise = _noise_variance(machine, extended, rows, extra,
+                            extended.residuals.size - extended.parameter_count)[0]
+    covariance = extended.covariance(noise)[columns, columns]
     size, spread = _term_spread(prepared, values, covariance,
                                 machine.context(extended.base, rows))
     if not spread <= MAX_TERM_UNCERTAINTY * size:
@@ -430,12 +442,38 @@ def _try_candidate(machine, current: _Fit, name: str, train, context, channel_re
                         values + [prepared.initial], train)
     except (ValueError, np.linalg.LinAlgError) as error:
         return f'the joint fit failed: {error}'
-    dof = residual_count - size
     rss0, rss1 = current.rss, extended.rss
-    f_stat = max(rss0 - rss1, 0.0) / extra / max(rss1 / dof, 1e-300)
+    noise, dof = _noise_variance(machine, extended, train, extra, residual_count - size)
+    f_stat = max(rss0 - rss1, 0.0) / extra / max(noise, 1e-300)
     return {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
             'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
             'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train)))}
+
+
+MIN_PURE_ERROR_DOF = 10
+
+
+def _noise_variance(machine, extended: _Fit, train, extra: int, residual_dof: int):
+    """The noise variance for a candidate's F-test and its degrees of freedom: from the
+    scatter of the extended model's residuals within replicate groups (pure error) when
+    the machine has them and they leave :data:`MIN_PURE_ERROR_DOF`, else from the
+    residuals. The candidate's own parameters are taken off the pure error's degrees of
+    freedom, since an effect that varies within a group (a transient) absorbs some of it."""
+    groups = machine.replicates()
+    residual_variance = extended.rss / max(residual_dof, 1)
+    if groups is None:
+        return residual_variance, residual_dof
+    labels = groups[train]
+    r = extended.residuals
+    within, cells = 0.0, 0
+    for label in np.unique(labels):
+        block = r[labels == label]
+        within += float(np.sum((block - block.mean(axis=0)) ** 2))
+        cells += 1
+    dof = r.size - cells * r.shape[1] - extra
+    if dof < MIN_PURE_ERROR_DOF:
+        return residual_variance, residual_dof
+    return within / dof, dof
 
 
 def _judge(machine, current: _Fit, entry: dict, train, min_effect: float, alpha: float,
@@ -606,6 +644,26 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
                    rejected, min_effect)
 
 
+OUTLIER_SIGMAS = 5.0
+
+
+def _outliers(machine, residuals: np.ndarray, covariates: dict, min_effect: float) -> dict:
+    """Rows whose error under the extended model lies more than :data:`OUTLIER_SIGMAS`
+    robust standard deviations (1.4826 x the median absolute deviation) from the median:
+    a transient, a gross error or an effect of a few rows, which no smooth effect
+    describes. They stay in every fit and figure; the report names them."""
+    errors = machine.row_errors(residuals)
+    centre = float(np.median(errors))
+    sigma = 1.4826 * float(np.median(np.abs(errors - centre)))
+    limit = max(centre + OUTLIER_SIGMAS * sigma, min_effect)
+    rows = np.flatnonzero(errors > limit)
+    return {'limit': limit, 'robust_sigma': sigma,
+            'rows': [{'row': int(i), 'error': float(errors[i]),
+                      'covariates': {k: float(v[i]) for k, v in covariates.items()}}
+                     for i in rows[np.argsort(-errors[rows])][:20]],
+            'count': int(len(rows))}
+
+
 def _merged(splits: list, attribute: str, keep: list) -> dict:
     """A per-split dict merged over the splits (first split first), less the ``keep`` names."""
     out = {}
@@ -646,6 +704,7 @@ def _result(machine, config, splits: list, final: _Fit, evidence: dict, frequenc
                          'rms_after': _summary(machine, evaluate(machine, refit, rows))['rms']})
     held_before, held_after = _summary(machine, before_all[holdout]), _summary(machine, after_all[holdout])
     names = final.names()
+    outliers = _outliers(machine, after_all, covariates, min_effect)
     report = {
         'machine': machine.name,
         'base_model': machine.base_model,
@@ -676,6 +735,7 @@ def _result(machine, config, splits: list, final: _Fit, evidence: dict, frequenc
         'below_minimum_effect': _merged(splits, 'too_small', names),
         'rounds': primary.rounds,
         'unexplained': unexplained,
+        'outliers': outliers,
     }
     return LoopResult(_plain(report), holdout, before_all, after_all, covariates, final)
 
@@ -695,26 +755,54 @@ def _plain(value):
 
 
 def format_report(report: dict) -> str:
-    """A few lines for people: what was added, the held-out error before and after, what
-    was skipped and what structure remains."""
+    """Lines for people: what was added and how consistently, the held-out error before
+    and after, what the data cannot determine, what was rejected or skipped, and what
+    structure remains."""
     factor, unit = (1e6, 'um') if report['unit'] == 'm' else (1.0, report['unit'])
+    config = report['config']
     lines = [f'{report["machine"]}: base model {report["base_model"]}',
-             f'  rows: {report["rows"]["fitting"]} fitted, {report["rows"]["held_out"]} held out']
+             f'  rows: {report["rows"]["fitting"]} fitted, {report["rows"]["held_out"]} held '
+             f'out; selection repeated over {config["splits"]} hold-out splits, an effect is '
+             f'added when chosen in {config["min_frequency"]:.0%} of them and it explains at '
+             f'least {config["min_effect"] * factor:.3g} {unit} RMS']
     for effect in report['effects_added']:
-        values = ', '.join(f'{k} {v:.4g} {effect["units"][k]}'
+        values = ', '.join(f'{k} {v:.4g} +- {effect["std_devs"][k]:.2g} {effect["units"][k]}'
                            for k, v in effect['parameters'].items())
-        lines.append(f'  added {effect["name"]} (p = {effect["evidence"]["p_value"]:.2g}, '
-                     f'CV RMS {effect["evidence"]["cv_rms_before"] * factor:.3g} -> '
-                     f'{effect["evidence"]["cv_rms_after"] * factor:.3g} {unit}): {values}')
+        evidence = effect['evidence']
+        lines.append(f'  added {effect["name"]} (chosen in '
+                     f'{evidence["selection_frequency"]:.0%} of splits, p = '
+                     f'{evidence["p_value"]:.2g}, explains {evidence["explained_rms"] * factor:.3g} '
+                     f'{unit} RMS): {values}')
     if not report['effects_added']:
-        lines.append('  added nothing: no candidate effect is significant')
+        lines.append('  added nothing: no candidate effect is significant, identifiable and '
+                     'chosen consistently')
+    spread = report.get('held_out_by_split', [])
     lines.append(f'  held out: RMS {report["rms_before"] * factor:.3g} -> '
                  f'{report["rms_after"] * factor:.3g} {unit}, max '
                  f'{report["max_before"] * factor:.3g} -> {report["max_after"] * factor:.3g} {unit}')
+    if len(spread) > 1:
+        ratios = [s['rms_after'] / s['rms_before'] for s in spread if s['rms_before'] > 0]
+        lines.append(f'  held-out RMS after / before over the {len(spread)} splits: '
+                     f'{min(ratios):.2f} to {max(ratios):.2f}')
+    for name, reason in report.get('not_identifiable', {}).items():
+        lines.append(f'  NOT IDENTIFIABLE {name}: {reason}')
+    for name, reason in report.get('rejected', {}).items():
+        lines.append(f'  rejected {name}: {reason}')
+    for name, size in report.get('below_minimum_effect', {}).items():
+        lines.append(f'  below the minimum effect size {name}: explains {size * factor:.3g} {unit} RMS')
     for name, reason in report['skipped'].items():
-        lines.append(f'  skipped {name}: {reason}')
+        lines.append(f'  not tested {name}: {reason}')
+    outliers = report.get('outliers', {})
+    if outliers.get('count'):
+        described = '; '.join(
+            f'row {o["row"]} ({", ".join(f"{k} {v:.4g}" for k, v in o["covariates"].items())}):'
+            f' {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
+        lines.append(f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
+                     f'{outliers["limit"] * factor:.3g} {unit} ({OUTLIER_SIGMAS:g} robust sigma) '
+                     f'under the extended model, e.g. {described}')
     for item in report['unexplained']:
-        lines.append(f'  UNEXPLAINED {item["kind"]} of {item["component"]} against '
+        period = f' (period {item["period"] * 1e3:.4g} mm)' if 'period' in item else ''
+        lines.append(f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
                      f'{item["covariate"]}: {item["structure_rms"] * factor:.3g} {unit} RMS '
                      f'(p = {item["p_value"]:.2g})')
     return '\n'.join(lines)

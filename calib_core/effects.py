@@ -531,6 +531,62 @@ class ReversalByPosition(Effect):
                         trials=trials, notes=notes)
 
 
+class LeadError(Effect):
+    """A smooth position error along the travel beyond the base model's scale (cumulative
+    lead-screw error, guide or scale non-linearity): Legendre polynomials of degree 2..d
+    in position per channel, d chosen by the Bayesian information criterion and kept at
+    least two below the number of distinct positions, so the position means stay
+    over-determined."""
+
+    name = 'lead_error'
+    meaning = ('smooth non-linear position error along the travel (cumulative lead error): '
+               'sum_k c_k P_k(x), k = 2..d, Legendre P_k over the travel')
+    requires = ('position',)
+    max_degree = 5
+
+    def _prepare(self, context, channels, channel_residuals):
+        position = context['position']
+        layout, names, reasons, trials = [], [], [], 1.0
+        for c in range(position.shape[1]):
+            x, r = position[:, c], channel_residuals[:, c]
+            distinct = len(np.unique(x))
+            top = min(self.max_degree, distinct - 2)
+            if top < 2:
+                reasons.append(f'{channels[c]}: {distinct} distinct positions are too few '
+                               f'(4 needed for a quadratic beyond offset and scale)')
+                continue
+            low, high = float(x.min()), float(x.max())
+            criterion = []
+            for degree in range(2, top + 1):
+                design = np.column_stack([np.ones_like(x), _legendre_scaled(x, low, high, degree)])
+                rss = float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
+                criterion.append(len(x) * np.log(max(rss, 1e-300) / len(x))
+                                 + design.shape[1] * np.log(len(x)))
+            degree = 2 + int(np.argmin(criterion))
+            layout.append((c, degree, low, high))
+            names += [f'p{k}_{channels[c]}' for k in range(2, degree + 1)]
+            trials *= top - 1
+        if not layout:
+            return '; '.join(reasons)
+        width = len(channels)
+
+        def term(params, ctx):
+            out = np.zeros((len(ctx['position']), width))
+            start = 0
+            for c, degree, low, high in layout:
+                basis = _legendre_scaled(ctx['position'][:, c], low, high, degree)[:, 1:]
+                out[:, c] = basis @ params[start:start + degree - 1]
+                start += degree - 1
+            return out
+
+        notes = {'degree': {channels[c]: deg for c, deg, _, _ in layout},
+                 'travel_m': {channels[c]: [low, high] for c, _, low, high in layout}}
+        if reasons:
+            notes['channels_not_tested'] = reasons
+        return Prepared(self, tuple(names), ('m',) * len(names), np.zeros(len(names)), term,
+                        trials=trials, notes=notes)
+
+
 CATEGORICAL_COVARIATES = ('block', 'setup', 'run', 'cycle')
 """Covariate columns read as categories (labels, not quantities): a step between their
 levels is the ``block_step`` effect and a structure test."""
@@ -662,6 +718,6 @@ class TangentialDistortion(_FixedParameters):
 
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
-                               ReversalByPosition(), BlockStep(), WarmUp(),
+                               ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
                                DriftTime(), DriftTemperature(), RadialDistortion(),
                                TangentialDistortion(), LegPlay(), Compliance())}
