@@ -10,7 +10,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
+from calib_core import iso230_2
+from calib_core.closed_loop import (MachineModel, evaluate, refit, scalar_covariates,
+                                    select_rows)
+from calib_core.effects import CATEGORICAL_COVARIATES
 from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
@@ -101,3 +104,62 @@ class AxisModel(MachineModel):
         d = self.data
         predicted = d.command[rows] * (1 + base['scale']) + base['offset'] + delta[:, 0]
         return (d.measured[rows] - predicted)[:, None]
+
+
+def predicted_error(model: AxisModel, fit, positions: np.ndarray, direction: float) -> np.ndarray:
+    """The error (measured - command, m) ``fit`` predicts at ``positions`` (m) approached
+    from ``direction``, in the reference state: time and temperature at the test's means,
+    a start-up transient decayed, blocks and set-ups at their first level."""
+    covariates = {}
+    for key, values in model.data.covariates.items():
+        values = np.asarray(values, float)
+        if key in ('time', 'temperature'):
+            covariates[key] = np.full(len(positions), values.mean())
+        elif key == 'sequence':
+            covariates[key] = np.full(len(positions), values.min() + 1e9)
+        elif key in CATEGORICAL_COVARIATES:
+            covariates[key] = np.full(len(positions), np.min(values))
+    probe = AxisModel(AxisData(positions, positions, np.full(len(positions), direction),
+                               covariates))
+    return -evaluate(probe, fit, np.arange(len(positions)))[:, 0]
+
+
+def iso230_2_before_after(model: AxisModel, fit) -> dict:
+    """ISO 230-2 figures of the axis as measured, after the base model's linear
+    compensation and after the extended model's, and the compensation table.
+
+    The compensated deviations are predictions for data not fitted: each cycle is
+    predicted by the model fitted to the other cycles (leave one cycle out), when the data
+    have three or more cycles; otherwise in-sample, and the report says so.
+    """
+    data = model.data
+    rows = np.arange(len(data))
+    cycles = data.covariates.get('cycle')
+    after_base = np.empty(len(data))
+    after = np.empty(len(data))
+    if cycles is not None and len(np.unique(cycles)) >= 3:
+        method = 'leave one cycle out: each cycle predicted by the model fitted to the others'
+        for cycle in np.unique(cycles):
+            test, train = rows[cycles == cycle], rows[cycles != cycle]
+            after_base[test] = evaluate(model, refit(model, fit, train, effects=False), test)[:, 0]
+            after[test] = evaluate(model, refit(model, fit, train), test)[:, 0]
+    else:
+        method = 'in-sample (fewer than three cycles to leave one out)'
+        after_base[:] = evaluate(model, refit(model, fit, rows, effects=False), rows)[:, 0]
+        after[:] = evaluate(model, fit, rows)[:, 0]
+    targets = np.unique(data.command)
+    grid = np.union1d(targets, np.linspace(targets.min(), targets.max(), 101))
+    table = iso230_2.compensation_table(grid, predicted_error(model, fit, grid, 1.0),
+                                        predicted_error(model, fit, grid, -1.0))
+    return {'method': method,
+            'before': iso230_2.figures(data.command, data.measured - data.command, data.direction),
+            'after_linear': iso230_2.figures(data.command, after_base, data.direction),
+            'after': iso230_2.figures(data.command, after, data.direction),
+            'compensation_table': table}
+
+
+def write_compensation_table(path, table: list) -> None:
+    """The table as CSV: position, correction_up, correction_down (m); add the correction
+    to a command approached from below (up) or above (down)."""
+    columns = np.array(table).T
+    write_columns(path, ['position', 'correction_up', 'correction_down'], list(columns))

@@ -417,18 +417,41 @@ def _loop_machine(args, dropped: dict):
     return HexapodLoopModel(data, nominal, forces)
 
 
+def _axis_figures(machine, result, report: dict, json_path) -> None:
+    """ISO 230-2 figures before and after, into the report and printed; the
+    compensation table beside the JSON."""
+    from calib_core.axis import iso230_2_before_after, write_compensation_table
+    from calib_core.iso230_2 import format_figures
+    iso = iso230_2_before_after(machine, result.fit)
+    table = iso.pop('compensation_table')
+    report['iso230_2'] = iso
+    for label, key in (('as measured', 'before'), ('after linear compensation', 'after_linear'),
+                       ('after the extended model', 'after')):
+        print('\n'.join(format_figures(label, iso[key])))
+    print(f'  compensated figures: {iso["method"]}')
+    if json_path:
+        path = Path(json_path).with_name(Path(json_path).stem + '_compensation.csv')
+        write_compensation_table(path, table)
+        report['compensation_table'] = str(path)
+        print(f'wrote {path} (position, correction_up, correction_down in m; '
+              f'{len(table)} rows, reference state: mean time and temperature, first block)')
+
+
 def cmd_analyze(args) -> int:
     from calib_core.closed_loop import LoopConfig, analyze, format_report
     from calib_core.loop_plots import plot_loop
     dropped = {}
     machine = _loop_machine(args, dropped)
     config = LoopConfig(holdout_fraction=args.holdout, alpha=args.alpha, seed=args.seed,
-                        max_effects=args.max_effects)
+                        max_effects=args.max_effects, splits=args.splits,
+                        min_effect=args.min_effect)
     result = analyze(machine, config, progress=_progress)
     report = dict(result.report, data=str(args.data), dropped_columns=dropped)
     print(format_report(report))
     for name, reason in dropped.items():
         print(f'  column {name}: {reason}')
+    if args.machine == 'axis':
+        _axis_figures(machine, result, report, args.json)
     if args.json:
         _write_json(args.json, report)
         plot = Path(args.json).with_suffix('.png')
@@ -590,7 +613,8 @@ def build_parser() -> argparse.ArgumentParser:
     analyze = sub.add_parser('analyze', help='closed loop: find the effect a model lacks, '
                                              'refit, report before/after on held-out data')
     machines = analyze.add_subparsers(dest='machine', required=True)
-    formats = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional time (s), '
+    formats = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional cycle, '
+                       'sequence (approach number), block/setup/run (labels), time (s), '
                        'temperature (K)',
                'gantry': 'CSV: command_x, command_y, measured_x, measured_y (m); optional '
                          'direction_x, direction_y, time, temperature',
@@ -608,7 +632,12 @@ def build_parser() -> argparse.ArgumentParser:
                              help='fraction of rows kept out of every fit')
         machine.add_argument('--alpha', type=float, default=1e-3, help='significance level')
         machine.add_argument('--max-effects', type=int, default=4)
-        machine.add_argument('--seed', type=int, default=0, help='of the hold-out split')
+        machine.add_argument('--seed', type=int, default=0, help='of the first hold-out split')
+        machine.add_argument('--splits', type=int, default=5,
+                             help='hold-out splits the selection is repeated over')
+        machine.add_argument('--min-effect', type=float, default=None,
+                             help='smallest effect worth adding, RMS in the residual unit '
+                                  '(m; px for the camera); default: the machine\'s')
         if name == 'camera':
             machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
         if name == 'hexapod':

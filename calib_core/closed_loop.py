@@ -224,6 +224,13 @@ def evaluate(machine: MachineModel, fit: _Fit, rows: np.ndarray) -> np.ndarray:
     return _residuals(machine, fit.base, fit.effects, fit.values, rows)
 
 
+def refit(machine: MachineModel, fit: _Fit, rows: np.ndarray, effects: bool = True) -> _Fit:
+    """``fit``'s model (its base and, with ``effects``, its effects) fitted again on ``rows``."""
+    if effects:
+        return _fit(machine, fit.base, fit.effects, fit.values, rows)
+    return _fit(machine, machine.initial(), [], [], rows)
+
+
 def _channel_residuals(machine, fit: _Fit, rows) -> np.ndarray:
     return _residuals(machine, fit.base, fit.effects, fit.values, rows, in_channels=True)
 
@@ -380,9 +387,17 @@ def _undetermined(machine, current: _Fit, extended: _Fit, rows) -> str | None:
                 f'{spread:.3g}: correlated with the base model, or too few distinct '
                 f'positions')
     sigma = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    ranges = prepared.notes.get('resolvable_periods_m', {})
     for name, value, s in zip(prepared.names, values, sigma):
-        if name.startswith('period_') and not s <= 0.1 * abs(value):
+        if not name.startswith('period_'):
+            continue
+        if not s <= 0.1 * abs(value):
             return f'period not determined: {name} = {value:.4g} +- {s:.2g} m'
+        shortest, longest = ranges.get(name[len('period_'):], (0.0, np.inf))
+        if not 0.95 * shortest <= abs(value) <= 1.05 * longest:
+            return (f'the fitted period ({abs(value) * 1e3:.4g} mm) left the periods the '
+                    f'positions resolve ({shortest * 1e3:.4g} to {longest * 1e3:.4g} mm): '
+                    f'an alias of a shorter period or a trend, not determined')
     return None
 
 

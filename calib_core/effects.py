@@ -444,7 +444,9 @@ class Periodic(Effect):
                 start += 2 * harmonics + 1
             return out
 
-        notes = {'harmonics': {channels[c]: h for c, h in layout}}
+        notes = {'harmonics': {channels[c]: h for c, h in layout},
+                 'resolvable_periods_m': {channels[c]: list(resolvable_periods(position[:, c])[:2])
+                                          for c, _ in layout}}
         if reasons:
             notes['channels_not_tested'] = reasons
         return Prepared(self, tuple(names), tuple(units), np.array(initial, float), term,
@@ -595,7 +597,7 @@ levels is the ``block_step`` effect and a structure test."""
 class BlockStep(Effect):
     """A step between measurement blocks or set-ups: a constant shift per level of a
     categorical covariate, the first level the reference (its shift is the base model's
-    offset). The covariate that explains most is chosen among those present."""
+    offset). Among the covariates present, the Bayesian information criterion chooses."""
 
     name = 'block_step'
     meaning = ('step between measurement blocks or set-ups: a constant shift per level of '
@@ -625,8 +627,12 @@ class BlockStep(Effect):
                                      + [context[key] == level for level in levels[1:]])
             rss = sum(float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
                       for r in channel_residuals.T)
-            if best is None or rss < best[0]:
-                best = (rss, key, levels)
+            # Bayesian information criterion: more levels must earn their parameters
+            count = channel_residuals.size
+            criterion = (count * np.log(max(rss, 1e-300) / count)
+                         + design.shape[1] * channel_residuals.shape[1] * np.log(count))
+            if best is None or criterion < best[0]:
+                best = (criterion, key, levels)
         _, key, levels = best
         width = len(channels)
         steps = levels[1:]
