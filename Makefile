@@ -43,6 +43,7 @@ bench: setup
 	$(BIN)/python -m printer_alignment.bench --out bench_results
 	$(BIN)/python -m hexapod_calib.bench --out bench_results
 	$(BIN)/python -m calib_core.loop_bench --out bench_results
+	$(BIN)/python -m calib_core.loop_bench_axis --out bench_results
 	$(BIN)/python -m printer_alignment.stage_bench bench_results
 
 clean:

@@ -671,12 +671,18 @@ def _outliers(machine, residuals: np.ndarray, covariates: dict, min_effect: floa
     centre = float(np.median(errors))
     sigma = 1.4826 * float(np.median(np.abs(errors - centre)))
     limit = max(centre + OUTLIER_SIGMAS * sigma, min_effect)
-    rows = np.flatnonzero(errors > limit)
+    per_row = max(len(errors) // len(residuals), 1)   # a machine may report per leg
+    flagged = np.flatnonzero(errors > limit)
+    flagged = flagged[np.argsort(-errors[flagged])]
+    rows = list(dict.fromkeys(int(i) // per_row for i in flagged))
+    worst = {}
+    for i in flagged:
+        worst.setdefault(int(i) // per_row, float(errors[i]))
     return {'limit': limit, 'robust_sigma': sigma,
-            'rows': [{'row': int(i), 'error': float(errors[i]),
-                      'covariates': {k: float(v[i]) for k, v in covariates.items()}}
-                     for i in rows[np.argsort(-errors[rows])][:20]],
-            'count': int(len(rows))}
+            'rows': [{'row': row, 'error': worst[row],
+                      'covariates': {k: float(v[row]) for k, v in covariates.items()}}
+                     for row in rows[:20]],
+            'count': len(rows)}
 
 
 def _merged(splits: list, attribute: str, keep: list) -> dict:
@@ -795,8 +801,8 @@ def format_report(report: dict) -> str:
     lines.append(f'  held out: RMS {report["rms_before"] * factor:.3g} -> '
                  f'{report["rms_after"] * factor:.3g} {unit}, max '
                  f'{report["max_before"] * factor:.3g} -> {report["max_after"] * factor:.3g} {unit}')
-    if len(spread) > 1:
-        ratios = [s['rms_after'] / s['rms_before'] for s in spread if s['rms_before'] > 0]
+    ratios = [s['rms_after'] / s['rms_before'] for s in spread if s['rms_before'] > 0]
+    if len(ratios) > 1:
         lines.append(f'  held-out RMS after / before over the {len(spread)} splits: '
                      f'{min(ratios):.2f} to {max(ratios):.2f}')
     for name, reason in report.get('not_identifiable', {}).items():
