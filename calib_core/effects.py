@@ -395,10 +395,8 @@ class Periodic(Effect):
                      and distinct >= 2 + self.parameters_per_position * (2 * h + 1)]
         criterion = []
         for h in harmonics:
-            design = np.column_stack([np.ones_like(x)] + _harmonic_columns(x, period, h))
-            rss = float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
-            criterion.append(len(x) * np.log(max(rss, 1e-300) / len(x))
-                             + design.shape[1] * np.log(len(x)))
+            criterion.append(_bic(np.column_stack([np.ones_like(x)]
+                                                  + _harmonic_columns(x, period, h)), r))
         chosen = harmonics[int(np.argmin(criterion))]
         return period, chosen, max((f_high - f_low) * span, 1.0) * len(harmonics)
 
@@ -453,6 +451,13 @@ class Periodic(Effect):
                         trials=trials, notes=notes)
 
 
+def _bic(design: np.ndarray, r: np.ndarray) -> float:
+    """Bayesian information criterion of the least-squares fit of ``r`` (n,) on
+    ``design`` (n, p): n log(RSS / n) + p log n."""
+    rss = float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
+    return len(r) * np.log(max(rss, 1e-300) / len(r)) + design.shape[1] * np.log(len(r))
+
+
 def _harmonic_columns(x: np.ndarray, period: float, harmonics: int) -> list:
     """cos and sin of harmonics 1..``harmonics`` of ``period`` at ``x``."""
     columns = []
@@ -501,11 +506,8 @@ class ReversalByPosition(Effect):
             low, high = float(targets.min()), float(targets.max())
             criterion = []
             for degree in range(1, top + 1):
-                design = np.column_stack([np.ones_like(x), -0.5 * d[:, None] * np.column_stack(
-                    [np.ones_like(x), _legendre_scaled(x, low, high, degree)])])
-                rss = float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
-                criterion.append(len(x) * np.log(max(rss, 1e-300) / len(x))
-                                 + design.shape[1] * np.log(len(x)))
+                criterion.append(_bic(np.column_stack([np.ones_like(x), -0.5 * d[:, None] * np.column_stack(
+                    [np.ones_like(x), _legendre_scaled(x, low, high, degree)])]), r))
             degree = 1 + int(np.argmin(criterion))
             layout.append((c, degree, low, high))
             names += [f'backlash_{channels[c]}'] + [f'backlash_p{k}_{channels[c]}'
@@ -560,10 +562,8 @@ class LeadError(Effect):
             low, high = float(x.min()), float(x.max())
             criterion = []
             for degree in range(2, top + 1):
-                design = np.column_stack([np.ones_like(x), _legendre_scaled(x, low, high, degree)])
-                rss = float(np.sum((r - design @ np.linalg.lstsq(design, r, rcond=None)[0]) ** 2))
-                criterion.append(len(x) * np.log(max(rss, 1e-300) / len(x))
-                                 + design.shape[1] * np.log(len(x)))
+                criterion.append(_bic(np.column_stack(
+                    [np.ones_like(x), _legendre_scaled(x, low, high, degree)]), r))
             degree = 2 + int(np.argmin(criterion))
             layout.append((c, degree, low, high))
             names += [f'p{k}_{channels[c]}' for k in range(2, degree + 1)]
