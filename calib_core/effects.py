@@ -391,8 +391,9 @@ class Periodic(Effect):
             return (f'period not determined: {1e3 / freqs[best]:.4g} mm and '
                     f'{1e3 / rival:.4g} mm fit the data almost equally ({need})')
         period = 1.0 / freqs[best]
-        harmonics = [h for h in range(1, self.max_harmonics + 1) if period / h >= shortest
-                     and distinct >= 2 + self.parameters_per_position * (2 * h + 1)]
+        # The fundamental is resolvable by construction (rounding aside); harmonics must be.
+        harmonics = [1] + [h for h in range(2, self.max_harmonics + 1) if period / h >= shortest
+                           and distinct >= 2 + self.parameters_per_position * (2 * h + 1)]
         criterion = []
         for h in harmonics:
             criterion.append(_bic(np.column_stack([np.ones_like(x)]
