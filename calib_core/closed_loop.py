@@ -409,7 +409,6 @@ class _Split:
     train: np.ndarray         # row indices
     folds: np.ndarray         # fold per training row
     base_fit: _Fit
-    fit: _Fit
     added: list               # dicts: prepared, round, evidence
     rounds: list
     skipped: dict
@@ -552,8 +551,8 @@ def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=
         current, current_cv = best['fit'], best['cv_rms']
         gone = {best['effect'], *best['prepared'].effect.supersedes}
         remaining = [name for name in remaining if name not in gone]
-    return _Split(holdout, train, folds, base_fit, current, added, rounds, skipped,
-                  not_identifiable, too_small)
+    return _Split(holdout, train, folds, base_fit, added, rounds, skipped, not_identifiable,
+                  too_small)
 
 
 def _heldout_ss(machine, splits: list, effects: list, values: list, start: _Fit) -> tuple:
@@ -586,6 +585,7 @@ def _build(machine, primary: _Split, chosen: list):
             continue
         current = entry['fit']
         evidence[name] = first.get(name, {'round': None, 'evidence': {
+            # not chosen on this split: its p-value is corrected for its own search only
             'f_statistic': entry['f_statistic'], 'p_value': entry['p_value_raw'],
             'explained_rms': entry['size']}})
     return current, evidence, not_identifiable, rejected
