@@ -82,6 +82,8 @@ class AxisModel(MachineModel):
     def __init__(self, data: AxisData):
         self.data = data
         self._scalars = scalar_covariates(data.covariates)
+        settings = np.column_stack([data.command, data.direction])
+        self._replicates = np.unique(settings, axis=0, return_inverse=True)[1].ravel()
 
     def __len__(self):
         return len(self.data)
@@ -97,8 +99,7 @@ class AxisModel(MachineModel):
 
     def replicates(self):
         """Rows at one target approached from one direction repeat one setting."""
-        settings = np.column_stack([self.data.command, self.data.direction])
-        return np.unique(settings, axis=0, return_inverse=True)[1].ravel()
+        return self._replicates
 
     def residuals(self, base, delta, rows, context):
         d = self.data

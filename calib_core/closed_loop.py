@@ -357,29 +357,25 @@ def _term_spread(prepared, values: np.ndarray, covariance: np.ndarray, context: 
     return float(np.sqrt(np.mean(term ** 2))), float(np.sqrt(np.mean(variance)))
 
 
-def _undetermined(machine, current: _Fit, extended: _Fit, rows) -> str | None:
-    """Why the effect last in ``extended`` is not identifiable from the data, or None.
+def _undetermined(machine, current: _Fit, entry: dict, rows) -> str | None:
+    """Why the candidate scored in ``entry`` (by :func:`_try_candidate` on ``rows``) is not
+    identifiable from the data, or None.
 
-    The noise is the one its F-test used (:func:`_noise_variance`). Three checks: its
-    parameters add as many independent directions to the joint fit's
-    Jacobian as they are many (else they are not separable from the model's); the term
-    they make is known to better than :data:`MAX_TERM_UNCERTAINTY` of its size (the
-    covariance is the joint fit's, so correlation with the base model counts); and a
-    fitted period is known to 10 %.
+    The noise is the one its F-test used. Three checks: its parameters add as many
+    independent directions to the joint fit's Jacobian as the model gains parameters
+    (else they are not separable from the model's); the term they make is known to better
+    than :data:`MAX_TERM_UNCERTAINTY` of its size (the covariance is the joint fit's, so
+    correlation with the base model counts); and a fitted period is known to 10 %.
     """
+    extended, extra = entry['fit'], entry['extra']
     k = len(extended.effects) - 1
     prepared, values = extended.effects[k], extended.values[k]
     columns = extended.effect_slice(k)
-    kept = _without(current, prepared.effect.supersedes)[1]
-    extra = len(values) - (current.parameter_count - len(current.base.free_names)
-                           - sum(len(v) for v in kept))
     gained = _rank(extended.jacobian) - _rank(current.jacobian)
     if gained < extra:
         return (f'its parameters are not separable from the model\'s: they add {gained} '
                 f'of {extra} independent directions to the fit')
-    noise = _noise_variance(machine, extended, rows, extra,
-                            extended.residuals.size - extended.parameter_count)[0]
-    covariance = extended.covariance(noise)[columns, columns]
+    covariance = extended.covariance(entry['noise'])[columns, columns]
     size, spread = _term_spread(prepared, values, covariance,
                                 machine.context(extended.base, rows))
     if not spread <= MAX_TERM_UNCERTAINTY * size:
@@ -461,7 +457,8 @@ def _try_candidate(machine, current: _Fit, name: str, train, context, channel_re
     f_stat = max(rss0 - rss1, 0.0) / extra / max(noise, 1e-300)
     return {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
             'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
-            'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train)))}
+            'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train))),
+            'extra': extra, 'noise': noise}
 
 
 MIN_PURE_ERROR_DOF = 10
@@ -497,7 +494,7 @@ def _judge(machine, current: _Fit, entry: dict, train, min_effect: float, alpha:
     entry['significant'] = bool(entry['p_value'] < alpha)
     if not entry['significant']:
         return 'not significant'
-    entry['reason'] = _undetermined(machine, current, entry['fit'], train)
+    entry['reason'] = _undetermined(machine, current, entry, train)
     if entry['reason']:
         return 'not identifiable'
     if entry['size'] < min_effect:
@@ -579,7 +576,7 @@ def _build(machine, primary: _Split, chosen: list):
         if isinstance(entry, str):
             rejected[name] = f'chosen on other splits, but on the first: {entry}'
             continue
-        reason = _undetermined(machine, current, entry['fit'], primary.train)
+        reason = _undetermined(machine, current, entry, primary.train)
         if reason:
             not_identifiable[name] = reason
             continue
