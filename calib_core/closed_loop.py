@@ -240,14 +240,24 @@ def _fit(machine: MachineModel, base: ParameterSet, effects: list, values: list,
     """Joint least squares of the base model and ``effects`` on ``rows``."""
     sizes = [len(v) for v in values]
     nb = len(base.free_names)
-    x0 = np.concatenate([base.free_vector()] + [np.asarray(v, float) for v in values])
+    start = np.concatenate([base.free_vector()] + [np.asarray(v, float) for v in values])
+    free = np.ones(len(start), bool)
+    if any(e.determined is not None for e in effects):
+        context, offset = machine.context(base, rows), nb
+        for effect, size in zip(effects, sizes):
+            if effect.determined is not None:
+                free[offset:offset + size] = effect.determined(context)
+            offset += size
+    x0 = start[free]
 
     def unpack(x):
-        parts, start = [], nb
+        full = start.copy()
+        full[free] = x
+        parts, offset = [], nb
         for s in sizes:
-            parts.append(x[start:start + s])
-            start += s
-        return base.with_free_vector(x[:nb]), parts
+            parts.append(full[offset:offset + s])
+            offset += s
+        return base.with_free_vector(full[:nb]), parts
 
     def fun(x):
         b, parts = unpack(x)
@@ -258,7 +268,10 @@ def _fit(machine: MachineModel, base: ParameterSet, effects: list, values: list,
         raise InvalidInputError('residuals are not finite (NaN or infinite values in the data?)')
     solution = least_squares(fun, x0, method='trf', x_scale='jac')
     b, parts = unpack(solution.x)
-    return _Fit(b, list(effects), parts, solution.fun.reshape(len(rows), -1), solution.jac)
+    # Held parameters get zero columns: the rows say nothing about them.
+    jacobian = np.zeros((solution.jac.shape[0], len(start)))
+    jacobian[:, free] = solution.jac
+    return _Fit(b, list(effects), parts, solution.fun.reshape(len(rows), -1), jacobian)
 
 
 def _without(fit: _Fit, names) -> tuple[list, list]:

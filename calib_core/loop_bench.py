@@ -40,14 +40,15 @@ def _camera(distortion, seed: int):
                            (640, 480))
 
 
-def _hexapod(play: bool, seed: int):
+def _hexapod(play: bool, seed: int, force_to_close_play: float = 5.0):
     from hexapod_calib.core.geometry import nominal_geometry
     from hexapod_calib.core.loop_model import HexapodLoopModel
     from hexapod_calib.sim.hexapod import (
         TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses)
     nominal = nominal_geometry()
     truth = dataclasses.replace(HexapodTruth.default(nominal, 2),
-                                payload_centre=TALL_PAYLOAD_CENTRE)
+                                payload_centre=TALL_PAYLOAD_CENTRE,
+                                force_to_close_play=force_to_close_play)
     if not play:
         truth = dataclasses.replace(truth, leg_play=np.zeros(6))
     data, forces = measure_random_poses(truth, 200, seed, nominal)
@@ -89,6 +90,8 @@ def _cases():
          lambda s: _stage(False, s)),
         ('hexapod', 'leg_play (8.3-9.9 um)', lambda s: _hexapod(True, s),
          lambda s: _hexapod(False, s)),
+        ('hexapod', 'leg_play closed by the load sign alone (0 N)',
+         lambda s: _hexapod(True, s, 0.0), lambda s: _hexapod(False, s, 0.0)),
     ], {'axis': (lambda s: _axis({'temperature_rise': 0.5}, s), 200),
         'gantry': (lambda s: _gantry(ideal, s), 30),
         'camera': (lambda s: _camera((0, 0, 0, 0), s), 15),

@@ -119,6 +119,41 @@ def test_hexapod_joint_play_found():
     assert report['rms_after'] < 1.3 * floor
 
 
+def _hexapod_run(force_to_close_play: float, play: bool, seed: int) -> dict:
+    truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD_CENTRE,
+                                force_to_close_play=force_to_close_play)
+    if not play:
+        truth = dataclasses.replace(truth, leg_play=np.zeros(6))
+    data, forces = measure_random_poses(truth, 200, seed=seed)
+    return analyze(HexapodLoopModel(data, nominal_geometry(), forces)).report
+
+
+def test_hexapod_play_closed_by_load_sign_alone():
+    # No low-force regime: the play sits where the static force puts it, whatever the last
+    # move. Near zero force the engineer's force (nominal geometry, commanded pose) has the
+    # wrong sign on a few rows; before the sign test they switched the threshold to 1 N,
+    # and leg 6 (force sign changes 6 times in 200 poses) got no play at all: 1.67x floor.
+    report = _hexapod_run(0.0, True, seed=7)
+    effects = _added(report)
+    assert list(effects) == ['leg_play']
+    assert effects['leg_play']['force_to_close_play_N'] == 0.0
+    assert effects['leg_play']['legs_with_mean_play'] == ['leg6']
+    floor = _hexapod_run(0.0, False, seed=7)
+    assert floor['effects_added'] == []
+    assert report['rms_after'] < 1.3 * floor['rms_after']
+
+
+def test_hexapod_play_fits_held_on_splits_that_cannot_determine_them():
+    # 2 N closing force, seed 11: on one hold-out split leg 6's play side never changes in
+    # the fitting rows; fitted freely there, play and actuator offset drifted together to
+    # 0.33 m and the play was rejected as making the held-out error worse (17.8 mm RMS).
+    report = _hexapod_run(2.0, True, seed=11)
+    effects = _added(report)
+    assert 'leg_play' not in report['rejected']
+    assert effects['leg_play']['force_to_close_play_N'] == 2.0
+    assert report['rms_after'] < 0.5 * report['rms_before']
+
+
 def test_hexapod_without_forces_skips_play_and_says_why():
     truth = dataclasses.replace(HexapodTruth.default(seed=2), payload_centre=TALL_PAYLOAD_CENTRE)
     nominal = nominal_geometry()
