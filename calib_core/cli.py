@@ -336,7 +336,7 @@ def cmd_evaluate_alignment(args) -> int:
     from printer_alignment.core.alignment import replay_alignment
     from printer_alignment.core.stage_calibration import ParametricModel, models_from_dict
     from printer_alignment.nodes.aligner import REPORT_TOPIC, STAGE_RESULT_TOPIC
-    from printer_alignment.sim.stage import NOMINAL_STAGE
+    from printer_alignment.core.stage import NOMINAL_STAGE
     models = {'nominal': ParametricModel(NOMINAL_STAGE)}
     alignments = []
     for topic, _, msg in decode_bag(args.bag):
@@ -411,7 +411,7 @@ def _loop_machine(args, dropped: dict):
     data = PoseData.from_csv(args.data, nominal, dropped)
     forces = None
     if args.payload:
-        from hexapod_calib.sim.hexapod import leg_forces
+        from hexapod_calib.core.statics import leg_forces
         mass, *centre = args.payload
         forces = leg_forces(nominal, data.commanded, mass, centre)
     return HexapodLoopModel(data, nominal, forces)

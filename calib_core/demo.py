@@ -106,7 +106,7 @@ def _printer(out: Path, domain: str) -> int:
     from printer_alignment.sim.camera import CameraSim
     from printer_alignment.sim.evaluation import measure_errors, plot_errors, summarise
     from printer_alignment.sim.gantry import GantrySim
-    from printer_alignment.sim.scene import make_scene
+    from printer_alignment.sim.scenes import make_scene
     values = dict(zip(result.names, result.values))
     camera2plate = CameraToPlate(values['pixel_size'], values['camera_angle'])
     gantry_model = GantryModel(**{k: values[k] for k in GantryModel().as_dict()})

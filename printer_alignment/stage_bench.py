@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.storage import write_atomic
+from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import ParametricModel, calibrate_stage
 from printer_alignment.sim.stage import (
-    NOMINAL_STAGE, evaluate_alignment, measure_repeatability, simulate_calibration_run)
+    evaluate_alignment, measure_repeatability, simulate_calibration_run)
 
 ARCSEC = np.pi / 180 / 3600
 

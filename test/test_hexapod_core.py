@@ -13,9 +13,9 @@ from hexapod_calib.core.geometry import (
 from hexapod_calib.core.kinematics import (
     condition_numbers, forward_kinematics, inverse_kinematics, jacobian)
 from hexapod_calib.core.procedure import HexapodPlan, identify_from_records, run_hexapod_calibration
+from hexapod_calib.core.statics import leg_forces
 from hexapod_calib.errors import ConvergenceError, SingularPoseError
-from hexapod_calib.sim.hexapod import (
-    HexapodSim, HexapodTruth, PoseSensorSim, leg_forces, true_geometry)
+from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim, true_geometry
 
 NOMINAL = nominal_geometry()
 # The paper's results after calibration (0.35 mm / 0.0073 rad before).

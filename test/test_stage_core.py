@@ -7,12 +7,11 @@ from calib_core.errors import CalibrationError, InvalidInputError, OutOfTravelEr
 from calib_core.iso9283 import multidirectional_variation, pose_repeatability
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
 from printer_alignment.core.stage import (
-    StageGeometry, check_stroke, ideal_forward, ideal_inverse)
+    NOMINAL_STAGE, StageGeometry, check_stroke, ideal_forward, ideal_inverse)
 from printer_alignment.core.stage_calibration import (
     ParametricModel, StageData, StagePlan, parametric_calibration, stepwise_calibration)
 from printer_alignment.sim.stage import (
-    NOMINAL_STAGE, TRUE_STAGE, StageSim, evaluate_alignment, measure_repeatability,
-    simulate_calibration_run)
+    TRUE_STAGE, StageSim, evaluate_alignment, measure_repeatability, simulate_calibration_run)
 
 PAPER_MAX_POSITION = 12.3e-6     # m, the paper's max error after calibration
 

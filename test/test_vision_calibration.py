@@ -11,7 +11,7 @@ from printer_alignment.core.vision_calibration import (
 from printer_alignment.core.vision_procedure import VisionPlan, run_vision_calibration
 from printer_alignment.sim.camera import CameraSim
 from printer_alignment.sim.gantry import GantrySim
-from printer_alignment.sim.scene import make_scene
+from printer_alignment.sim.scenes import make_scene
 
 
 

@@ -37,7 +37,7 @@ from hexapod_calib.core.loop_model import HexapodLoopModel
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
 from hexapod_calib.nodes.conversions import (
     leg_lengths_from_message, pose_as_message, pose_from_message)
-from hexapod_calib.sim.hexapod import leg_forces
+from hexapod_calib.core.statics import leg_forces
 
 MEASUREMENTS_TOPIC = '/hexapod_calibrator/measurements'
 RESULT_TOPIC = '/hexapod_calibrator/result'

@@ -14,12 +14,10 @@ import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
 from hexapod_calib.core.geometry import (
-    HexapodGeometry, as_poses, nominal_geometry, rotation_matrices)
+    HexapodGeometry, as_poses, nominal_geometry)
 from hexapod_calib.core.kinematics import (
-    MAX_CONDITION, condition_numbers, forward_kinematics, inverse_kinematics, jacobian)
-
-GRAVITY = 9.81  # m/s^2
-
+    MAX_CONDITION, condition_numbers, forward_kinematics, inverse_kinematics)
+from hexapod_calib.core.statics import leg_forces
 
 def true_geometry(nominal: HexapodGeometry, seed: int = 2, joint_sigma: float = 0.1e-3,
                   offset_sigma: float = 0.1e-3) -> HexapodGeometry:
@@ -68,17 +66,6 @@ class HexapodTruth:
     def ideal(cls, nominal: HexapodGeometry | None = None) -> 'HexapodTruth':
         """No geometric error, no play, no noise: for tests of the kinematics."""
         return cls(nominal or nominal_geometry(), np.zeros(6), actuator_noise=0.0)
-
-
-def leg_forces(geometry: HexapodGeometry, poses, mass: float, centre) -> np.ndarray:
-    """Static axial leg forces (N, compression positive) holding a payload of ``mass`` (kg)
-    with centre of mass ``centre`` (platform frame, m), shape (n, 6)."""
-    poses = as_poses(poses)
-    lever = np.einsum('nij,j->ni', rotation_matrices(poses[:, 3:]), np.asarray(centre, float))
-    weight = np.array([0.0, 0.0, -mass * GRAVITY])
-    wrench = np.concatenate([np.broadcast_to(weight, lever.shape), np.cross(lever, weight)], 1)
-    # Legs push along u_i: sum f_i [u_i, (R a_i) x u_i] + wrench = 0, i.e. J^T f = -wrench.
-    return np.linalg.solve(np.swapaxes(jacobian(geometry, poses), 1, 2), -wrench[..., None])[..., 0]
 
 
 @dataclass(frozen=True)

@@ -279,6 +279,12 @@ class StageGeometry:
         return np.column_stack([xy, pose[:, 2] - a0])
 
 
+# The stage as drawn: where the drawing mounts it in the plate frame (m, m, rad). The
+# calibrator and the aligner start from it on a real machine as in simulation.
+NOMINAL_STAGE2PLATE = (-0.140, -0.055, 0.0)
+NOMINAL_STAGE = StageGeometry(stage2plate=NOMINAL_STAGE2PLATE)
+
+
 def platform_points_in_plate(plate_pose, points) -> np.ndarray:
     """Plate positions (m, (n, k, 2)) of platform-frame ``points`` ((k, 2)) for plate-frame
     platform poses ((n, 3))."""

@@ -30,10 +30,9 @@ from calib_core.nodes.calibrator import call_service
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
-from printer_alignment.core.stage import path_from_below
+from printer_alignment.core.stage import NOMINAL_STAGE, path_from_below
 from printer_alignment.core.stage_calibration import ParametricModel, models_from_dict
 from printer_alignment.nodes.mark_locator import MarkLocator
-from printer_alignment.sim.stage import NOMINAL_STAGE
 
 MODELS = ('parametric', 'stepwise', 'nominal')
 REPORT_TOPIC = '/aligner/report'

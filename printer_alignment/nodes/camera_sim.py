@@ -28,7 +28,8 @@ from calib_core.nodes.spin import run_node
 from printer_alignment.core.geometry import CameraToPlate
 from printer_alignment.nodes.conversions import image_as_message
 from printer_alignment.sim.camera import CameraOptics, CameraSim
-from printer_alignment.sim.scene import StageScene, make_scene, stage_scene
+from printer_alignment.sim.scene import StageScene
+from printer_alignment.sim.scenes import make_scene, stage_scene
 
 
 class CameraSimNode(Node):

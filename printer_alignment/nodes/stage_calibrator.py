@@ -34,11 +34,10 @@ from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
-from printer_alignment.core.stage import landing_path
+from printer_alignment.core.stage import NOMINAL_STAGE, landing_path
 from printer_alignment.core.stage_calibration import (
     StageData, StagePlan, calibrate_stage, models_as_dict)
 from printer_alignment.nodes.mark_locator import MarkLocator
-from printer_alignment.sim.stage import NOMINAL_STAGE
 
 OBSERVATIONS_TOPIC = '/stage_calibrator/observations'
 RESULT_TOPIC = '/stage_calibrator/result'

@@ -16,7 +16,8 @@ from std_msgs.msg import Header
 from calib_core.errors import MachineAlignmentError
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
-from printer_alignment.sim.stage import NOMINAL_STAGE, TRUE_STAGE, StageSim
+from printer_alignment.core.stage import NOMINAL_STAGE
+from printer_alignment.sim.stage import TRUE_STAGE, StageSim
 
 
 class StageSimNode(Node):

@@ -71,34 +71,3 @@ class StageScene:
         plate = self.platform_marks @ np.array([[c, s], [-s, c]]) + self.pose[:2]
         return MarkSet(tuple(PlateMark('circle', float(x), float(y), self.radius)
                              for x, y in plate)).marks_within(x0, x1, y0, y1)
-
-
-def stage_scene(substrate_shift=(0.0, 0.0, 0.0), stencil=None) -> StageScene:
-    """The simulated printer's stage scene: calibration Marks and a substrate fixed with
-    ``substrate_shift`` (x m, y m, rotation rad) on the platform; the stencil's fiducials at
-    ``stencil`` (plate m, (2, 2)), by default where the substrate's would be if fixed
-    perfectly with the stage at home."""
-    from printer_alignment.sim.stage import CALIBRATION_MARKS, SUBSTRATE_MARKS, TRUE_STAGE
-    dx, dy, turn = substrate_shift
-    c, s = np.cos(turn), np.sin(turn)
-    substrate = SUBSTRATE_MARKS @ np.array([[c, s], [-s, c]]) + [dx, dy]
-    if stencil is None:
-        home = TRUE_STAGE.stage_to_plate(TRUE_STAGE.forward(np.zeros((1, 3))))[0]
-        c0, s0 = np.cos(home[2]), np.sin(home[2])
-        stencil = SUBSTRATE_MARKS @ np.array([[c0, s0], [-s0, c0]]) + home[:2]
-    return StageScene(np.vstack([CALIBRATION_MARKS, substrate]), stencil)
-
-
-def make_scene(name: str):
-    """The scene called ``name``: ``dot_plate``, ``substrate``, ``stencil`` or ``stage``."""
-    if name == 'stage':
-        return stage_scene()
-    if name == 'dot_plate':
-        return DotPlate()
-    if name == 'substrate':
-        return MarkSet((PlateMark('circle', 0.020, 0.020, 0.5e-3),
-                        PlateMark('circle', 0.180, 0.130, 0.5e-3)))
-    if name == 'stencil':
-        return MarkSet((PlateMark('cross', 0.020, 0.020, 0.6e-3, 0.2e-3),
-                        PlateMark('cross', 0.180, 0.130, 0.6e-3, 0.2e-3)))
-    raise ValueError(f'unknown scene {name!r}; use dot_plate, substrate, stencil or stage')

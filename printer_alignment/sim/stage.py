@@ -15,9 +15,8 @@ from calib_core.errors import InvalidInputError, OutOfTravelError
 from printer_alignment.core.stage import (
     NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, path_from_below,
     platform_points_in_plate)
+from printer_alignment.sim.scene import MarkSet, PlateMark
 
-NOMINAL_STAGE2PLATE = (-0.140, -0.055, 0.0)   # m, m, rad: where the drawing puts the stage
-NOMINAL_STAGE = StageGeometry(stage2plate=NOMINAL_STAGE2PLATE)
 # Calibration Marks on the platform (platform frame, m): under the gantry at plate
 # (40, 75) mm and (160, 75) mm when the stage is at home.
 CALIBRATION_MARKS = np.array([[0.180, 0.130], [0.300, 0.130]])
@@ -153,7 +152,6 @@ def camera_pose_sensor(stage: StageSim, platform_points=CALIBRATION_MARKS, seed:
     above its home position, detects it and converts pixels with the camera's scale."""
     from printer_alignment.core.marks import detect_marks
     from printer_alignment.sim.camera import CameraSim
-    from printer_alignment.sim.scene import MarkSet, PlateMark
     parked = stage.true_points(platform_points)
     camera = CameraSim(None, seed=seed)
     c2p = camera.optics.camera2plate
