@@ -15,8 +15,6 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.storage import write_atomic

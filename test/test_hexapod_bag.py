@@ -9,7 +9,7 @@ from calib_core.bags import decode_bag
 from calib_core.cli import main as cli_main
 from hexapod_calib.core.geometry import HexapodGeometry, read_geometry
 from hexapod_calib.core.procedure import identify_from_records
-from hexapod_calib.nodes.conversions import measurement_record
+from hexapod_calib.core.records import measurement_record
 
 BAG = Path(__file__).resolve().parents[1] / 'bags' / 'hexapod_calibration_run'
 

@@ -21,8 +21,8 @@ from calib_core.launcher import hexapod_graph  # noqa: E402
 from dds import call, running  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry  # noqa: E402
 from hexapod_calib.core.procedure import identify_from_records  # noqa: E402
-from hexapod_calib.nodes.conversions import (  # noqa: E402
-    measurement_record, pose_as_message, pose_from_message)
+from hexapod_calib.core.records import measurement_record, pose_from_message  # noqa: E402
+from hexapod_calib.nodes.conversions import pose_as_message  # noqa: E402
 
 PLAN = 'num_poses: 20\nnum_evaluation: 10\nnum_candidates: 200\niterations: 2\n'
 

@@ -22,7 +22,10 @@ def test_calibration_bag_replays_to_the_recorded_result(tmp_path):
     out = tmp_path / 'replay.json'
     assert cli_main(['calibrate', 'stage', '--bag', str(CALIBRATION), '--json', str(out)]) == 0
     report = json.loads(out.read_text())
-    assert report['max_difference_to_live'] < 1e-12
+    # Same to within a thousandth of each parameter's sigma (another numpy/scipy build
+    # may stop the solver elsewhere along a weakly determined direction by ~1e-4 sigma).
+    assert report['max_difference_to_live_sigma'] < 1e-3
+    assert report['max_difference_to_live'] < 1e-6
     assert report['parametric']['residual_rms_m'] < 5e-6
 
 

@@ -17,8 +17,7 @@ from calib_core.launcher import stage_graph  # noqa: E402
 from calib_core.storage import write_calibration  # noqa: E402
 from dds import call, running  # noqa: E402
 from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E402
-from printer_alignment.nodes.stage_calibrator import (  # noqa: E402
-    data_from_records, observation_as_record)
+from printer_alignment.core.records import stage_data_from_records, stage_record  # noqa: E402
 from printer_alignment.sim.camera import CameraOptics  # noqa: E402
 from printer_alignment.sim.gantry import GantryErrors  # noqa: E402
 from printer_alignment.sim.stage import TRUE_STAGE  # noqa: E402
@@ -85,9 +84,9 @@ def test_calibration_replay_alignment_and_closed_loop(graph):
 
     # The recorded bag replays through the same code to the same result.
     bag = next((out / 'runs').glob('stage_2*'))
-    records = [observation_as_record(m) for t, _, m in decode_bag(bag)
+    records = [stage_record(m) for t, _, m in decode_bag(bag)
                if t.endswith('/observations')]
-    _, replay = calibrate_stage(data_from_records(records))
+    _, replay = calibrate_stage(stage_data_from_records(records))
     live = json.loads(response.result.report_json)['parametric']['parameters']
     assert max(abs(live[n] - v) for n, v in replay['parametric']['parameters'].items()) < 1e-12
     assert cli_main(['calibrate', 'stage', '--bag', str(bag), '--json',

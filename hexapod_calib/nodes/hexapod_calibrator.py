@@ -35,11 +35,11 @@ from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
 from hexapod_calib.core.loop_model import HexapodLoopModel
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
-from hexapod_calib.nodes.conversions import (
-    leg_lengths_from_message, pose_as_message, pose_from_message)
+from hexapod_calib.core.records import (
+    MEASUREMENTS_TOPIC, leg_lengths_from_message, pose_from_message)
+from hexapod_calib.nodes.conversions import pose_as_message
 from hexapod_calib.core.statics import leg_forces
 
-MEASUREMENTS_TOPIC = '/hexapod_calibrator/measurements'
 RESULT_TOPIC = '/hexapod_calibrator/result'
 ANALYSIS_TOPIC = '/hexapod_calibrator/analysis'
 CALIBRATION_NAME = 'hexapod_geometry'

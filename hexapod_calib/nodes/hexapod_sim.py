@@ -19,8 +19,8 @@ from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry
-from hexapod_calib.nodes.conversions import (
-    leg_lengths_from_message, pose_as_message, pose_from_message)
+from hexapod_calib.core.records import leg_lengths_from_message, pose_from_message
+from hexapod_calib.nodes.conversions import pose_as_message
 from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, Stroke
 
 LEG_NAMES = [f'leg{i + 1}' for i in range(6)]

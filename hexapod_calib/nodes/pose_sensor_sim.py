@@ -18,7 +18,8 @@ from std_msgs.msg import Header
 from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
-from hexapod_calib.nodes.conversions import pose_as_message, pose_from_message
+from hexapod_calib.core.records import pose_from_message
+from hexapod_calib.nodes.conversions import pose_as_message
 from hexapod_calib.sim.hexapod import PoseSensorSim
 
 

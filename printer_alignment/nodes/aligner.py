@@ -32,11 +32,11 @@ from calib_core.nodes.spin import run_node
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
 from printer_alignment.core.stage import NOMINAL_STAGE, path_from_below
 from printer_alignment.core.stage_calibration import ParametricModel, models_from_dict
+from printer_alignment.core.records import (
+    ALIGNER_REPORT_TOPIC as REPORT_TOPIC, STAGE_RESULT_TOPIC)
 from printer_alignment.nodes.mark_locator import MarkLocator
 
 MODELS = ('parametric', 'stepwise', 'nominal')
-REPORT_TOPIC = '/aligner/report'
-STAGE_RESULT_TOPIC = '/stage_calibrator/result'
 STATE_TOPIC = '/stage/state'
 MODEL_WAIT_S = 3.0     # s, how long an alignment waits for a stage model it has not seen
 

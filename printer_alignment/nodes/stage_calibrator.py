@@ -36,27 +36,14 @@ from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
 from printer_alignment.core.stage import NOMINAL_STAGE, landing_path
 from printer_alignment.core.stage_calibration import (
-    StageData, StagePlan, calibrate_stage, models_as_dict)
+    StagePlan, calibrate_stage, models_as_dict)
+from printer_alignment.core.records import (
+    STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC,
+    stage_data_from_records, stage_record)
 from printer_alignment.nodes.mark_locator import MarkLocator
 
-OBSERVATIONS_TOPIC = '/stage_calibrator/observations'
-RESULT_TOPIC = '/stage_calibrator/result'
 ANALYSIS_TOPIC = '/stage_calibrator/analysis'
 PLAN_KEYS = ('sweep_points', 'grid', 'span')
-
-
-def observation_as_record(msg) -> tuple:
-    """(q (3,), direction (3,), marks (2, 2)) from a StageObservation."""
-    if len(msg.q) != 3 or len(msg.direction) != 3 or len(msg.marks_x) != 2 \
-            or len(msg.marks_y) != 2:
-        raise InvalidInputError('a stage observation needs 3 inputs, 3 directions, 2 Marks')
-    return (np.array(msg.q, dtype=float), np.array(msg.direction, dtype=float),
-            np.column_stack([msg.marks_x, msg.marks_y]))
-
-
-def data_from_records(records) -> StageData:
-    q, directions, marks = zip(*records)
-    return StageData(np.array(q), np.array(directions), np.array(marks))
 
 
 class StageCalibratorNode(Node):
@@ -149,11 +136,11 @@ class StageCalibratorNode(Node):
                 self.observation_pub.publish(msg)
                 bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds,
                           serialize_message(msg))
-                records.append(observation_as_record(msg))
+                records.append(stage_record(msg))
                 self._progress(k + 1, total, f'stop {k + 1}/{len(targets)}: q = '
                                + ', '.join(f'{v * 1e3:+.3f}' for v in q) + ' mm')
             self._move(np.zeros(3))
-            data = data_from_records(records)
+            data = stage_data_from_records(records)
             models, report = calibrate_stage(data)
             content = {'kind': 'stage', 'created': stamp, 'bag': str(bag_path),
                        'models': models_as_dict(models), 'report': report}
