@@ -1,11 +1,12 @@
-"""Shared fixtures: a seeded random generator and the real photos in ../shared."""
+"""Shared fixtures: a seeded random generator and the real photos in test/data/real
+(BoofCV-Data, CC-BY-4.0; see its SOURCES.md)."""
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-REAL_DATA = REPO.parent / 'shared' / 'data' / 'real'
+REAL_DATA = REPO / 'test' / 'data' / 'real'
 
 
 @pytest.fixture
@@ -15,6 +16,4 @@ def rng():
 
 @pytest.fixture
 def real_data():
-    if not REAL_DATA.exists():
-        pytest.skip(f'real photos not found at {REAL_DATA}')
     return REAL_DATA
