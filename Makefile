@@ -40,11 +40,11 @@ test: setup
 	$(BIN)/python -m pytest -q test
 
 bench: setup
-	$(BIN)/python -m printer_alignment.bench --out bench_results
-	$(BIN)/python -m hexapod_calib.bench --out bench_results
-	$(BIN)/python -m calib_core.loop_bench --out bench_results
-	$(BIN)/python -m calib_core.loop_bench_axis --out bench_results
-	$(BIN)/python -m printer_alignment.stage_bench bench_results
+	$(BIN)/python -m machine_alignment.bench.vision --out bench_results
+	$(BIN)/python -m machine_alignment.bench.hexapod --out bench_results
+	$(BIN)/python -m machine_alignment.bench.closed_loop --out bench_results
+	$(BIN)/python -m machine_alignment.bench.closed_loop_axis --out bench_results
+	$(BIN)/python -m machine_alignment.bench.stage --out bench_results
 
 clean:
 	rm -rf build out .pytest_cache

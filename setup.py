@@ -23,7 +23,8 @@ NODES = {
 setup(
     name=package_name,
     version='0.1.0',
-    packages=find_packages(include=['calib_core*', 'printer_alignment*', 'hexapod_calib*']),
+    packages=find_packages(include=['calib_core*', 'printer_alignment*', 'hexapod_calib*',
+                                    'machine_alignment*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -37,6 +38,6 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [f'{name} = {module}:main' for name, module in NODES.items()]
-        + ['machine-align = calib_core.cli:main'],
+        + ['machine-align = machine_alignment.cli:main'],
     },
 )

@@ -21,6 +21,7 @@ Hexapod:
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
@@ -28,8 +29,27 @@ import time
 from pathlib import Path
 
 import numpy as np
+import rclpy
+from alignment_msgs.msg import Progress
+from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibration
 
 from calib_core.storage import write_atomic
+from hexapod_calib.sim.hexapod import HexapodTruth
+from machine_alignment.cli import calibrate
+from machine_alignment.launcher import Graph, hexapod_graph, printer_graph, stage_graph
+from printer_alignment.core.geometry import CameraToPlate, GantryModel
+from printer_alignment.sim.camera import CameraSim
+from printer_alignment.sim.evaluation import measure_errors, plot_errors, summarise
+from printer_alignment.sim.gantry import GantrySim
+from printer_alignment.sim.scenes import make_scene
+
+
+def _calibrate_offline(argv: list[str]) -> int:
+    """``machine-align calibrate ...`` in this process (the demo replays its own bags)."""
+    parser = argparse.ArgumentParser(prog='machine-align')
+    calibrate.add_parser(parser.add_subparsers(dest='command', required=True))
+    args = parser.parse_args(['calibrate', *argv])
+    return args.func(args)
 
 
 def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.0,
@@ -37,9 +57,6 @@ def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.
     """Call a RunCalibration service on a running graph, printing its progress; then, if
     the calibration succeeded and ``analysis`` names an AnalyzeResiduals service, run the
     closed loop with ``apply``. Returns (calibration response, analysis response)."""
-    import rclpy
-    from alignment_msgs.msg import Progress
-    from alignment_msgs.srv import AnalyzeResiduals, RunCalibration
     rclpy.init()
     node = rclpy.create_node('demo_client')
     shown = {'step': -1}
@@ -80,7 +97,6 @@ def _print_analysis(response) -> None:
 
 
 def _printer(out: Path, domain: str) -> int:
-    from calib_core.launcher import Graph, printer_graph
     print(f'[1/5] starting the simulated printer (ROS_DOMAIN_ID={domain}); logs in {out}/logs')
     graph_spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
@@ -97,16 +113,10 @@ def _printer(out: Path, domain: str) -> int:
     _print_analysis(analysis)
 
     print('[2/5] re-running the calibration offline from the recorded bag')
-    from calib_core.cli import main as cli_main
     bag = next(b for b in (out / 'runs').glob('vision_*') if 'analysis' not in b.name)
-    cli_main(['calibrate', 'vision', '--bag', str(bag), '--json', str(out / 'replay.json')])
+    _calibrate_offline(['vision', '--bag', str(bag), '--json', str(out / 'replay.json')])
 
     print('[3/5] evaluating against the simulation truth over the whole travel')
-    from printer_alignment.core.geometry import CameraToPlate, GantryModel
-    from printer_alignment.sim.camera import CameraSim
-    from printer_alignment.sim.evaluation import measure_errors, plot_errors, summarise
-    from printer_alignment.sim.gantry import GantrySim
-    from printer_alignment.sim.scenes import make_scene
     values = dict(zip(result.names, result.values))
     camera2plate = CameraToPlate(values['pixel_size'], values['camera_angle'])
     gantry_model = GantryModel(**{k: values[k] for k in GantryModel().as_dict()})
@@ -133,7 +143,6 @@ def _printer(out: Path, domain: str) -> int:
 
 
 def _hexapod(out: Path, domain: str) -> int:
-    from calib_core.launcher import Graph, hexapod_graph
     print('[4/5] starting the simulated hexapod cell and calibrating it')
     spec = hexapod_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
@@ -155,11 +164,9 @@ def _hexapod(out: Path, domain: str) -> int:
     _print_analysis(analysis)
 
     print('[5/5] re-running the identification offline from the bag; 42 parameters against truth')
-    from calib_core.cli import main as cli_main
     bag = next(b for b in (out / 'runs').glob('hexapod_*') if 'analysis' not in b.name)
-    cli_main(['calibrate', 'hexapod', '--bag', str(bag), '--out', str(out / 'hexapod_replay.yaml'),
-              '--json', str(out / 'hexapod_replay.json')])
-    from hexapod_calib.sim.hexapod import HexapodTruth
+    _calibrate_offline(['hexapod', '--bag', str(bag), '--out', str(out / 'hexapod_replay.yaml'),
+                        '--json', str(out / 'hexapod_replay.json')])
     truth = HexapodTruth.default().geometry.parameters().as_dict()
     identified = report['identification']
     z = {n: (identified['parameters'][n] - v) / identified['std_devs'][n] for n, v in truth.items()}
@@ -191,10 +198,6 @@ def run_demo(out: Path) -> int:
 
 
 def _stage(out: Path, domain: str) -> int:
-    import rclpy
-    from alignment_msgs.srv import Align, MoveStage
-
-    from calib_core.launcher import Graph, stage_graph
     print('[3b] the XY-Theta stage: self-calibration with the camera, then alignment')
     spec = stage_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
                        substrate_shift=(0.25e-3, -0.15e-3, float(np.deg2rad(0.04))))

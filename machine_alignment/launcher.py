@@ -12,6 +12,8 @@ import sys
 import time
 from dataclasses import dataclass, field
 
+from hexapod_calib.sim.hexapod import HexapodTruth
+
 
 @dataclass(frozen=True)
 class NodeSpec:
@@ -53,7 +55,6 @@ def stage_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
 
 def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> list[NodeSpec]:
     """The hexapod cell: simulated hexapod, pose sensor (CMM / laser tracker), calibrator."""
-    from hexapod_calib.sim.hexapod import HexapodTruth
     return [
         NodeSpec('hexapod_calib.nodes.hexapod_sim'),
         NodeSpec('hexapod_calib.nodes.pose_sensor_sim'),

@@ -3,7 +3,7 @@ from contextlib import contextmanager
 
 import rclpy
 
-from calib_core.launcher import Graph
+from machine_alignment.launcher import Graph
 
 
 def call(node, client, request, timeout=60.0):

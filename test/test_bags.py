@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from calib_core.bags import BagWriter, decode_bag, read_bag
-from calib_core.cli import main as cli_main
+from machine_alignment.cli import main as cli_main
 from calib_core.errors import BagError, InvalidInputError
 from printer_alignment.core.vision_procedure import (
     calibrate_from_observations, observation_from_message)

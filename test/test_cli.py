@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib_core.cli import main as cli_main
+from machine_alignment.cli import main as cli_main
 from calib_core.datasets import read_columns
 from calib_core.errors import InvalidInputError
 from printer_alignment.sim.render import MarkShape, render

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from calib_core.cli import main as cli_main
+from machine_alignment.cli import main as cli_main
 from calib_core.closed_loop import LoopConfig, analyze
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
 from hexapod_calib.core.loop_model import HexapodLoopModel

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.bags import decode_bag
-from calib_core.cli import main as cli_main
+from machine_alignment.cli import main as cli_main
 from hexapod_calib.core.geometry import HexapodGeometry, read_geometry
 from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import measurement_record

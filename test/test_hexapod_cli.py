@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from calib_core.cli import main
+from machine_alignment.cli import main
 from hexapod_calib.core.geometry import read_geometry
 
 

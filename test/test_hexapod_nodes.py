@@ -17,7 +17,7 @@ from alignment_msgs.srv import AnalyzeResiduals, MeasurePose, MoveHexapod, RunCa
 
 from calib_core.bags import decode_bag  # noqa: E402
 from calib_core.nodes.qos import LATCHED  # noqa: E402
-from calib_core.launcher import hexapod_graph  # noqa: E402
+from machine_alignment.launcher import hexapod_graph  # noqa: E402
 from dds import call, running  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry  # noqa: E402
 from hexapod_calib.core.procedure import identify_from_records  # noqa: E402

@@ -14,8 +14,8 @@ from alignment_msgs.srv import (  # noqa: E402
     AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration)
 from sensor_msgs.msg import Image  # noqa: E402
 
-from calib_core.cli import main as cli_main  # noqa: E402
-from calib_core.launcher import printer_graph  # noqa: E402
+from machine_alignment.cli import main as cli_main  # noqa: E402
+from machine_alignment.launcher import printer_graph  # noqa: E402
 from dds import call, running  # noqa: E402
 
 

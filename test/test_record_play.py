@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from calib_core.bags import decode_bag
-from calib_core.launcher import Graph, NodeSpec
+from machine_alignment.launcher import Graph, NodeSpec
 
 BAG = Path(__file__).resolve().parents[1] / 'bags' / 'vision_calibration_run'
 TOPIC = '/vision_calibrator/observations'

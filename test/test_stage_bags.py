@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.bags import decode_bag
-from calib_core.cli import main as cli_main
+from machine_alignment.cli import main as cli_main
 
 BAGS = Path(__file__).resolve().parents[1] / 'bags'
 CALIBRATION = BAGS / 'stage_calibration_run'

@@ -12,8 +12,8 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibration  # noqa: E402
 
 from calib_core.bags import decode_bag  # noqa: E402
-from calib_core.cli import main as cli_main  # noqa: E402
-from calib_core.launcher import stage_graph  # noqa: E402
+from machine_alignment.cli import main as cli_main  # noqa: E402
+from machine_alignment.launcher import stage_graph  # noqa: E402
 from calib_core.storage import write_calibration  # noqa: E402
 from dds import call, running  # noqa: E402
 from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E402

@@ -17,16 +17,22 @@ import numpy as np
 from calib_core.axis import AxisModel
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.storage import write_atomic
+from hexapod_calib.core.geometry import nominal_geometry
+from hexapod_calib.core.loop_model import HexapodLoopModel
+from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses
+from printer_alignment.core.loop_models import CameraLoopModel, GantryLoopModel
+from printer_alignment.core.stage_loop import StageLoopModel
+from printer_alignment.sim.axis import AxisTruth, simulate_axis_test
+from printer_alignment.sim.camera import tilted_plate_views
+from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
+from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
 
 
 def _axis(truth_kwargs: dict, seed: int):
-    from printer_alignment.sim.axis import AxisTruth, simulate_axis_test
     return AxisModel(simulate_axis_test(AxisTruth(**truth_kwargs), seed=seed))
 
 
 def _gantry(errors, seed: int):
-    from printer_alignment.core.loop_models import GantryLoopModel
-    from printer_alignment.sim.gantry import measure_random_positions
     return GantryLoopModel(measure_random_positions(errors, seed=seed))
 
 
@@ -34,17 +40,11 @@ CAMERA = np.array([[800.0, 0, 322], [0, 805, 236], [0, 0, 1]])
 
 
 def _camera(distortion, seed: int):
-    from printer_alignment.core.loop_models import CameraLoopModel
-    from printer_alignment.sim.camera import tilted_plate_views
     return CameraLoopModel(tilted_plate_views(CAMERA, distortion, noise_px=0.05, seed=seed),
                            (640, 480))
 
 
 def _hexapod(play: bool, seed: int, force_to_close_play: float = 5.0):
-    from hexapod_calib.core.geometry import nominal_geometry
-    from hexapod_calib.core.loop_model import HexapodLoopModel
-    from hexapod_calib.sim.hexapod import (
-        TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses)
     nominal = nominal_geometry()
     truth = dataclasses.replace(HexapodTruth.default(nominal, 2),
                                 payload_centre=TALL_PAYLOAD_CENTRE,
@@ -56,14 +56,11 @@ def _hexapod(play: bool, seed: int, force_to_close_play: float = 5.0):
 
 
 def _stage(backlash: bool, seed: int):
-    from printer_alignment.core.stage_loop import StageLoopModel
-    from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
     truth = TRUE_STAGE if backlash else dataclasses.replace(TRUE_STAGE, backlash=(0.0, 0.0, 0.0))
     return StageLoopModel(simulate_calibration_run(truth, seed=seed))
 
 
 def _cases():
-    from printer_alignment.sim.gantry import GantryErrors
     ideal = GantryErrors.ideal()
     no_screw = dataclasses.replace(GantryErrors(), backlash_x=0.0, backlash_y=0.0,
                                    periodic_amplitude_x=0.0, periodic_amplitude_y=0.0,

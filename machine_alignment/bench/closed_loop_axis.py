@@ -18,8 +18,9 @@ from pathlib import Path
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.storage import write_atomic
+from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 
-MEASURED = Path(__file__).resolve().parent.parent / 'test' / 'data' / 'measured' / 'ecmc_iso230_2'
+MEASURED = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'measured' / 'ecmc_iso230_2'
 REAL_RUNS = {'mcu1025_run_a': 'stepper axis, laser triangulation sensor, 5 targets x 5 cycles',
              'mcu1025_run_b': 'the same axis, a second run',
              'sls_encoder_vs_encoder': 'encoder read against an encoder (nothing physical)'}
@@ -45,7 +46,6 @@ def _real(name: str) -> dict:
 
 
 def _simulated(truth_kwargs: dict, test_kwargs: dict, seeds) -> list:
-    from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
     out = []
     for seed in seeds:
         data = simulate_axis_test(AxisTruth(**truth_kwargs), AxisTest(**test_kwargs), seed=seed)

@@ -1,8 +1,8 @@
 """Stage benchmark: the paper's alignment evaluation on the simulated stage, before
 calibration, after the stepwise and after the parametric method, and the stage's ISO 9283
 repeatability through the camera. Writes bench_results/stage.{json,md}."""
+import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +16,7 @@ from printer_alignment.sim.stage import (
 ARCSEC = np.pi / 180 / 3600
 
 
-def main(out: str = 'bench_results') -> int:
+def run(out: Path) -> None:
     models, report = calibrate_stage(simulate_calibration_run(seed=1))
     models = {'before (nominal)': ParametricModel(NOMINAL_STAGE), **models}
     rows = {}
@@ -42,8 +42,14 @@ def main(out: str = 'bench_results') -> int:
               f'{v["vAP_m"] * 1e6:.2f} um.']
     write_atomic(Path(out) / 'stage.md', '\n'.join(lines) + '\n')
     print('\n'.join(lines))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument('--out', default='bench_results')
+    run(Path(parser.parse_args(argv).out))
     return 0
 
 
 if __name__ == '__main__':
-    sys.exit(main(*sys.argv[1:]))
+    raise SystemExit(main())

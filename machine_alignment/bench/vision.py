@@ -20,7 +20,7 @@ from printer_alignment.core.dot_markers import LlahIndex, load_uchiya_markers, r
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.sim.render import MarkShape, coverage, render
 
-REAL = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'real'
+REAL = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'real'
 BACKGROUND, CONTRAST = 200.0, -150.0
 
 
@@ -160,8 +160,6 @@ def _grid_centres(image, blob_detector):
 
 def bench_real() -> dict:
     out = {}
-    if not REAL.exists():
-        return {'skipped': f'{REAL} not found'}
     chess = sorted(glob.glob(str(REAL / 'boofcv_mono/Sony_DSC-HX5V_Chess/*.jpg')))
     views, size, failures = views_from_images(chess, 'chessboard', 4, 6, 0.03)
     result = calibrate_intrinsics(views, size)

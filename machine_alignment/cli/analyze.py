@@ -1,0 +1,121 @@
+"""``machine-align analyze <machine>``: the closed loop on a dataset. Find the effect the
+model lacks, refit, report before and after on held-out rows; for an axis also the ISO
+230-2 figures and a compensation table."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
+from calib_core.closed_loop import LoopConfig, analyze, format_report
+from calib_core.iso230_2 import format_figures
+from calib_core.loop_plots import plot_loop
+from hexapod_calib.core.calibration import PoseData
+from hexapod_calib.core.geometry import read_geometry
+from hexapod_calib.core.loop_model import HexapodLoopModel
+from hexapod_calib.core.statics import leg_forces
+from machine_alignment.cli.common import parse_size, progress, write_json
+from printer_alignment.core.camera_calibration import read_correspondences
+from printer_alignment.core.loop_models import CameraLoopModel, GantryData, GantryLoopModel
+from printer_alignment.core.stage_calibration import StageData
+from printer_alignment.core.stage_loop import StageLoopModel
+
+FORMATS = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional cycle, '
+                   'sequence (approach number), block/setup/run (labels), time (s), '
+                   'temperature (K)',
+           'gantry': 'CSV: command_x, command_y, measured_x, measured_y (m); optional '
+                     'direction_x, direction_y, time, temperature',
+           'camera': 'CSV: view, model_x, model_y (m), u, v (px)',
+           'stage': 'CSV: q1..q3 (m), mark1_x, mark1_y, mark2_x, mark2_y (m, plate '
+                    'frame); optional direction1..3, time, temperature',
+           'hexapod': 'CSV: x..yaw, meas_x..meas_yaw (m, rad); optional l1..l6 (m), '
+                      'force1..force6 (N, compression positive), direction1..direction6, '
+                      'time, temperature'}
+
+
+def _loop_machine(args, dropped: dict):
+    """The closed loop's model of ``args.machine`` over ``args.data``."""
+    if args.machine == 'axis':
+        return AxisModel(AxisData.from_csv(args.data, dropped))
+    if args.machine == 'gantry':
+        return GantryLoopModel(GantryData.from_csv(args.data, dropped))
+    if args.machine == 'camera':
+        size = parse_size(args.image_size) if args.image_size else None
+        return CameraLoopModel(read_correspondences(args.data), size)
+    if args.machine == 'stage':
+        return StageLoopModel(StageData.from_csv(args.data, dropped))
+    nominal = read_geometry(args.geometry)
+    data = PoseData.from_csv(args.data, nominal, dropped)
+    forces = None
+    if args.payload:
+        mass, *centre = args.payload
+        forces = leg_forces(nominal, data.commanded, mass, centre)
+    return HexapodLoopModel(data, nominal, forces)
+
+
+def _axis_figures(machine, result, report: dict, json_path) -> None:
+    """ISO 230-2 figures before and after, into the report and printed; the
+    compensation table beside the JSON."""
+    iso = iso230_2_before_after(machine, result.fit)
+    table = iso.pop('compensation_table')
+    report['iso230_2'] = iso
+    for label, key in (('as measured', 'before'), ('after linear compensation', 'after_linear'),
+                       ('after the extended model', 'after')):
+        print('\n'.join(format_figures(label, iso[key])))
+    print(f'  compensated figures: {iso["method"]}')
+    if json_path:
+        path = Path(json_path).with_name(Path(json_path).stem + '_compensation.csv')
+        write_compensation_table(path, table)
+        report['compensation_table'] = str(path)
+        print(f'wrote {path} (position, correction_up, correction_down in m; '
+              f'{len(table)} rows, reference state: mean time and temperature, first block)')
+
+
+def cmd_analyze(args) -> int:
+    dropped = {}
+    machine = _loop_machine(args, dropped)
+    config = LoopConfig(holdout_fraction=args.holdout, alpha=args.alpha, seed=args.seed,
+                        max_effects=args.max_effects, splits=args.splits,
+                        min_effect=args.min_effect)
+    result = analyze(machine, config, progress=progress)
+    report = dict(result.report, data=str(args.data), dropped_columns=dropped)
+    print(format_report(report))
+    for name, reason in dropped.items():
+        print(f'  column {name}: {reason}')
+    if args.machine == 'axis':
+        _axis_figures(machine, result, report, args.json)
+    if args.json:
+        write_json(args.json, report)
+        plot = Path(args.json).with_suffix('.png')
+        plot_loop(plot, machine, result)
+        print(f'wrote {plot}')
+    return 0
+
+
+def add_parser(sub) -> None:
+    analyze_parser = sub.add_parser('analyze', help='closed loop: find the effect a model '
+                                                    'lacks, refit, report before/after on '
+                                                    'held-out data')
+    machines = analyze_parser.add_subparsers(dest='machine', required=True)
+    for name, help_text in FORMATS.items():
+        machine = machines.add_parser(name, help=help_text)
+        machine.add_argument('--data', required=True, help=help_text)
+        machine.add_argument('--json', help='report to write; the plot goes beside it (.png)')
+        machine.add_argument('--holdout', type=float, default=0.3,
+                             help='fraction of rows kept out of every fit')
+        machine.add_argument('--alpha', type=float, default=1e-3, help='significance level')
+        machine.add_argument('--max-effects', type=int, default=4)
+        machine.add_argument('--seed', type=int, default=0, help='of the first hold-out split')
+        machine.add_argument('--splits', type=int, default=5,
+                             help='hold-out splits the selection is repeated over')
+        machine.add_argument('--min-effect', type=float, default=None,
+                             help='smallest effect worth adding, RMS in the residual unit '
+                                  '(m; px for the camera); default: the machine\'s')
+        if name == 'camera':
+            machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
+        if name == 'hexapod':
+            machine.add_argument('--geometry', required=True, help='nominal geometry YAML')
+            machine.add_argument('--payload', type=float, nargs=4,
+                                 metavar=('MASS', 'X', 'Y', 'Z'),
+                                 help='payload mass (kg) and centre of mass (m, platform '
+                                      'frame): leg forces for leg_play and compliance')
+        machine.set_defaults(func=cmd_analyze)

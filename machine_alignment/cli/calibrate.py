@@ -1,0 +1,162 @@
+"""``machine-align calibrate vision|stage|hexapod`` (and ``camera``, in camera.py): rerun
+a calibration offline from a recorded run or a dataset, with the code the nodes use."""
+from __future__ import annotations
+
+import numpy as np
+
+from calib_core.errors import MachineAlignmentError
+from hexapod_calib.core.calibration import PoseData, identify, summarise_pose_errors
+from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_geometry
+from hexapod_calib.core.procedure import identify_from_records
+from hexapod_calib.core.records import MEASUREMENTS_TOPIC, measurement_record
+from machine_alignment.cli import camera
+from machine_alignment.cli.common import print_pose_summary, read_run, write_json
+from printer_alignment.core.records import stage_data_from_records, stage_record
+from printer_alignment.core.stage_calibration import StageData, calibrate_stage, models_as_dict
+from printer_alignment.core.vision_procedure import (
+    calibrate_from_observations, observation_from_message)
+
+
+def cmd_calibrate_vision(args) -> int:
+    observations, recorded = read_run(args.bag, '/observations', observation_from_message,
+                                      'vision calibration observations')
+    calibration = calibrate_from_observations(observations, args.pitch)
+    report = dict(calibration.report)
+    g = report['gantry']
+    print(f'{len(observations)} positions; pixel size '
+          f'{report["pixel_size"]["pixel_size_m"] * 1e6:.5f} um')
+    for name, value in g['parameters'].items():
+        print(f'  {name:>17} = {value: .9g} +- {g["std_devs"][name]:.2g} {g["units"][name]}')
+    if recorded is not None:
+        live = recorded['gantry']['parameters']
+        report['max_difference_to_live'] = {n: abs(live[n] - v) for n, v in g['parameters'].items()}
+        print('same as the live run: max |difference| '
+              f'{max(report["max_difference_to_live"].values()):.3g} (SI units)')
+    write_json(args.json, report)
+    return 0
+
+
+def cmd_calibrate_stage(args) -> int:
+    """Rerun both stage calibrations from a run recorded by stage_calibrator (--bag) or a
+    stage CSV (--data)."""
+    recorded = None
+    if args.bag:
+        records, recorded = read_run(args.bag, '/observations', stage_record,
+                                     'stage calibration observations')
+        data = stage_data_from_records(records)
+    else:
+        data = StageData.from_csv(args.data)
+    models, report = calibrate_stage(data)
+    s, p = report['stepwise'], report['parametric']
+    print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '
+          f'{s["R3"] * 1e3:.5f} mm/rev, alpha1 {np.rad2deg(s["alpha1"]):.4f} deg, '
+          f'd3 - d2 {s["d3_minus_d2"] * 1e3:.3f} mm')
+    print(f'Parametric: Mark residual RMS {p["residual_rms_m"] * 1e6:.2f} um, max '
+          f'{p["residual_max_m"] * 1e6:.2f} um, condition number {p["condition_number"]:.3g}')
+    for name in p['parameters']:
+        if name not in p['fixed']:
+            print(f'  {name:>16} = {p["parameters"][name]: .9g} +- {p["std_devs"][name]:.2g} '
+                  f'{p["units"][name]}')
+    for name, why in p['weakly_determined'].items():
+        print(f'  weakly determined: {name}: {why}')
+    report['models'] = models_as_dict(models)
+    if recorded is not None:
+        live = recorded['parametric']['parameters']
+        report['max_difference_to_live'] = max(abs(live[n] - v) for n, v in p['parameters'].items())
+        # In units of each parameter's sigma: another numpy/scipy build ends the solver a
+        # hair away along the weakly determined directions, which is no difference at all.
+        report['max_difference_to_live_sigma'] = max(
+            (abs(live[n] - v) / p['std_devs'][n] for n, v in p['parameters'].items()
+             if n not in p['fixed'] and p['std_devs'][n] > 0), default=0.0)
+        print(f'same as the live run: max |difference| {report["max_difference_to_live"]:.3g} '
+              f'(SI units), {report["max_difference_to_live_sigma"]:.2g} sigma')
+    write_json(args.json, report)
+    return 0
+
+
+def cmd_calibrate_hexapod(args) -> int:
+    if args.bag:
+        return _calibrate_hexapod_from_bag(args)
+    if not args.geometry:
+        raise MachineAlignmentError('--data needs --geometry NOMINAL.yaml')
+    nominal = read_geometry(args.geometry)
+    data = PoseData.from_csv(args.data, nominal)
+    identification = identify(data, nominal, fixed=args.fix or ())
+    report = identification.report()
+    report['data'] = str(args.data)
+    report['commanded_vs_measured'] = summarise_pose_errors(data.commanded, data.measured)
+    print(f'{len(data)} poses, 42 parameters ({len(args.fix or [])} fixed); leg-length residual '
+          f'RMS {report["residual_rms_m"] * 1e6:.3f} um, max {report["residual_max_m"] * 1e6:.3f} um, '
+          f'condition number {report["condition_number"]:.3g}')
+    print_pose_summary('commanded vs measured:', report['commanded_vs_measured'])
+    changes = report['change_from_initial']
+    for name in sorted(changes, key=lambda n: -abs(changes[n]))[:6]:
+        print(f'  {name:>12} changed {changes[name] * 1e6:+9.1f} um '
+              f'(+- {report["std_devs"].get(name, 0.0) * 1e6:.1f} um)')
+    _write_hexapod_outputs(args, identification.geometry, report)
+    return 0
+
+
+def _write_hexapod_outputs(args, geometry, report) -> None:
+    if args.out:
+        write_geometry(args.out, geometry, {'std_devs': report['std_devs'],
+                                            'residual_rms_m': report['residual_rms_m']})
+        print(f'wrote {args.out}')
+    write_json(args.json, report)
+
+
+def _calibrate_hexapod_from_bag(args) -> int:
+    """Rerun the identification of a run recorded by hexapod_calibrator."""
+    records, recorded = read_run(args.bag, MEASUREMENTS_TOPIC, measurement_record,
+                                 'hexapod calibration measurements')
+    if args.geometry:
+        nominal = read_geometry(args.geometry)
+    elif recorded is not None:
+        nominal = HexapodGeometry.from_dict(recorded['nominal_geometry'], 'recorded nominal')
+    else:
+        raise MachineAlignmentError(f'{args.bag} has no result (interrupted run?): give the '
+                                    'nominal geometry with --geometry')
+    identification, history = identify_from_records(records, nominal)
+    report = {**identification.report(), 'iterations': history}
+    print(f'{len(records)} recorded stops, {identification.num_poses} used for identification '
+          f'in {len(history)} round(s); leg-length residual RMS '
+          f'{report["residual_rms_m"] * 1e6:.3f} um')
+    if recorded is not None:
+        live = recorded['identification']['parameters']
+        report['max_difference_to_live_m'] = max(abs(live[n] - v)
+                                                  for n, v in report['parameters'].items())
+        print(f'same as the live run: max |difference| {report["max_difference_to_live_m"]:.3g} m')
+    _write_hexapod_outputs(args, identification.geometry, report)
+    return 0
+
+
+def add_parser(sub) -> None:
+    calibrate = sub.add_parser('calibrate', help='run a calibration offline')
+    what = calibrate.add_subparsers(dest='what', required=True)
+    camera.add_parser(what)
+    vision = what.add_parser('vision', help='pixel size and gantry model from a recorded run')
+    vision.add_argument('--bag', required=True)
+    vision.add_argument('--pitch', type=float, default=0.5e-3, help='dot pitch, m')
+    vision.add_argument('--json')
+    vision.set_defaults(func=cmd_calibrate_vision)
+
+    stage = what.add_parser('stage', help='XY-Theta stage: stepwise and parametric, from a '
+                                          'recorded run or a stage CSV')
+    stage_source = stage.add_mutually_exclusive_group(required=True)
+    stage_source.add_argument('--bag', help='a run recorded by stage_calibrator')
+    stage_source.add_argument('--data', help='CSV: q1..q3 (m), direction1..3, mark1_x, '
+                                             'mark1_y, mark2_x, mark2_y (m)')
+    stage.add_argument('--json')
+    stage.set_defaults(func=cmd_calibrate_stage)
+
+    hexapod = what.add_parser('hexapod', help='42-parameter hexapod geometry from measured poses')
+    hexapod_source = hexapod.add_mutually_exclusive_group(required=True)
+    hexapod_source.add_argument('--data', help='CSV: x..yaw, meas_x..meas_yaw (m, rad), '
+                                               'optional l1..l6 (m)')
+    hexapod_source.add_argument('--bag', help='a run recorded by hexapod_calibrator')
+    hexapod.add_argument('--geometry', help='nominal geometry YAML (with --bag: default the '
+                                            'one the run recorded)')
+    hexapod.add_argument('--out', help='calibrated geometry YAML to write')
+    hexapod.add_argument('--fix', nargs='*', help='parameter names to keep at their nominal value')
+    hexapod.add_argument('--json')
+    hexapod.set_defaults(func=cmd_calibrate_hexapod)

@@ -1,0 +1,54 @@
+"""``machine-align detect``: Mark centres (px) in image files."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from calib_core.errors import MachineAlignmentError
+from machine_alignment.cli.common import progress, write_json
+from printer_alignment.core.marks import DetectorConfig, detect_marks
+
+
+def cmd_detect(args) -> int:
+    config = DetectorConfig(min_size_px=args.min_size, max_size_px=args.max_size,
+                            polarity=args.polarity)
+    results, failures = [], 0
+    for k, path in enumerate(args.images):
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        entry = {'image': str(path)}
+        if image is None:
+            entry['error'] = 'not a readable image'
+        else:
+            try:
+                detection = detect_marks(image, config, args.shape, args.expected)
+                entry['marks'] = [{'shape': m.shape, 'u_px': m.u, 'v_px': m.v,
+                                   'covariance_px2': m.covariance.tolist(), 'size_px': m.size,
+                                   'contrast': m.contrast, 'quality': m.quality}
+                                  for m in detection.marks]
+                entry['rejected'] = detection.rejected
+                entry['noise_sigma'] = detection.noise_sigma
+            except MachineAlignmentError as exc:
+                entry['error'] = str(exc)
+        failures += 'error' in entry
+        results.append(entry)
+        progress(k + 1, len(args.images), 'detect')
+        if 'error' in entry:
+            print(f'{path}: {entry["error"]}')
+        else:
+            sigma = np.median([np.sqrt(max(m['covariance_px2'][0][0], m['covariance_px2'][1][1]))
+                               for m in entry['marks']])
+            print(f'{path}: {len(entry["marks"])} Mark(s), median centre sigma {sigma:.4f} px')
+    write_json(args.json, {'images': results})
+    return 1 if failures == len(args.images) else 0
+
+
+def add_parser(sub) -> None:
+    detect = sub.add_parser('detect', help='Mark centres (px) in image files')
+    detect.add_argument('images', nargs='+')
+    detect.add_argument('--json')
+    detect.add_argument('--shape', default='', choices=['', 'circle', 'cross'])
+    detect.add_argument('--expected', type=int, default=0)
+    detect.add_argument('--polarity', default='auto', choices=['auto', 'dark', 'bright'])
+    detect.add_argument('--min-size', type=float, default=2.5, help='px')
+    detect.add_argument('--max-size', type=float, default=120.0, help='px')
+    detect.set_defaults(func=cmd_detect)

@@ -1,0 +1,82 @@
+"""``machine-align evaluate hexapod|alignment``: check a calibration on data not used to
+fit it, or plan recorded alignments again from their bag."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from calib_core.bags import decode_bag
+from calib_core.errors import MachineAlignmentError
+from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
+from hexapod_calib.core.geometry import read_geometry
+from hexapod_calib.core.kinematics import forward_kinematics
+from machine_alignment.cli.common import print_pose_summary, write_json
+from printer_alignment.core.alignment import replay_alignment
+from printer_alignment.core.records import ALIGNER_REPORT_TOPIC, STAGE_RESULT_TOPIC
+from printer_alignment.core.stage import NOMINAL_STAGE
+from printer_alignment.core.stage_calibration import ParametricModel, models_from_dict
+
+
+def cmd_evaluate_hexapod(args) -> int:
+    calibrated = read_geometry(args.geometry)
+    nominal = read_geometry(args.nominal) if args.nominal else None
+    data = PoseData.from_csv(args.data, nominal if nominal is not None else calibrated)
+    predicted = forward_kinematics(calibrated, data.leg_lengths, initial=data.measured)
+    report = {'data': str(args.data), 'geometry': str(args.geometry),
+              'commanded_vs_measured': summarise_pose_errors(data.commanded, data.measured),
+              'model_vs_measured': summarise_pose_errors(predicted, data.measured),
+              'note': 'commanded_vs_measured: how far the machine was from the pose aimed at '
+                      'with the leg lengths it was given; model_vs_measured: the pose the '
+                      'geometry predicts for those leg lengths against the measured one, i.e. '
+                      'the error left after compensating with this geometry (m, rad)'}
+    print(f'{len(data)} poses')
+    print_pose_summary('commanded vs measured:', report['commanded_vs_measured'])
+    print_pose_summary('model vs measured:', report['model_vs_measured'])
+    write_json(args.json, report)
+    return 0
+
+
+def cmd_evaluate_alignment(args) -> int:
+    """Plan each alignment recorded by the aligner again, from its recorded Mark
+    measurements and the stage calibration it used, and compare the chain inputs."""
+    models = {'nominal': ParametricModel(NOMINAL_STAGE)}
+    alignments = []
+    for topic, _, msg in decode_bag(args.bag):
+        if topic == STAGE_RESULT_TOPIC and msg.success:
+            models.update(models_from_dict(json.loads(msg.report_json)['models']))
+        elif topic == ALIGNER_REPORT_TOPIC:
+            report = json.loads(msg.data)
+            if report.get('model') not in models:
+                raise MachineAlignmentError(
+                    f'{args.bag}: an alignment used the {report.get("model")!r} model but the '
+                    'bag holds no stage calibration with it')
+            alignments.append(replay_alignment(report, models[report['model']]))
+    if not alignments:
+        raise MachineAlignmentError(f'{args.bag} holds no alignment report on {ALIGNER_REPORT_TOPIC}')
+    for a in alignments:
+        v = a['verification'] or {}
+        print(f'{a["model"]:>10}: inputs ' + ', '.join(f'{q * 1e3:+.4f}' for q in a['q_replayed_m'])
+              + f' mm, |replayed - recorded| {a["max_difference_m"] * 1e9:.3g} nm; left after '
+              f'the move (camera) {v.get("position_error_m", np.nan) * 1e6:.2f} um, '
+              f'{np.rad2deg(v.get("orientation_error_rad", np.nan)) * 3600:.2f} arcsec')
+    write_json(args.json, {'bag': str(args.bag), 'alignments': alignments,
+                            'max_difference_m': max(a['max_difference_m'] for a in alignments)})
+    return 0
+
+
+def add_parser(sub) -> None:
+    evaluate = sub.add_parser('evaluate', help='check a calibration on data not used to fit it')
+    evaluated = evaluate.add_subparsers(dest='what', required=True)
+    hexapod_eval = evaluated.add_parser('hexapod', help='pose errors of a geometry on a pose file')
+    hexapod_eval.add_argument('--data', required=True, help='pose CSV (as for calibrate hexapod)')
+    hexapod_eval.add_argument('--geometry', required=True, help='calibrated geometry YAML')
+    hexapod_eval.add_argument('--nominal', help='geometry the controller used, when the CSV has '
+                                                'no l1..l6 columns')
+    hexapod_eval.add_argument('--json')
+    hexapod_eval.set_defaults(func=cmd_evaluate_hexapod)
+    alignment_eval = evaluated.add_parser(
+        'alignment', help='plan recorded alignments again from their bag (aligner runs)')
+    alignment_eval.add_argument('--bag', required=True, help='an alignment_<stamp> bag')
+    alignment_eval.add_argument('--json')
+    alignment_eval.set_defaults(func=cmd_evaluate_alignment)

@@ -1,0 +1,40 @@
+"""``machine-align launch`` and ``machine-align demo``: the simulated machine graphs as
+separate processes, and the end-to-end demo on them."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from machine_alignment.demo import run_demo
+from machine_alignment.launcher import Graph, hexapod_graph, printer_graph, stage_graph
+
+
+def cmd_launch(args) -> int:
+    spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir),
+            'stage': lambda: stage_graph(args.output_dir, args.record_dir),
+            'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir)}[args.graph]()
+    with Graph(spec) as graph:
+        print(f'{args.graph} graph running (Ctrl-C to stop)')
+        try:
+            while all(graph.alive()):
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def cmd_demo(args) -> int:
+    return run_demo(Path(args.out))
+
+
+def add_parser(sub) -> None:
+    launch = sub.add_parser('launch', help='start a simulated machine graph from the venv')
+    launch.add_argument('graph', choices=['printer', 'stage', 'hexapod'])
+    launch.add_argument('--scene', default='dot_plate', choices=['dot_plate', 'substrate', 'stencil'])
+    launch.add_argument('--output-dir', default='calibration')
+    launch.add_argument('--record-dir', default='runs')
+    launch.set_defaults(func=cmd_launch)
+
+    demo = sub.add_parser('demo', help='calibrate the simulated printer end to end')
+    demo.add_argument('--out', default='out/demo')
+    demo.set_defaults(func=cmd_demo)

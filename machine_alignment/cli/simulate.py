@@ -1,0 +1,86 @@
+"""``machine-align simulate hexapod|stage|axis``: datasets measured on a simulated
+machine, in the formats the calibrate and analyze subcommands read."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from hexapod_calib.core.geometry import nominal_geometry, write_geometry
+from hexapod_calib.core.kinematics import inverse_kinematics
+from hexapod_calib.core.procedure import HexapodPlan, measure_poses
+from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
+from machine_alignment.cli.common import progress
+from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
+from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
+
+
+def cmd_simulate_hexapod(args) -> int:
+    out = Path(args.out)
+    nominal = nominal_geometry()
+    sim = HexapodSim(HexapodTruth.default(nominal, args.seed), nominal, seed=args.seed + 1)
+    sensor = PoseSensorSim(seed=args.seed + 2)
+    targets, evaluation = HexapodPlan(num_poses=args.poses, num_evaluation=args.evaluation,
+                                      num_candidates=max(400, 2 * (args.poses + args.evaluation)),
+                                      seed=args.seed).poses(nominal)
+    for name, poses in (('calibration', targets), ('evaluation', evaluation)):
+        data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
+                             lambda: sensor.measure(sim.pose), name,
+                             progress=lambda step, total, _: progress(step, total, name))
+        data.to_csv(out / f'{name}.csv')
+    write_geometry(out / 'nominal.yaml', nominal)
+    write_geometry(out / 'truth.yaml', sim.truth.geometry,
+                   {'note': 'simulation truth, for checking a calibration only'})
+    print(f'wrote {out}/nominal.yaml, calibration.csv ({len(targets)} poses), '
+          f'evaluation.csv ({len(evaluation)} poses), truth.yaml')
+    return 0
+
+
+def cmd_simulate_stage(args) -> int:
+    truth = TRUE_STAGE.with_changes(backlash=(0.0, 0.0, 0.0)) if args.no_backlash else TRUE_STAGE
+    data = simulate_calibration_run(truth, seed=args.seed)
+    data.to_csv(args.out)
+    print(f'wrote {args.out} ({len(data)} stops)')
+    return 0
+
+
+def cmd_simulate_axis(args) -> int:
+    truth = AxisTruth(backlash=args.backlash, periodic_amplitude=args.periodic,
+                      pitch=args.pitch, expansion=args.expansion,
+                      temperature_rise=args.temperature_rise)
+    data = simulate_axis_test(truth, AxisTest(travel=args.travel, targets=args.targets,
+                                              cycles=args.cycles), seed=args.seed)
+    data.to_csv(args.out)
+    print(f'wrote {args.out} ({len(data)} rows)')
+    return 0
+
+
+def add_parser(sub) -> None:
+    simulate = sub.add_parser('simulate', help='write datasets measured on a simulated machine')
+    simulated = simulate.add_subparsers(dest='what', required=True)
+    hexapod_sim = simulated.add_parser('hexapod', help='pose files from the simulated hexapod')
+    hexapod_sim.add_argument('--out', required=True, help='directory')
+    hexapod_sim.add_argument('--poses', type=int, default=30)
+    hexapod_sim.add_argument('--evaluation', type=int, default=30)
+    hexapod_sim.add_argument('--seed', type=int, default=2)
+    hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
+
+    stage_sim = simulated.add_parser('stage', help='a calibration run of the simulated '
+                                                    'XY-Theta stage (stage CSV)')
+    stage_sim.add_argument('--out', required=True, help='CSV to write')
+    stage_sim.add_argument('--no-backlash', action='store_true',
+                           help='a stage without backlash (clean data for the closed loop)')
+    stage_sim.add_argument('--seed', type=int, default=0)
+    stage_sim.set_defaults(func=cmd_simulate_stage)
+
+    axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
+                                                  'a simulated axis')
+    axis_sim.add_argument('--out', required=True, help='CSV to write')
+    axis_sim.add_argument('--backlash', type=float, default=0.0, help='m')
+    axis_sim.add_argument('--periodic', type=float, default=0.0, help='amplitude, m')
+    axis_sim.add_argument('--pitch', type=float, default=0.016, help='period, m')
+    axis_sim.add_argument('--expansion', type=float, default=0.0, help='1/K')
+    axis_sim.add_argument('--temperature-rise', type=float, default=0.0, help='K over the test')
+    axis_sim.add_argument('--travel', type=float, default=0.2, help='m')
+    axis_sim.add_argument('--targets', type=int, default=41)
+    axis_sim.add_argument('--cycles', type=int, default=5)
+    axis_sim.add_argument('--seed', type=int, default=0)
+    axis_sim.set_defaults(func=cmd_simulate_axis)
