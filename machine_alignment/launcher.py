@@ -1,7 +1,9 @@
-"""Start a graph of nodes as separate processes from the venv (no ros2 launch needed).
+"""The simulated machine graphs, defined once: started here as separate processes from the
+venv (no ros2 launch needed), and turned into launch descriptions by the files in
+``launch/`` for ROS installs (:func:`launch_arguments`), so the two cannot drift.
 
 Each node runs as ``python -m <module>`` with ``--ros-args`` parameters; Ctrl-C or
-:meth:`Graph.stop` ends them all. The same graphs exist as launch files for ROS installs.
+:meth:`Graph.stop` ends them all.
 """
 from __future__ import annotations
 
@@ -64,6 +66,15 @@ def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> 
                   'payload_mass': HexapodTruth.payload_mass,
                   'payload_centre': list(HexapodTruth.payload_centre)}),
     ]
+
+
+def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment') -> list[dict]:
+    """Keyword arguments of one ``launch_ros.actions.Node`` per node of a graph: the
+    executable is the module's console script (named after the module, see setup.py)."""
+    return [{'package': package, 'executable': spec.module.rsplit('.', 1)[-1],
+             'name': spec.module.rsplit('.', 1)[-1],
+             **({'parameters': [dict(spec.parameters)]} if spec.parameters else {})}
+            for spec in nodes]
 
 
 def _format(value) -> str:
