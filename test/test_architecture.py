@@ -6,7 +6,8 @@
     <machine>/sim                simulated hardware
     <machine>/core               models, identification, procedures (numpy/scipy/OpenCV)
          |
-    calib_core                   shared bottom layer; calib_core/nodes: shared node helpers
+    calib_core                   shared bottom layer; calib_core/nodes: shared node helpers,
+                                 calib_core/sim: shared simulated hardware (the axis)
 
 A layer imports only downwards. Sim nodes (``*_sim.py`` in ``nodes/``) are the only nodes
 that may use ``sim/``; machine packages do not import each other."""
@@ -40,18 +41,20 @@ def _forbidden(module: str) -> list[str]:
     top = parts[0]
     if top == APP:
         return []
+    room = parts[1] if len(parts) > 1 else ''
     if top == 'calib_core':
         below_app = [APP, *MACHINES]
-        return below_app if parts[1:2] == ['nodes'] else [*below_app, *ROS, 'calib_core.nodes']
+        if room == 'nodes':
+            return [*below_app, 'calib_core.sim']
+        return [*below_app, *ROS, 'calib_core.nodes', *([] if room == 'sim' else ['calib_core.sim'])]
     if top in MACHINES:
         others = [APP, *(m for m in MACHINES if m != top)]
-        room = parts[1] if len(parts) > 1 else ''
+        sims = [f'{top}.sim', 'calib_core.sim']
         if room in ('core', 'sim'):
             return [*others, *ROS, f'{top}.nodes', 'calib_core.nodes',
-                    *([f'{top}.sim'] if room == 'core' else [])]
+                    *(sims if room == 'core' else [])]
         if room == 'nodes':
-            sim_node = parts[-1].endswith('_sim')
-            return [*others, *([] if sim_node else [f'{top}.sim'])]
+            return [*others, *([] if parts[-1].endswith('_sim') else sims)]
         return [*others, *ROS]
     return []
 
@@ -90,6 +93,8 @@ def test_the_check_catches_each_kind_of_upward_import(tmp_path):
     root = _tree(tmp_path, {
         'calib_core/fit.py': 'def f():\n    from printer_alignment.core import stage\n',
         'calib_core/plot.py': 'import rclpy\n',
+        'calib_core/axis.py': 'from calib_core.sim.axis import AxisTruth\n',
+        'calib_core/sim/axis.py': 'from calib_core.axis import AxisData\n',
         'calib_core/nodes/helper.py': 'import rclpy\nfrom calib_core.fit import f\n',
         'printer_alignment/core/model.py': 'from printer_alignment.sim.stage import TRUE\n',
         'printer_alignment/sim/stage.py': 'from alignment_msgs.msg import Pose\n',
@@ -100,8 +105,8 @@ def test_the_check_catches_each_kind_of_upward_import(tmp_path):
         'machine_alignment/cli.py': 'import rclpy\nfrom printer_alignment.sim import stage\n',
     })
     found = [v.split(':')[0] for v in layer_violations(root)]
-    # The app may import anything, calib_core/nodes may use rclpy and calib_core, and a sim
-    # node may use sim/: those three files are not reported.
-    assert found == ['calib_core/fit.py', 'calib_core/plot.py', 'hexapod_calib/core/geometry.py',
+    # The app may import anything, calib_core/nodes may use rclpy and calib_core, a sim may
+    # use its core and a sim node may use sim/: those files are not reported.
+    assert found == ['calib_core/axis.py', 'calib_core/fit.py', 'calib_core/plot.py', 'hexapod_calib/core/geometry.py',
                      'hexapod_calib/sim/hexapod.py', 'printer_alignment/core/model.py',
                      'printer_alignment/nodes/calibrator.py', 'printer_alignment/sim/stage.py']

@@ -6,7 +6,7 @@ import pytest
 from calib_core.axis import AxisData, AxisModel
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.errors import CalibrationError, InvalidInputError
-from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
+from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 
 NOISE = AxisTruth().noise
 

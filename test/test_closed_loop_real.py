@@ -13,7 +13,7 @@ from calib_core.axis import AxisData, AxisModel, iso230_2_before_after
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.errors import CalibrationError
 from calib_core.iso230_2 import figures
-from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
+from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 
 MEASURED = Path(__file__).parent / 'data' / 'measured' / 'ecmc_iso230_2'
 

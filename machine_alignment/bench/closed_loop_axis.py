@@ -17,8 +17,8 @@ from pathlib import Path
 
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after
 from calib_core.closed_loop import LoopConfig, analyze
+from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from calib_core.storage import write_atomic
-from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 
 MEASURED = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'measured' / 'ecmc_iso230_2'
 REAL_RUNS = {'mcu1025_run_a': 'stepper axis, laser triangulation sensor, 5 targets x 5 cycles',

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
 from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
 from machine_alignment.cli.common import progress
-from printer_alignment.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
 
 

@@ -1,0 +1,1 @@
+"""Simulated hardware shared by the machines (for tests and benchmarks only)."""
