@@ -9,10 +9,11 @@ import pytest
 from machine_alignment.cli import main as cli_main
 from calib_core.closed_loop import LoopConfig, analyze
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
-from hexapod_calib.core.loop_model import HexapodLoopModel
+from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses
 from printer_alignment.core.camera_calibration import views_from_images
-from printer_alignment.core.loop_models import CameraLoopModel, GantryData, GantryLoopModel
+from printer_alignment.core.loop_models import (
+    CameraLoopModel, GantryData, GantryLoopModel, StageLoopModel)
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
 
@@ -201,7 +202,6 @@ def test_cli_analyze_bad_input(tmp_path, capsys):
 
 
 def test_stage_chain_backlash_found_and_clean_stage_gets_nothing():
-    from printer_alignment.core.stage_loop import StageLoopModel
     from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
     clean_stage = dataclasses.replace(TRUE_STAGE, backlash=(0.0, 0.0, 0.0))
     report = analyze(StageLoopModel(simulate_calibration_run(seed=2))).report

@@ -33,7 +33,7 @@ from calib_core.nodes.spin import run_node
 from calib_core.storage import write_calibration
 from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
-from hexapod_calib.core.loop_model import HexapodLoopModel
+from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
 from hexapod_calib.core.records import (
     MEASUREMENTS_TOPIC, leg_lengths_from_message, pose_from_message)

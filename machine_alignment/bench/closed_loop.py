@@ -19,10 +19,9 @@ from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.sim.axis import AxisTruth, simulate_axis_test
 from calib_core.storage import write_atomic
 from hexapod_calib.core.geometry import nominal_geometry
-from hexapod_calib.core.loop_model import HexapodLoopModel
+from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses
-from printer_alignment.core.loop_models import CameraLoopModel, GantryLoopModel
-from printer_alignment.core.stage_loop import StageLoopModel
+from printer_alignment.core.loop_models import CameraLoopModel, GantryLoopModel, StageLoopModel
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
 from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run

@@ -11,13 +11,13 @@ from calib_core.iso230_2 import format_figures
 from calib_core.loop_plots import plot_loop
 from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import read_geometry
-from hexapod_calib.core.loop_model import HexapodLoopModel
+from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
 from machine_alignment.cli.common import parse_size, progress, write_json
 from printer_alignment.core.camera_calibration import read_correspondences
-from printer_alignment.core.loop_models import CameraLoopModel, GantryData, GantryLoopModel
+from printer_alignment.core.loop_models import (
+    CameraLoopModel, GantryData, GantryLoopModel, StageLoopModel)
 from printer_alignment.core.stage_calibration import StageData
-from printer_alignment.core.stage_loop import StageLoopModel
 
 FORMATS = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional cycle, '
                    'sequence (approach number), block/setup/run (labels), time (s), '

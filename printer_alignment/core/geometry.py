@@ -24,6 +24,15 @@ def rotation(angle: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
+def rotate_points(angle, points) -> np.ndarray:
+    """``points`` (..., 2) rotated by ``angle`` (rad, scalar or broadcasting with the
+    points' leading shape) about the origin."""
+    c, s = np.cos(angle), np.sin(angle)
+    points = np.asarray(points, dtype=float)
+    return np.stack([c * points[..., 0] - s * points[..., 1],
+                     s * points[..., 0] + c * points[..., 1]], -1)
+
+
 @dataclass(frozen=True)
 class CameraToPlate:
     """Pixel offsets to plate offsets: ``d = pixel_size * R(angle) (uv - principal)``.

@@ -31,7 +31,7 @@ from calib_core.datasets import directions_from_order, read_columns, write_colum
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import fit
 from calib_core.parameters import Parameter, ParameterSet
-from printer_alignment.core.geometry import rotation
+from printer_alignment.core.geometry import rotate_points, rotation
 from printer_alignment.core.stage import (
     NOMINAL_D, NOMINAL_LEAD, STROKE, StageGeometry, check_stroke, platform_points_in_plate)
 
@@ -160,13 +160,6 @@ def relative_motions(marks: np.ndarray, home: np.ndarray):
     return np.array([a for a, _ in out]), np.array([c for _, c in out])
 
 
-def _rotate(angle, points):
-    c, s = np.cos(angle), np.sin(angle)
-    points = np.asarray(points, dtype=float)
-    return np.stack([c * points[..., 0] - s * points[..., 1],
-                     s * points[..., 0] + c * points[..., 1]], -1)
-
-
 def _unique_mean(keys: np.ndarray, values: np.ndarray):
     """Mean of ``values`` over rows with the same ``keys`` (rounded to 1 nm)."""
     rounded = np.round(keys / 1e-9).astype(np.int64)
@@ -197,7 +190,7 @@ class StageModel:
             jac = self.geometry.jacobian(stage_pose)
             step_stage = np.linalg.solve(jac, (q - self.inverse(pose))[..., None])[..., 0]
             a0 = self.geometry.stage2plate[2]
-            step = np.column_stack([_rotate(a0, step_stage[:, :2]), step_stage[:, 2]])
+            step = np.column_stack([rotate_points(a0, step_stage[:, :2]), step_stage[:, 2]])
             pose = pose + step
             if np.max(np.abs(step)) < 1e-13:
                 break
@@ -315,14 +308,14 @@ def stepwise_calibration(data: StageData):
     # slots of chains 2 and 3 are not parallel.
     d1, d2, d3 = NOMINAL_D
     d_mid = 0.5 * (d2 + d3)
-    first = _fit_line(q[x_rows, 0], (_rotate(angle, home.mean(axis=0)) + shift)[x_rows])
+    first = _fit_line(q[x_rows, 0], (rotate_points(angle, home.mean(axis=0)) + shift)[x_rows])
     over_chain2 = centre - 0.5 * (d3 - d2) * first / np.linalg.norm(first)
-    slope_x = _fit_line(q[x_rows, 0], (_rotate(angle, over_chain2) + shift)[x_rows])
+    slope_x = _fit_line(q[x_rows, 0], (rotate_points(angle, over_chain2) + shift)[x_rows])
     k1 = float(np.linalg.norm(slope_x))
     frame_angle = float(np.arctan2(slope_x[1], slope_x[0]))
 
     # Y sweep: direction (axis skew), rotation per input, displacement of the centre.
-    moved_centre = _rotate(angle, centre) + shift
+    moved_centre = rotate_points(angle, centre) + shift
     slope_y = _fit_line(q[y_rows, 1], moved_centre[y_rows])
     alpha1 = float(np.arctan2(slope_y[1], slope_y[0]) - frame_angle)
     k_mean = float(np.linalg.norm(slope_y) * np.sin(alpha1))
@@ -334,7 +327,7 @@ def stepwise_calibration(data: StageData):
 
     # The centre of the attitude sweep is at (d_mid, d1) in the stage frame; the stage's
     # own middle is not visible, so d1 and (d2 + d3) / 2 stay nominal.
-    origin = centre - _rotate(frame_angle, np.array([d_mid, d1]))
+    origin = centre - rotate_points(frame_angle, np.array([d_mid, d1]))
     home_angle = frame_angle
     geometry = StageGeometry(
         lead=(k1 * NOMINAL_LEAD, k2 * NOMINAL_LEAD, k3 * NOMINAL_LEAD),
@@ -351,7 +344,7 @@ def stepwise_calibration(data: StageData):
                                'attitude sweep measurements are inconsistent')
 
     home_pose = np.array([origin[0], origin[1], home_angle])
-    poses = np.column_stack([_rotate(angle, home_pose[:2]) + shift, home_angle + angle])
+    poses = np.column_stack([rotate_points(angle, home_pose[:2]) + shift, home_angle + angle])
     provisional = StepwiseModel(geometry, table_w, table_theta, poses[:1], np.zeros((1, 3)))
     keys, mean_poses = _unique_mean(q, poses)
     corrections = keys - provisional._tabled(mean_poses)
@@ -430,7 +423,7 @@ def parametric_calibration(data: StageData, initial: StageGeometry,
         initial = initial.with_changes(backlash=(0.0, 0.0, 0.0))
     home = data.marks[np.argmin(np.abs(data.q).sum(axis=1))]
     pose0 = initial.stage_to_plate(initial.forward(np.zeros((1, 3))))[0]
-    marks0 = _rotate(-pose0[2], home - pose0[:2])
+    marks0 = rotate_points(-pose0[2], home - pose0[:2])
     start = ParameterSet(initial.as_parameters().parameters + [
         Parameter(n, float(v), 'm') for n, v in zip(mark_names(), marks0.ravel())])
     for name in fixed:
@@ -482,10 +475,10 @@ def _fit_error(model: StageModel, data: StageData, home) -> dict:
     data (m, rad): Mark centroid distance and angle, max and RMS."""
     angle, shift = relative_motions(data.marks, home)
     centroid = home.mean(axis=0)
-    measured = _rotate(angle, centroid) + shift
+    measured = rotate_points(angle, centroid) + shift
     home_pose = model.forward(np.zeros((1, 3)))[0]
     predicted = model.forward(data.q)
-    moved = [_rotate(p[2] - home_pose[2], centroid - home_pose[:2]) + p[:2] for p in predicted]
+    moved = [rotate_points(p[2] - home_pose[2], centroid - home_pose[:2]) + p[:2] for p in predicted]
     distance = np.linalg.norm(np.array(moved) - measured, axis=1)
     turn = np.abs(predicted[:, 2] - home_pose[2] - angle)
     return {'position_max_m': float(distance.max()),

@@ -157,7 +157,6 @@ class StageCalibratorNode(Node):
         return result
 
     def _loop_model(self, options: dict):
-        from printer_alignment.core.stage_loop import StageLoopModel
         if options:
             raise InvalidInputError(f'unknown analysis options {sorted(options)}')
         if self._data is None:
