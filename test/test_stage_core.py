@@ -10,8 +10,10 @@ from printer_alignment.core.stage import (
     NOMINAL_STAGE, StageGeometry, check_stroke, ideal_forward, ideal_inverse)
 from printer_alignment.core.stage_calibration import (
     ParametricModel, StageData, StagePlan, parametric_calibration, stepwise_calibration)
+from printer_alignment.core.stage_procedure import run_stage_calibration
 from printer_alignment.sim.stage import (
-    TRUE_STAGE, StageSim, evaluate_alignment, measure_repeatability, simulate_calibration_run)
+    CALIBRATION_MARKS, TRUE_STAGE, StageSim, evaluate_alignment, measure_marks,
+    measure_repeatability, simulate_calibration_run)
 
 PAPER_MAX_POSITION = 12.3e-6     # m, the paper's max error after calibration
 
@@ -79,6 +81,37 @@ def test_stepwise_and_parametric_recover_the_true_errors():
     assert 0.8e-6 < preport['residual_rms_m'] < 2.0e-6
     assert set(preport['fixed']) >= {'q_offset1', 'd2', 'beta2'}
     assert 'lead1' not in preport['weakly_determined']
+
+
+def test_the_run_procedure_with_the_simulated_stage_as_hardware(rng):
+    """The procedure the node runs, with the simulator's move and camera passed in: the
+    Marks are found where the nominal kinematics expects them, every stop is recorded, the
+    stage ends at home and the calibration recovers the true leads and backlash."""
+    stage = StageSim(seed=5)
+    taught_home = stage.true_points(CALIBRATION_MARKS) + 50e-6   # jogged to by eye
+    stops, misses = [], []
+
+    def move(q):
+        stage.move(q)
+        return stage.q.copy(), stage.directions.copy()
+
+    def camera(expected):
+        marks = measure_marks(stage, CALIBRATION_MARKS, 0.3e-6, rng)
+        misses.append(np.abs(marks - expected).max())
+        return marks
+
+    data, models, report = run_stage_calibration(
+        StagePlan(), taught_home, move, camera, record=lambda *stop: stops.append(stop))
+    assert len(stops) == len(data) == len(StagePlan().targets())
+    assert np.all(stage.q == 0)
+    # Nominal kinematics against a stage with 0.3 % lead errors and 35-41 um offsets.
+    assert 0 < max(misses) < 0.2e-3
+    values, sigma, truth = (report['parametric']['parameters'],
+                            report['parametric']['std_devs'], TRUE_STAGE.as_dict())
+    for name, tol in {'lead1': 0.6e-6, 'lead2': 0.6e-6, 'lead3': 0.8e-6,
+                      'backlash1': 1e-6, 'backlash2': 1e-6, 'backlash3': 1e-6}.items():
+        assert abs(values[name] - truth[name]) < min(tol, 4 * sigma[name]), name
+    assert set(models) == {'stepwise', 'parametric'}
 
 
 def test_calibration_beats_the_paper_and_approaches_the_stages_repeatability():

@@ -5,20 +5,18 @@ from __future__ import annotations
 
 import json
 import threading
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
 import yaml
 from alignment_msgs.msg import ResidualAnalysis
-from rclpy.serialization import serialize_message
 
-from calib_core.bags import BagWriter
 from calib_core.closed_loop import LoopConfig, LoopResult, MachineModel, analyze
 from calib_core.errors import MachineAlignmentError
 from calib_core.loop_plots import plot_loop
 from calib_core.nodes.calibrator import parse_plan
 from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.recording import RecordedRun, run_stamp
 from calib_core.storage import write_atomic, write_calibration
 
 LOOP_OPTIONS = ('holdout_fraction', 'alpha', 'max_effects', 'seed')
@@ -103,7 +101,7 @@ class AnalysisService:
         return response
 
     def _publish(self, machine, result: LoopResult, apply: bool) -> ResidualAnalysis:
-        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+        stamp = run_stamp()
         report = dict(result.report, created=stamp)
         applied_to = ''
         if apply and report['effects_added']:
@@ -114,10 +112,7 @@ class AnalysisService:
         write_atomic(path, json.dumps(report, indent=2) + '\n')
         plot_loop(path.with_suffix('.png'), machine, result)
         message = analysis_as_message(report, self.header(), bool(applied_to), str(path))
-        bag_path = Path(self.node.get_parameter('record_dir').value) / f'{self.kind}_analysis_{stamp}'
-        with BagWriter(bag_path) as bag:
-            bag.add_topic(self.topic, 'alignment_msgs/msg/ResidualAnalysis')
-            bag.write(self.topic, self.node.get_clock().now().nanoseconds,
-                      serialize_message(message))
-        self.publisher.publish(message)
+        with RecordedRun(self.node, f'{self.kind}_analysis',
+                         {self.topic: 'alignment_msgs/msg/ResidualAnalysis'}) as run:
+            run.record(self.topic, message, self.publisher)
         return message

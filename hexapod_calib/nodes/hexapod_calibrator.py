@@ -11,25 +11,21 @@ The geometry is written as an atomic, versioned YAML file in the form of DESIGN.
 run is recorded to an MCAP bag. One calibration at a time; a failed or interrupted run
 leaves the previous calibration in force.
 """
-from datetime import datetime, timezone
-from pathlib import Path
-
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, HexapodMeasurement, Progress
 from alignment_msgs.srv import AnalyzeResiduals, MeasurePose, MoveHexapod, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
-from calib_core.bags import BagWriter
 from calib_core.errors import CalibrationError, InvalidInputError
-from calib_core.parameters import ParameterSet
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
+from calib_core.parameters import ParameterSet
 from calib_core.storage import write_calibration
 from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
@@ -112,13 +108,14 @@ class HexapodCalibratorNode(Node):
         self._last_measurement = response.pose.pose
         return pose_from_message(response.pose.pose.pose)
 
-    def _record(self, bag, stops, phase, target, legs, measured):
+    def _record(self, run: RecordedRun, stops, phase, target, legs, measured):
         stops.append((target, measured, legs))
-        msg = HexapodMeasurement(header=self._header(), phase=phase, target=pose_as_message(target),
-                                 leg_lengths=np.asarray(legs, float).tolist(),
-                                 measured=self._last_measurement)
-        self.measurement_pub.publish(msg)
-        bag.write(MEASUREMENTS_TOPIC, self.get_clock().now().nanoseconds, serialize_message(msg))
+        run.record(MEASUREMENTS_TOPIC,
+                   HexapodMeasurement(header=self._header(), phase=phase,
+                                      target=pose_as_message(target),
+                                      leg_lengths=np.asarray(legs, float).tolist(),
+                                      measured=self._last_measurement),
+                   self.measurement_pub)
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='hexapod_calibration',
@@ -127,25 +124,20 @@ class HexapodCalibratorNode(Node):
             self.get_logger().info(f'[{step}/{total}] {message}')
 
     def _run(self, plan: HexapodPlan) -> CalibrationResult:
-        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
-        bag_path = Path(self.get_parameter('record_dir').value) / f'hexapod_{stamp}'
         self._settled = self.get_clock().now().to_msg()
         poses = plan.poses(self.nominal)  # a plan that cannot work fails here, before a bag exists
         stops = []
-        with BagWriter(bag_path) as bag:
-            bag.add_topic(MEASUREMENTS_TOPIC, 'alignment_msgs/msg/HexapodMeasurement')
-            bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+        with RecordedRun(self, 'hexapod', {
+                MEASUREMENTS_TOPIC: 'alignment_msgs/msg/HexapodMeasurement',
+                RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             calibration = run_hexapod_calibration(
                 plan, self.nominal, self._move_legs, self._measure, self._progress,
-                lambda *stop: self._record(bag, stops, *stop), poses)
-            content = {**calibration.geometry.as_dict(), 'kind': 'hexapod', 'created': stamp,
-                       'bag': str(bag_path), 'nominal': self.nominal.as_dict(),
-                       'report': calibration.report}
-            path, version = write_calibration(self.get_parameter('output_dir').value,
-                                              CALIBRATION_NAME, content)
+                lambda *stop: self._record(run, stops, *stop), poses)
+            path, version, _ = run.save(CALIBRATION_NAME, {
+                **calibration.geometry.as_dict(), 'nominal': self.nominal.as_dict(),
+                'report': calibration.report})
             result = hexapod_result_message(calibration, self._header(), str(path), version)
-            bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
-        self.result_pub.publish(result)
+            run.record(RESULT_TOPIC, result, self.result_pub)
         self._last_run = stops
         after = calibration.report['evaluation']['after']
         self.get_logger().info(f'done: max {after["max_displacement_m"] * 1e6:.1f} um, '

@@ -13,21 +13,18 @@ report published on ``/aligner/report``.
 """
 import json
 import threading
-from datetime import datetime, timezone
-from pathlib import Path
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, StageState
 from alignment_msgs.srv import Align, MoveStage
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
 from std_msgs.msg import String
 
-from calib_core.bags import BagWriter
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import call_service
 from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
 from printer_alignment.core.stage import NOMINAL_STAGE, path_from_below
@@ -181,16 +178,13 @@ class AlignerNode(Node):
     def _record(self, report: dict, calibration) -> None:
         """Publish the report and record it with the stage calibration it used, so the
         alignment can be planned again offline (``machine-align evaluate alignment``)."""
-        msg = String(data=json.dumps(report))
-        self.report_pub.publish(msg)
-        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
-        now = self.get_clock().now().nanoseconds
-        with BagWriter(Path(self.get_parameter('record_dir').value) / f'alignment_{stamp}') as bag:
+        topics = {REPORT_TOPIC: 'std_msgs/msg/String'}
+        if calibration is not None:
+            topics[STAGE_RESULT_TOPIC] = 'alignment_msgs/msg/CalibrationResult'
+        with RecordedRun(self, 'alignment', topics) as run:
             if calibration is not None:
-                bag.add_topic(STAGE_RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
-                bag.write(STAGE_RESULT_TOPIC, now, serialize_message(calibration))
-            bag.add_topic(REPORT_TOPIC, 'std_msgs/msg/String')
-            bag.write(REPORT_TOPIC, now, serialize_message(msg))
+                run.record(STAGE_RESULT_TOPIC, calibration)
+            run.record(REPORT_TOPIC, String(data=json.dumps(report)), self.report_pub)
 
 
 def main(args=None):

@@ -15,31 +15,25 @@ failed or interrupted run leaves the previous calibration in force.
 Service ``stage_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
 the last run's measurements with the error model without backlash as the base model.
 """
-from datetime import datetime, timezone
-from pathlib import Path
-
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, Progress, StageObservation
 from alignment_msgs.srv import AnalyzeResiduals, MoveStage, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
-from calib_core.bags import BagWriter
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
-from calib_core.storage import write_calibration
-from printer_alignment.core.stage import NOMINAL_STAGE, landing_path
-from printer_alignment.core.stage_calibration import (
-    StagePlan, calibrate_stage, models_as_dict)
+from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
-    STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC,
-    stage_data_from_records, stage_record)
+    STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC)
+from printer_alignment.core.stage_calibration import StagePlan, models_as_dict
+from printer_alignment.core.stage_procedure import run_stage_calibration
 from printer_alignment.nodes.mark_locator import MarkLocator
 
 ANALYSIS_TOPIC = '/stage_calibrator/analysis'
@@ -99,58 +93,35 @@ class StageCalibratorNode(Node):
         self.get_logger().info(f'[{step}/{total}] {message}')
 
     def _move(self, q):
-        return call_service(self.move_client, MoveStage.Request(q=[float(v) for v in q]),
-                            'stage move', self.timeout)
+        """Command the chain inputs (m); the inputs reached and the chains' last directions."""
+        reached = call_service(self.move_client, MoveStage.Request(q=[float(v) for v in q]),
+                               'stage move', self.timeout)
+        return np.array(reached.q), np.array(reached.direction)
 
-    def _expected_marks(self, q, home) -> np.ndarray:
-        """Where the nominal kinematics puts the calibration Marks (m, (2, 2)); they are
-        searched for there (the stage's errors are far smaller than the image)."""
-        pose = NOMINAL_STAGE.forward(np.asarray(q)[None])[0]
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        stage_home = NOMINAL_STAGE.stage2plate
-        local = home - stage_home[:2]
-        return local @ np.array([[c, s], [-s, c]]) + stage_home[:2] + pose[:2]
+    def _record_stop(self, run: RecordedRun, q, direction, marks) -> None:
+        run.record(OBSERVATIONS_TOPIC,
+                   StageObservation(header=self._header(), q=list(q),
+                                    direction=[int(v) for v in direction],
+                                    marks_x=marks[:, 0].tolist(), marks_y=marks[:, 1].tolist()),
+                   self.observation_pub)
 
     def _run(self, plan: StagePlan) -> CalibrationResult:
         self.locator.vision   # fails early without a vision calibration
-        targets = plan.targets()
-        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
-        bag_path = Path(self.get_parameter('record_dir').value) / f'stage_{stamp}'
-        total = len(targets) + 1
-        records = []
-        with BagWriter(bag_path) as bag:
-            bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/StageObservation')
-            bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+        with RecordedRun(self, 'stage', {
+                OBSERVATIONS_TOPIC: 'alignment_msgs/msg/StageObservation',
+                RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             self.locator.select_view('substrate')
-            home = self.home_marks
-            reached = self._move(targets[0])
-            for k, q in enumerate(targets):
-                for waypoint in landing_path(reached.q, q, reached.direction):
-                    reached = self._move(waypoint)
-                marks = self.locator.measure(self._expected_marks(q, home), 'circle')
-                if k == 0:
-                    home = marks     # searched from the measured home from now on
-                msg = StageObservation(header=self._header(), q=list(reached.q),
-                                       direction=list(reached.direction),
-                                       marks_x=marks[:, 0].tolist(), marks_y=marks[:, 1].tolist())
-                self.observation_pub.publish(msg)
-                bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds,
-                          serialize_message(msg))
-                records.append(stage_record(msg))
-                self._progress(k + 1, total, f'stop {k + 1}/{len(targets)}: q = '
-                               + ', '.join(f'{v * 1e3:+.3f}' for v in q) + ' mm')
-            self._move(np.zeros(3))
-            data = stage_data_from_records(records)
-            models, report = calibrate_stage(data)
-            content = {'kind': 'stage', 'created': stamp, 'bag': str(bag_path),
-                       'models': models_as_dict(models), 'report': report}
-            path, version = write_calibration(self.get_parameter('output_dir').value, 'stage',
-                                              content)
+            data, models, report = run_stage_calibration(
+                plan, self.home_marks, self._move,
+                lambda expected: self.locator.measure(expected, 'circle'), self._progress,
+                lambda *stop: self._record_stop(run, *stop))
+            path, version, content = run.save('stage', {'models': models_as_dict(models),
+                                                        'report': report})
             result = stage_result_message(report, models, self._header(), str(path), version)
-            bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
-        self.result_pub.publish(result)
+            run.record(RESULT_TOPIC, result, self.result_pub)
         self._data, self._content = data, content
         r = report['stepwise']
+        total = len(data) + 1
         self._progress(total, total, f'done: R1..R3 {r["R1"] * 1e3:.4f}, {r["R2"] * 1e3:.4f}, '
                        f'{r["R3"] * 1e3:.4f} mm/rev, alpha1 {np.rad2deg(r["alpha1"]):.4f} deg; '
                        f'wrote {path}')

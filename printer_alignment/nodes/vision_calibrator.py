@@ -25,26 +25,22 @@ screw error, squareness, ...), publishes the report latched on
 ``/vision_calibrator/analysis`` and, with ``apply``, writes the calibration again with the
 added effects as a new version.
 """
-from datetime import datetime, timezone
-from pathlib import Path
-
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionObservation
 from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
-from calib_core.bags import BagWriter
 from calib_core.datasets import directions_from_order
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import CalibrationService, call_service
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
-from calib_core.storage import read_calibration, write_calibration
+from calib_core.storage import read_calibration
 from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
     NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate)
@@ -168,14 +164,13 @@ class VisionCalibratorNode(Node):
                               'detection')
         return detected, np.array([[m.u, m.v] for m in marks_from_message(detected.marks)])
 
-    def _observe_and_record(self, bag: BagWriter) -> np.ndarray:
+    def _observe_and_record(self, run: RecordedRun) -> np.ndarray:
         """Detect dots at the current stop, publish and record the observation; return the
         dot centres (px, (n, 2)) for the core calibration loop."""
         detected, _ = self._detect_dots()
         msg = VisionObservation(header=self._header(), gantry=self._gantry_state,
                                 marks=detected.marks)
-        self.observation_pub.publish(msg)
-        bag.write(OBSERVATIONS_TOPIC, self.get_clock().now().nanoseconds, serialize_message(msg))
+        run.record(OBSERVATIONS_TOPIC, msg, self.observation_pub)
         return observation_from_message(msg).uv
 
     def _move(self, x, y):
@@ -193,27 +188,22 @@ class VisionCalibratorNode(Node):
         self.get_logger().info(f'[{step}/{total}] {message}')
 
     def _run(self, plan: VisionPlan) -> CalibrationResult:
-        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
-        bag_path = Path(self.get_parameter('record_dir').value) / f'vision_{stamp}'
         total = len(plan.targets()) + 1  # the stops, then the fit
-        with BagWriter(bag_path) as bag:
-            bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/VisionObservation')
-            bag.add_topic(RESULT_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+        with RecordedRun(self, 'vision', {
+                OBSERVATIONS_TOPIC: 'alignment_msgs/msg/VisionObservation',
+                RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             _, calibration = run_vision_calibration(
-                plan, self._move, lambda: self._observe_and_record(bag),
+                plan, self._move, lambda: self._observe_and_record(run),
                 lambda step, _, message: self._progress(step, total, message),
                 nominal_camera=self.nominal_camera)
-            content = {'kind': 'vision', 'created': stamp, 'bag': str(bag_path),
-                       'camera2plate': {'pixel_size': calibration.camera2plate.pixel_size,
-                                        'angle': calibration.camera2plate.angle,
-                                        'principal': list(calibration.camera2plate.principal)},
-                       'gantry2plate': calibration.gantry.as_dict(),
-                       'report': calibration.report}
-            path, version = write_calibration(self.get_parameter('output_dir').value, 'vision',
-                                              content)
+            path, version, content = run.save('vision', {
+                'camera2plate': {'pixel_size': calibration.camera2plate.pixel_size,
+                                 'angle': calibration.camera2plate.angle,
+                                 'principal': list(calibration.camera2plate.principal)},
+                'gantry2plate': calibration.gantry.as_dict(),
+                'report': calibration.report})
             result = vision_result_message(calibration, self._header(), str(path), version)
-            bag.write(RESULT_TOPIC, self.get_clock().now().nanoseconds, serialize_message(result))
-        self.result_pub.publish(result)
+            run.record(RESULT_TOPIC, result, self.result_pub)
         self._calibration = (calibration, content)
         self._progress(total, total,
                        f'done: pixel size {calibration.camera2plate.pixel_size * 1e6:.4f} um, '
@@ -241,30 +231,23 @@ class VisionCalibratorNode(Node):
                  'image_size': [int(v) for v in self.get_parameter('image_size').value]}
         offsets = (np.arange(n) - (n - 1) / 2) * step
         targets = [centre + [dx, dy] for dy in offsets for dx in offsets]
-        stamp = datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
-        bag_path = Path(self.get_parameter('record_dir').value) / f'intrinsics_{stamp}'
         dots = []
-        with BagWriter(bag_path) as bag:
-            bag.add_topic(OBSERVATIONS_TOPIC, 'alignment_msgs/msg/VisionObservation')
-            bag.add_topic(INTRINSICS_TOPIC, 'alignment_msgs/msg/CalibrationResult')
+        with RecordedRun(self, 'intrinsics', {
+                OBSERVATIONS_TOPIC: 'alignment_msgs/msg/VisionObservation',
+                INTRINSICS_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             for k, (x, y) in enumerate(targets):
                 self._move(x, y)
-                dots.append(self._observe_and_record(bag))
+                dots.append(self._observe_and_record(run))
                 self._progress(k + 1, len(targets) + 1, f'view {k + 1}/{len(targets)}: '
                                f'{len(dots[-1])} dots')
             report = distortion_from_dot_views(dots, setup).report()
             report['setup'] = setup
-            content = {'kind': 'intrinsics', 'created': stamp, 'bag': str(bag_path),
-                       'report': report}
-            path, version = write_calibration(self.get_parameter('output_dir').value,
-                                              'intrinsics', content)
+            path, version, _ = run.save('intrinsics', {'report': report})
             result = calibration_result_as_message(
                 'intrinsics', self._header(), report['parameters'], report['std_devs'],
                 report['units'], report, report['rms_reprojection_px'],
                 max(report['per_view_rms_px']), 'px', len(dots), str(path), version)
-            bag.write(INTRINSICS_TOPIC, self.get_clock().now().nanoseconds,
-                      serialize_message(result))
-        self.intrinsics_pub.publish(result)
+            run.record(INTRINSICS_TOPIC, result, self.intrinsics_pub)
         p = report['parameters']
         self._progress(len(targets) + 1, len(targets) + 1,
                        f'done: k1 {p["k1"]:.4g}, k2 {p["k2"]:.4g}, p1 {p["p1"]:.3g}, '

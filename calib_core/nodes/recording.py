@@ -1,0 +1,61 @@
+"""The recorded run, the same for every node that measures or calibrates: one MCAP bag
+``<record_dir>/<kind>_<stamp>`` holding every message of the run as it was published, and
+(for a calibration) the versioned calibration file that names the bag. The bag is opened
+before the first stop, so a run that fails or is killed still replays what it measured."""
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+
+from rclpy.serialization import serialize_message
+
+from calib_core.bags import BagWriter
+from calib_core.storage import write_calibration
+
+
+def run_stamp() -> str:
+    """UTC time stamp naming a run's bag, files and reports (sorts in time order)."""
+    return datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+
+
+class RecordedRun:
+    """A context manager around one run of ``node``, which declares the ``record_dir``
+    (and, to :meth:`save` a calibration, ``output_dir``) parameters.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    kind : str
+        Names the bag (``<kind>_<stamp>``) and goes into the calibration file.
+    topics : dict
+        Topic -> message type (``pkg/msg/Name``) of everything the run records."""
+
+    def __init__(self, node, kind: str, topics: dict[str, str]):
+        self.node, self.kind, self.topics = node, kind, dict(topics)
+        self.stamp = run_stamp()
+        self.bag_path = Path(node.get_parameter('record_dir').value) / f'{kind}_{self.stamp}'
+        self._bag = None
+
+    def __enter__(self) -> 'RecordedRun':
+        self._bag = BagWriter(self.bag_path).__enter__()
+        for topic, msgtype in self.topics.items():
+            self._bag.add_topic(topic, msgtype)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._bag.close()
+
+    def record(self, topic: str, msg, publisher=None) -> None:
+        """Publish ``msg`` (if a publisher is given) and write it to the bag, stamped now."""
+        if publisher is not None:
+            publisher.publish(msg)
+        self._bag.write(topic, self.node.get_clock().now().nanoseconds, serialize_message(msg))
+
+    def save(self, name: str, content: dict) -> tuple[Path, int, dict]:
+        """Write ``content`` (with this run's kind, stamp and bag added) as the next version
+        of calibration file ``name`` in ``output_dir``: (path, version, content written)."""
+        content = {'kind': self.kind, 'created': self.stamp, 'bag': str(self.bag_path),
+                   **content}
+        path, version = write_calibration(self.node.get_parameter('output_dir').value, name,
+                                          content)
+        return path, version, content
