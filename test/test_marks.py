@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib_core.errors import DetectionError, InvalidInputError
-from printer_alignment.core.mark_models import dot_edge_model
+from printer_alignment.core.marks.intensity import dot_edge_model
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.sim.render import MarkShape, coverage, render
 

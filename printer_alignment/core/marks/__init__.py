@@ -1,0 +1,27 @@
+"""Sub-pixel detection of circular and cross Marks.
+
+Segmentation finds candidates: the frame is smoothed, a robust quadratic illumination
+surface is taken off, and the connected components below (above) a threshold are the
+dark (bright) candidates; the threshold is Otsu's unless that splits the background's
+noise. Each candidate is refined by fitting an intensity model to the raw pixels by
+Levenberg-Marquardt (circles: a small solver on the normal equations that fits all of a
+frame's circles at once, for speed; crosses: scipy.optimize.least_squares). A circular
+dot seen at an angle is an ellipse; a blob shaped like one (by its second moments) is
+fitted with the ellipse's two shape parameters added, and reported as a circle of its
+mean radius. Under
+Gaussian noise that fit is the maximum-likelihood estimate, which is what lets the centre
+error approach the Cramer-Rao bound. The covariance of the centre comes from the fit's
+Jacobian and residual variance.
+
+Pixels follow OpenCV's convention: the centre of the top-left pixel is (0, 0).
+
+Modules: ``config`` (settings and result types), ``segmentation`` (candidates),
+``intensity`` (the blurred Marks' intensity models), ``circle`` and ``cross`` (the
+sub-pixel fits), ``pixels`` (shared helpers), ``detect`` (:func:`detect_marks`); the
+batched Levenberg-Marquardt solver is ``calib_core.least_squares``.
+"""
+from printer_alignment.core.marks.config import SHAPES, Detection, DetectorConfig, Mark
+from printer_alignment.core.marks.detect import detect_marks
+from printer_alignment.core.marks.segmentation import estimate_noise
+
+__all__ = ['SHAPES', 'Detection', 'DetectorConfig', 'Mark', 'detect_marks', 'estimate_noise']

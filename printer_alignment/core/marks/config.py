@@ -1,0 +1,120 @@
+"""Detector settings and results: the tuned constants (each with why it has its value),
+:class:`DetectorConfig`, and the :class:`Mark` and :class:`Detection` the detector returns."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+
+
+SHAPES = ('circle', 'cross')
+# Half-width of the ring of pixels around a circle's edge used by the fit, px: covers the
+# edge blur (sigma up to 1.5 px) to 4 sigma.
+EDGE_BAND_PX = 6.0
+# Edge bands with more pixels than this are fitted in two steps (see circle_start).
+ONE_STEP_ABOVE_PX = 1500
+ROUGH_FIT_PX = 750
+# Segmentation: the illumination surface is fitted to means of blocks this wide (px),
+# with this many rounds of outlier rejection.
+TREND_BLOCK_PX = 16
+TREND_ITERATIONS = 4
+SURFACE_STEP_PX = 4
+# The 5x5, sigma 1 px Gaussian smoothing before the threshold scales white noise by this.
+SMOOTHING_NOISE_GAIN = 0.287
+# The threshold stays at least this many smoothed-noise sigma from the background.
+MIN_THRESHOLD_SIGMA = 5.0
+# A candidate blob's box: its half-size within these factors of the accepted Mark sizes
+# (the threshold makes blobs a little smaller or larger than the Mark), its sides within
+# this aspect ratio, and at least this share of it filled (a thin cross's least).
+SIZE_SLACK = (0.8, 1.2)
+MAX_ASPECT = 1.35
+MIN_FILL = 0.12
+# A filled blob whose second moments are more elongated than this is a dot seen at an
+# angle and is fitted as an ellipse; up to this elongation (the moments' axis ratio),
+# which a dot shows at about 66 degrees from face-on.
+ELLIPSE_ABOVE_ASPECT = 1.1
+MAX_ELLIPSE_ASPECT = 2.5
+# Such an ellipse fills its bounding box least when turned by 45 degrees, to
+# pi k / (2 (1 + k^2)) at aspect k; 0.9 of that allows for the pixels.
+ELLIPSE_MIN_FILL = 0.9 * np.pi * MAX_ELLIPSE_ASPECT / (2 * (1 + MAX_ELLIPSE_ASPECT ** 2))
+# Such a blob overlaps the ellipse of its second moments by at least this share
+# (intersection over union): 0.98 and more for 95 % of the dots in the tilted grid
+# photos, 0.84 at most for two touching dots of 5-30 px, whatever their sizes.
+MIN_ELLIPSE_OVERLAP = 0.9
+# A dot's fit needs at least this many band pixels nearer to it than to other blobs.
+MIN_BAND_PX = 40
+# The cross fit gives up after this many model evaluations (see fit_cross).
+CROSS_MAX_EVALUATIONS = 40
+# A cross's blob overlaps itself turned by 90 degrees by at least this share (intersection
+# over union): 0.84-0.99 on rendered crosses of 5-40 px at 5 % noise, at most 0.5 on the
+# touching dots of a random-dot photo, apart from a few tiny blobs.
+MIN_QUARTER_TURN_OVERLAP = 0.7
+DEGENERATE_FIT = 'degenerate fit: the pixels do not determine the centre'
+# A fit whose centre's 1-sigma uncertainty exceeds this share of the Mark's size has not
+# found the centre (a blob the model does not describe): the weakest Mark accepted, at
+# min_snr and the smallest size, is determined to a few hundredths of its size.
+MAX_SIGMA_OF_SIZE = 0.25
+# The darkest (brightest) level of a frame is the one with this many pixels beyond it:
+# fewer than the smallest Mark has, more than a hot pixel.
+EXTREME_PIXELS = 4
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Detector settings (pixel units).
+
+    Attributes
+    ----------
+    min_size_px, max_size_px : float
+        Accepted circle radius / cross half-length, px.
+    polarity : str
+        ``"dark"`` (Marks darker than background), ``"bright"`` or ``"auto"`` (the class
+        with more Mark-shaped blobs; setting it saves that look, about 0.3 ms a frame).
+    min_snr : float
+        Minimum fitted contrast over the image noise sigma.
+    border_margin_px : float
+        A candidate closer than this to the image border is reported as clipped.
+    """
+
+    min_size_px: float = 2.5
+    max_size_px: float = 120.0
+    polarity: str = 'auto'
+    min_snr: float = 6.0
+    border_margin_px: float = 1.0
+
+    def __post_init__(self):
+        if not 0 < self.min_size_px < self.max_size_px:
+            raise InvalidInputError('need 0 < min_size_px < max_size_px')
+        if self.polarity not in ('auto', 'dark', 'bright'):
+            raise InvalidInputError(f'polarity must be auto, dark or bright, not {self.polarity!r}')
+        if self.min_snr <= 0:
+            raise InvalidInputError('min_snr must be positive')
+
+
+@dataclass(frozen=True)
+class Mark:
+    """A detected Mark. ``covariance`` is the 2x2 covariance of (u, v) in px^2."""
+
+    shape: str
+    u: float
+    v: float
+    covariance: np.ndarray
+    size: float
+    contrast: float
+    quality: float
+
+    @property
+    def sigma_px(self) -> float:
+        """Largest 1-sigma axis of the centre uncertainty, px."""
+        return float(np.sqrt(np.max(np.linalg.eigvalsh(self.covariance))))
+
+
+@dataclass
+class Detection:
+    """All Marks found in an image and the candidates rejected, with reasons."""
+
+    marks: list[Mark]
+    rejected: list[str] = field(default_factory=list)
+    noise_sigma: float = 0.0

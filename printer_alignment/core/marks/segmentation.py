@@ -1,0 +1,215 @@
+"""Candidate Marks in a frame: the frame is smoothed, a robust quadratic illumination
+surface is taken off, and the connected components below (above) a threshold are the
+dark (bright) candidates; the threshold is Otsu's unless that splits the background's
+noise. Each candidate's shape is summarised by its second moments."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from printer_alignment.core.marks.config import (
+    EXTREME_PIXELS, MAX_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN,
+    SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
+
+
+def estimate_noise(image: np.ndarray) -> float:
+    """Robust sigma of the pixel noise (image units) from horizontal pixel differences.
+
+    About 10000 differences (every k-th row) give sigma to about 1.3 % (the MAD's
+    efficiency is 37 %), and keep the two medians cheap on full frames."""
+    step = max(1, int(np.ceil(image.size / 10000)))
+    diff = np.diff(image[::step].astype(np.float64), axis=1).ravel()
+    return float(np.median(np.abs(diff - np.median(diff))) / 0.6745 / np.sqrt(2.0))
+
+
+def _flatten(smoothed, tolerance):
+    """``smoothed`` (uint8) less a robust quadratic illumination surface, at 128 (uint8).
+
+    The surface is fitted by least squares to block means of the frame, dropping blocks
+    more than 3 robust sigma off it (the Marks, and in photos the scene around the plate),
+    so a fall-off of light across the frame does not split the background in two at the
+    threshold. Frames whose block means (10th to 90th percentile) vary less than
+    ``tolerance`` are returned unchanged."""
+    height, width = smoothed.shape
+    rows, cols = max(height // TREND_BLOCK_PX, 3), max(width // TREND_BLOCK_PX, 3)
+    means = cv2.resize(smoothed, (cols, rows), interpolation=cv2.INTER_AREA).ravel().astype(np.float64)
+    low, high = np.percentile(means, [10, 90])
+    if high - low < tolerance:
+        return smoothed
+    y, x = np.divmod(np.arange(rows * cols), cols)
+    # Block centres in full-frame px, scaled to [-1, 1] for conditioning.
+    x = ((x + 0.5) * width / cols - 0.5) / width * 2 - 1
+    y = ((y + 0.5) * height / rows - 0.5) / height * 2 - 1
+    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+    keep = np.ones(means.size, dtype=bool)
+    for _ in range(TREND_ITERATIONS):
+        # lstsq, not the normal equations: the kept blocks may not pin every term.
+        coef = np.linalg.lstsq(design[keep], means[keep], rcond=None)[0]
+        residual = means - design @ coef
+        centre = np.median(residual[keep])
+        spread = 1.4826 * np.median(np.abs(residual[keep] - centre))
+        keep_next = np.abs(residual - centre) < max(3 * spread, 1.0)
+        if np.count_nonzero(keep_next) < 2 * design.shape[1]:
+            break
+        keep = keep_next
+    # The surface is evaluated every SURFACE_STEP_PX px and interpolated up: cv2.resize
+    # puts the coarse sample j at full-frame px SURFACE_STEP_PX * j + (SURFACE_STEP_PX - 1) / 2.
+    step = SURFACE_STEP_PX
+    u = ((np.arange(-(-width // step)) * step + (step - 1) / 2) / width * 2 - 1).astype(np.float32)
+    v = ((np.arange(-(-height // step)) * step + (step - 1) / 2) / height * 2 - 1).astype(np.float32)
+    c0, cu, cv_, cuu, cuv, cvv = coef.astype(np.float32)
+    coarse = np.add.outer(cv_ * v + cvv * v * v, c0 + cu * u + cuu * u * u) + cuv * np.outer(v, u)
+    surface = cv2.resize(np.clip(coarse, 0, 255).astype(np.uint8),
+                         (len(u) * step, len(v) * step), interpolation=cv2.INTER_LINEAR)
+    return cv2.addWeighted(smoothed, 1.0, surface[:height, :width], -1.0, 128.0)
+
+
+def segment(image, noise_scaled, config):
+    """Candidate Marks: the connected components of the thresholded, flattened frame.
+
+    Returns the polarity; the labels of the Marks' mask (int32, 8-connected); each
+    blob's bounding box (k, 4: x, y, width, height, px) and one pixel of it (k, 2: u, v),
+    from its outer contour; and the flattened frame (uint8). Labels and contours cost a
+    fifth of connected components with statistics, which sum over every pixel of the
+    frame. The threshold is Otsu's unless that
+    splits the background's noise (see _threshold). ``auto`` polarity takes the class
+    with more Mark-shaped blobs: the minority class is not the Marks when a dense dot
+    grid and a dark table fill most of a photo."""
+    scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+    smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
+    guard = MIN_THRESHOLD_SIGMA * smoothed_noise
+    flat = _flatten(cv2.GaussianBlur(scaled, (5, 5), 1.0), smoothed_noise)
+    histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
+    otsu = _otsu(histogram)
+    polarities = ('dark', 'bright') if config.polarity == 'auto' else (config.polarity,)
+    masks = {p: _mask(flat, histogram, otsu, guard, p) for p in polarities}
+    blobs = {p: _blobs(masks[p]) for p in polarities}
+    # Ties go to dark Marks, the first.
+    polarity = (max(polarities, key=lambda p: _mark_shaped(*blobs[p], config))
+                if len(polarities) > 1 else polarities[0])
+    labels = cv2.connectedComponents(masks[polarity], connectivity=8)[1]
+    contours, boxes = blobs[polarity]
+    seeds = np.array([c[0, 0] for c in contours], dtype=int).reshape(-1, 2)
+    return polarity, labels, boxes, seeds, flat
+
+
+def _mask(flat, histogram, otsu, guard, polarity):
+    """1 on the flattened frame's pixels of ``polarity`` Marks, else 0 (uint8).
+
+    cv2.threshold floors the level on 8-bit frames and keeps src > level (src <= level
+    inverted); the masks are flat < dark level and flat > bright level."""
+    if polarity == 'dark':
+        level = np.ceil(_threshold(histogram, otsu, guard)) - 1
+        return cv2.threshold(flat, level, 1, cv2.THRESH_BINARY_INV)[1]
+    level = 255 - _threshold(histogram[::-1], 255 - otsu, guard)
+    return cv2.threshold(flat, level, 1, cv2.THRESH_BINARY)[1]
+
+
+def _otsu(histogram) -> int:
+    """Otsu's threshold of a 256-bin histogram: the level t that maximises the variance
+    between the classes <= t and > t (as cv2.THRESH_OTSU, which would also binarise)."""
+    levels = np.arange(histogram.size)
+    weight = np.cumsum(histogram)
+    moment = np.cumsum(histogram * levels)
+    total, total_moment = weight[-1], moment[-1]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        between = (total_moment * weight - total * moment) ** 2 / (weight * (total - weight))
+    return int(np.argmax(np.nan_to_num(between[:-1], nan=-1.0, posinf=-1.0)))
+
+
+def _threshold(histogram, otsu, guard) -> float:
+    """Grey level below which a pixel belongs to a dark Mark, from the flattened frame's
+    histogram (256 bins; mirror it for bright Marks) and Otsu's threshold.
+
+    Otsu's threshold is kept when it lies at least ``guard`` below the median of the
+    class above it. Otherwise it has split the background's noise (one small Mark in
+    view), and the level is halfway between that median and the darkest pixels: the
+    Mark's edge, as Otsu's threshold would have put it."""
+    above = np.cumsum(histogram[int(otsu) + 1:])
+    if not above.size or above[-1] == 0:
+        return otsu
+    background = int(otsu) + 1 + int(np.searchsorted(above, above[-1] / 2))
+    if otsu <= background - guard:
+        return otsu
+    darkest = int(np.searchsorted(np.cumsum(histogram), EXTREME_PIXELS))
+    return min(background - guard, (background + darkest) / 2)
+
+
+def _blobs(mask):
+    """The outer contours of a mask's blobs and their bounding boxes (k, 4: x, y, width,
+    height, px). With RETR_CCOMP every blob's outer contour is at the top level, also a
+    Mark's inside a hole of another blob, as dots on a plate framed by a table."""
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    contours = [c for c, link in zip(contours, hierarchy[0] if contours else []) if link[3] < 0]
+    return contours, np.array([cv2.boundingRect(c) for c in contours], dtype=int).reshape(-1, 4)
+
+
+def _mark_shaped(contours, boxes, config) -> int:
+    """How many of the blobs (outer contours and bounding boxes) have a Mark's size,
+    aspect and fill."""
+    if not contours:
+        return 0
+    w, h = boxes[:, 2].astype(float), boxes[:, 3].astype(float)
+    # A contour's polygon runs through the boundary pixels' centres, so it encloses about
+    # half a pixel less than the blob all round.
+    area = np.array([cv2.contourArea(c) for c in contours]) + (w + h)
+    half = np.maximum(w, h) / 2.0
+    fill = area / (w * h)
+    return int(np.count_nonzero(
+        (half >= SIZE_SLACK[0] * config.min_size_px) & (half <= SIZE_SLACK[1] * config.max_size_px)
+        & (np.maximum(w, h) < MAX_ASPECT * np.minimum(w, h)) & (fill > MIN_FILL)))
+
+
+@dataclass(frozen=True)
+class MomentShape:
+    """A blob's area (px^2), centroid (px, in its box) and second central moments (px^2,
+    with the pixel's own 1/12 px^2 added), seen as the ellipse of the same moments:
+    ``{d : d^T C^-1 d <= 4}``, which is the blob itself for a filled ellipse."""
+
+    area: float
+    cu: float
+    cv: float
+    uu: float
+    uv: float
+    vv: float
+
+    @property
+    def eccentricity(self) -> float:
+        """(l1 - l2) / (l1 + l2) of the moments' eigenvalues: 0 for a disk."""
+        return float(np.hypot(self.uu - self.vv, 2 * self.uv) / (self.uu + self.vv))
+
+    @property
+    def aspect(self) -> float:
+        """Axis ratio, >= 1."""
+        e = self.eccentricity
+        return float(np.sqrt((1 + e) / max(1 - e, 1e-12)))
+
+    @property
+    def shape(self) -> tuple[float, float]:
+        """(a, b) of dot_edge_model: its P is C^-1 scaled to a trace of 2."""
+        return ((self.vv - self.uu) / (self.uu + self.vv), -2 * self.uv / (self.uu + self.vv))
+
+    def overlap(self, component) -> float:
+        """Intersection over union of the blob (``component``, its boolean box) and its
+        moment ellipse."""
+        h, w = component.shape
+        dv = np.arange(-1, h + 1) - self.cv
+        du = np.arange(-1, w + 1) - self.cu
+        det = self.uu * self.vv - self.uv * self.uv
+        form = (np.add.outer(self.uu * dv * dv, self.vv * du * du)
+                - 2 * self.uv * np.outer(dv, du)) / det
+        inside = form <= 4.0
+        common = np.count_nonzero(inside[1:-1, 1:-1] & component)
+        return common / (np.count_nonzero(inside) + self.area - common)
+
+
+def moment_shape(component) -> MomentShape:
+    """The moments of a blob, ``component`` its boolean box (C-contiguous). It holds at
+    least its seed, a pixel of the blob's contour."""
+    m = cv2.moments(component.view(np.uint8), binaryImage=True)
+    area = m['m00']
+    pixel = 1.0 / 12.0
+    return MomentShape(area, m['m10'] / area, m['m01'] / area, m['mu20'] / area + pixel,
+                        m['mu11'] / area, m['mu02'] / area + pixel)
