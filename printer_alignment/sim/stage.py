@@ -12,9 +12,14 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
+from calib_core.iso9283 import multidirectional_variation, pose_repeatability
+from printer_alignment.core.alignment import plan_alignment, rigid_fit
+from printer_alignment.core.marks import detect_marks
 from printer_alignment.core.stage import (
     NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, path_from_below,
     platform_points_in_plate)
+from printer_alignment.core.stage_calibration import StageData, StagePlan
+from printer_alignment.sim.camera import CameraSim
 from printer_alignment.sim.scene import MarkSet, PlateMark
 
 # Calibration Marks on the platform (platform frame, m): under the gantry at plate
@@ -110,7 +115,6 @@ def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
     Returns a dict with, per alignment, position error of the Marks' centroid (m),
     orientation error (rad) and the larger of the two Marks' errors (m), plus max / mean.
     """
-    from printer_alignment.core.alignment import plan_alignment, rigid_fit
     rng = np.random.default_rng(seed)
     stage = StageSim(truth, landing_sigma, seed=seed + 1)
     position, orientation, mark_error = [], [], []
@@ -150,8 +154,6 @@ def camera_pose_sensor(stage: StageSim, platform_points=CALIBRATION_MARKS, seed:
     """A function that measures the platform's plate pose (x, y m of the Marks' centroid,
     theta rad) through the simulated camera: it renders each Mark with a camera parked
     above its home position, detects it and converts pixels with the camera's scale."""
-    from printer_alignment.core.marks import detect_marks
-    from printer_alignment.sim.camera import CameraSim
     parked = stage.true_points(platform_points)
     camera = CameraSim(None, seed=seed)
     c2p = camera.optics.camera2plate
@@ -176,7 +178,6 @@ def measure_repeatability(truth: StageGeometry = TRUE_STAGE, q=(1e-3, -1.5e-3, 2
     through the camera: ``cycles`` visits from a start ``offset`` (m) below on every
     chain (unidirectional), then the same from above and from a mixed start
     (multi-directional)."""
-    from calib_core.iso9283 import multidirectional_variation, pose_repeatability
     q = np.asarray(q, dtype=float)
     stage = StageSim(truth, landing_sigma, seed=seed)
     stage.move(q)
@@ -206,7 +207,6 @@ def simulate_calibration_run(truth: StageGeometry = TRUE_STAGE, plan=None,
     at each target with a short last motion in its direction of travel
     (:func:`~printer_alignment.core.stage.landing_path`), so the sweeps approach from both
     directions."""
-    from printer_alignment.core.stage_calibration import StageData, StagePlan
     plan = plan or StagePlan()
     stage = StageSim(truth, landing_sigma, seed=seed)
     rng = np.random.default_rng(seed + 1)

@@ -1,0 +1,128 @@
+"""Stage calibration data (the Marks measured at each input vector, CSV in and out),
+the plan of inputs a run visits, and the rigid motions between Mark pairs."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_core.datasets import directions_from_order, read_columns, write_columns
+from calib_core.errors import InvalidInputError
+from printer_alignment.core.alignment import rigid_fit
+from printer_alignment.core.stage import STROKE, check_stroke
+
+
+STAGE_COLUMNS = ('q1', 'q2', 'q3', 'mark1_x', 'mark1_y', 'mark2_x', 'mark2_y')
+STAGE_DIRECTIONS = ('direction1', 'direction2', 'direction3')
+
+
+@dataclass(frozen=True)
+class StageData:
+    """Calibration Marks measured at commanded stage inputs.
+
+    Attributes
+    ----------
+    q : ndarray (n, 3)
+        Commanded chain inputs, m.
+    directions : ndarray (n, 3)
+        Direction of each chain's last motion (+1 / -1).
+    marks : ndarray (n, 2, 2)
+        The two calibration Marks measured in the plate frame, m.
+    covariates : dict of str to ndarray (n,)
+    """
+
+    q: np.ndarray
+    directions: np.ndarray
+    marks: np.ndarray
+    covariates: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        q = np.atleast_2d(np.asarray(self.q, dtype=float))
+        directions = np.atleast_2d(np.asarray(self.directions, dtype=float))
+        marks = np.asarray(self.marks, dtype=float).reshape(-1, 2, 2)
+        if q.shape[1:] != (3,) or directions.shape != q.shape or len(marks) != len(q):
+            raise InvalidInputError(f'q {q.shape}, directions {directions.shape} and marks '
+                                    f'{marks.shape} must be (n, 3), (n, 3), (n, 2, 2)')
+        for name, value in (('q', q), ('marks', marks)):
+            if not np.all(np.isfinite(value)):
+                raise InvalidInputError(f'{name} contains NaN or infinite values')
+        if not np.all(np.isin(directions, (-1.0, 1.0))):
+            raise InvalidInputError('directions must be +1 or -1')
+        object.__setattr__(self, 'q', q)
+        object.__setattr__(self, 'directions', directions)
+        object.__setattr__(self, 'marks', marks)
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def select(self, rows) -> 'StageData':
+        return StageData(self.q[rows], self.directions[rows], self.marks[rows],
+                         {k: v[rows] for k, v in self.covariates.items()})
+
+    @classmethod
+    def from_csv(cls, path, dropped: dict | None = None) -> 'StageData':
+        """Columns q1..q3 (m), mark1_x, mark1_y, mark2_x, mark2_y (m, plate frame);
+        optional direction1..3 (+1 / -1; without them, from the order of the rows) and
+        covariates such as time (s) or temperature (K)."""
+        columns = read_columns(path, list(STAGE_COLUMNS), dropped)
+        q = np.column_stack([columns[c] for c in ('q1', 'q2', 'q3')])
+        present = [c for c in STAGE_DIRECTIONS if c in columns]
+        if present and len(present) != 3:
+            raise InvalidInputError(f'{path} has {", ".join(present)} but not all three '
+                                    'direction columns')
+        directions = (np.column_stack([columns[c] for c in STAGE_DIRECTIONS]) if present
+                      else directions_from_order(np.vstack([np.zeros(3), q]))[1:])
+        marks = np.column_stack([columns[c] for c in STAGE_COLUMNS[3:]]).reshape(-1, 2, 2)
+        used = set(STAGE_COLUMNS) | set(STAGE_DIRECTIONS)
+        return cls(q, directions, marks, {k: v for k, v in columns.items() if k not in used})
+
+    def to_csv(self, path) -> None:
+        names = list(STAGE_COLUMNS[:3]) + list(STAGE_DIRECTIONS) + list(STAGE_COLUMNS[3:]) \
+            + list(self.covariates)
+        write_columns(path, names, [self.q, self.directions, self.marks.reshape(-1, 4)]
+                      + [self.covariates[k] for k in self.covariates])
+
+
+@dataclass(frozen=True)
+class StagePlan:
+    """Which inputs the calibration visits (m). ``span`` is the fraction of the stroke
+    used; sweeps have ``sweep_points`` each way, the workspace grid ``grid`` points per
+    input (q1, (q2 + q3) / 2, q3 - q2)."""
+
+    sweep_points: int = 9
+    grid: tuple = (5, 5, 3)
+    span: float = 0.95
+
+    def __post_init__(self):
+        if self.sweep_points < 3 or len(self.grid) != 3 or min(self.grid) < 2:
+            raise InvalidInputError('sweep_points must be >= 3 and grid three counts >= 2')
+        if not 0 < self.span <= 1:
+            raise InvalidInputError('span must be in (0, 1]')
+
+    def targets(self) -> np.ndarray:
+        """Inputs in visiting order, m, (n, 3). Starts at home; sweeps go up and back."""
+        reach = self.span * STROKE
+        ramp = np.linspace(-reach, reach, self.sweep_points)
+        both_ways = np.concatenate([ramp, ramp[::-1]])
+        zero = np.zeros_like(both_ways)
+        x_sweep = np.column_stack([both_ways, zero, zero])
+        y_sweep = np.column_stack([zero, both_ways, both_ways])
+        attitude = np.column_stack([zero, -both_ways, both_ways])
+        n1, nm, nw = self.grid
+        rows = []
+        # Mean of q2, q3 and their difference share the stroke: |qm| + |w| / 2 <= reach.
+        for k, w in enumerate(np.linspace(-reach, reach, nw)):
+            qm_reach = reach - abs(w) / 2
+            for j, qm in enumerate(np.linspace(-qm_reach, qm_reach, nm)):
+                q1s = np.linspace(-reach, reach, n1)
+                for q1 in (q1s if (j + k) % 2 == 0 else q1s[::-1]):
+                    rows.append([q1, qm - w / 2, qm + w / 2])
+        return check_stroke(np.vstack([np.zeros((1, 3)), x_sweep, y_sweep, attitude,
+                                       np.array(rows)]))
+
+
+def relative_motions(marks: np.ndarray, home: np.ndarray):
+    """Rigid plate-frame motions (angle rad (n,), translation m (n, 2)) that carry the two
+    ``home`` Marks ((2, 2)) to each measured pair ((n, 2, 2)): ``M = R(angle) M0 + C``."""
+    out = [rigid_fit(home, pair) for pair in marks]
+    return np.array([a for a, _ in out]), np.array([c for _, c in out])
