@@ -24,22 +24,33 @@ def run(out: Path) -> None:
         rows[label] = {name: evaluate_alignment(model, poses=poses, repeats=repeats, seed=0)
                        for name, model in models.items()}
     repeatability = measure_repeatability(cycles=30, seed=2)
+    u, m, v = (repeatability[k] for k in ('unidirectional', 'multidirectional', 'variation'))
+    # One move cannot beat the stage's own repeatability measured by the same camera: the
+    # result is stated against it (the paper states 12.3 um and 0.720" as maxima).
+    rp_position, rp_angle = u['RP_l_m'], u['RP_a_rad'][0]
+    for by_model in rows.values():
+        for r in by_model.values():
+            r['position_max_over_RP_l'] = r['position_max_m'] / rp_position
+            r['orientation_max_over_RP_a'] = r['orientation_max_rad'] / rp_angle
     result = {'alignment': rows, 'repeatability': repeatability, 'calibration': report}
     Path(out).mkdir(exist_ok=True)
     write_atomic(Path(out) / 'stage.json', json.dumps(result, indent=2) + '\n')
-    lines = ['| poses | model | position max | position mean | orientation max | orientation mean |',
-             '|---|---|---|---|---|---|']
+    lines = ['| poses | model | position max | position mean | orientation max | orientation mean '
+             '| position max / RP_l | orientation max / RP_a |',
+             '|---|---|---|---|---|---|---|---|']
     for label, by_model in rows.items():
         for name, r in by_model.items():
             lines.append(f'| {label} | {name} | {r["position_max_m"] * 1e6:.2f} um | '
                          f'{r["position_mean_m"] * 1e6:.2f} um | '
                          f'{r["orientation_max_rad"] / ARCSEC:.2f}" | '
-                         f'{r["orientation_mean_rad"] / ARCSEC:.2f}" |')
-    u, m, v = (repeatability[k] for k in ('unidirectional', 'multidirectional', 'variation'))
+                         f'{r["orientation_mean_rad"] / ARCSEC:.2f}" | '
+                         f'{r["position_max_over_RP_l"]:.2f} | '
+                         f'{r["orientation_max_over_RP_a"]:.2f} |')
     lines += ['', f'ISO 9283 repeatability (30 cycles, through the camera): unidirectional '
-              f'RP_l {u["RP_l_m"] * 1e6:.2f} um, RP_a {u["RP_a_rad"][0] / ARCSEC:.2f}"; '
+              f'RP_l {rp_position * 1e6:.2f} um, RP_a {rp_angle / ARCSEC:.2f}"; '
               f'three directions pooled RP_l {m["RP_l_m"] * 1e6:.2f} um; vAP '
-              f'{v["vAP_m"] * 1e6:.2f} um.']
+              f'{v["vAP_m"] * 1e6:.2f} um. The paper\'s maxima after calibration: 12.3 um and '
+              f'0.720" (its stage\'s repeatability: 3-6 um).']
     write_atomic(Path(out) / 'stage.md', '\n'.join(lines) + '\n')
     print('\n'.join(lines))
 
