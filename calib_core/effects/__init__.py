@@ -1,0 +1,54 @@
+"""The closed loop's effect library: physical effects a machine model may lack.
+
+An effect adds a term to the machine's *channels*: the quantities it acts on directly,
+such as an axis position (m), a hexapod leg length (m) or a normalised image coordinate.
+Each machine says what its channels are and supplies the covariates an effect needs in a
+*context* (a dict of arrays for the rows being evaluated):
+
+``position``     (n, C) channel positions, m (axis command, gantry axis, leg length)
+``direction``    (n, C) direction of approach, +1 from below, -1 from above
+``time``         (n,) s, ``temperature`` (n,) K (differences matter, not the zero)
+``load``         (n, C) static axial force per channel, N, compression positive
+``normalized``   (n, 2) normalised image coordinates of a camera (x/z, y/z)
+
+Names are stable (they appear in reports):
+
+==========================  ============================================================
+``offset``                  constant shift per channel (m)
+``scale``                   scale error per channel, term = s * position (1)
+``squareness``              non-orthogonality of two axes: channel 0 gains gamma * position 1 (rad)
+``reversal``                backlash / lost motion: the carriage lags the drive by b/2 against
+                            the direction of approach, term = -b/2 * direction (m)
+``periodic``                cyclic error per channel, e.g. once per lead-screw revolution,
+                            a cos(2 pi x / P) + b sin(2 pi x / P), period P found from the data (m)
+``drift_time``              linear drift with time, term = rate * (t - t_ref) (m/s)
+``drift_temperature``       thermal expansion and zero drift, term = (k x + c) (T - T_ref)
+                            (k in 1/K, c in m/K)
+``radial_distortion``       lens distortion k1, k2 (OpenCV): x_n (k1 r^2 + k2 r^4) (1)
+``tangential_distortion``   decentring distortion p1, p2 (OpenCV) (1)
+``leg_play``                joint play taken up by the static leg force,
+                            term = -play/2 * sign(load) (m)
+``compliance``              elastic deflection, term = -c * load (m/N)
+==========================  ============================================================
+
+Modules: ``base`` (Effect, Prepared and shared shapes), ``per_channel``, ``leg_play``,
+``periodic``, ``position``, ``categorical``, ``camera``.
+"""
+from calib_core.effects.base import Effect, Prepared
+from calib_core.effects.camera import RadialDistortion, TangentialDistortion
+from calib_core.effects.categorical import CATEGORICAL_COVARIATES, BlockStep, WarmUp
+from calib_core.effects.leg_play import LegPlay
+from calib_core.effects.per_channel import (
+    Compliance, DriftTemperature, DriftTime, Offset, Reversal, Scale, Squareness)
+from calib_core.effects.periodic import Periodic, resolvable_periods
+from calib_core.effects.position import LeadError, ReversalByPosition
+
+LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
+                               ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
+                               DriftTime(), DriftTemperature(), RadialDistortion(),
+                               TangentialDistortion(), LegPlay(), Compliance())}
+
+__all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'DriftTemperature',
+           'DriftTime', 'Effect', 'LeadError', 'LegPlay', 'Offset', 'Periodic', 'Prepared',
+           'RadialDistortion', 'Reversal', 'ReversalByPosition', 'Scale', 'Squareness',
+           'TangentialDistortion', 'WarmUp', 'resolvable_periods']
