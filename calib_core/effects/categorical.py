@@ -8,6 +8,8 @@ from calib_core.effects.base import Effect, Prepared
 
 
 CATEGORICAL_COVARIATES = ('block', 'setup', 'run', 'cycle')
+"""Covariate columns read as categories (labels, not quantities): a step between their
+levels is the ``block_step`` effect and a structure test."""
 
 
 class BlockStep(Effect):
