@@ -1,0 +1,162 @@
+"""Fitting a machine's base model jointly with a set of effects, evaluating it on other
+rows, hold-out splits and K-fold cross-validation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from calib_core.errors import InvalidInputError
+from calib_core.parameters import ParameterSet
+from calib_core.closed_loop.model import MachineModel
+
+
+@dataclass
+class Fit:
+    base: ParameterSet
+    effects: list
+    values: list          # one array per effect
+    residuals: np.ndarray  # (n, k) on the rows fitted
+    jacobian: np.ndarray
+
+    @property
+    def rss(self) -> float:
+        return float(np.sum(self.residuals ** 2))
+
+    @property
+    def parameter_count(self) -> int:
+        return len(self.base.free_names) + sum(len(v) for v in self.values)
+
+    def covariance(self, noise_variance: float | None = None) -> np.ndarray:
+        """Parameter covariance; the noise variance defaults to the residuals'."""
+        if noise_variance is None:
+            noise_variance = self.rss / max(self.residuals.size - self.parameter_count, 1)
+        return np.linalg.pinv(self.jacobian.T @ self.jacobian) * noise_variance
+
+    def std_devs(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance()), 0, None))
+
+    def effect_slice(self, k: int) -> slice:
+        """Where effect ``k``'s parameters sit in the fit's vector."""
+        start = len(self.base.free_names) + sum(len(v) for v in self.values[:k])
+        return slice(start, start + len(self.values[k]))
+
+    def names(self) -> list:
+        return [e.effect.name for e in self.effects]
+
+
+def _delta(machine, effects, values, context, count) -> np.ndarray:
+    delta = np.zeros((count, len(machine.channels)))
+    for effect, v in zip(effects, values):
+        delta = delta + effect.term(v, context)
+    return delta
+
+
+def model_residuals(machine: MachineModel, base: ParameterSet, effects: list, values: list,
+               rows: np.ndarray, in_channels: bool = False) -> np.ndarray:
+    """Residuals of the base model plus ``effects`` on ``rows``: (n, k), or (n, C)
+    expressed in the channels."""
+    context = machine.context(base, rows)
+    delta = _delta(machine, effects, values, context, len(rows))
+    method = machine.channel_residuals if in_channels else machine.residuals
+    return method(base, delta, rows, context)
+
+
+def evaluate(machine: MachineModel, fit: Fit, rows: np.ndarray) -> np.ndarray:
+    """Residuals (n, k) of a fitted model on any rows."""
+    return model_residuals(machine, fit.base, fit.effects, fit.values, rows)
+
+
+def refit(machine: MachineModel, fit: Fit, rows: np.ndarray, effects: bool = True) -> Fit:
+    """``fit``'s model (its base and, with ``effects``, its effects) fitted again on ``rows``."""
+    if effects:
+        return fit_model(machine, fit.base, fit.effects, fit.values, rows)
+    return fit_model(machine, machine.initial(), [], [], rows)
+
+
+def residuals_by_channel(machine, fit: Fit, rows) -> np.ndarray:
+    return model_residuals(machine, fit.base, fit.effects, fit.values, rows, in_channels=True)
+
+
+def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: list,
+         rows: np.ndarray) -> Fit:
+    """Joint least squares of the base model and ``effects`` on ``rows``."""
+    sizes = [len(v) for v in values]
+    nb = len(base.free_names)
+    start = np.concatenate([base.free_vector()] + [np.asarray(v, float) for v in values])
+    free = np.ones(len(start), bool)
+    if any(e.determined is not None for e in effects):
+        context, offset = machine.context(base, rows), nb
+        for effect, size in zip(effects, sizes):
+            if effect.determined is not None:
+                free[offset:offset + size] = effect.determined(context)
+            offset += size
+    x0 = start[free]
+
+    def unpack(x):
+        full = start.copy()
+        full[free] = x
+        parts, offset = [], nb
+        for s in sizes:
+            parts.append(full[offset:offset + s])
+            offset += s
+        return base.with_free_vector(full[:nb]), parts
+
+    def fun(x):
+        b, parts = unpack(x)
+        return model_residuals(machine, b, effects, parts, rows).ravel()
+
+    r0 = fun(x0)
+    if not np.all(np.isfinite(r0)):
+        raise InvalidInputError('residuals are not finite (NaN or infinite values in the data?)')
+    solution = least_squares(fun, x0, method='trf', x_scale='jac')
+    b, parts = unpack(solution.x)
+    # Held parameters get zero columns: the rows say nothing about them.
+    jacobian = np.zeros((solution.jac.shape[0], len(start)))
+    jacobian[:, free] = solution.jac
+    return Fit(b, list(effects), parts, solution.fun.reshape(len(rows), -1), jacobian)
+
+
+def without_effects(fit: Fit, names) -> tuple[list, list]:
+    """``fit``'s effects and values, less those named."""
+    kept = [k for k, e in enumerate(fit.effects) if e.effect.name not in names]
+    return [fit.effects[k] for k in kept], [fit.values[k] for k in kept]
+
+
+def holdout_split(labels: np.ndarray, parts: int, rng) -> np.ndarray:
+    """A part number per row, balanced within each label."""
+    out = np.empty(len(labels), dtype=int)
+    for label in np.unique(labels):
+        index = np.flatnonzero(labels == label)
+        out[rng.permutation(index)] = np.arange(len(index)) % parts
+    return out
+
+
+def cross_validated_rms(machine, fit: Fit, rows, folds) -> float:
+    """RMS of the residuals each fold gets from a model fitted to the other folds."""
+    total, count = 0.0, 0
+    for k in np.unique(folds):
+        train, test = rows[folds != k], rows[folds == k]
+        refit = fit_model(machine, fit.base, fit.effects, fit.values, train)
+        r = evaluate(machine, refit, test)
+        total += float(np.sum(r ** 2))
+        count += r.size
+    return float(np.sqrt(total / count))
+
+
+def error_summary(machine, residuals: np.ndarray) -> dict:
+    errors = machine.row_errors(residuals)
+    return {'rms': float(np.sqrt(np.mean(errors ** 2))), 'max': float(np.max(errors))}
+
+
+def heldout_sum_of_squares(machine, splits: list, effects: list, values: list, start: Fit) -> tuple:
+    """Sum of squared held-out residuals over ``splits`` of the model with ``effects``,
+    refitted on each split's fitting rows, and the number of residuals summed."""
+    total, count = 0.0, 0
+    for split in splits:
+        fit = fit_model(machine, start.base, effects, values, split.train)
+        r = evaluate(machine, fit, np.flatnonzero(split.holdout))
+        total += float(np.sum(r ** 2))
+        count += r.size
+    return total, count

@@ -1,0 +1,150 @@
+"""What the closed loop needs from a machine (:class:`MachineModel`: base parameters,
+channels, covariates, residuals) and how it runs (:class:`LoopConfig`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.effects import CATEGORICAL_COVARIATES
+from calib_core.errors import InvalidInputError
+from calib_core.parameters import ParameterSet
+
+
+class MachineModel:
+    """What the loop needs from a machine. Rows are observations (an axis target, a pose,
+    an image point); ``rows`` arguments are integer index arrays into them.
+
+    Subclasses set ``name``, ``base_model`` (a sentence), ``unit`` (of the residuals),
+    ``channels`` (names of the quantities effects act on), ``candidates`` (effect names)
+    and implement ``__len__``, :meth:`initial`, :meth:`context` and :meth:`residuals`.
+    """
+
+    name = ''
+    base_model = ''
+    unit = 'm'
+    channels: tuple = ()
+    candidates: tuple = ()
+    min_effect = 50e-9   # smallest effect worth adding, RMS in the residuals' unit
+
+    def __len__(self) -> int:
+        raise NotImplementedError
+
+    def initial(self) -> ParameterSet:
+        """Starting values of the base parameters (free ones are fitted)."""
+        raise NotImplementedError
+
+    def context(self, base: ParameterSet, rows: np.ndarray) -> dict:
+        """Covariates of ``rows`` (see :mod:`calib_core.effects`); may depend on ``base``."""
+        raise NotImplementedError
+
+    def residuals(self, base: ParameterSet, delta: np.ndarray, rows: np.ndarray,
+                  context: dict) -> np.ndarray:
+        """Measured minus predicted, shape (n, k), with effect terms ``delta`` (n, C) added
+        to the channels; ``context`` is :meth:`context` of the same base and rows, which
+        the loop has computed already."""
+        raise NotImplementedError
+
+    def channel_residuals(self, base: ParameterSet, delta: np.ndarray, rows: np.ndarray,
+                          context: dict) -> np.ndarray:
+        """Residuals expressed in the channels (what ``delta`` lacks), shape (n, C)."""
+        return self.residuals(base, delta, rows, context)
+
+    def strata(self) -> np.ndarray:
+        """Label per row; hold-out and folds sample every label (e.g. camera views)."""
+        return np.zeros(len(self), dtype=int)
+
+    def replicates(self) -> np.ndarray | None:
+        """A label per row that repeated measurements of one setting share (an ISO 230-2
+        target approached from one direction), or None. With replicates, the loop's
+        F-tests take the noise from the scatter within them (pure error), which structure
+        not yet modelled does not inflate."""
+        return None
+
+    def row_errors(self, residuals: np.ndarray) -> np.ndarray:
+        """Error magnitudes in which to report max and RMS: the norm per row."""
+        return np.linalg.norm(residuals, axis=1)
+
+    def workspace(self) -> np.ndarray | None:
+        """2-D position of each row for a residual vector plot, (N, 2), or None."""
+        return None
+
+
+SCALAR_COVARIATES = ('time', 'temperature', 'sequence') + CATEGORICAL_COVARIATES
+
+
+def is_reference(key: str) -> bool:
+    """Context entries that are one value for the whole dataset, not a column."""
+    return key.endswith(('_ref', '_start'))
+
+
+def scalar_covariates(covariates: dict) -> dict:
+    """The per-row covariates of a dataset the effects use: time (s), temperature (K),
+    sequence (approach number, 0 first) and the categorical columns (block, setup, run,
+    cycle), with the reference values the effects need: the means of time and temperature
+    (``time_ref``, ``temperature_ref``) and the starts of time and sequence
+    (``time_start``, ``sequence_start``), all over every row of the dataset."""
+    out = {k: np.asarray(covariates[k], float) for k in SCALAR_COVARIATES if k in covariates}
+    references = {f'{k}_ref': float(np.mean(out[k])) for k in ('time', 'temperature') if k in out}
+    references.update({f'{k}_start': float(np.min(out[k])) for k in ('time', 'sequence')
+                       if k in out})
+    out.update(references)
+    return out
+
+
+def select_rows(covariates: dict, rows: np.ndarray) -> dict:
+    """``covariates`` from :func:`scalar_covariates` restricted to ``rows``."""
+    return {k: v if is_reference(k) else v[rows] for k, v in covariates.items()}
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Settings of :func:`analyze`.
+
+    Attributes
+    ----------
+    holdout_fraction : float
+        Rows kept out of every fit, to report before/after on.
+    folds : int
+        Cross-validation folds within the fitting rows.
+    alpha : float
+        Family-wise significance level per round (Bonferroni over the candidates tried).
+    max_effects : int
+        Stop after adding this many effects.
+    seed : int
+        Of the first random hold-out and fold assignment; split k uses ``seed + k``.
+    splits : int
+        Hold-out splits the selection is repeated over.
+    min_frequency : float
+        An effect is added only if the selection chose it in at least this share of the
+        splits.
+    min_effect : float or None
+        Smallest effect worth adding, as the RMS of the structure it explains, in the
+        residuals' unit (m or px); None takes the machine's ``min_effect``.
+    """
+
+    holdout_fraction: float = 0.3
+    folds: int = 5
+    alpha: float = 1e-3
+    max_effects: int = 4
+    seed: int = 0
+    splits: int = 5
+    min_frequency: float = 0.6
+    min_effect: float | None = None
+
+    def __post_init__(self):
+        if not 0.05 <= self.holdout_fraction <= 0.6:
+            raise InvalidInputError('holdout_fraction must be in [0.05, 0.6]')
+        if self.folds < 2:
+            raise InvalidInputError('folds must be at least 2')
+        if not 0 < self.alpha < 0.5:
+            raise InvalidInputError('alpha must be in (0, 0.5)')
+        if self.max_effects < 0:
+            raise InvalidInputError('max_effects must be >= 0')
+        if self.splits < 1:
+            raise InvalidInputError('splits must be at least 1')
+        if not 0 < self.min_frequency <= 1:
+            raise InvalidInputError('min_frequency must be in (0, 1]')
+        if self.min_effect is not None and not (np.isfinite(self.min_effect)
+                                                and self.min_effect >= 0):
+            raise InvalidInputError('min_effect must be a finite number >= 0')

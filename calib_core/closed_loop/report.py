@@ -1,0 +1,213 @@
+"""The closed loop's result and report: held-out error before and after with the spread
+over splits, each effect's evidence, outlier rows, structure no effect explained, and
+the printed summary."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib_core.loop_structure import structure_tests
+from calib_core.closed_loop.fitting import (
+    Fit, error_summary, evaluate, fit_model, refit, residuals_by_channel)
+from calib_core.closed_loop.model import is_reference
+
+
+@dataclass
+class LoopResult:
+    """Outcome of :func:`analyze`: the report (JSON-ready, SI units), the arrays the
+    plots need (all rows) and the extended model as fitted on the fitting rows."""
+
+    report: dict
+    holdout: np.ndarray                 # bool (N,)
+    residuals_before: np.ndarray        # (N, k), base model fitted on the training rows
+    residuals_after: np.ndarray         # (N, k), extended model
+    covariates: dict = field(default_factory=dict)   # name -> (N,)
+    fit: Fit | None = None
+
+
+def _covariate_columns(machine, context: dict) -> dict:
+    """Flatten a context into named scalar covariates per row."""
+    out = {}
+    for key, value in context.items():
+        if is_reference(key):
+            continue
+        value = np.asarray(value, float)
+        if value.ndim == 1:
+            out[key] = value
+        elif key == 'normalized':
+            out['image_radius'] = np.linalg.norm(value, axis=1)
+        else:
+            for c, name in enumerate(machine.channels):
+                out[f'{key}_{name}'] = value[:, c]
+    return out
+
+
+OUTLIER_SIGMAS = 5.0
+
+
+def _outliers(machine, residuals: np.ndarray, covariates: dict, min_effect: float) -> dict:
+    """Rows whose error under the extended model lies more than :data:`OUTLIER_SIGMAS`
+    robust standard deviations (1.4826 x the median absolute deviation) from the median:
+    a transient, a gross error or an effect of a few rows, which no smooth effect
+    describes. They stay in every fit and figure; the report names them."""
+    errors = machine.row_errors(residuals)
+    centre = float(np.median(errors))
+    sigma = 1.4826 * float(np.median(np.abs(errors - centre)))
+    limit = max(centre + OUTLIER_SIGMAS * sigma, min_effect)
+    per_row = max(len(errors) // len(residuals), 1)   # a machine may report per leg
+    flagged = np.flatnonzero(errors > limit)
+    flagged = flagged[np.argsort(-errors[flagged])]
+    rows = list(dict.fromkeys(int(i) // per_row for i in flagged))
+    worst = {}
+    for i in flagged:
+        worst.setdefault(int(i) // per_row, float(errors[i]))
+    return {'limit': limit, 'robust_sigma': sigma,
+            'rows': [{'row': row, 'error': worst[row],
+                      'covariates': {k: float(v[row]) for k, v in covariates.items()}}
+                     for row in rows[:20]],
+            'count': len(rows)}
+
+
+def _merged(splits: list, attribute: str, keep: list) -> dict:
+    """A per-split dict merged over the splits (first split first), less the ``keep`` names."""
+    out = {}
+    for split in splits:
+        for name, value in getattr(split, attribute).items():
+            if name not in keep and name not in out:
+                out[name] = value
+    return out
+
+
+def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequency: dict,
+            not_identifiable: dict, rejected: dict, min_effect: float) -> LoopResult:
+    """The report and arrays of :func:`analyze` (step 4 of the module's list)."""
+    primary = splits[0]
+    every = np.arange(len(machine))
+    holdout, train = primary.holdout, primary.train
+    before_all = evaluate(machine, primary.base_fit, every)
+    after_all = evaluate(machine, final, every)
+    covariates = _covariate_columns(machine, machine.context(final.base, every))
+    unexplained = structure_tests(
+        machine.channels, residuals_by_channel(machine, final, train),
+        {k: v[train] for k, v in covariates.items()}, config.alpha)
+    std = final.std_devs()
+    nb = len(final.base.free_names)
+    effects_added = []
+    for k, prepared in enumerate(final.effects):
+        item = evidence[prepared.effect.name]
+        entry = prepared.describe(final.values[k], std[final.effect_slice(k)])
+        entry['round'] = item['round']
+        entry['evidence'] = dict(item['evidence'],
+                                 selection_frequency=frequency.get(prepared.effect.name, 0.0))
+        effects_added.append(entry)
+    by_split = []
+    for split in splits:
+        rows = np.flatnonzero(split.holdout)
+        refit = fit_model(machine, final.base, final.effects, final.values, split.train)
+        by_split.append({'rms_before': error_summary(machine, evaluate(machine, split.base_fit, rows))['rms'],
+                         'rms_after': error_summary(machine, evaluate(machine, refit, rows))['rms']})
+    held_before, held_after = error_summary(machine, before_all[holdout]), error_summary(machine, after_all[holdout])
+    names = final.names()
+    outliers = _outliers(machine, after_all, covariates, min_effect)
+    report = {
+        'machine': machine.name,
+        'base_model': machine.base_model,
+        'unit': machine.unit,
+        'channels': list(machine.channels),
+        'rows': {'total': len(machine), 'fitting': int(len(train)),
+                 'held_out': int(holdout.sum())},
+        'config': {'holdout_fraction': config.holdout_fraction, 'folds': config.folds,
+                   'alpha': config.alpha, 'max_effects': config.max_effects,
+                   'seed': config.seed, 'splits': config.splits,
+                   'min_frequency': config.min_frequency, 'min_effect': min_effect},
+        'effects_added': effects_added,
+        'rms_before': held_before['rms'], 'max_before': held_before['max'],
+        'rms_after': held_after['rms'], 'max_after': held_after['max'],
+        'held_out_by_split': by_split,
+        'fitting_rms_before': error_summary(machine, before_all[~holdout])['rms'],
+        'fitting_rms_after': error_summary(machine, after_all[~holdout])['rms'],
+        'base_parameters': {'before': primary.base_fit.base.as_dict(),
+                            'after': final.base.as_dict(),
+                            'units': final.base.units(),
+                            'std_devs_after': dict(zip(final.base.free_names,
+                                                       map(float, std[:nb])))},
+        'candidates': list(machine.candidates),
+        'selection_frequency': frequency,
+        'skipped': _merged(splits, 'skipped', names),
+        'not_identifiable': not_identifiable,
+        'rejected': rejected,
+        'below_minimum_effect': _merged(splits, 'too_small', names),
+        'rounds': primary.rounds,
+        'unexplained': unexplained,
+        'outliers': outliers,
+    }
+    return LoopResult(_plain(report), holdout, before_all, after_all, covariates, final)
+
+
+def _plain(value):
+    """``value`` with numpy scalars and arrays made Python numbers and lists, so the
+    report serialises to JSON and YAML alike."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def format_report(report: dict) -> str:
+    """Lines for people: what was added and how consistently, the held-out error before
+    and after, what the data cannot determine, what was rejected or skipped, and what
+    structure remains."""
+    factor, unit = (1e6, 'um') if report['unit'] == 'm' else (1.0, report['unit'])
+    config = report['config']
+    lines = [f'{report["machine"]}: base model {report["base_model"]}',
+             f'  rows: {report["rows"]["fitting"]} fitted, {report["rows"]["held_out"]} held '
+             f'out; selection repeated over {config["splits"]} hold-out splits, an effect is '
+             f'added when chosen in {config["min_frequency"]:.0%} of them and it explains at '
+             f'least {config["min_effect"] * factor:.3g} {unit} RMS']
+    for effect in report['effects_added']:
+        values = ', '.join(f'{k} {v:.4g} +- {effect["std_devs"][k]:.2g} {effect["units"][k]}'
+                           for k, v in effect['parameters'].items())
+        evidence = effect['evidence']
+        lines.append(f'  added {effect["name"]} (chosen in '
+                     f'{evidence["selection_frequency"]:.0%} of splits, p = '
+                     f'{evidence["p_value"]:.2g}, explains {evidence["explained_rms"] * factor:.3g} '
+                     f'{unit} RMS): {values}')
+    if not report['effects_added']:
+        lines.append('  added nothing: no candidate effect is significant, identifiable and '
+                     'chosen consistently')
+    spread = report.get('held_out_by_split', [])
+    lines.append(f'  held out: RMS {report["rms_before"] * factor:.3g} -> '
+                 f'{report["rms_after"] * factor:.3g} {unit}, max '
+                 f'{report["max_before"] * factor:.3g} -> {report["max_after"] * factor:.3g} {unit}')
+    ratios = [s['rms_after'] / s['rms_before'] for s in spread if s['rms_before'] > 0]
+    if len(ratios) > 1:
+        lines.append(f'  held-out RMS after / before over the {len(spread)} splits: '
+                     f'{min(ratios):.2f} to {max(ratios):.2f}')
+    for name, reason in report.get('not_identifiable', {}).items():
+        lines.append(f'  NOT IDENTIFIABLE {name}: {reason}')
+    for name, reason in report.get('rejected', {}).items():
+        lines.append(f'  rejected {name}: {reason}')
+    for name, size in report.get('below_minimum_effect', {}).items():
+        lines.append(f'  below the minimum effect size {name}: explains {size * factor:.3g} {unit} RMS')
+    for name, reason in report['skipped'].items():
+        lines.append(f'  not tested {name}: {reason}')
+    outliers = report.get('outliers', {})
+    if outliers.get('count'):
+        described = '; '.join(
+            f'row {o["row"]} ({", ".join(f"{k} {v:.4g}" for k, v in o["covariates"].items())}):'
+            f' {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
+        lines.append(f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
+                     f'{outliers["limit"] * factor:.3g} {unit} ({OUTLIER_SIGMAS:g} robust sigma) '
+                     f'under the extended model, e.g. {described}')
+    for item in report['unexplained']:
+        period = f' (period {item["period"] * 1e3:.4g} mm)' if 'period' in item else ''
+        lines.append(f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
+                     f'{item["covariate"]}: {item["structure_rms"] * factor:.3g} {unit} RMS '
+                     f'(p = {item["p_value"]:.2g})')
+    return '\n'.join(lines)
