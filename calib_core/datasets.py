@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import csv
+import io
 import os
 
 import numpy as np
 
 from calib_core.errors import InvalidInputError
+from calib_core.files import read_text
 from calib_core.storage import write_atomic
 
 
@@ -24,10 +26,10 @@ def read_columns(path: str | os.PathLike, required: list[str],
     InvalidInputError
         Missing file or columns, non-numeric, NaN or infinite values, ragged rows.
     """
-    if not os.path.exists(path):
-        raise InvalidInputError(f'no such file: {path}')
-    with open(path, newline='') as stream:
-        rows = list(csv.reader(stream))
+    try:
+        rows = list(csv.reader(io.StringIO(read_text(path, 'a CSV dataset'))))
+    except csv.Error as exc:
+        raise InvalidInputError(f'{path} is not a CSV file: {exc}') from None
     if not rows:
         raise InvalidInputError(f'{path} is empty')
     header = [h.strip() for h in rows[0]]

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import yaml
 
+FILE_MODE = 0o644    # owner writes, everyone reads
+
 
 def write_atomic(path: str | os.PathLike, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file in the same directory and
@@ -25,6 +27,8 @@ def write_atomic(path: str | os.PathLike, text: str) -> Path:
             stream.write(text)
             stream.flush()
             os.fsync(stream.fileno())
+        # mkstemp makes the file 0600; calibrations are read by the machine's other users.
+        os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

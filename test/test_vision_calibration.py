@@ -95,6 +95,8 @@ def test_calibration_files_are_versioned(tmp_path):
     assert (v1, v2) == (1, 2) and first.exists() and second.exists()
     assert read_calibration(tmp_path, 'vision')['a'] == 2
     assert not list(tmp_path.glob('*.tmp'))
+    # Readable by the machine's other users (the drivers that load them), not 0600.
+    assert {p.stat().st_mode & 0o777 for p in tmp_path.glob('vision*.yaml')} == {0o644}
 
 
 def test_gantry_model_inverse_puts_the_camera_where_asked():

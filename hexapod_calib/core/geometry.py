@@ -15,6 +15,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from calib_core.errors import InvalidInputError
+from calib_core.files import read_yaml
 from calib_core.parameters import Parameter, ParameterSet
 from calib_core.storage import write_atomic
 
@@ -120,14 +121,7 @@ class HexapodGeometry:
 
 def read_geometry(path) -> HexapodGeometry:
     """Read a geometry YAML file (DESIGN.md section 6), with clear errors."""
-    try:
-        with open(path) as stream:
-            content = yaml.safe_load(stream)
-    except FileNotFoundError:
-        raise InvalidInputError(f'no such file: {path}') from None
-    except yaml.YAMLError as exc:
-        raise InvalidInputError(f'{path} is not valid YAML: {exc}') from None
-    return HexapodGeometry.from_dict(content, str(path))
+    return HexapodGeometry.from_dict(read_yaml(path, 'a hexapod geometry YAML'), str(path))
 
 
 def write_geometry(path, geometry: HexapodGeometry, extra: dict | None = None) -> None:

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from calib_core.errors import InvalidInputError
 
 MEASUREMENTS_TOPIC = '/hexapod_calibrator/measurements'   # a calibration run's measured poses
+HEXAPOD_RESULT_TOPIC = '/hexapod_calibrator/result'
 
 
 def pose_from_message(msg) -> np.ndarray:

@@ -32,11 +32,11 @@ from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
 from hexapod_calib.core.records import (
-    MEASUREMENTS_TOPIC, leg_lengths_from_message, pose_from_message)
+    HEXAPOD_RESULT_TOPIC as RESULT_TOPIC, MEASUREMENTS_TOPIC, leg_lengths_from_message,
+    pose_from_message)
 from hexapod_calib.nodes.conversions import pose_as_message
 from hexapod_calib.core.statics import leg_forces
 
-RESULT_TOPIC = '/hexapod_calibrator/result'
 ANALYSIS_TOPIC = '/hexapod_calibrator/analysis'
 CALIBRATION_NAME = 'hexapod_geometry'
 
@@ -61,7 +61,8 @@ class HexapodCalibratorNode(Node):
         self.declare_parameter('payload_centre', [0.0, 0.0, 0.0])
         self.payload_mass = float(self.get_parameter('payload_mass').value)
         self.payload_centre = [float(v) for v in self.get_parameter('payload_centre').value]
-        if not (self.payload_mass >= 0 and len(self.payload_centre) == 3):
+        if not (self.payload_mass >= 0 and len(self.payload_centre) == 3
+                and np.all(np.isfinite(self.payload_centre))):
             raise InvalidInputError('payload_mass must be >= 0 kg and payload_centre 3 numbers (m)')
         self._last_run = []  # every stop of the last completed run, in order
         self.timeout = float(self.get_parameter('call_timeout_s').value)

@@ -6,8 +6,11 @@ from __future__ import annotations
 import argparse
 import sys
 
+import cv2
+
 from calib_core.errors import MachineAlignmentError
 from machine_alignment.cli import analyze, calibrate, detect, evaluate, graphs, simulate
+from machine_alignment.cli.common import check_writable
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -19,9 +22,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run one subcommand. Every failure ends in one line ``machine-align: error: ...``
+    naming the file or input and the cause, and exit status 2 (3 for a bug, which is
+    reported the same way rather than as a traceback)."""
     args = build_parser().parse_args(argv)
     try:
+        for option in ('json', 'out'):
+            if getattr(args, option, None):
+                check_writable(getattr(args, option), f'--{option}')
         return args.func(args)
     except MachineAlignmentError as exc:
-        print(f'machine-align: error: {exc}', file=sys.stderr)
-        return 2
+        return _fail(str(exc))
+    except OSError as exc:
+        where = f'{exc.filename}: ' if exc.filename else ''
+        return _fail(f'{where}{exc.strerror or exc}')
+    except cv2.error as exc:
+        return _fail(f'OpenCV refused the input: {exc.err or exc}')
+    except Exception as exc:  # a bug: still one line, with what to report
+        return _fail(f'internal error {exc!r}; please report it with the command line', 3)
+
+
+def _fail(message: str, status: int = 2) -> int:
+    print(f'machine-align: error: {message}', file=sys.stderr)
+    return status

@@ -8,18 +8,23 @@ from calib_core.errors import MachineAlignmentError
 from hexapod_calib.core.calibration import PoseData, identify, summarise_pose_errors
 from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_geometry
 from hexapod_calib.core.procedure import identify_from_records
-from hexapod_calib.core.records import MEASUREMENTS_TOPIC, measurement_record
+from hexapod_calib.core.records import (
+    HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
 from machine_alignment.cli import camera
 from machine_alignment.cli.common import print_pose_summary, read_run, write_json
-from printer_alignment.core.records import stage_data_from_records, stage_record
+from printer_alignment.core.records import (
+    STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
+    stage_data_from_records, stage_record)
 from printer_alignment.core.stage_calibration import StageData, calibrate_stage, models_as_dict
 from printer_alignment.core.vision_procedure import (
     calibrate_from_observations, observation_from_message)
 
 
 def cmd_calibrate_vision(args) -> int:
-    observations, recorded = read_run(args.bag, '/observations', observation_from_message,
-                                      'vision calibration observations')
+    observations, recorded = read_run(args.bag, VISION_OBSERVATIONS_TOPIC,
+                                      'alignment_msgs/msg/VisionObservation',
+                                      observation_from_message,
+                                      'vision calibration observations', VISION_RESULT_TOPIC)
     calibration = calibrate_from_observations(observations, args.pitch)
     report = dict(calibration.report)
     g = report['gantry']
@@ -41,8 +46,9 @@ def cmd_calibrate_stage(args) -> int:
     stage CSV (--data)."""
     recorded = None
     if args.bag:
-        records, recorded = read_run(args.bag, '/observations', stage_record,
-                                     'stage calibration observations')
+        records, recorded = read_run(args.bag, STAGE_OBSERVATIONS_TOPIC,
+                                     'alignment_msgs/msg/StageObservation', stage_record,
+                                     'stage calibration observations', STAGE_RESULT_TOPIC)
         data = stage_data_from_records(records)
     else:
         data = StageData.from_csv(args.data)
@@ -107,8 +113,9 @@ def _write_hexapod_outputs(args, geometry, report) -> None:
 
 def _calibrate_hexapod_from_bag(args) -> int:
     """Rerun the identification of a run recorded by hexapod_calibrator."""
-    records, recorded = read_run(args.bag, MEASUREMENTS_TOPIC, measurement_record,
-                                 'hexapod calibration measurements')
+    records, recorded = read_run(args.bag, MEASUREMENTS_TOPIC,
+                                 'alignment_msgs/msg/HexapodMeasurement', measurement_record,
+                                 'hexapod calibration measurements', HEXAPOD_RESULT_TOPIC)
     if args.geometry:
         nominal = read_geometry(args.geometry)
     elif recorded is not None:

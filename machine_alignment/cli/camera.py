@@ -10,6 +10,7 @@ from printer_alignment.core.camera_calibration import (
     read_boofcv_intrinsics, read_correspondences, reprojection_errors, rms_px,
     views_from_images)
 from printer_alignment.core.dot_markers import LlahIndex, load_uchiya_markers, read_marker_photos
+from printer_alignment.core.records import INTRINSICS_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC
 from printer_alignment.core.vision_procedure import observation_from_message
 
 
@@ -77,8 +78,10 @@ def _compare_with_reference(path, views, report) -> dict:
 
 def _calibrate_camera_from_bag(args) -> int:
     """Rerun a ``vision_calibrator/calibrate_intrinsics`` run from its bag."""
-    dots, recorded = read_run(args.bag, '/observations', lambda m: observation_from_message(m).uv,
-                              'dot-plate views', result_suffix='/intrinsics')
+    dots, recorded = read_run(args.bag, VISION_OBSERVATIONS_TOPIC,
+                              'alignment_msgs/msg/VisionObservation',
+                              lambda m: observation_from_message(m).uv, 'dot-plate views',
+                              INTRINSICS_RESULT_TOPIC)
     if recorded is None or 'setup' not in recorded:
         raise MachineAlignmentError(f'{args.bag} holds no intrinsics result with its setup '
                                     '(pitch, focal length, image size): not an intrinsics run?')

@@ -3,9 +3,11 @@ option and reading a calibrator's recorded run from its bag."""
 from __future__ import annotations
 
 import json
+import os
 import sys
+from pathlib import Path
 
-from calib_core.bags import decode_bag
+from calib_core.bags import bag_topics, decode_bag
 from calib_core.errors import MachineAlignmentError
 from calib_core.storage import write_atomic
 
@@ -28,26 +30,56 @@ def write_json(path, content) -> None:
 
 
 def parse_size(text: str) -> tuple[int, int]:
+    """``WxH`` in px, both positive."""
     try:
         w, h = (int(x) for x in text.lower().split('x'))
     except ValueError:
         raise MachineAlignmentError(f'--image-size must look like 640x480, not {text!r}') from None
+    if w <= 0 or h <= 0:
+        raise MachineAlignmentError(f'--image-size must be positive, not {text!r}')
     return w, h
 
 
-def read_run(bag, stop_suffix: str, convert, what: str,
-             result_suffix: str = '/result') -> tuple[list, dict | None]:
-    """The stops of a calibrator's recorded run (messages on the topic ending in
-    ``stop_suffix``, each passed through ``convert``) and the report of its successful
-    result (topic ending in ``result_suffix``), None if the run ended without one."""
+def check_writable(path, option: str) -> None:
+    """Fail before any work when ``path`` cannot be written: its folder cannot be created
+    or written to, or it is a folder where a file is expected."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise MachineAlignmentError(f'{option} {path}: cannot create its folder '
+                                    f'({exc.strerror or exc})') from None
+    if not os.access(path.parent, os.W_OK):
+        raise MachineAlignmentError(f'{option} {path}: its folder {path.parent} is not writable')
+    if option == '--json' and path.is_dir():
+        raise MachineAlignmentError(f'--json {path} is a folder; give a file name')
+
+
+def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
+             result_topic: str) -> tuple[list, dict | None]:
+    """The stops of a calibrator's recorded run (``stop_type`` messages on ``stop_topic``,
+    each passed through ``convert``) and the report of its successful result (on
+    ``result_topic``), None if the run ended without one.
+
+    Raises
+    ------
+    MachineAlignmentError
+        The bag holds no such stops (a run of another kind, or a foreign bag), or cannot be
+        read."""
+    topics = bag_topics(bag)
+    if topics.get(stop_topic) != stop_type:
+        held = ', '.join(f'{t} ({m})' for t, m in sorted(topics.items())) or 'no topics'
+        raise MachineAlignmentError(f'{bag} holds no {what} ({stop_type} on {stop_topic}); it '
+                                    f'holds {held}: a run of another kind?')
     stops, recorded = [], None
-    for topic, _, msg in decode_bag(bag):
-        if topic.endswith(stop_suffix):
+    for topic, _, msg in decode_bag(bag, [stop_topic, result_topic]):
+        if topic == stop_topic:
             stops.append(convert(msg))
-        elif topic.endswith(result_suffix) and msg.success:
+        elif msg.success:
             recorded = json.loads(msg.report_json)
     if not stops:
-        raise MachineAlignmentError(f'{bag} holds no {what}')
+        raise MachineAlignmentError(f'{bag} holds no {what}: the run stopped before its '
+                                    'first stop')
     return stops, recorded
 
 

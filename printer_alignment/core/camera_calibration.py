@@ -3,14 +3,13 @@ or from images of chessboards and circle grids."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from calib_core.datasets import read_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
+from calib_core.files import read_yaml
 from printer_alignment.core.marks import detect_marks
 
 INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3')
@@ -141,7 +140,7 @@ def read_boofcv_intrinsics(path) -> dict:
     """fx, fy, cx, cy (px) and k1, k2, p1, p2, k3 from a BoofCV ``intrinsic.yaml``
     (pinhole_radial_tangential; missing radial terms are 0)."""
     try:
-        content = yaml.safe_load(Path(path).read_text())
+        content = read_yaml(path, 'BoofCV intrinsics (intrinsic.yaml)')
         pinhole = content['pinhole']
         distortion = content.get('radial_tangential') or {}
         radial = list(distortion.get('radial') or []) + [0.0, 0.0, 0.0]
@@ -150,7 +149,7 @@ def read_boofcv_intrinsics(path) -> dict:
                   'p1': distortion.get('t1', 0.0), 'p2': distortion.get('t2', 0.0),
                   'k3': radial[2]}
         values = {name: float(value) for name, value in values.items()}
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise InvalidInputError(f'{path}: not BoofCV pinhole intrinsics ({exc})') from exc
     if not all(np.isfinite(list(values.values()))):
         raise InvalidInputError(f'{path}: intrinsics with NaN or infinite values')

@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 from scipy.spatial import cKDTree
 
 from calib_core.errors import DetectionError, InvalidInputError
+from calib_core.files import read_yaml
 from printer_alignment.core.camera_calibration import View, read_images
 
 UNITS_M = {'m': 1.0, 'cm': 1e-2, 'mm': 1e-3}
@@ -44,10 +43,7 @@ def load_uchiya_markers(path) -> dict[int, np.ndarray]:
     InvalidInputError
         Unreadable file, unknown units, or a marker that is not a list of finite (x, y).
     """
-    try:
-        content = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise InvalidInputError(f'cannot read marker descriptions {path}: {exc}') from exc
+    content = read_yaml(path, 'random-dot marker descriptions (BoofCV YAML)')
     if not isinstance(content, dict) or not isinstance(content.get('markers'), list):
         raise InvalidInputError(f'{path}: no "markers" list (expected BoofCV Uchiya descriptions)')
     units = content.get('units', 'm')

@@ -9,6 +9,9 @@ import numpy as np
 from calib_core.errors import InvalidInputError
 from printer_alignment.core.stage_calibration import StageData
 
+VISION_OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
+VISION_RESULT_TOPIC = '/vision_calibrator/result'
+INTRINSICS_RESULT_TOPIC = '/vision_calibrator/intrinsics'
 STAGE_OBSERVATIONS_TOPIC = '/stage_calibrator/observations'
 STAGE_RESULT_TOPIC = '/stage_calibrator/result'
 ALIGNER_REPORT_TOPIC = '/aligner/report'

@@ -22,9 +22,9 @@ from calib_core.nodes.calibrator import call_service
 from calib_core.nodes.qos import LATCHED
 from printer_alignment.core.geometry import (
     NOMINAL_LEADS, CameraToPlate, GantryModel)
+from printer_alignment.core.records import VISION_RESULT_TOPIC
 from printer_alignment.nodes.conversions import marks_from_message
 
-VISION_RESULT_TOPIC = '/vision_calibrator/result'
 GANTRY_KEYS = ('lead_x', 'lead_y', 'axis_angle', 'non_orthogonality', 'offset_x', 'offset_y')
 
 

@@ -45,14 +45,14 @@ from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
     NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate)
 from printer_alignment.core.loop_models import GantryData, GantryLoopModel
+from printer_alignment.core.records import (
+    INTRINSICS_RESULT_TOPIC as INTRINSICS_TOPIC, VISION_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC,
+    VISION_RESULT_TOPIC as RESULT_TOPIC)
 from printer_alignment.core.vision_calibration import calibrate_pixel_size, locate_camera
 from printer_alignment.core.vision_procedure import (
     VisionCalibration, VisionPlan, observation_from_message, run_vision_calibration)
 from printer_alignment.nodes.conversions import marks_from_message
-OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
-RESULT_TOPIC = '/vision_calibrator/result'
 ANALYSIS_TOPIC = '/vision_calibrator/analysis'
-INTRINSICS_TOPIC = '/vision_calibrator/intrinsics'
 INTRINSICS_OPTIONS = ('centre', 'step', 'n', 'focal_px')
 ANALYSIS_OPTIONS = ('points', 'measure_seed')
 

@@ -1,0 +1,43 @@
+"""Reading a user's text files (CSV, YAML) with one clear error for every way it can fail:
+missing, a directory, unreadable, binary or not UTF-8, not YAML. The message names the
+file and says what it is for."""
+from __future__ import annotations
+
+import os
+
+import yaml
+
+from calib_core.errors import InvalidInputError
+
+
+def read_text(path: str | os.PathLike, what: str) -> str:
+    """The text of ``path`` (UTF-8).
+
+    Raises
+    ------
+    InvalidInputError
+        Missing, a directory, unreadable, or not UTF-8 text (e.g. a binary file)."""
+    try:
+        with open(path, encoding='utf-8', newline='') as stream:
+            text = stream.read()
+    except FileNotFoundError:
+        raise InvalidInputError(f'no such file: {path} (expected {what})') from None
+    except IsADirectoryError:
+        raise InvalidInputError(f'{path} is a directory, not {what}') from None
+    except UnicodeDecodeError as exc:
+        raise InvalidInputError(f'{path} is not UTF-8 text (byte {exc.start}): a binary file? '
+                                f'expected {what}') from None
+    except OSError as exc:
+        raise InvalidInputError(f'cannot read {path}: {exc.strerror} (expected {what})') from None
+    if '\x00' in text:
+        raise InvalidInputError(f'{path} holds NUL bytes: a binary file, not {what}')
+    return text
+
+
+def read_yaml(path: str | os.PathLike, what: str):
+    """The YAML content of ``path``; errors as :func:`read_text`, and for text that is not
+    YAML."""
+    try:
+        return yaml.safe_load(read_text(path, what))
+    except yaml.YAMLError as exc:
+        raise InvalidInputError(f'{path} is not valid YAML ({what}): {exc}') from None

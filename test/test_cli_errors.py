@@ -1,0 +1,93 @@
+"""Bad input to the command line: every case ends in one line ``machine-align: error: ...``
+naming the file or option and the cause, exit status 2, no traceback, and nothing is
+computed for an output that cannot be written. The cases are the ones a tester found
+ending in tracebacks (issue 19)."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from machine_alignment.cli import main
+
+BAGS = Path(__file__).resolve().parents[1] / 'bags'
+
+
+def _files(tmp_path: Path, rng) -> dict:
+    binary = tmp_path / 'binary.csv'
+    binary.write_bytes(rng.integers(0, 256, 4000, dtype=np.uint8).tobytes())
+    latin1 = tmp_path / 'latin1.csv'
+    latin1.write_bytes('command,measured,direction\n0.0,0.0,1\n# caf\xe9\n'.encode('latin-1'))
+    nul = tmp_path / 'nul.yaml'
+    nul.write_bytes(b'base:\x00\x00\x01')
+    folder = tmp_path / 'a_folder'
+    folder.mkdir()
+    blocker = tmp_path / 'blocker.txt'
+    blocker.write_text('a file where a folder is needed\n')
+    axis = tmp_path / 'axis.csv'
+    assert main(['simulate', 'axis', '--out', str(axis), '--targets', '8', '--cycles', '2']) == 0
+    geometry = tmp_path / 'hx'
+    assert main(['simulate', 'hexapod', '--out', str(geometry), '--poses', '13',
+                 '--evaluation', '1']) == 0
+    return {'binary': binary, 'latin1': latin1, 'nul': nul, 'folder': folder,
+            'blocker': blocker, 'axis': axis, 'hx': geometry}
+
+
+CASES = {
+    'binary CSV': (['analyze', 'axis', '--data', '{binary}'], 'not UTF-8 text'),
+    'non-UTF-8 CSV': (['analyze', 'axis', '--data', '{latin1}'], 'not UTF-8 text'),
+    'binary stage CSV': (['calibrate', 'stage', '--data', '{binary}'], 'binary.csv'),
+    'folder as --data': (['analyze', 'axis', '--data', '{folder}'], 'is a directory'),
+    'folder as --geometry': (['calibrate', 'hexapod', '--data', '{hx}/calibration.csv',
+                              '--geometry', '{folder}'], 'is a directory'),
+    'binary geometry': (['calibrate', 'hexapod', '--data', '{hx}/calibration.csv',
+                         '--geometry', '{nul}'], 'NUL bytes'),
+    'binary --markers': (['calibrate', 'camera', '--images', '{binary}', '--target', 'uchiya',
+                          '--markers', '{binary}'], 'not UTF-8 text'),
+    'vision bag as a stage run': (['calibrate', 'stage', '--bag',
+                                   str(BAGS / 'vision_calibration_run')], 'another kind'),
+    'stage bag as a vision run': (['calibrate', 'vision', '--bag',
+                                   str(BAGS / 'stage_calibration_run')], 'another kind'),
+    'hexapod bag as a camera run': (['calibrate', 'camera', '--bag',
+                                     str(BAGS / 'hexapod_calibration_run')], 'another kind'),
+    '--image-size 0x0': (['analyze', 'camera', '--data', '{axis}', '--image-size', '0x0'],
+                         'must be positive'),
+    '--json under a file': (['analyze', 'axis', '--data', '{axis}', '--json',
+                             '{blocker}/report.json'], 'cannot create its folder'),
+    '--json is a folder': (['analyze', 'axis', '--data', '{axis}', '--json', '{folder}'],
+                           'is a folder'),
+    '--payload nan': (['analyze', 'hexapod', '--data', '{hx}/calibration.csv', '--geometry',
+                       '{hx}/nominal.yaml', '--payload', 'nan', '0', '0', '0.1'],
+                      'positive and finite'),
+    'negative payload': (['analyze', 'hexapod', '--data', '{hx}/calibration.csv', '--geometry',
+                          '{hx}/nominal.yaml', '--payload', '-5', '0', '0', '0.1'],
+                         'positive and finite'),
+    'payload centre in mm': (['analyze', 'hexapod', '--data', '{hx}/calibration.csv',
+                              '--geometry', '{hx}/nominal.yaml', '--payload', '25', '30',
+                              '-20', '80'], 'look like mm'),
+}
+
+
+@pytest.fixture(scope='module')
+def files(tmp_path_factory):
+    return _files(tmp_path_factory.mktemp('bad_input'), np.random.default_rng(19))
+
+
+@pytest.mark.parametrize('case', sorted(CASES))
+def test_bad_input_is_one_clear_line_and_exit_2(case, files, capsys):
+    argv, expected = CASES[case]
+    argv = [a.format(**files) for a in argv]
+    capsys.readouterr()
+    assert main(argv) == 2, case
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith('machine-align: error: ')]
+    assert len(lines) == 1 and expected in lines[0], err
+    assert 'Traceback' not in err
+
+
+def test_output_that_cannot_be_written_fails_before_the_work(files, capsys, monkeypatch):
+    from machine_alignment.cli import analyze
+    ran = []
+    monkeypatch.setattr(analyze, 'analyze', lambda *a, **k: ran.append(1))
+    assert main(['analyze', 'axis', '--data', str(files['axis']), '--json',
+                 str(files['blocker'] / 'report.json')]) == 2
+    assert ran == []
