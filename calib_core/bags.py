@@ -4,10 +4,17 @@ real ``ros2 bag play``, ``rosbags`` and ``mcap-ros2-support`` can all read them.
 
 Messages go in and out as CDR bytes: nodes serialise with rclpy, offline code decodes with
 the bag's own embedded definitions. No rclpy here.
+
+A bag survives its writer being killed: the MCAP writer keeps messages in memory until it
+closes, so every message is also appended, flushed, to a journal ``<name>.journal`` in the
+bag directory, which is removed when the bag is complete. A bag without metadata.yaml
+but with a journal is a cut run; :func:`read_bag` then reads the journal, up to its last
+complete record (:func:`cut_run_count` says how many messages that is).
 """
 from __future__ import annotations
 
 import os
+import struct
 import sys
 from pathlib import Path
 from typing import Iterator
@@ -19,6 +26,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from calib_core.errors import BagError
 
 PROJECT_PACKAGES = ('alignment_msgs',)
+JOURNAL_MAGIC = b'machine_alignment journal 1\n'
+# Per record: topic length, message type length (u16), stamp (ns, u64), data length (u32).
+_RECORD = struct.Struct('<HHQI')
 
 
 def _interface_dirs(package: str) -> list[Path]:
@@ -58,9 +68,14 @@ class BagWriter:
         self._typestore = project_typestore()
         self._writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._connections = {}
+        self._msgtypes = {}
+        self._journal = None
 
     def __enter__(self) -> 'BagWriter':
         self._writer.open()
+        self._journal = open(self.path / f'{self.path.name}.journal', 'xb')
+        self._journal.write(JOURNAL_MAGIC)
+        self._journal.flush()
         return self
 
     def __exit__(self, *exc) -> None:
@@ -76,6 +91,10 @@ class BagWriter:
         (self.path / old).rename(self.path / new)
         metadata = self.path / 'metadata.yaml'
         metadata.write_text(metadata.read_text().replace(f' {old}\n', f' {new}\n'))
+        if self._journal is not None:   # the bag is complete: the journal is not needed
+            self._journal.close()
+            Path(self._journal.name).unlink()
+            self._journal = None
 
     def add_topic(self, topic: str, msgtype: str) -> None:
         """Declare ``topic`` with ROS type ``msgtype`` (``pkg/msg/Name``)."""
@@ -85,12 +104,51 @@ class BagWriter:
             raise BagError(f'unknown message type {msgtype}')
         self._connections[topic] = self._writer.add_connection(
             topic, msgtype, typestore=self._typestore)
+        self._msgtypes[topic] = msgtype
 
     def write(self, topic: str, stamp_ns: int, cdr: bytes) -> None:
         """Append one CDR message received at ``stamp_ns`` (ns since the epoch)."""
         if topic not in self._connections:
             raise BagError(f'topic {topic} was not declared with add_topic')
         self._writer.write(self._connections[topic], int(stamp_ns), cdr)
+        if self._journal is not None:
+            name, msgtype = topic.encode(), self._msgtypes[topic].encode()
+            self._journal.write(_RECORD.pack(len(name), len(msgtype), int(stamp_ns), len(cdr))
+                                + name + msgtype + bytes(cdr))
+            self._journal.flush()   # in the OS's hands: survives the process being killed
+
+
+def _journal(path: Path) -> Path | None:
+    """The journal of a cut run in bag directory ``path`` (no metadata.yaml), or None."""
+    journal = path / f'{path.name}.journal'
+    if path.is_dir() and not (path / 'metadata.yaml').exists() and journal.is_file():
+        return journal
+    return None
+
+
+def _journal_records(journal: Path) -> Iterator[tuple[str, str, int, bytes]]:
+    """``(topic, msgtype, stamp_ns, cdr)`` of every complete record; a record cut by the
+    kill is left out."""
+    data = journal.read_bytes()
+    if not data.startswith(JOURNAL_MAGIC):
+        raise BagError(f'{journal} is not a machine_alignment journal')
+    at = len(JOURNAL_MAGIC)
+    while at + _RECORD.size <= len(data):
+        name_length, type_length, stamp, size = _RECORD.unpack_from(data, at)
+        start = at + _RECORD.size
+        end = start + name_length + type_length + size
+        if end > len(data):
+            return
+        topic = data[start:start + name_length].decode()
+        msgtype = data[start + name_length:start + name_length + type_length].decode()
+        yield topic, msgtype, stamp, data[start + name_length + type_length:end]
+        at = end
+
+
+def cut_run_count(path: str | os.PathLike) -> int | None:
+    """How many messages a cut run's journal holds, or None if ``path`` is a complete bag."""
+    journal = _journal(Path(path))
+    return None if journal is None else sum(1 for _ in _journal_records(journal))
 
 
 def _require_bag(path: Path) -> None:
@@ -98,7 +156,8 @@ def _require_bag(path: Path) -> None:
     if not path.exists():
         raise BagError(f'no bag at {path}')
     if path.is_dir() and not (path / 'metadata.yaml').exists():
-        raise BagError(f'{path} is not a rosbag2 bag: metadata.yaml is missing')
+        raise BagError(f'{path} is not a rosbag2 bag: metadata.yaml is missing (and no '
+                       'journal of a cut run)')
 
 
 def _unreadable(path: Path, exc: Exception) -> BagError:
@@ -116,6 +175,12 @@ def read_bag(path: str | os.PathLike, topics: list[str] | None = None
         Missing, truncated or foreign bag.
     """
     path = Path(path)
+    journal = _journal(path)
+    if journal is not None:
+        for record in _journal_records(journal):
+            if topics is None or record[0] in topics:
+                yield record
+        return
     _require_bag(path)
     try:
         with AnyReader([path]) as reader:
@@ -129,6 +194,9 @@ def read_bag(path: str | os.PathLike, topics: list[str] | None = None
 def bag_topics(path: str | os.PathLike) -> dict[str, str]:
     """``{topic: msgtype}`` of a rosbag2 bag, from its metadata and file summary."""
     path = Path(path)
+    journal = _journal(path)
+    if journal is not None:
+        return {topic: msgtype for topic, msgtype, _, _ in _journal_records(journal)}
     _require_bag(path)
     try:
         with AnyReader([path]) as reader:

@@ -84,3 +84,50 @@ def test_observation_with_nan_is_refused():
     msg = NS(gantry=NS(x_rev=float('nan'), y_rev=0.0), marks=NS(marks=[NS(u=1.0, v=2.0)]))
     with pytest.raises(InvalidInputError, match='NaN'):
         observation_from_message(msg)
+
+
+KILLED_WRITER = '''
+import os, signal, sys
+from calib_core.bags import BagWriter, decode_bag
+stops = [msg for topic, _, msg in decode_bag(sys.argv[2]) if topic.endswith('/observations')]
+from calib_core.bags import project_typestore
+store = project_typestore()
+bag = BagWriter(sys.argv[1]).__enter__()
+bag.add_topic('/vision_calibrator/observations', 'alignment_msgs/msg/VisionObservation')
+for k, msg in enumerate(stops[:int(sys.argv[3])]):
+    bag.write('/vision_calibrator/observations', k,
+              store.serialize_cdr(msg, 'alignment_msgs/msg/VisionObservation'))
+os.kill(os.getpid(), signal.SIGKILL)
+'''
+
+
+def test_a_writer_killed_mid_run_leaves_every_message_it_wrote(tmp_path):
+    """SIGKILL after 7 of the committed run's 20 stops: the MCAP is empty and there is no
+    metadata.yaml, but the 7 stops replay from the journal, and the CLI says the run was cut
+    and how many stops it recovered."""
+    import subprocess
+    import sys
+    cut = tmp_path / 'vision_cut'
+    done = subprocess.run([sys.executable, '-c', KILLED_WRITER, str(cut), str(BAG), '7'],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == -9, done.stderr
+    assert not (cut / 'metadata.yaml').exists()
+    recovered = [m for t, _, m in decode_bag(cut) if t == '/vision_calibrator/observations']
+    originals = [m for t, _, m in decode_bag(BAG) if t == '/vision_calibrator/observations']
+    assert len(recovered) == 7
+    assert [observation_from_message(m).uv.tolist() for m in recovered] \
+        == [observation_from_message(m).uv.tolist() for m in originals[:7]]
+
+
+def test_cut_run_replays_what_it_measured_through_the_cli(tmp_path, capsys):
+    import subprocess
+    import sys
+    cut = tmp_path / 'vision_cut'
+    subprocess.run([sys.executable, '-c', KILLED_WRITER, str(cut), str(BAG), '12'],
+                   capture_output=True, timeout=60)
+    # A cut record at the end (the kill in the middle of a write) is left out.
+    journal = cut / 'vision_cut.journal'
+    journal.write_bytes(journal.read_bytes() + b'\x20\x00\x25\x00partial')
+    assert cli_main(['calibrate', 'vision', '--bag', str(cut)]) in (0, 2)
+    out = capsys.readouterr().out
+    assert 'cut run' in out and '12 stops recovered' in out

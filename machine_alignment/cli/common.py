@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from calib_core.bags import bag_topics, decode_bag
+from calib_core.bags import bag_topics, cut_run_count, decode_bag
 from calib_core.errors import MachineAlignmentError
 from calib_core.storage import write_atomic
 
@@ -80,6 +80,9 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     if not stops:
         raise MachineAlignmentError(f'{bag} holds no {what}: the run stopped before its '
                                     'first stop')
+    if cut_run_count(bag) is not None:
+        print(f'{bag} is a cut run (its writer was stopped before the bag was complete): '
+              f'{len(stops)} stops recovered from its journal')
     return stops, recorded
 
 
