@@ -14,7 +14,8 @@ from calib_core import iso230_2
 from calib_core.closed_loop import (MachineModel, evaluate, refit, scalar_covariates,
                                     select_rows)
 from calib_core.effects import CATEGORICAL_COVARIATES
-from calib_core.datasets import read_columns, write_columns
+from calib_core.datasets import (
+    MAX_ERROR_M, MAX_POSITION_M, check_metres, read_columns, write_columns)
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
 
@@ -61,6 +62,9 @@ class AxisData:
     def from_csv(cls, path, dropped: dict | None = None) -> 'AxisData':
         """Read the axis CSV of DESIGN.md section 6 (command, measured in m; direction)."""
         columns = read_columns(path, list(AXIS_COLUMNS), dropped)
+        check_metres(columns['command'], 'command', path, MAX_POSITION_M)
+        check_metres(columns['measured'] - columns['command'], 'measured - command', path,
+                     MAX_ERROR_M)
         return cls(columns['command'], columns['measured'], columns['direction'],
                    {k: v for k, v in columns.items() if k not in AXIS_COLUMNS})
 

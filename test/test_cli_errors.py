@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from machine_alignment.cli import main
 
@@ -28,8 +29,38 @@ def _files(tmp_path: Path, rng) -> dict:
     geometry = tmp_path / 'hx'
     assert main(['simulate', 'hexapod', '--out', str(geometry), '--poses', '13',
                  '--evaluation', '1']) == 0
+    stage = tmp_path / 'stage.csv'
+    assert main(['simulate', 'stage', '--out', str(stage)]) == 0
+    camera = tmp_path / 'camera_mm.csv'
+    camera.write_text('view,model_x,model_y,u,v\n' + ''.join(
+        f'{k // 9},{30.0 * (k % 3)},{30.0 * (k // 3 % 3)},{100 + 40 * (k % 3)},{90 + 40 * (k // 3 % 3)}\n'
+        for k in range(27)))
+    mm = tmp_path / 'mm'
+    mm.mkdir()
+    _in_mm(axis, mm / 'axis.csv', ('command', 'measured'))
+    _in_mm(stage, mm / 'stage.csv', ('q1', 'q2', 'q3', 'mark1_x', 'mark1_y', 'mark2_x', 'mark2_y'))
+    _in_mm(geometry / 'calibration.csv', mm / 'poses.csv',
+           ('x', 'y', 'z', 'meas_x', 'meas_y', 'meas_z', 'l1', 'l2', 'l3', 'l4', 'l5', 'l6'))
+    nominal = yaml.safe_load((geometry / 'nominal.yaml').read_text())
+    for key in ('base_joints', 'platform_joints'):
+        nominal[key] = (np.array(nominal[key]) * 1e3).tolist()
+    (mm / 'nominal.yaml').write_text(yaml.safe_dump(nominal))
     return {'binary': binary, 'latin1': latin1, 'nul': nul, 'folder': folder,
-            'blocker': blocker, 'axis': axis, 'hx': geometry}
+            'blocker': blocker, 'axis': axis, 'hx': geometry, 'mm': mm, 'camera_mm': camera}
+
+
+def _in_mm(source: Path, target: Path, lengths) -> None:
+    """``source`` CSV with the ``lengths`` columns written in mm instead of m."""
+    rows = source.read_text().splitlines()
+    header = rows[0].split(',')
+    scaled = [header.index(name) for name in lengths if name in header]
+    out = [rows[0]]
+    for row in rows[1:]:
+        cells = row.split(',')
+        for j in scaled:
+            cells[j] = repr(float(cells[j]) * 1e3)
+        out.append(','.join(cells))
+    target.write_text('\n'.join(out) + '\n')
 
 
 CASES = {
@@ -61,6 +92,13 @@ CASES = {
     'negative payload': (['analyze', 'hexapod', '--data', '{hx}/calibration.csv', '--geometry',
                           '{hx}/nominal.yaml', '--payload', '-5', '0', '0', '0.1'],
                          'positive and finite'),
+    'axis CSV in mm': (['analyze', 'axis', '--data', '{mm}/axis.csv'], 'look like mm'),
+    'stage CSV in mm': (['calibrate', 'stage', '--data', '{mm}/stage.csv'], 'look like mm'),
+    'pose CSV in mm': (['calibrate', 'hexapod', '--data', '{mm}/poses.csv', '--geometry',
+                        '{hx}/nominal.yaml'], 'look like mm'),
+    'geometry in mm': (['calibrate', 'hexapod', '--data', '{hx}/calibration.csv', '--geometry',
+                        '{mm}/nominal.yaml'], 'look like mm'),
+    'camera points in mm': (['calibrate', 'camera', '--data', '{camera_mm}'], 'look like mm'),
     'payload centre in mm': (['analyze', 'hexapod', '--data', '{hx}/calibration.csv',
                               '--geometry', '{hx}/nominal.yaml', '--payload', '25', '30',
                               '-20', '80'], 'look like mm'),

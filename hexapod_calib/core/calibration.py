@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.datasets import read_columns, write_columns
+from calib_core.datasets import MAX_POSITION_M, check_metres, read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import FitResult, check_identifiability, fit
 from calib_core.parameters import ParameterSet
@@ -83,12 +83,15 @@ class PoseData:
         columns = read_columns(path, list(POSE_NAMES) + list(MEASURED_NAMES), dropped)
         commanded = np.column_stack([columns[n] for n in POSE_NAMES])
         measured = np.column_stack([columns[n] for n in MEASURED_NAMES])
+        check_metres(commanded[:, :3], 'the commanded positions x, y, z', path, MAX_POSITION_M)
+        check_metres(measured[:, :3], 'the measured positions', path, MAX_POSITION_M)
         present = [n for n in LEG_NAMES if n in columns]
         if present and len(present) != LEGS:
             raise InvalidInputError(f'{path} has leg length columns {", ".join(present)} but '
                                     'needs all of l1..l6 (or none)')
         legs = (np.column_stack([columns[n] for n in LEG_NAMES]) if present
                 else inverse_kinematics(nominal, commanded))
+        check_metres(legs, 'the leg lengths', path, MAX_POSITION_M)
         used = set(POSE_NAMES) | set(MEASURED_NAMES) | set(LEG_NAMES)
         return cls(commanded, measured, legs, {k: v for k, v in columns.items() if k not in used})
 

@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from calib_core.datasets import MAX_POSITION_M, check_metres
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
 from calib_core.parameters import Parameter, ParameterSet
@@ -95,10 +96,13 @@ class HexapodGeometry:
         if missing:
             raise InvalidInputError(f'{source} lacks {", ".join(missing)}')
         try:
-            return cls(content['base_joints'], content['platform_joints'],
-                       content.get('leg_length_offsets', [0.0] * LEGS))
+            geometry = cls(content['base_joints'], content['platform_joints'],
+                           content.get('leg_length_offsets', [0.0] * LEGS))
         except InvalidInputError as exc:
             raise InvalidInputError(f'{source}: {exc}') from None
+        check_metres(np.concatenate([geometry.base_joints, geometry.platform_joints]),
+                     'the joint centres', source, MAX_POSITION_M)
+        return geometry
 
     def parameters(self) -> ParameterSet:
         """The 42 error-model parameters: per leg an offset and both joint centres (m)."""

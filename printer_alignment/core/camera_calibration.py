@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calib_core.datasets import read_columns
+from calib_core.datasets import MAX_POSITION_M, check_metres, read_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
 from calib_core.files import read_yaml
 from printer_alignment.core.marks import detect_marks
@@ -26,6 +26,8 @@ class View:
 def read_correspondences(path) -> list[View]:
     """Views from a CSV with columns view, model_x, model_y (m), u, v (px)."""
     c = read_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'])
+    check_metres(np.column_stack([c['model_x'], c['model_y']]), 'the target points', path,
+                 MAX_POSITION_M)
     views = []
     for view_id in np.unique(c['view']):
         k = c['view'] == view_id

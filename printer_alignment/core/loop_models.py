@@ -31,7 +31,8 @@ import cv2
 import numpy as np
 
 from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
-from calib_core.datasets import directions_from_order, read_columns, write_columns
+from calib_core.datasets import (
+    MAX_ERROR_M, MAX_POSITION_M, check_metres, directions_from_order, read_columns, write_columns)
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
 from printer_alignment.core.camera_calibration import View, infer_image_size
@@ -87,14 +88,17 @@ class GantryData:
         temperature (K)."""
         columns = read_columns(path, list(GANTRY_COLUMNS), dropped)
         command = np.column_stack([columns['command_x'], columns['command_y']])
+        measured = np.column_stack([columns['measured_x'], columns['measured_y']])
+        check_metres(command, 'command', path, MAX_POSITION_M)
+        check_metres(measured - command, 'measured - command', path, 10 * MAX_ERROR_M)
         present = [c for c in DIRECTION_COLUMNS if c in columns]
         if len(present) == 1:
             raise InvalidInputError(f'{path} has {present[0]} but not the other direction column')
         direction = (np.column_stack([columns[c] for c in DIRECTION_COLUMNS]) if present
                      else directions_from_order(command))
         used = set(GANTRY_COLUMNS) | set(DIRECTION_COLUMNS)
-        return cls(command, np.column_stack([columns['measured_x'], columns['measured_y']]),
-                   direction, {k: v for k, v in columns.items() if k not in used})
+        return cls(command, measured, direction,
+                   {k: v for k, v in columns.items() if k not in used})
 
     def to_csv(self, path) -> None:
         names = list(GANTRY_COLUMNS) + list(DIRECTION_COLUMNS) + list(self.covariates)

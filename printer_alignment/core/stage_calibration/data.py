@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.datasets import directions_from_order, read_columns, write_columns
+from calib_core.datasets import (
+    MAX_POSITION_M, check_metres, directions_from_order, read_columns, write_columns)
 from calib_core.errors import InvalidInputError
 from printer_alignment.core.alignment import rigid_fit
 from printer_alignment.core.stage import STROKE, check_stroke
@@ -73,6 +74,8 @@ class StageData:
         directions = (np.column_stack([columns[c] for c in STAGE_DIRECTIONS]) if present
                       else directions_from_order(np.vstack([np.zeros(3), q]))[1:])
         marks = np.column_stack([columns[c] for c in STAGE_COLUMNS[3:]]).reshape(-1, 2, 2)
+        check_metres(marks, 'the Mark positions', path, MAX_POSITION_M)
+        check_metres(q, 'the chain inputs', path, STROKE * 10)
         used = set(STAGE_COLUMNS) | set(STAGE_DIRECTIONS)
         return cls(q, directions, marks, {k: v for k, v in columns.items() if k not in used})
 
