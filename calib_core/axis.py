@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib_core import iso230_2
+from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M, check_metres
 from calib_core.closed_loop import (MachineModel, evaluate, refit, scalar_covariates,
                                     select_rows)
+from calib_core.datasets import read_columns, write_columns
 from calib_core.effects import CATEGORICAL_COVARIATES
-from calib_core.datasets import (
-    MAX_ERROR_M, MAX_POSITION_M, check_metres, read_columns, write_columns)
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
 

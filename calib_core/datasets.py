@@ -11,11 +11,6 @@ from calib_core.errors import InvalidInputError
 from calib_core.files import read_text
 from calib_core.storage import write_atomic
 
-# Plausible magnitudes of the lengths in a dataset (m). Beyond them the file is most likely
-# in mm: a 200 mm travel written in mm reads as 200 m, a 30 um error as 30 mm.
-MAX_POSITION_M = 10.0    # machine positions, joint coordinates, target points
-MAX_ERROR_M = 0.01       # measured minus commanded position of a calibrated machine
-
 
 def read_columns(path: str | os.PathLike, required: list[str],
                  dropped: dict | None = None) -> dict[str, np.ndarray]:
@@ -91,20 +86,3 @@ def write_columns(path, names: list[str], columns: list[np.ndarray]) -> None:
     table = np.column_stack(columns)
     lines = [','.join(names)] + [','.join(f'{v:.12g}' for v in row) for row in table]
     write_atomic(path, '\n'.join(lines) + '\n')
-
-
-def check_metres(values, what: str, source, limit_m: float) -> None:
-    """Refuse lengths (m) beyond ``limit_m``: no machine this suite calibrates has them,
-    and the likely cause is a file written in mm.
-
-    Raises
-    ------
-    InvalidInputError
-        The largest magnitude in ``values`` exceeds ``limit_m``; the message names
-        ``what`` in ``source`` and the likely cause."""
-    values = np.asarray(values, dtype=float)
-    largest = float(np.max(np.abs(values))) if values.size else 0.0
-    if largest > limit_m:
-        raise InvalidInputError(f'{source}: {what} reaches {largest:.4g} m, beyond the '
-                                f'{limit_m:g} m plausible here: the values look like mm; the '
-                                'format is SI metres')

@@ -79,6 +79,10 @@ def test_calibration_service_writes_geometry_records_and_replays(graph):
     assert not (out / 'calibration' / 'hexapod_geometry.yaml').exists()
     unknown = call(node, client, RunCalibration.Request(plan_yaml='speed: 3'))
     assert not unknown.success and 'unknown plan keys' in unknown.message
+    # Poses that coincide cannot determine the geometry: refused before a bag exists.
+    still = call(node, client, RunCalibration.Request(
+        plan_yaml='translation: [0.0, 0.0, 0.0]\nrotation: [0.0, 0.0, 0.0]'))
+    assert not still.success and not (out / 'runs').exists(), still.message
 
     first = client.call_async(RunCalibration.Request(plan_yaml=PLAN))
     time.sleep(0.5)

@@ -1,4 +1,6 @@
 """Vision system calibration on the simulated gantry: recovered parameters against truth."""
+import re
+
 import numpy as np
 import pytest
 
@@ -185,3 +187,23 @@ def test_circle_grid_points_are_our_marks_in_grid_order(rng, tilt_deg):
     points = find_target(image, 'circles', 10, 8)
     errors = min((points - truth, points - truth[::-1]), key=lambda e: np.abs(e).max())
     assert np.abs(errors).max() < 0.03
+
+
+@pytest.mark.parametrize('plan, message', [
+    ({'pitch': 0.0}, 'pitch must be a positive length'),
+    ({'pitch': 0.5}, 'look like mm'),
+    ({'nx': 2.7}, 'nx must be an integer >= 2'),
+    ({'ny': True}, 'ny must be an integer'),
+    ({'x_range': (0.2, 0.0)}, 'x_range must be (low, high)'),
+    ({'y_range': (0.0, 150.0)}, 'look like mm'),
+])
+def test_a_bad_vision_plan_is_refused_before_anything_moves(plan, message):
+    with pytest.raises(InvalidInputError, match=re.escape(message)):
+        VisionPlan(**plan)
+
+
+def test_stage_plan_counts_must_be_integers():
+    from printer_alignment.core.stage_calibration import StagePlan
+    with pytest.raises(InvalidInputError, match='grid must be an integer'):
+        StagePlan(grid=(5, 2.5, 3))
+    assert StagePlan(sweep_points=9.0).sweep_points == 9

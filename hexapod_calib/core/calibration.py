@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.datasets import MAX_POSITION_M, check_metres, read_columns, write_columns
+from calib_core.checks import MAX_POSITION_M, check_metres
+from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import FitResult, check_identifiability, fit
 from calib_core.parameters import ParameterSet

@@ -14,7 +14,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from calib_core.datasets import MAX_POSITION_M, check_metres
+from calib_core.checks import MAX_POSITION_M, check_metres
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
 from calib_core.parameters import Parameter, ParameterSet

@@ -12,6 +12,7 @@ from typing import Callable
 
 import numpy as np
 
+from calib_core.checks import whole_number
 from calib_core.errors import CalibrationError, InvalidInputError
 from hexapod_calib.core.calibration import (
     Identification, PoseData, compensate, identifiability, identify, select_poses,
@@ -47,12 +48,8 @@ class HexapodPlan:
 
     def __post_init__(self):
         for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations', 'seed'):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or int(value) != value or value < (0 if name == 'seed' else 1):
-                raise InvalidInputError(f'{name} must be an integer >= {0 if name == "seed" else 1}, '
-                                        f'not {value!r}')
-            object.__setattr__(self, name, int(value))
+            object.__setattr__(self, name, whole_number(getattr(self, name), name,
+                                                        0 if name == 'seed' else 1))
         if not (isinstance(self.margin, (int, float)) and np.isfinite(self.margin)
                 and self.margin >= 0):
             raise InvalidInputError(f'margin must be a length >= 0 (m), not {self.margin!r}')
@@ -75,7 +72,14 @@ class HexapodPlan:
         return cls(**overrides)
 
     def poses(self, nominal: HexapodGeometry) -> tuple[np.ndarray, np.ndarray]:
-        """(identification poses (num_poses, 6), evaluation poses (num_evaluation, 6))."""
+        """(identification poses (num_poses, 6), evaluation poses (num_evaluation, 6)).
+
+        Raises
+        ------
+        InvalidInputError
+            Too few poses of the box lie inside the stroke.
+        CalibrationError
+            The chosen poses cannot determine the 42 parameters (e.g. they coincide)."""
         rng = np.random.default_rng(self.seed)
         half = np.array(self.translation + self.rotation)
         candidates = np.array(self.home) + rng.uniform(-1, 1, (4 * self.num_candidates, 6)) * half
@@ -88,6 +92,8 @@ class HexapodPlan:
             raise InvalidInputError(f'only {len(candidates)} poses of the box lie inside the '
                                     'stroke; shrink the ranges or ask for fewer poses')
         chosen = select_poses(nominal, candidates, self.num_poses)
+        # Poses that cannot determine the parameters fail here, before anything moves.
+        identifiability(nominal, candidates[chosen])
         rest = np.setdiff1d(np.arange(len(candidates)), chosen)
         return candidates[chosen], candidates[rng.choice(rest, self.num_evaluation, replace=False)]
 

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calib_core.datasets import MAX_POSITION_M, check_metres, read_columns
+from calib_core.checks import MAX_POSITION_M, check_metres
+from calib_core.datasets import read_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
 from calib_core.files import read_yaml
 from printer_alignment.core.marks import detect_marks

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M, check_metres
 from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
-from calib_core.datasets import (
-    MAX_ERROR_M, MAX_POSITION_M, check_metres, directions_from_order, read_columns, write_columns)
+from calib_core.datasets import directions_from_order, read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
 from printer_alignment.core.camera_calibration import View, infer_image_size

@@ -8,10 +8,14 @@ from typing import Callable
 
 import numpy as np
 
+from calib_core.checks import (
+    MAX_POSITION_M, check_metres, positive_length, whole_number)
 from calib_core.errors import InvalidInputError
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.core.vision_calibration import (
     GantryObservation, calibrate_gantry, calibrate_pixel_size)
+
+MAX_PITCH_M = 0.05   # a dot plate's pitch; 0.5 written in mm would read as 0.5 m
 
 
 @dataclass(frozen=True)
@@ -32,8 +36,26 @@ class VisionPlan:
     pitch: float = 0.5e-3
 
     def __post_init__(self):
-        if self.nx < 2 or self.ny < 2:
-            raise InvalidInputError('the plan needs at least 2 positions along each axis')
+        # Checked here, before anything moves: a bad plan is refused, not found out after
+        # the run.
+        object.__setattr__(self, 'nx', whole_number(self.nx, 'nx', 2))
+        object.__setattr__(self, 'ny', whole_number(self.ny, 'ny', 2))
+        object.__setattr__(self, 'pitch', positive_length(self.pitch, 'pitch', MAX_PITCH_M))
+        for name in ('margin', 'overshoot'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not 0 <= value < 0.1:
+                raise InvalidInputError(f'{name} must be a length in [0, 0.1) m, not {value!r}')
+        for name in ('x_range', 'y_range'):
+            try:
+                span = np.asarray(getattr(self, name), dtype=float)
+            except (TypeError, ValueError):
+                span = np.array([])
+            if span.shape != (2,) or not np.all(np.isfinite(span)) or span[1] <= span[0]:
+                raise InvalidInputError(f'{name} must be (low, high) in m, not '
+                                        f'{getattr(self, name)!r}')
+            check_metres(span, name, 'the plan', MAX_POSITION_M)
+            object.__setattr__(self, name, (float(span[0]), float(span[1])))
         if self.overshoot > self.margin:
             raise InvalidInputError('overshoot must not exceed margin (pre-positions would '
                                     'leave the travel)')

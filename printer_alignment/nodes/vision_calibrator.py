@@ -32,6 +32,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
 
+from calib_core.checks import MAX_POSITION_M, check_metres, positive_length, whole_number
 from calib_core.datasets import directions_from_order
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
@@ -50,7 +51,8 @@ from printer_alignment.core.records import (
     VISION_RESULT_TOPIC as RESULT_TOPIC)
 from printer_alignment.core.vision_calibration import calibrate_pixel_size, locate_camera
 from printer_alignment.core.vision_procedure import (
-    VisionCalibration, VisionPlan, observation_from_message, run_vision_calibration)
+    MAX_PITCH_M, VisionCalibration, VisionPlan, observation_from_message,
+    run_vision_calibration)
 from printer_alignment.nodes.conversions import marks_from_message
 ANALYSIS_TOPIC = '/vision_calibrator/analysis'
 INTRINSICS_OPTIONS = ('centre', 'step', 'n', 'focal_px')
@@ -148,9 +150,9 @@ class VisionCalibratorNode(Node):
         unknown = set(overrides) - {'pitch', 'nx', 'ny', 'x_range', 'y_range'}
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}')
-        return VisionPlan(x_range=tuple(map(float, g('x_range'))),
-                          y_range=tuple(map(float, g('y_range'))), nx=int(g('nx')),
-                          ny=int(g('ny')), pitch=float(g('pitch')))
+        # VisionPlan checks every value (integers, positive lengths) before anything moves.
+        return VisionPlan(x_range=tuple(g('x_range')), y_range=tuple(g('y_range')),
+                          nx=g('nx'), ny=g('ny'), pitch=g('pitch'))
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='plate')
@@ -220,12 +222,19 @@ class VisionCalibratorNode(Node):
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: '
                                     f'{list(INTRINSICS_OPTIONS)}')
+        # Every option is checked before the first move.
         centre = np.asarray(options.get('centre', [0.1, 0.075]), dtype=float)
-        step, n = float(options.get('step', 1.3e-3)), int(options.get('n', 3))
-        focal = float(options.get('focal_px', self.get_parameter('focal_px').value))
-        if centre.shape != (2,) or not np.all(np.isfinite(centre)) or not step > 0 or n < 2:
-            raise InvalidInputError('centre must be (x, y) m, step > 0 m and n >= 2')
-        pitch = float(self.get_parameter('pitch').value)
+        if centre.shape != (2,) or not np.all(np.isfinite(centre)):
+            raise InvalidInputError(f'centre must be (x, y) in m, not {options.get("centre")!r}')
+        check_metres(centre, 'centre', 'the plan', MAX_POSITION_M)
+        step = positive_length(options.get('step', 1.3e-3), 'step', 0.05)
+        n = whole_number(options.get('n', 3), 'n', 2)
+        focal = options.get('focal_px', self.get_parameter('focal_px').value)
+        if isinstance(focal, bool) or not isinstance(focal, (int, float)) \
+                or not np.isfinite(focal) or focal <= 0:
+            raise InvalidInputError(f'focal_px must be a positive number of px, not {focal!r}')
+        focal = float(focal)
+        pitch = positive_length(self.get_parameter('pitch').value, 'pitch', MAX_PITCH_M)
         setup = {'pitch_m': pitch, 'pitch_px': pitch / self.nominal_camera.pixel_size,
                  'focal_px': focal,
                  'image_size': [int(v) for v in self.get_parameter('image_size').value]}

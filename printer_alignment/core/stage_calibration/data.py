@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.datasets import (
-    MAX_POSITION_M, check_metres, directions_from_order, read_columns, write_columns)
+from calib_core.checks import MAX_POSITION_M, check_metres, whole_number
+from calib_core.datasets import directions_from_order, read_columns, write_columns
 from calib_core.errors import InvalidInputError
 from printer_alignment.core.alignment import rigid_fit
 from printer_alignment.core.stage import STROKE, check_stroke
@@ -97,8 +97,12 @@ class StagePlan:
     span: float = 0.95
 
     def __post_init__(self):
-        if self.sweep_points < 3 or len(self.grid) != 3 or min(self.grid) < 2:
-            raise InvalidInputError('sweep_points must be >= 3 and grid three counts >= 2')
+        object.__setattr__(self, 'sweep_points', whole_number(self.sweep_points, 'sweep_points', 3))
+        if len(self.grid) != 3:
+            raise InvalidInputError(f'grid must be three counts, not {self.grid!r}')
+        object.__setattr__(self, 'grid', tuple(whole_number(n, 'grid', 2) for n in self.grid))
+        if not isinstance(self.span, (int, float)) or isinstance(self.span, bool):
+            raise InvalidInputError(f'span must be a number in (0, 1], not {self.span!r}')
         if not 0 < self.span <= 1:
             raise InvalidInputError('span must be in (0, 1]')
 

@@ -1,0 +1,59 @@
+"""Checks shared by every machine: lengths that only a file in mm would have, and the
+counts and sizes of a plan, refused with the reason before anything moves."""
+from __future__ import annotations
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+
+# Plausible magnitudes of the lengths in a dataset (m). Beyond them the file is most likely
+# in mm: a 200 mm travel written in mm reads as 200 m, a 30 um error as 30 mm.
+MAX_POSITION_M = 10.0    # machine positions, joint coordinates, target points
+MAX_ERROR_M = 0.01       # measured minus commanded position of a calibrated machine
+
+
+def check_metres(values, what: str, source, limit_m: float) -> None:
+    """Refuse lengths (m) beyond ``limit_m``: no machine this suite calibrates has them,
+    and the likely cause is a file written in mm.
+
+    Raises
+    ------
+    InvalidInputError
+        The largest magnitude in ``values`` exceeds ``limit_m``; the message names
+        ``what`` in ``source`` and the likely cause."""
+    values = np.asarray(values, dtype=float)
+    largest = float(np.max(np.abs(values))) if values.size else 0.0
+    if largest > limit_m:
+        raise InvalidInputError(f'{source}: {what} reaches {largest:.4g} m, beyond the '
+                                f'{limit_m:g} m plausible here: the values look like mm; the '
+                                'format is SI metres')
+
+
+def whole_number(value, name: str, minimum: int = 0) -> int:
+    """``value`` as an int, refused unless it is an integer >= ``minimum`` (``2.7``
+    and ``True`` are refused; ``3.0`` is 3).
+
+    Raises
+    ------
+    InvalidInputError"""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(value) or int(value) != value or value < minimum:
+        raise InvalidInputError(f'{name} must be an integer >= {minimum}, not {value!r}')
+    return int(value)
+
+
+def positive_length(value, name: str, limit_m: float = MAX_POSITION_M) -> float:
+    """``value`` (m) as a float, refused unless finite, positive and at most ``limit_m``
+    (beyond it, likely mm).
+
+    Raises
+    ------
+    InvalidInputError"""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f'{name} must be a length in m, not {value!r}') from None
+    if not (np.isfinite(value) and value > 0):
+        raise InvalidInputError(f'{name} must be a positive length (m), not {value!r}')
+    check_metres(value, name, 'the plan', limit_m)
+    return value
