@@ -1,5 +1,6 @@
 """A calibrator SIGKILLed in the middle of a run (issue 19): the run's bag still replays
-every stop it measured before the kill, and the calibration in force is unchanged."""
+every stop it measured before the kill, the calibration in force is unchanged, and the
+restarted calibrator publishes it; its folder parameters are read-only."""
 import os
 import signal
 import time
@@ -8,14 +9,18 @@ DOMAIN = str(150 + os.getpid() % 50)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
-from alignment_msgs.msg import HexapodMeasurement  # noqa: E402
+from alignment_msgs.msg import CalibrationResult, HexapodMeasurement  # noqa: E402
 from alignment_msgs.srv import RunCalibration  # noqa: E402
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
+from rcl_interfaces.srv import SetParameters  # noqa: E402
 
 from calib_core.bags import cut_run_count, decode_bag  # noqa: E402
+from calib_core.nodes.qos import LATCHED  # noqa: E402
 from calib_core.storage import read_calibration, write_calibration  # noqa: E402
 from dds import running  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry  # noqa: E402
-from hexapod_calib.core.records import MEASUREMENTS_TOPIC, measurement_record  # noqa: E402
+from hexapod_calib.core.records import (  # noqa: E402
+    HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
 from machine_alignment.cli import main as cli_main  # noqa: E402
 from machine_alignment.launcher import hexapod_graph  # noqa: E402
 
@@ -54,3 +59,22 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
     # Too few stops for the 42 parameters: the replay says so, as one line.
     assert cli_main(['calibrate', 'hexapod', '--bag', str(bag), '--geometry',
                      str(in_force)]) in (0, 2)
+
+    # Restarted, the calibrator publishes the calibration in force (latched), and its
+    # folders cannot be redirected by a peer on the domain.
+    with running(spec[CALIBRATOR:], DOMAIN, tmp_path, 'restart_test_client') as (graph, node):
+        got = []
+        node.create_subscription(CalibrationResult, HEXAPOD_RESULT_TOPIC, got.append, LATCHED)
+        deadline = time.monotonic() + 30
+        while not got and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert got and got[0].version == 1 and got[0].file_path.endswith('hexapod_geometry.yaml')
+        assert dict(zip(got[0].names, got[0].values)) \
+            == nominal_geometry().parameters().as_dict()
+        setter = node.create_client(SetParameters, '/hexapod_calibrator/set_parameters')
+        assert setter.wait_for_service(timeout_sec=10.0)
+        future = setter.call_async(SetParameters.Request(parameters=[Parameter(
+            name='output_dir', value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                    string_value=str(tmp_path / 'elsewhere')))]))
+        rclpy.spin_until_future_complete(node, future, timeout_sec=10.0)
+        assert not future.result().results[0].successful

@@ -81,7 +81,10 @@ def test_calibration_service_and_concurrent_request(graph):
     assert values['lead_x'] == pytest.approx(0.0159972, abs=0.5e-6)
     assert (out / 'calibration' / 'vision.v1.yaml').exists()
     bad = call(node, client, RunCalibration.Request(plan_yaml='{nx: 1}'))
-    assert not bad.success and 'at least 2' in bad.message
+    assert not bad.success and 'nx must be an integer >= 2' in bad.message
+    for plan, why in (('{nx: 2.7}', 'nx must be an integer'), ('{pitch: 0}', 'pitch must be a positive')):
+        refused = call(node, client, RunCalibration.Request(plan_yaml=plan), timeout=5.0)
+        assert not refused.success and why in refused.message   # within 5 s: nothing moved
     assert not (out / 'calibration' / 'vision.v2.yaml').exists()  # previous stays in force
     assert all(running.alive())
 
@@ -112,6 +115,11 @@ def test_intrinsics_service_on_the_dot_plate(graph):
     client = node.create_client(RunCalibration, 'vision_calibrator/calibrate_intrinsics')
     bad = call(node, client, RunCalibration.Request(plan_yaml='{views: 4}'))
     assert not bad.success and 'unknown plan keys' in bad.message
+    for plan, why in (('{focal_px: 0}', 'focal_px must be a positive'),
+                      ('{n: 2.5}', 'n must be an integer'), ('{step: 1.3}', 'look like mm')):
+        refused = call(node, client, RunCalibration.Request(plan_yaml=plan), timeout=5.0)
+        assert not refused.success and why in refused.message, refused.message
+    assert not list((out / 'runs').glob('intrinsics_*'))   # refused before the first move
     response = call(node, client, RunCalibration.Request(plan_yaml='{n: 2, step: 0.0013}'),
                     timeout=120.0)
     assert response.success, response.message

@@ -1,15 +1,50 @@
-"""What every calibrator node does the same way: call another node's service with a
-timeout, and serve a RunCalibration request one at a time, answering every failure with
-an error instead of crashing."""
+"""What every calibrator node does the same way: declare where its files go (read-only:
+set at launch, not by any peer on the domain at run time), publish the calibration in
+force at start-up, call another node's service with a timeout, and serve a RunCalibration
+request one at a time, answering every failure with an error instead of crashing."""
 from __future__ import annotations
 
 import threading
 from typing import Callable
 
 import yaml
+from rcl_interfaces.msg import ParameterDescriptor
 
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.conversions import failed_result
+from calib_core.storage import read_calibration
+
+
+READ_ONLY = ParameterDescriptor(read_only=True)
+
+
+def declare_paths(node, *names: str) -> None:
+    """Declare the folder parameters ``names`` (``output_dir``: calibration files,
+    ``record_dir``: bags) read-only, so a peer on the ROS domain cannot redirect where the
+    calibration in force and the recordings are written."""
+    defaults = {'output_dir': 'calibration', 'record_dir': 'runs'}
+    for name in names:
+        node.declare_parameter(name, defaults[name], READ_ONLY)
+
+
+def publish_calibration_in_force(node, name: str, publisher, as_message: Callable) -> None:
+    """At start-up, publish (latched) the current calibration ``name`` in the node's
+    ``output_dir``, built by ``as_message(content, path)``, so a restarted calibrator
+    states what is in force. A file that cannot be read is logged (calibrate again); the
+    node starts anyway."""
+    directory = node.get_parameter('output_dir').value
+    try:
+        content = read_calibration(directory, name)
+        if content is None:
+            return
+        message = as_message(content, f'{directory}/{name}.yaml')
+    except (MachineAlignmentError, OSError, KeyError, TypeError, ValueError,
+            yaml.YAMLError) as exc:
+        node.get_logger().error(f'the calibration {name} in {directory} is unreadable '
+                                f'({exc!r}); calibrate again')
+        return
+    publisher.publish(message)
+    node.get_logger().info(f'calibration {name} v{message.version} in force')
 
 
 def call_service(client, request, what: str, timeout: float):

@@ -20,7 +20,8 @@ from std_msgs.msg import Header
 
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.nodes.analysis import AnalysisService
-from calib_core.nodes.calibrator import CalibrationService, call_service
+from calib_core.nodes.calibrator import (
+    READ_ONLY, CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
@@ -53,9 +54,8 @@ class HexapodCalibratorNode(Node):
 
     def __init__(self):
         super().__init__('hexapod_calibrator')
-        self.declare_parameter('output_dir', 'calibration')
-        self.declare_parameter('record_dir', 'runs')
-        self.declare_parameter('nominal_geometry', '')
+        declare_paths(self, 'output_dir', 'record_dir')
+        self.declare_parameter('nominal_geometry', '', READ_ONLY)
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('payload_mass', 0.0)
         self.declare_parameter('payload_centre', [0.0, 0.0, 0.0])
@@ -84,6 +84,8 @@ class HexapodCalibratorNode(Node):
             self._header)
         self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', calibration,
                             callback_group=group)
+        publish_calibration_in_force(self, CALIBRATION_NAME, self.result_pub,
+                                     self._message_in_force)
         self.create_service(AnalyzeResiduals, 'hexapod_calibrator/analyze_residuals',
                             AnalysisService(self, 'hexapod', calibration.busy,
                                             self._loop_model, self._apply_extended,
@@ -92,6 +94,19 @@ class HexapodCalibratorNode(Node):
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='base')
+
+    def _message_in_force(self, content: dict, path: str) -> CalibrationResult:
+        """The result message of a geometry file: an identification's (with its sigmas
+        and residuals) or, after the closed loop, the extended model's geometry."""
+        geometry = HexapodGeometry.from_dict(content, path)
+        values = geometry.parameters().as_dict()
+        identification = (content.get('report') or {}).get('identification') or {}
+        sigmas = identification.get('std_devs', {})
+        return calibration_result_as_message(
+            'hexapod', self._header(), values, {n: sigmas.get(n, 0.0) for n in values},
+            {n: 'm' for n in values}, content.get('report') or content.get('analysis') or {},
+            identification.get('residual_rms_m', 0.0), identification.get('residual_max_m', 0.0),
+            'm', identification.get('num_poses', 0), path, content.get('version', 0))
 
     def _call(self, client, request, what):
         return call_service(client, request, what, self.timeout)

@@ -22,7 +22,7 @@ from rclpy.node import Node
 from std_msgs.msg import String
 
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
-from calib_core.nodes.calibrator import call_service
+from calib_core.nodes.calibrator import call_service, declare_paths
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
@@ -54,7 +54,7 @@ class AlignerNode(Node):
         self.declare_parameter('substrate_marks', [0.0401, 0.0642, 0.1500, 0.0947])
         self.declare_parameter('stencil_marks', [0.0401, 0.0642, 0.1500, 0.0947])
         self.declare_parameter('model', 'parametric')
-        self.declare_parameter('record_dir', 'runs')
+        declare_paths(self, 'record_dir')
         self.declare_parameter('call_timeout_s', 10.0)
         self.substrate_expected = _pairs(self.get_parameter('substrate_marks').value,
                                          'substrate_marks')

@@ -24,7 +24,8 @@ from std_msgs.msg import Header
 
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
-from calib_core.nodes.calibrator import CalibrationService, call_service
+from calib_core.nodes.calibrator import (
+    CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
@@ -32,7 +33,7 @@ from calib_core.nodes.spin import run_node
 from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC)
-from printer_alignment.core.stage_calibration import StagePlan, models_as_dict
+from printer_alignment.core.stage_calibration import StagePlan, models_as_dict, models_from_dict
 from printer_alignment.core.stage_procedure import run_stage_calibration
 from printer_alignment.nodes.mark_locator import MarkLocator
 
@@ -44,8 +45,7 @@ class StageCalibratorNode(Node):
 
     def __init__(self):
         super().__init__('stage_calibrator')
-        self.declare_parameter('output_dir', 'calibration')
-        self.declare_parameter('record_dir', 'runs')
+        declare_paths(self, 'output_dir', 'record_dir')
         self.declare_parameter('sweep_points', StagePlan.sweep_points)
         self.declare_parameter('grid', list(StagePlan.grid))
         self.declare_parameter('span', StagePlan.span)
@@ -70,6 +70,11 @@ class StageCalibratorNode(Node):
         self.create_service(RunCalibration, 'stage_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
         self._data = self._content = None    # StageData and file content of the last run
+        publish_calibration_in_force(
+            self, 'stage', self.result_pub,
+            lambda content, path: stage_result_message(
+                content['report'], models_from_dict(content['models']), self._header(), path,
+                content.get('version', 0)))
         self.create_service(AnalyzeResiduals, 'stage_calibrator/analyze_residuals',
                             AnalysisService(self, 'stage', self.calibration_service.busy,
                                             self._loop_model, self._apply_extended,

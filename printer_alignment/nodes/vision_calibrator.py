@@ -36,12 +36,12 @@ from calib_core.checks import MAX_POSITION_M, check_metres, positive_length, who
 from calib_core.datasets import directions_from_order
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
-from calib_core.nodes.calibrator import CalibrationService, call_service
+from calib_core.nodes.calibrator import (
+    CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
-from calib_core.storage import read_calibration
 from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
     NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate)
@@ -80,8 +80,7 @@ class VisionCalibratorNode(Node):
 
     def __init__(self):
         super().__init__('vision_calibrator')
-        self.declare_parameter('output_dir', 'calibration')
-        self.declare_parameter('record_dir', 'runs')
+        declare_paths(self, 'output_dir', 'record_dir')
         self.declare_parameter('pitch', 0.5e-3)
         self.declare_parameter('nx', 5)
         self.declare_parameter('ny', 4)
@@ -129,21 +128,11 @@ class VisionCalibratorNode(Node):
                             callback_group=group)
 
     def _publish_calibration_in_force(self):
-        directory = self.get_parameter('output_dir').value
-        try:
-            content = read_calibration(directory, 'vision')
-            if content is None:
-                return
+        def as_message(content, path):
             camera = content['camera2plate']
-            result = _result_message(camera['pixel_size'], camera['angle'], content['report'],
-                                     self._header(), f'{directory}/vision.yaml',
-                                     content.get('version', 0))
-        except (OSError, KeyError, TypeError, ValueError) as exc:
-            self.get_logger().error(f'the vision calibration in {directory} is unreadable '
-                                    f'({exc!r}); calibrate again')
-            return
-        self.result_pub.publish(result)
-        self.get_logger().info(f'vision calibration v{result.version} in force')
+            return _result_message(camera['pixel_size'], camera['angle'], content['report'],
+                                   self._header(), path, content.get('version', 0))
+        publish_calibration_in_force(self, 'vision', self.result_pub, as_message)
 
     def _plan_from_parameters(self, overrides: dict) -> VisionPlan:
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
