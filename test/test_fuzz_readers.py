@@ -1,0 +1,105 @@
+"""Fuzz the readers of user files (CSV datasets, YAML geometry, marker descriptions,
+intrinsics): random bytes, truncations, random column subsets and shuffled or damaged
+cells of valid files. Every outcome is either a dataset or a MachineAlignmentError with a
+message; nothing else may escape (bounded: 120 variants per reader, seeded)."""
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib_core.axis import AxisData
+from calib_core.errors import MachineAlignmentError
+from calib_core.sim.axis import AxisTruth, simulate_axis_test
+from hexapod_calib.core.calibration import PoseData
+from hexapod_calib.core.geometry import nominal_geometry, read_geometry, write_geometry
+from printer_alignment.core.camera_calibration import read_boofcv_intrinsics, read_correspondences
+from printer_alignment.core.dot_markers import load_uchiya_markers
+from printer_alignment.core.stage_calibration import StageData
+from printer_alignment.sim.stage import simulate_calibration_run
+
+REAL = Path(__file__).resolve().parent / 'data' / 'real'
+VARIANTS = 120
+
+
+def _valid_files(folder: Path) -> dict:
+    axis = folder / 'axis.csv'
+    simulate_axis_test(AxisTruth(backlash=3e-6), seed=1).to_csv(axis)
+    stage = folder / 'stage.csv'
+    simulate_calibration_run(seed=1).to_csv(stage)
+    poses = folder / 'poses.csv'
+    nominal = nominal_geometry()
+    rng = np.random.default_rng(1)
+    commanded = np.array([0, 0, 0.2, 0, 0, 0]) + rng.uniform(-0.01, 0.01, (10, 6))
+    from hexapod_calib.core.kinematics import inverse_kinematics
+    PoseData(commanded, commanded, inverse_kinematics(nominal, commanded)).to_csv(poses)
+    camera = folder / 'camera.csv'
+    camera.write_text('view,model_x,model_y,u,v\n' + ''.join(
+        f'{k // 9},{0.03 * (k % 3)},{0.03 * (k // 3 % 3)},{100 + 40 * (k % 3)},'
+        f'{90 + 40 * (k // 3 % 3)}\n' for k in range(27)))
+    geometry = folder / 'geometry.yaml'
+    write_geometry(geometry, nominal)
+    return {
+        'axis': (axis, AxisData.from_csv),
+        'stage': (stage, StageData.from_csv),
+        'poses': (poses, lambda p: PoseData.from_csv(p, nominal)),
+        'camera': (camera, read_correspondences),
+        'geometry': (geometry, read_geometry),
+        'markers': (REAL / 'boofcv_fiducial_dots' / 'random_dots' / 'descriptions.yaml',
+                    load_uchiya_markers),
+        'intrinsics': (REAL / 'boofcv_mono' / 'Sony_DSC-HX5V_Chess' / 'intrinsic.yaml',
+                       read_boofcv_intrinsics),
+    }
+
+
+def _variant(text: bytes, rng) -> bytes:
+    """One damaged version of ``text``."""
+    kind = rng.integers(6)
+    if kind == 0:                                     # random bytes
+        return rng.integers(0, 256, rng.integers(0, 400), dtype=np.uint8).tobytes()
+    if kind == 1:                                     # truncated anywhere
+        return text[:rng.integers(0, len(text) + 1)]
+    lines = text.split(b'\n')
+    if kind == 2:                                     # a random subset of the columns
+        cells = [line.split(b',') for line in lines]
+        width = max(len(c) for c in cells)
+        keep = sorted(rng.choice(width, rng.integers(1, width + 1), replace=False))
+        return b'\n'.join(b','.join(c[j] for j in keep if j < len(c)) for c in cells)
+    if kind == 3:                                     # lines shuffled
+        rng.shuffle(lines)
+        return b'\n'.join(lines)
+    data = bytearray(text)
+    if kind == 4 and data:                            # bytes overwritten
+        for at in rng.integers(0, len(data), rng.integers(1, 8)):
+            data[at] = rng.integers(0, 256)
+        return bytes(data)
+    words = [b'nan', b'inf', b'-', b'', b'1e308', b'x', b'[', b'{a: 1}', b'\xff']
+    cells = text.split(b',')                          # a cell replaced by a hard value
+    if len(cells) > 1:
+        cells[rng.integers(len(cells))] = words[rng.integers(len(words))]
+    return b','.join(cells)
+
+
+@pytest.fixture(scope='module')
+def valid(tmp_path_factory):
+    return _valid_files(tmp_path_factory.mktemp('fuzz'))
+
+
+@pytest.mark.parametrize('reader', ['axis', 'stage', 'poses', 'camera', 'geometry', 'markers',
+                                    'intrinsics'])
+def test_damaged_files_give_a_dataset_or_a_clear_error(reader, valid, tmp_path):
+    source, read = valid[reader]
+    read(source)                                      # the undamaged file reads
+    text = source.read_bytes()
+    rng = np.random.default_rng(zlib.crc32(reader.encode()))
+    outcomes = {'read': 0, 'refused': 0}
+    for k in range(VARIANTS):
+        damaged = tmp_path / f'{k}{source.suffix}'
+        damaged.write_bytes(_variant(text, rng))
+        try:
+            read(damaged)
+            outcomes['read'] += 1
+        except MachineAlignmentError as exc:
+            assert str(exc), 'an error without a message'
+            outcomes['refused'] += 1
+    assert outcomes['refused'] > VARIANTS // 4, outcomes
