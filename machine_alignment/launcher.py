@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 from hexapod_calib.sim.hexapod import HexapodTruth
 
@@ -88,11 +89,14 @@ def _format(value) -> str:
 class Graph:
     """Running node processes; a context manager that stops them on exit."""
 
-    def __init__(self, nodes: list[NodeSpec], env: dict | None = None, log_dir: str | None = None):
+    def __init__(self, nodes: list[NodeSpec], env: dict | None = None, log_dir: str | None = None,
+                 prefix: Callable[[NodeSpec], list[str]] | None = None):
+        """``prefix(spec)`` is put before a node's command, e.g. ``ip netns exec <name>`` to
+        run each node in the network namespace of the computer it stands for."""
         self.processes = []
         environment = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **(env or {})}
         for spec in nodes:
-            args = [sys.executable, '-m', spec.module]
+            args = (prefix(spec) if prefix else []) + [sys.executable, '-m', spec.module]
             if spec.parameters:
                 args += ['--ros-args'] + [a for k, v in spec.parameters.items()
                                           for a in ('-p', f'{k}:={_format(v)}')]
