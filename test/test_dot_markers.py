@@ -129,7 +129,7 @@ def test_bad_input(tmp_path, rng, index):
     with pytest.raises(InvalidInputError, match='furlong'):
         load_uchiya_markers(bad)
     bad.write_text('{{{')
-    with pytest.raises(InvalidInputError, match='cannot read'):
+    with pytest.raises(InvalidInputError, match='is not valid YAML'):
         load_uchiya_markers(bad)
     with pytest.raises(InvalidInputError, match='needs more'):
         LlahIndex({0: random_marker(rng, dots=8)})
