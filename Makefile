@@ -1,7 +1,8 @@
 # make setup: idempotent; creates .venv, installs dependencies, builds alignment_msgs,
 # installs this package (editable). Each step reruns only when its inputs changed.
 SHELL := /bin/bash
-PYTHON ?= python3
+# The ROS 2 Jazzy wheels are CPython 3.11 builds: take python3.11 where it exists.
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := $(CURDIR)/.venv
 BIN := $(VENV)/bin
 MSG_SOURCES := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
@@ -12,6 +13,10 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 setup: $(VENV)/.stamp-package
 
 $(BIN)/python:
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' || { \
+	  echo "make: $(PYTHON) is not Python 3.11, which the ROS 2 Jazzy wheels need." >&2; \
+	  echo "Install it (Debian/Ubuntu: apt install python3.11 python3.11-venv, or pyenv)" >&2; \
+	  echo "or point to it: make PYTHON=/path/to/python3.11 ..." >&2; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 
 $(VENV)/.stamp-deps: requirements.txt | $(BIN)/python
@@ -37,7 +42,7 @@ demo: setup
 	$(BIN)/machine-align demo --out out/demo
 
 test: setup
-	$(BIN)/python -m pytest -q test
+	$(BIN)/python -m pytest -q -rs test
 
 bench: setup
 	$(BIN)/python -m machine_alignment.bench.vision --out bench_results
