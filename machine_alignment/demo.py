@@ -97,10 +97,11 @@ def _print_analysis(response) -> None:
 
 
 def _printer(out: Path, domain: str) -> int:
-    print(f'[1/5] starting the simulated printer (ROS_DOMAIN_ID={domain}); logs in {out}/logs')
+    print(f'[1/5] starting the simulated printer (ROS_DOMAIN_ID={domain}); logs in {out}/logs/<phase>')
     graph_spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
-    with Graph(graph_spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
+    with Graph(graph_spec, env={'ROS_DOMAIN_ID': domain},
+               log_dir=str(out / 'logs' / 'printer')) as graph:
         response, analysis = _run_service(graph, 'vision_calibrator/calibrate',
                                           '/vision_calibrator/progress', timeout=300.0,
                                           analysis='vision_calibrator/analyze_residuals')
@@ -146,7 +147,7 @@ def _hexapod(out: Path, domain: str) -> int:
     print('[4/5] starting the simulated hexapod cell and calibrating it')
     spec = hexapod_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
-    with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
+    with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / 'hexapod')) as graph:
         response, analysis = _run_service(graph, 'hexapod_calibrator/calibrate',
                                           '/hexapod_calibrator/progress',
                                           analysis='hexapod_calibrator/analyze_residuals')
@@ -202,7 +203,7 @@ def _stage(out: Path, domain: str) -> int:
     spec = stage_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
                        substrate_shift=(0.25e-3, -0.15e-3, float(np.deg2rad(0.04))))
     start = time.monotonic()
-    with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs')) as graph:
+    with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / 'stage')) as graph:
         response, analysis = _run_service(graph, 'stage_calibrator/calibrate',
                                           '/stage_calibrator/progress', timeout=900.0,
                                           analysis='stage_calibrator/analyze_residuals')

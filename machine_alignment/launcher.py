@@ -86,8 +86,18 @@ def _format(value) -> str:
     return str(value)
 
 
+def stop_on_sigterm() -> None:
+    """Turn SIGTERM into KeyboardInterrupt in this (main) thread, so a launcher or demo
+    stopped by ``kill`` or a service manager unwinds like Ctrl-C: every :class:`Graph`
+    it holds stops its nodes instead of leaving them running as orphans."""
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f'signal {signum}')
+    signal.signal(signal.SIGTERM, interrupt)
+
+
 class Graph:
-    """Running node processes; a context manager that stops them on exit."""
+    """Running node processes; a context manager that stops them on exit (SIGINT to every
+    node, then SIGKILL after ``timeout``), also when the block is left by an exception."""
 
     def __init__(self, nodes: list[NodeSpec], env: dict | None = None, log_dir: str | None = None,
                  prefix: Callable[[NodeSpec], list[str]] | None = None):

@@ -129,3 +129,34 @@ def test_output_that_cannot_be_written_fails_before_the_work(files, capsys, monk
     assert main(['analyze', 'axis', '--data', str(files['axis']), '--json',
                  str(files['blocker'] / 'report.json')]) == 2
     assert ran == []
+
+
+def test_detect_on_a_missing_image_is_exit_2_without_an_opencv_warning(tmp_path, capfd):
+    assert main(['detect', str(tmp_path / 'missing.png')]) == 2
+    out, err = capfd.readouterr()
+    assert 'no such file' in out and 'WARN' not in err and 'machine-align: error:' in err
+
+
+def test_sigterm_to_the_launcher_stops_every_node(tmp_path):
+    """`machine-align launch` stopped by SIGTERM (kill, a service manager) stops its nodes
+    and waits for them: none is left running."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    launcher = subprocess.Popen(
+        [sys.executable, '-m', 'machine_alignment.cli', 'launch', 'hexapod', '--output-dir',
+         str(tmp_path / 'calibration'), '--record-dir', str(tmp_path / 'runs')],
+        stdout=subprocess.PIPE, text=True,
+        env={**os.environ, 'ROS_DOMAIN_ID': str(200 + os.getpid() % 30)})
+    children_file = Path(f'/proc/{launcher.pid}/task/{launcher.pid}/children')
+    deadline, children = time.monotonic() + 30, []
+    while time.monotonic() < deadline and len(children) < 3:
+        children = children_file.read_text().split() if children_file.exists() else []
+        time.sleep(0.2)
+    assert len(children) == 3, 'the three hexapod nodes did not start'
+    assert 'running' in launcher.stdout.readline()
+    launcher.send_signal(signal.SIGTERM)
+    assert launcher.wait(30) == 0
+    assert not [pid for pid in children if Path(f'/proc/{pid}').exists()]

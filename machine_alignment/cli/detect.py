@@ -1,6 +1,8 @@
 """``machine-align detect``: Mark centres (px) in image files."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 
@@ -14,10 +16,12 @@ def cmd_detect(args) -> int:
                             polarity=args.polarity)
     results, failures = [], 0
     for k, path in enumerate(args.images):
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        # Checked first: OpenCV would print its own warning for a missing file.
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if Path(path).is_file() else None
         entry = {'image': str(path)}
         if image is None:
-            entry['error'] = 'not a readable image'
+            entry['error'] = ('no such file' if not Path(path).exists() else
+                              'a folder' if Path(path).is_dir() else 'not a readable image')
         else:
             try:
                 detection = detect_marks(image, config, args.shape, args.expected)
@@ -39,7 +43,9 @@ def cmd_detect(args) -> int:
                                for m in entry['marks']])
             print(f'{path}: {len(entry["marks"])} Mark(s), median centre sigma {sigma:.4f} px')
     write_json(args.json, {'images': results})
-    return 1 if failures == len(args.images) else 0
+    if failures == len(args.images):
+        raise MachineAlignmentError(f'no Mark detected in any of the {failures} image(s)')
+    return 0
 
 
 def add_parser(sub) -> None:

@@ -6,15 +6,17 @@ import time
 from pathlib import Path
 
 from machine_alignment.demo import run_demo
-from machine_alignment.launcher import Graph, hexapod_graph, printer_graph, stage_graph
+from machine_alignment.launcher import (
+    Graph, hexapod_graph, printer_graph, stage_graph, stop_on_sigterm)
 
 
 def cmd_launch(args) -> int:
     spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir),
             'stage': lambda: stage_graph(args.output_dir, args.record_dir),
             'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir)}[args.graph]()
+    stop_on_sigterm()
     with Graph(spec) as graph:
-        print(f'{args.graph} graph running (Ctrl-C to stop)')
+        print(f'{args.graph} graph running (Ctrl-C or SIGTERM to stop)', flush=True)
         try:
             while all(graph.alive()):
                 time.sleep(0.5)
@@ -24,6 +26,7 @@ def cmd_launch(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    stop_on_sigterm()
     return run_demo(Path(args.out))
 
 
