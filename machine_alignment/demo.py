@@ -29,14 +29,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-import rclpy
-from alignment_msgs.msg import Progress
 from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibration
 
+from calib_core.errors import CalibrationError
 from calib_core.storage import write_atomic
 from hexapod_calib.sim.hexapod import HexapodTruth
 from machine_alignment.cli import calibrate
 from machine_alignment.launcher import Graph, hexapod_graph, printer_graph, stage_graph
+from machine_alignment.live import LiveClient
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.sim.camera import CameraSim
 from printer_alignment.sim.evaluation import measure_errors, plot_errors, summarise
@@ -56,34 +56,30 @@ def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.
                  analysis: str = ''):
     """Call a RunCalibration service on a running graph, printing its progress; then, if
     the calibration succeeded and ``analysis`` names an AnalyzeResiduals service, run the
-    closed loop with ``apply``. Returns (calibration response, analysis response)."""
-    rclpy.init()
-    node = rclpy.create_node('demo_client')
+    closed loop with ``apply``. Returns (calibration response, analysis response), None
+    for a call that got no answer."""
     shown = {'step': -1}
 
-    def show(msg):
-        if msg.step == msg.total or msg.step - shown['step'] >= max(msg.total // 10, 1):
-            shown['step'] = msg.step
-            print(f'      {msg.step}/{msg.total} {msg.message}')
-    try:
-        node.create_subscription(Progress, progress_topic, show, 10)
-        client = node.create_client(RunCalibration, service)
-        if not client.wait_for_service(timeout_sec=30.0):
-            print(f'{service} did not come up; processes alive: {graph.alive()}')
+    def show(step, total, message):
+        if step == total or step - shown['step'] >= max(total // 10, 1):
+            shown['step'] = step
+            print(f'      {step}/{total} {message}')
+    with LiveClient('demo_client') as client:
+        try:
+            calibration = client.call(RunCalibration, service, RunCalibration.Request(),
+                                      progress_topic, show, timeout)
+        except CalibrationError as exc:
+            print(f'      {exc}; processes alive: {graph.alive()}')
             return None, None
-        future = client.call_async(RunCalibration.Request())
-        rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
-        calibration = future.result()
-        if not (analysis and calibration and calibration.success):
+        if not (analysis and calibration.success):
             return calibration, None
         print(f'      closed loop: {analysis} (apply)')
-        future = node.create_client(AnalyzeResiduals, analysis).call_async(
-            AnalyzeResiduals.Request(apply=True))
-        rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
-        return calibration, future.result()
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            return calibration, client.call(AnalyzeResiduals, analysis,
+                                            AnalyzeResiduals.Request(apply=True), timeout=timeout)
+        except CalibrationError as exc:
+            print(f'      {exc}')
+            return calibration, None
 
 
 def _print_analysis(response) -> None:
@@ -216,28 +212,23 @@ def _stage(out: Path, domain: str) -> int:
               f'R1..R3 {s["R1"] * 1e3:.4f}, {s["R2"] * 1e3:.4f}, {s["R3"] * 1e3:.4f} mm/rev, '
               f'alpha1 {np.rad2deg(s["alpha1"]):.4f} deg (true 2.0064, 2.0027, 2.0021, 89.8670)')
         _print_analysis(analysis)
-        rclpy.init()
-        node = rclpy.create_node('demo_aligner_client')
         results = {}
-        try:
+        with LiveClient('demo_aligner_client') as client:
             for model in ('nominal', 'stepwise', 'parametric'):
-                home = node.create_client(MoveStage, 'stage/move').call_async(
-                    MoveStage.Request(q=[0.0, 0.0, 0.0]))
-                rclpy.spin_until_future_complete(node, home, timeout_sec=30.0)
-                future = node.create_client(Align, 'aligner/align').call_async(
-                    Align.Request(model=model))
-                rclpy.spin_until_future_complete(node, future, timeout_sec=120.0)
-                answer = future.result()
-                if answer is None or not answer.success:
-                    print(f'      alignment ({model}) failed: '
-                          f'{answer.message if answer else "timeout"}')
+                try:
+                    client.call(MoveStage, 'stage/move', MoveStage.Request(q=[0.0, 0.0, 0.0]),
+                                timeout=30.0)
+                    answer = client.call(Align, 'aligner/align', Align.Request(model=model),
+                                         timeout=120.0)
+                except CalibrationError as exc:
+                    print(f'      alignment ({model}) failed: {exc}')
+                    return 1
+                if not answer.success:
+                    print(f'      alignment ({model}) failed: {answer.message}')
                     return 1
                 results[model] = json.loads(answer.report_json)
                 print(f'      aligned with the {model:>10} model: {answer.position_error * 1e6:6.2f} um, '
                       f'{np.rad2deg(answer.orientation_error) * 3600:5.2f} arcsec left (camera)')
-        finally:
-            node.destroy_node()
-            rclpy.try_shutdown()
     write_atomic(out / 'stage_alignment.json', json.dumps(results, indent=2) + '\n')
     print(f'      wrote {out}/stage_alignment.json')
     return 0

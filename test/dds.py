@@ -27,3 +27,14 @@ def running(spec, domain: str, out, client_name: str):
         finally:
             node.destroy_node()
             rclpy.try_shutdown()
+
+
+def machine_align(domain: str, *argv: str, timeout: float = 300.0):
+    """Run ``machine-align ARGV`` as its own process on ROS domain ``domain``, as a user
+    would from the venv; the finished process (returncode, stdout, stderr)."""
+    import os
+    import subprocess
+    import sys
+    return subprocess.run([sys.executable, '-m', 'machine_alignment.cli', *argv],
+                          env={**os.environ, 'ROS_DOMAIN_ID': domain}, capture_output=True,
+                          text=True, timeout=timeout)

@@ -149,7 +149,7 @@ def test_sigterm_to_the_launcher_stops_every_node(tmp_path):
         [sys.executable, '-m', 'machine_alignment.cli', 'launch', 'hexapod', '--output-dir',
          str(tmp_path / 'calibration'), '--record-dir', str(tmp_path / 'runs')],
         stdout=subprocess.PIPE, text=True,
-        env={**os.environ, 'ROS_DOMAIN_ID': str(200 + os.getpid() % 30)})
+        env={**os.environ, 'ROS_DOMAIN_ID': str(210 + os.getpid() % 20)})
     children_file = Path(f'/proc/{launcher.pid}/task/{launcher.pid}/children')
     deadline, children = time.monotonic() + 30, []
     while time.monotonic() < deadline and len(children) < 3:

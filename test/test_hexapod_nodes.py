@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-DOMAIN = str(100 + os.getpid() % 50)
+DOMAIN = str(100 + os.getpid() % 30)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
@@ -18,7 +18,7 @@ from alignment_msgs.srv import AnalyzeResiduals, MeasurePose, MoveHexapod, RunCa
 from calib_core.bags import decode_bag  # noqa: E402
 from calib_core.nodes.qos import LATCHED  # noqa: E402
 from machine_alignment.launcher import hexapod_graph  # noqa: E402
-from dds import call, running  # noqa: E402
+from dds import call, machine_align, running  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry  # noqa: E402
 from hexapod_calib.core.procedure import identify_from_records  # noqa: E402
 from hexapod_calib.core.records import measurement_record, pose_from_message  # noqa: E402
@@ -138,4 +138,17 @@ def test_analyze_residuals_after_the_run(graph):
     assert received and received[-1].report_json == analysis.report_json
     bags = [b for b in (out / 'runs').iterdir() if 'analysis' in b.name]
     assert [topic for topic, _, _ in decode_bag(bags[0])] == ['/hexapod_calibrator/analysis']
+    assert all(running.alive())
+
+
+def test_calibration_triggered_from_the_command_line(graph):
+    running, node, out = graph
+    done = machine_align(DOMAIN, 'call', 'hexapod_calibrator/calibrate', PLAN,
+                         '--json', str(out / 'call.json'))
+    assert done.returncode == 0, done.stderr
+    assert 'hexapod calibration, version' in done.stdout and '60/60' in done.stdout
+    report = json.loads((out / 'call.json').read_text())
+    assert report['evaluation']['after']['max_displacement_m'] < 12.1e-6
+    refused = machine_align(DOMAIN, 'call', 'hexapod_calibrator/calibrate', 'speed: 3')
+    assert refused.returncode == 2 and 'unknown plan keys' in refused.stderr
     assert all(running.alive())

@@ -5,7 +5,7 @@ import os
 import signal
 import time
 
-DOMAIN = str(150 + os.getpid() % 50)
+DOMAIN = str(190 + os.getpid() % 20)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402

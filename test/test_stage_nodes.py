@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-DOMAIN = str(150 + os.getpid() % 50)
+DOMAIN = str(160 + os.getpid() % 30)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibration  # noqa: E402
@@ -15,7 +15,7 @@ from calib_core.bags import decode_bag  # noqa: E402
 from machine_alignment.cli import main as cli_main  # noqa: E402
 from machine_alignment.launcher import stage_graph  # noqa: E402
 from calib_core.storage import write_calibration  # noqa: E402
-from dds import call, running  # noqa: E402
+from dds import call, machine_align, running  # noqa: E402
 from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E402
 from printer_alignment.core.records import stage_data_from_records, stage_record  # noqa: E402
 from printer_alignment.sim.camera import CameraOptics  # noqa: E402
@@ -118,4 +118,15 @@ def test_calibration_replay_alignment_and_closed_loop(graph):
                     AnalyzeResiduals.Request(apply=False), timeout=300.0)
     assert analysis.success, analysis.message
     assert analysis.analysis.machine == 'stage' and analysis.analysis.rms_after > 0
+    assert all(running.alive())
+
+
+def test_calibration_and_alignment_triggered_from_the_command_line(graph):
+    running, node, out = graph
+    done = machine_align(DOMAIN, 'call', 'stage_calibrator/calibrate', PLAN)
+    assert done.returncode == 0, done.stderr
+    assert 'stage calibration, version' in done.stdout and 'lead1' in done.stdout
+    aligned = machine_align(DOMAIN, 'call', 'aligner/align', 'parametric')
+    assert aligned.returncode == 0, aligned.stderr
+    assert 'aligned:' in aligned.stdout
     assert all(running.alive())

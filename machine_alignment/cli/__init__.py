@@ -9,14 +9,14 @@ import sys
 import cv2
 
 from calib_core.errors import MachineAlignmentError
-from machine_alignment.cli import analyze, calibrate, detect, evaluate, graphs, simulate
+from machine_alignment.cli import analyze, calibrate, call, detect, evaluate, graphs, simulate
 from machine_alignment.cli.common import check_writable
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='machine-align', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True)
-    for group in (detect, calibrate, evaluate, simulate, analyze, graphs):
+    for group in (detect, calibrate, evaluate, simulate, analyze, call, graphs):
         group.add_parser(sub)
     return parser
 

@@ -1,0 +1,101 @@
+"""``machine-align call SERVICE [YAML]``: trigger a calibration, the closed loop or an
+alignment on a running graph from the venv, with progress while it runs, and print the
+result as the offline subcommands do. The same as ``ros2 service call`` on a ROS install."""
+from __future__ import annotations
+
+import json
+
+from alignment_msgs.srv import Align, AnalyzeResiduals, RunCalibration
+
+from calib_core.errors import CalibrationError
+from machine_alignment.cli.common import progress, write_json
+from machine_alignment.live import LiveClient
+
+# service -> (type, progress topic, what the YAML argument is)
+SERVICES = {
+    'vision_calibrator/calibrate': (RunCalibration, '/vision_calibrator/progress', 'plan'),
+    'vision_calibrator/calibrate_intrinsics': (RunCalibration, '/vision_calibrator/progress',
+                                               'plan'),
+    'stage_calibrator/calibrate': (RunCalibration, '/stage_calibrator/progress', 'plan'),
+    'hexapod_calibrator/calibrate': (RunCalibration, '/hexapod_calibrator/progress', 'plan'),
+    'vision_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
+    'stage_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
+    'hexapod_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
+    'aligner/align': (Align, None, 'model'),
+}
+
+
+def _request(service_type, text: str, apply: bool):
+    if service_type is RunCalibration:
+        return RunCalibration.Request(plan_yaml=text)
+    if service_type is AnalyzeResiduals:
+        return AnalyzeResiduals.Request(plan_yaml=text, apply=apply)
+    return Align.Request(model=text.strip())
+
+
+def _print_calibration(result) -> dict:
+    print(f'{result.kind} calibration, version {result.version}: {result.file_path}')
+    print(f'  {result.num_observations} observations, residual RMS {result.rms_residual:.4g} '
+          f'{result.residual_unit}, max {result.max_residual:.4g} {result.residual_unit}')
+    for name, value, sigma, unit in zip(result.names, result.values, result.std_devs,
+                                        result.units):
+        print(f'  {name:>18} = {value: .9g} +- {sigma:.2g} {unit}')
+    return json.loads(result.report_json) if result.report_json else {}
+
+
+def _print_analysis(analysis) -> dict:
+    print(f'closed loop on the {analysis.machine}: added '
+          f'{", ".join(analysis.effects_added) or "nothing"}; held-out RMS '
+          f'{analysis.rms_before:.4g} -> {analysis.rms_after:.4g} {analysis.unit}, max '
+          f'{analysis.max_before:.4g} -> {analysis.max_after:.4g} {analysis.unit}'
+          + ('; applied' if analysis.applied else ''))
+    for item in analysis.unexplained:
+        print(f'  unexplained: {item}')
+    print(f'  report: {analysis.report_path}')
+    return json.loads(analysis.report_json) if analysis.report_json else {}
+
+
+def cmd_call(args) -> int:
+    service_type, progress_topic, _ = SERVICES[args.service]
+    request = _request(service_type, args.yaml, args.apply)
+    shown = {'step': -1}
+
+    def show(step, total, message):
+        progress(step, total, args.service)
+        if not args.quiet and (step == total or step - shown['step'] >= max(total // 10, 1)):
+            shown['step'] = step
+            print(f'  {step}/{total} {message}', flush=True)
+    with LiveClient('machine_align_call', args.domain) as client:
+        response = client.call(service_type, args.service, request, progress_topic, show,
+                               timeout=args.timeout)
+    if not response.success:
+        raise CalibrationError(f'{args.service}: {response.message}')
+    if service_type is RunCalibration:
+        report = _print_calibration(response.result)
+    elif service_type is AnalyzeResiduals:
+        report = _print_analysis(response.analysis)
+    else:
+        print(f'aligned: {response.position_error * 1e6:.2f} um, '
+              f'{response.orientation_error * 180 / 3.141592653589793 * 3600:.2f} arcsec left '
+              '(measured by the camera)')
+        report = json.loads(response.report_json)
+    write_json(args.json, report)
+    return 0
+
+
+def add_parser(sub) -> None:
+    call = sub.add_parser('call', help='trigger a service on a running graph (calibrate, '
+                                       'analyze_residuals, align), showing its progress')
+    call.add_argument('service', choices=sorted(SERVICES), metavar='SERVICE',
+                      help='one of: ' + ', '.join(sorted(SERVICES)))
+    call.add_argument('yaml', nargs='?', default='',
+                      help='calibrate: plan overrides (YAML mapping, e.g. "{nx: 3, ny: 2}"); '
+                           'analyze_residuals: options; align: the model name')
+    call.add_argument('--apply', action='store_true',
+                      help='analyze_residuals: make the extended model the calibration in force')
+    call.add_argument('--domain', type=int, default=None,
+                      help='ROS domain of the graph (default: ROS_DOMAIN_ID, else 0)')
+    call.add_argument('--timeout', type=float, default=900.0, help='s')
+    call.add_argument('--quiet', action='store_true', help='no progress lines')
+    call.add_argument('--json', help='the full report to write')
+    call.set_defaults(func=cmd_call)

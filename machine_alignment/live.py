@@ -1,0 +1,68 @@
+"""Calling the suite's services on a running graph from plain Python (the venv has no
+``ros2`` command): one client node in its own rclpy context, progress messages handed to
+a callback while the call runs. Used by ``machine-align call`` and the demo."""
+from __future__ import annotations
+
+import os
+from typing import Callable
+
+import rclpy
+from alignment_msgs.msg import Progress
+from rclpy.executors import SingleThreadedExecutor
+
+from calib_core.errors import CalibrationError
+
+
+class LiveClient:
+    """A client node on ROS domain ``domain`` (default: ``ROS_DOMAIN_ID``, else 0), in a
+    context of its own so it can live beside other rclpy users in one process. Discovery
+    defaults to localhost, as the launcher's graphs use."""
+
+    def __init__(self, name: str = 'machine_align_client', domain: int | None = None):
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        if domain is None:
+            domain = int(os.environ.get('ROS_DOMAIN_ID', '0') or 0)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def __enter__(self) -> 'LiveClient':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def call(self, service_type, service: str, request, progress_topic: str | None = None,
+             on_progress: Callable | None = None, timeout: float = 600.0,
+             wait: float = 30.0):
+        """The response of ``service`` to ``request``; ``on_progress(step, total, message)``
+        for every Progress message on ``progress_topic`` meanwhile.
+
+        Raises
+        ------
+        CalibrationError
+            The service does not come up within ``wait`` s or does not answer within
+            ``timeout`` s."""
+        subscription = None
+        if progress_topic and on_progress:
+            subscription = self.node.create_subscription(
+                Progress, progress_topic,
+                lambda msg: on_progress(msg.step, msg.total, msg.message), 10)
+        client = self.node.create_client(service_type, service)
+        try:
+            if not client.wait_for_service(timeout_sec=wait):
+                raise CalibrationError(f'service {service} is not available (is its graph '
+                                       f'running on ROS domain {self.context.get_domain_id()}?)')
+            future = client.call_async(request)
+            self.executor.spin_until_future_complete(future, timeout_sec=timeout)
+            if not future.done():
+                raise CalibrationError(f'{service} did not answer within {timeout:g} s')
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+            if subscription is not None:
+                self.node.destroy_subscription(subscription)
