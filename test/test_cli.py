@@ -97,3 +97,19 @@ def test_camera_calibration_on_real_circle_grid_photos(real_data, tmp_path):
     assert report['rms_reprojection_px'] < 0.55
     # The camera's widest zoom: 71.5 degrees across 640 px.
     assert report['parameters']['fx'] == pytest.approx(445, abs=20)
+
+
+def test_simulate_gantry_and_camera_give_data_the_other_commands_read(tmp_path):
+    """Every analyze / calibrate --data command has example data a newcomer can make in one
+    line: the camera's true k1 -0.25 comes back from calibrate camera, and the ideal gantry
+    gives the closed loop nothing to add."""
+    camera, gantry = tmp_path / 'camera.csv', tmp_path / 'gantry.csv'
+    assert cli_main(['simulate', 'camera', '--out', str(camera), '--seed', '3']) == 0
+    assert cli_main(['calibrate', 'camera', '--data', str(camera), '--json',
+                     str(tmp_path / 'camera.json')]) == 0
+    k1 = json.loads((tmp_path / 'camera.json').read_text())['parameters']['k1']
+    assert abs(k1 + 0.25) < 0.01
+    assert cli_main(['simulate', 'gantry', '--out', str(gantry), '--ideal', '--count', '80']) == 0
+    assert cli_main(['analyze', 'gantry', '--data', str(gantry), '--json',
+                     str(tmp_path / 'gantry.json')]) == 0
+    assert json.loads((tmp_path / 'gantry.json').read_text())['effects_added'] == []

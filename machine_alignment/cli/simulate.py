@@ -4,12 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
 from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
 from machine_alignment.cli.common import progress
+from printer_alignment.core.camera_calibration import write_correspondences
+from printer_alignment.sim.camera import tilted_plate_views
+from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
 from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
 
 
@@ -53,6 +58,24 @@ def cmd_simulate_axis(args) -> int:
     return 0
 
 
+def cmd_simulate_gantry(args) -> int:
+    errors = GantryErrors.ideal() if args.ideal else GantryErrors()
+    data = measure_random_positions(errors, count=args.count, seed=args.seed)
+    data.to_csv(args.out)
+    print(f'wrote {args.out} ({len(data)} positions; '
+          f'{"an ideal gantry" if args.ideal else "backlash, screw error and squareness"})')
+    return 0
+
+
+def cmd_simulate_camera(args) -> int:
+    camera = np.array([[args.focal, 0, 319.5], [0, args.focal, 239.5], [0, 0, 1]])
+    views = tilted_plate_views(camera, (args.k1, args.k2, args.p1, args.p2),
+                               views=args.views, noise_px=args.noise, seed=args.seed)
+    write_correspondences(args.out, views)
+    print(f'wrote {args.out} ({len(views)} views of a 9 x 7 grid, 10 mm pitch; 640x480 px)')
+    return 0
+
+
 def add_parser(sub) -> None:
     simulate = sub.add_parser('simulate', help='write datasets measured on a simulated machine')
     simulated = simulate.add_subparsers(dest='what', required=True)
@@ -70,6 +93,27 @@ def add_parser(sub) -> None:
                            help='a stage without backlash (clean data for the closed loop)')
     stage_sim.add_argument('--seed', type=int, default=0)
     stage_sim.set_defaults(func=cmd_simulate_stage)
+
+    gantry_sim = simulated.add_parser('gantry', help='camera gantry positions measured by the '
+                                                      'calibrated camera (gantry CSV)')
+    gantry_sim.add_argument('--out', required=True, help='CSV to write')
+    gantry_sim.add_argument('--count', type=int, default=200, help='random positions')
+    gantry_sim.add_argument('--ideal', action='store_true',
+                            help='a gantry without errors (clean data for the closed loop)')
+    gantry_sim.add_argument('--seed', type=int, default=0)
+    gantry_sim.set_defaults(func=cmd_simulate_gantry)
+
+    camera_sim = simulated.add_parser('camera', help='a tilted grid target seen by a camera '
+                                                      '(correspondence CSV)')
+    camera_sim.add_argument('--out', required=True, help='CSV to write')
+    camera_sim.add_argument('--focal', type=float, default=800.0, help='px')
+    for name, default in (('k1', -0.25), ('k2', 0.08), ('p1', 0.0), ('p2', 0.0)):
+        camera_sim.add_argument(f'--{name}', type=float, default=default,
+                                help='OpenCV distortion coefficient (1)')
+    camera_sim.add_argument('--views', type=int, default=12)
+    camera_sim.add_argument('--noise', type=float, default=0.05, help='px, 1 sigma')
+    camera_sim.add_argument('--seed', type=int, default=0)
+    camera_sim.set_defaults(func=cmd_simulate_camera)
 
     axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
                                                   'a simulated axis')

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from calib_core.checks import MAX_POSITION_M, check_metres
-from calib_core.datasets import read_columns
+from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
 from calib_core.files import read_yaml
 from printer_alignment.core.marks import detect_marks
@@ -35,6 +35,14 @@ def read_correspondences(path) -> list[View]:
         views.append(View(np.stack([c['model_x'][k], c['model_y'][k]], 1),
                           np.stack([c['u'][k], c['v'][k]], 1)))
     return views
+
+
+def write_correspondences(path, views: list[View]) -> None:
+    """The CSV :func:`read_correspondences` reads (view, model_x, model_y in m, u, v in px)."""
+    write_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'],
+                  [np.concatenate([np.full(len(v.model), k) for k, v in enumerate(views)]),
+                   np.concatenate([v.model for v in views]),
+                   np.concatenate([v.pixels for v in views])])
 
 
 def infer_image_size(views: list[View]) -> tuple[int, int]:
