@@ -26,6 +26,27 @@ def _component(machine: MachineModel, name: str, residuals: np.ndarray) -> np.nd
     return residuals
 
 
+def _vectors(ax, machine, result, workspace, factor: float, unit: str) -> None:
+    """Residual vectors over the workspace, before and after on one scale, with a key."""
+    place, place_unit = (1e3, 'mm') if machine.unit == 'm' else (1.0, machine.unit)
+    xy = workspace * place
+    span = np.ptp(xy, axis=0).max() or 1.0
+    before, after = result.residuals_before * factor, result.residuals_after * factor
+    largest = np.abs(before).max() or 1.0
+    per_length = largest / (0.06 * span)          # residual unit per workspace unit of arrow
+    for residuals, colour in ((before, 'tab:red'), (after, 'tab:blue')):
+        arrows = ax.quiver(xy[:, 0], xy[:, 1], residuals[:, 0], residuals[:, 1], color=colour,
+                           angles='xy', scale_units='xy', scale=per_length, width=0.003)
+    key = float(f'{largest / 2:.0e}')
+    ax.quiverkey(arrows, 0.84, -0.2, key, f'{key:g} {unit}', labelpos='E', coordinates='axes')
+    ax.set_aspect('equal')
+    ax.set_xlabel(f'x ({place_unit})')
+    ax.set_ylabel(f'y ({place_unit})')
+    small = np.abs(after).max() < 0.05 * largest
+    ax.set_title('residual vectors on one scale (key below)\nred: base model; blue: after'
+                 + (', too short to see' if small else ''), fontsize=9, loc='left')
+
+
 def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     """Write the figure for ``result`` to ``path`` (PNG)."""
     report = result.report
@@ -40,12 +61,25 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     axes = axes.ravel()
     held = result.holdout
     for ax, (name, z) in zip(axes, covariates):
-        for residuals, colour, label in ((result.residuals_before, 'tab:red', 'base model'),
-                                         (result.residuals_after, 'tab:blue', 'after loop')):
+        kind = name.split('_')[0]
+        for shift, residuals, colour, label in (
+                (-0.12, result.residuals_before, 'tab:red', 'base model'),
+                (0.12, result.residuals_after, 'tab:blue', 'after loop')):
             r = _component(machine, name, residuals) * factor
             zz = np.broadcast_to(z[:, None], r.shape) if r.ndim == 2 else z
+            if kind == 'direction':   # a category: side by side at -1 and +1, not an axis
+                zz = zz + shift
+            elif kind == 'position' and machine.unit == 'm':
+                zz = zz * 1e3
             ax.plot(zz.ravel(), r.ravel(), '.', ms=2, color=colour, alpha=0.5, label=label)
-        ax.set_xlabel(f'{name} ({_COVARIATE_UNITS.get(name.split("_")[0], "")})')
+        if kind == 'direction':
+            ax.set_xticks([-1, 1], ['-1: from above', '+1: from below'])
+            ax.set_xlim(-1.6, 1.6)
+            ax.set_xlabel(name)
+        elif kind == 'position' and machine.unit == 'm':
+            ax.set_xlabel(f'{name} (mm)')
+        else:
+            ax.set_xlabel(f'{name} ({_COVARIATE_UNITS.get(kind, "")})')
         ax.set_ylabel(f'residual ({unit})')
         ax.grid(alpha=0.3)
     axes[0].legend(loc='best', fontsize=8)
@@ -62,16 +96,7 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     ax.set_ylabel('count')
     ax.legend(fontsize=8)
     if workspace is not None and result.residuals_after.shape[1] == 2:
-        ax = axes[k + 1]
-        span = np.ptp(workspace, axis=0).max() or 1.0
-        for residuals, colour in ((result.residuals_before, 'tab:red'),
-                                  (result.residuals_after, 'tab:blue')):
-            largest = np.abs(result.residuals_before).max() or 1.0
-            ax.quiver(workspace[:, 0], workspace[:, 1], residuals[:, 0], residuals[:, 1],
-                      color=colour, angles='xy', scale_units='xy',
-                      scale=largest / (0.05 * span), width=0.003)
-        ax.set_aspect('equal')
-        ax.set_title('residual vectors (red: base, blue: after)', fontsize=9)
+        _vectors(axes[k + 1], machine, result, workspace, factor, unit)
     for ax in axes[panels:]:
         ax.axis('off')
     names = ', '.join(e['name'] for e in report['effects_added']) or 'nothing'

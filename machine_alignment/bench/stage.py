@@ -5,7 +5,11 @@ import argparse
 import json
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
 
 from calib_core.storage import write_atomic
 from printer_alignment.core.stage import NOMINAL_STAGE
@@ -14,9 +18,36 @@ from printer_alignment.sim.stage import (
     evaluate_alignment, measure_repeatability, simulate_calibration_run)
 
 ARCSEC = np.pi / 180 / 3600
+PAPER_ORIENTATION = 0.720 * ARCSEC     # the paper's maximum after calibration, rad
+
+
+def plot_alignment(path: Path, by_model: dict, rp_position: float, rp_angle: float) -> None:
+    """Position and orientation error of every alignment, each model on one logarithmic
+    scale, against the stage's repeatability RP and the paper's maxima."""
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.4))
+    for ax, key, factor, unit, rp, paper in (
+            (axes[0], 'position_m', 1e6, 'um', rp_position, 12.3e-6),
+            (axes[1], 'orientation_rad', 1 / ARCSEC, 'arcsec', rp_angle, PAPER_ORIENTATION)):
+        values = {name: r[key] * factor for name, r in by_model.items()}
+        low = max(min(v[v > 0].min() for v in values.values()), 1e-3)
+        bins = np.geomspace(low, max(v.max() for v in values.values()) * 1.1, 50)
+        for (name, v), colour in zip(values.items(), ('tab:red', 'tab:orange', 'tab:green')):
+            ax.hist(v, bins=bins, alpha=0.6, color=colour, label=f'{name}: max {v.max():.3g}')
+        ax.axvline(rp * factor, color='k', ls='-', label=f'repeatability RP: {rp * factor:.3g}')
+        ax.axvline(paper * factor, color='k', ls='--', label=f'paper, max: {paper * factor:.3g}')
+        ax.set_xscale('log')
+        ax.set_xlabel(f'{key.split("_")[0]} error after one move ({unit}, log scale)')
+        ax.set_ylabel('alignments')
+        ax.legend(fontsize=8)
+    fig.suptitle(f'XY-Theta stage: {len(next(iter(values.values())))} alignments on the '
+                 'simulated stage, error against truth')
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def run(out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
     models, report = calibrate_stage(simulate_calibration_run(seed=1))
     models = {'before (nominal)': ParametricModel(NOMINAL_STAGE), **models}
     rows = {}
@@ -32,8 +63,11 @@ def run(out: Path) -> None:
         for r in by_model.values():
             r['position_max_over_RP_l'] = r['position_max_m'] / rp_position
             r['orientation_max_over_RP_a'] = r['orientation_max_rad'] / rp_angle
+    plot_alignment(out / 'stage_alignment.png', rows['200 poses x 5'], rp_position, rp_angle)
+    for by_model in rows.values():       # the per-alignment errors are in the figure only
+        for r in by_model.values():
+            del r['position_m'], r['orientation_rad']
     result = {'alignment': rows, 'repeatability': repeatability, 'calibration': report}
-    Path(out).mkdir(exist_ok=True)
     write_atomic(Path(out) / 'stage.json', json.dumps(result, indent=2) + '\n')
     lines = ['| poses | model | position max | position mean | orientation max | orientation mean '
              '| position max / RP_l | orientation max / RP_a |',

@@ -44,12 +44,18 @@ def plot_errors(path, targets, before, after, title: str) -> None:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8))
+    # One arrow scale for both panels: the longest error before is drawn 25 mm long.
+    longest = max(np.max(np.linalg.norm(before, axis=1)), 1e-12) * 1e6
+    per_mm = longest / 25.0                                   # um of error per mm of arrow
+    key = float(f'{longest / 4:.0e}')                         # a round reference length, um
     for ax, errors, name in ((axes[0], before, 'before'), (axes[1], after, 'after')):
-        scale = np.max(np.linalg.norm(errors, axis=1)) * 1e6
-        ax.quiver(targets[:, 0] * 1e3, targets[:, 1] * 1e3, errors[:, 0] * 1e6, errors[:, 1] * 1e6,
-                  angles='xy', color='C0' if name == 'before' else 'C2')
-        ax.set_title(f'{name}: error vectors (longest {scale:.1f} um)')
+        arrows = ax.quiver(targets[:, 0] * 1e3, targets[:, 1] * 1e3, errors[:, 0] * 1e6,
+                           errors[:, 1] * 1e6, angles='xy', scale_units='xy', scale=per_mm,
+                           width=0.004, color='C0' if name == 'before' else 'C2')
+        ax.quiverkey(arrows, 0.84, -0.18, key, f'{key:g} um', labelpos='E', coordinates='axes')
+        ax.set_title(f'{name}: longest {np.max(np.linalg.norm(errors, axis=1)) * 1e6:.1f} um '
+                     '(one scale, key below)', loc='left', fontsize=10)
         ax.set_xlabel('gantry x (mm)')
         ax.set_ylabel('gantry y (mm)')
         ax.set_aspect('equal')

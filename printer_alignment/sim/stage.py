@@ -112,8 +112,9 @@ def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
     substrate Marks with the stencil Marks.
 
     Loads that would need an input beyond the stroke are refused and counted.
-    Returns a dict with, per alignment, position error of the Marks' centroid (m),
-    orientation error (rad) and the larger of the two Marks' errors (m), plus max / mean.
+    Returns a dict with the max and mean of, per alignment, the position error of the
+    Marks' centroid (m), the orientation error (rad) and the larger of the two Marks'
+    errors (m); and the position and orientation errors themselves (arrays).
     """
     rng = np.random.default_rng(seed)
     stage = StageSim(truth, landing_sigma, seed=seed + 1)
@@ -147,7 +148,8 @@ def evaluate_alignment(model, truth: StageGeometry = TRUE_STAGE, poses: int = 8,
             'orientation_max_rad': float(orientation.max()),
             'orientation_mean_rad': float(orientation.mean()),
             'mark_error_max_m': float(mark_error.max()),
-            'mark_error_mean_m': float(mark_error.mean())}
+            'mark_error_mean_m': float(mark_error.mean()),
+            'position_m': position, 'orientation_rad': orientation}
 
 
 def camera_pose_sensor(stage: StageSim, platform_points=CALIBRATION_MARKS, seed: int = 0):
