@@ -103,7 +103,7 @@ def add_parser(sub) -> None:
         machine.add_argument('--holdout', type=float, default=0.3,
                              help='fraction of rows kept out of every fit')
         machine.add_argument('--alpha', type=float, default=1e-3, help='significance level')
-        machine.add_argument('--max-effects', type=int, default=4)
+        machine.add_argument('--max-effects', type=int, default=4, help='most effects the loop may add')
         machine.add_argument('--seed', type=int, default=0, help='of the first hold-out split')
         machine.add_argument('--splits', type=int, default=5,
                              help='hold-out splits the selection is repeated over')

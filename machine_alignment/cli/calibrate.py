@@ -11,7 +11,7 @@ from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
 from machine_alignment.cli import camera
-from machine_alignment.cli.common import print_pose_summary, read_run, write_json
+from machine_alignment.cli.common import print_pose_summary, quantity, read_run, write_json
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
     stage_data_from_records, stage_record)
@@ -31,7 +31,7 @@ def cmd_calibrate_vision(args) -> int:
     print(f'{len(observations)} positions; pixel size '
           f'{report["pixel_size"]["pixel_size_m"] * 1e6:.5f} um')
     for name, value in g['parameters'].items():
-        print(f'  {name:>17} = {value: .9g} +- {g["std_devs"][name]:.2g} {g["units"][name]}')
+        print(f'  {name:>17} = {quantity(value, g["std_devs"][name], g["units"][name])}')
     if recorded is not None:
         live = recorded['gantry']['parameters']
         report['max_difference_to_live'] = {n: abs(live[n] - v) for n, v in g['parameters'].items()}
@@ -55,14 +55,14 @@ def cmd_calibrate_stage(args) -> int:
     models, report = calibrate_stage(data)
     s, p = report['stepwise'], report['parametric']
     print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '
-          f'{s["R3"] * 1e3:.5f} mm/rev, alpha1 {np.rad2deg(s["alpha1"]):.4f} deg, '
+          f'{s["R3"] * 1e3:.5f} mm/rev, alpha1 {s["alpha1"]:.6f} rad ({np.rad2deg(s["alpha1"]):.4f} deg), '
           f'd3 - d2 {s["d3_minus_d2"] * 1e3:.3f} mm')
     print(f'Parametric: Mark residual RMS {p["residual_rms_m"] * 1e6:.2f} um, max '
           f'{p["residual_max_m"] * 1e6:.2f} um, condition number {p["condition_number"]:.3g}')
     for name in p['parameters']:
         if name not in p['fixed']:
-            print(f'  {name:>16} = {p["parameters"][name]: .9g} +- {p["std_devs"][name]:.2g} '
-                  f'{p["units"][name]}')
+            print(f'  {name:>16} = '
+                  f'{quantity(p["parameters"][name], p["std_devs"][name], p["units"][name])}')
     for name, why in p['weakly_determined'].items():
         print(f'  weakly determined: {name}: {why}')
     report['models'] = models_as_dict(models)
@@ -142,9 +142,9 @@ def add_parser(sub) -> None:
     what = calibrate.add_subparsers(dest='what', required=True)
     camera.add_parser(what)
     vision = what.add_parser('vision', help='pixel size and gantry model from a recorded run')
-    vision.add_argument('--bag', required=True)
+    vision.add_argument('--bag', required=True, help='a run recorded by vision_calibrator/calibrate')
     vision.add_argument('--pitch', type=float, default=0.5e-3, help='dot pitch, m')
-    vision.add_argument('--json')
+    vision.add_argument('--json', help='report to write (JSON, SI units)')
     vision.set_defaults(func=cmd_calibrate_vision)
 
     stage = what.add_parser('stage', help='XY-Theta stage: stepwise and parametric, from a '
@@ -153,7 +153,7 @@ def add_parser(sub) -> None:
     stage_source.add_argument('--bag', help='a run recorded by stage_calibrator')
     stage_source.add_argument('--data', help='CSV: q1..q3 (m), direction1..3, mark1_x, '
                                              'mark1_y, mark2_x, mark2_y (m)')
-    stage.add_argument('--json')
+    stage.add_argument('--json', help='report to write (JSON, SI units)')
     stage.set_defaults(func=cmd_calibrate_stage)
 
     hexapod = what.add_parser('hexapod', help='42-parameter hexapod geometry from measured poses')
@@ -165,5 +165,5 @@ def add_parser(sub) -> None:
                                             'one the run recorded)')
     hexapod.add_argument('--out', help='calibrated geometry YAML to write')
     hexapod.add_argument('--fix', nargs='*', help='parameter names to keep at their nominal value')
-    hexapod.add_argument('--json')
+    hexapod.add_argument('--json', help='report to write (JSON, SI units)')
     hexapod.set_defaults(func=cmd_calibrate_hexapod)

@@ -8,7 +8,7 @@ import json
 from alignment_msgs.srv import Align, AnalyzeResiduals, RunCalibration
 
 from calib_core.errors import CalibrationError
-from machine_alignment.cli.common import progress, write_json
+from machine_alignment.cli.common import progress, quantity, write_json
 from machine_alignment.live import LiveClient
 
 # service -> (type, progress topic, what the YAML argument is)
@@ -39,7 +39,7 @@ def _print_calibration(result) -> dict:
           f'{result.residual_unit}, max {result.max_residual:.4g} {result.residual_unit}')
     for name, value, sigma, unit in zip(result.names, result.values, result.std_devs,
                                         result.units):
-        print(f'  {name:>18} = {value: .9g} +- {sigma:.2g} {unit}')
+        print(f'  {name:>18} = {quantity(value, sigma, unit)}')
     return json.loads(result.report_json) if result.report_json else {}
 
 

@@ -4,7 +4,7 @@ correspondences, photos of a target or random-dot markers, or a recorded
 from __future__ import annotations
 
 from calib_core.errors import MachineAlignmentError
-from machine_alignment.cli.common import parse_size, read_run, write_json
+from machine_alignment.cli.common import parse_size, quantity, read_run, write_json
 from printer_alignment.core.camera_calibration import (
     calibrate_intrinsics, camera_arrays, distortion_from_dot_views, infer_image_size,
     read_boofcv_intrinsics, read_correspondences, reprojection_errors, rms_px,
@@ -43,7 +43,7 @@ def cmd_calibrate_camera(args) -> int:
     p, s = report['parameters'], report['std_devs']
     print(f'{report["num_views"]} views, reprojection RMS {report["rms_reprojection_px"]:.3f} px')
     for name in p:
-        print(f'  {name:>3} = {p[name]: .6g} +- {s[name]:.2g} {report["units"][name]}')
+        print(f'  {name:>3} = {quantity(p[name], s[name], report["units"][name])}')
     if args.reference:
         report['reference'] = _compare_with_reference(args.reference, views, report)
     write_json(args.json, report)
@@ -91,7 +91,7 @@ def _calibrate_camera_from_bag(args) -> int:
     print(f'{report["num_views"]} views, reprojection RMS {report["rms_reprojection_px"]:.4f} px')
     for name in p:
         why = f'   fixed: {report["fixed"][name]}' if name in report['fixed'] else ''
-        print(f'  {name:>3} = {p[name]: .6g} +- {s[name]:.2g} {report["units"][name]}{why}')
+        print(f'  {name:>3} = {quantity(p[name], s[name], report["units"][name])}{why}')
     live = recorded['parameters']
     report['max_difference_to_live'] = max(abs(live[n] - v) for n, v in p.items())
     print(f'same as the live run: max |difference| {report["max_difference_to_live"]:.3g}')
@@ -110,11 +110,11 @@ def add_parser(what) -> None:
                         help='uchiya: random-dot markers, matched by LLAH (needs --markers)')
     camera.add_argument('--markers', help='BoofCV descriptions.yaml of the random-dot markers')
     camera.add_argument('--cols', type=int, help='inner corners / circles per row')
-    camera.add_argument('--rows', type=int)
+    camera.add_argument('--rows', type=int, help='inner corners / circles per column')
     camera.add_argument('--spacing', type=float, help='square size or circle pitch, m')
     camera.add_argument('--image-size', help='WxH in px (default: from images or inferred)')
-    camera.add_argument('--no-distortion', action='store_true')
+    camera.add_argument('--no-distortion', action='store_true', help='fit the pinhole model only (no k1, k2, p1, p2, k3)')
     camera.add_argument('--radial-only', action='store_true', help='k1, k2; no p1, p2, k3')
     camera.add_argument('--reference', help='intrinsics to compare with (BoofCV intrinsic.yaml)')
-    camera.add_argument('--json')
+    camera.add_argument('--json', help='report to write (JSON, SI units)')
     camera.set_defaults(func=cmd_calibrate_camera)

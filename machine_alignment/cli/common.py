@@ -90,3 +90,14 @@ def print_pose_summary(label: str, summary: dict) -> None:
     print(f'  {label:<28} max {summary["max_displacement_m"] * 1e6:8.2f} um '
           f'{summary["max_angle_rad"] * 1e6:8.1f} urad   RMS '
           f'{summary["rms_displacement_m"] * 1e6:8.2f} um {summary["rms_angle_rad"] * 1e6:8.1f} urad')
+
+
+def quantity(value: float, sigma: float, unit: str) -> str:
+    """``value +- sigma unit`` for a report line: no unit for dimensionless ("1") values,
+    and a large angle also in degrees."""
+    text = f'{value: .9g} +- {sigma:.2g}'
+    if unit != '1':
+        text += f' {unit}'
+    if unit == 'rad' and abs(value) > 0.1:
+        text += f' ({value * 180 / 3.141592653589793:.4f} deg)'
+    return text

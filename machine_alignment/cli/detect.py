@@ -24,7 +24,8 @@ def cmd_detect(args) -> int:
                               'a folder' if Path(path).is_dir() else 'not a readable image')
         else:
             try:
-                detection = detect_marks(image, config, args.shape, args.expected)
+                detection = detect_marks(image, config, '' if args.shape == 'any' else args.shape,
+                                         args.expected)
                 entry['marks'] = [{'shape': m.shape, 'u_px': m.u, 'v_px': m.v,
                                    'covariance_px2': m.covariance.tolist(), 'size_px': m.size,
                                    'contrast': m.contrast, 'quality': m.quality}
@@ -50,11 +51,12 @@ def cmd_detect(args) -> int:
 
 def add_parser(sub) -> None:
     detect = sub.add_parser('detect', help='Mark centres (px) in image files')
-    detect.add_argument('images', nargs='+')
-    detect.add_argument('--json')
-    detect.add_argument('--shape', default='', choices=['', 'circle', 'cross'])
-    detect.add_argument('--expected', type=int, default=0)
-    detect.add_argument('--polarity', default='auto', choices=['auto', 'dark', 'bright'])
+    detect.add_argument('images', nargs='+', help='image files (any format OpenCV reads)')
+    detect.add_argument('--json', help='report to write (JSON, SI units)')
+    detect.add_argument('--shape', default='any', choices=['any', 'circle', 'cross'],
+                        help='the Mark shape to report')
+    detect.add_argument('--expected', type=int, default=0, help='exactly this many Marks must be found (0: any number)')
+    detect.add_argument('--polarity', default='auto', choices=['auto', 'dark', 'bright'], help='dark Marks on a bright background, bright on dark, or find out')
     detect.add_argument('--min-size', type=float, default=2.5, help='px')
     detect.add_argument('--max-size', type=float, default=120.0, help='px')
     detect.set_defaults(func=cmd_detect)

@@ -73,10 +73,10 @@ def add_parser(sub) -> None:
     hexapod_eval.add_argument('--geometry', required=True, help='calibrated geometry YAML')
     hexapod_eval.add_argument('--nominal', help='geometry the controller used, when the CSV has '
                                                 'no l1..l6 columns')
-    hexapod_eval.add_argument('--json')
+    hexapod_eval.add_argument('--json', help='report to write (JSON, SI units)')
     hexapod_eval.set_defaults(func=cmd_evaluate_hexapod)
     alignment_eval = evaluated.add_parser(
         'alignment', help='plan recorded alignments again from their bag (aligner runs)')
     alignment_eval.add_argument('--bag', required=True, help='an alignment_<stamp> bag')
-    alignment_eval.add_argument('--json')
+    alignment_eval.add_argument('--json', help='report to write (JSON, SI units)')
     alignment_eval.set_defaults(func=cmd_evaluate_alignment)

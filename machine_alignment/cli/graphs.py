@@ -32,12 +32,13 @@ def cmd_demo(args) -> int:
 
 def add_parser(sub) -> None:
     launch = sub.add_parser('launch', help='start a simulated machine graph from the venv')
-    launch.add_argument('graph', choices=['printer', 'stage', 'hexapod'])
-    launch.add_argument('--scene', default='dot_plate', choices=['dot_plate', 'substrate', 'stencil'])
-    launch.add_argument('--output-dir', default='calibration')
-    launch.add_argument('--record-dir', default='runs')
+    launch.add_argument('graph', choices=['printer', 'stage', 'hexapod'],
+                        help='printer: vision chain; stage: the printer with its stage; hexapod')
+    launch.add_argument('--scene', default='dot_plate', choices=['dot_plate', 'substrate', 'stencil'], help='what the simulated camera looks at')
+    launch.add_argument('--output-dir', default='calibration', help='where the calibrators write calibration files')
+    launch.add_argument('--record-dir', default='runs', help='where runs are recorded (MCAP bags)')
     launch.set_defaults(func=cmd_launch)
 
     demo = sub.add_parser('demo', help='calibrate the simulated printer end to end')
-    demo.add_argument('--out', default='out/demo')
+    demo.add_argument('--out', default='out/demo', help="folder for the demo's calibrations, bags, logs and figures")
     demo.set_defaults(func=cmd_demo)

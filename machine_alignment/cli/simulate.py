@@ -81,9 +81,9 @@ def add_parser(sub) -> None:
     simulated = simulate.add_subparsers(dest='what', required=True)
     hexapod_sim = simulated.add_parser('hexapod', help='pose files from the simulated hexapod')
     hexapod_sim.add_argument('--out', required=True, help='directory')
-    hexapod_sim.add_argument('--poses', type=int, default=30)
-    hexapod_sim.add_argument('--evaluation', type=int, default=30)
-    hexapod_sim.add_argument('--seed', type=int, default=2)
+    hexapod_sim.add_argument('--poses', type=int, default=30, help='calibration poses to measure')
+    hexapod_sim.add_argument('--evaluation', type=int, default=30, help='separate poses measured for the evaluation only')
+    hexapod_sim.add_argument('--seed', type=int, default=2, help='random seed: the same seed gives the same data')
     hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
 
     stage_sim = simulated.add_parser('stage', help='a calibration run of the simulated '
@@ -91,7 +91,7 @@ def add_parser(sub) -> None:
     stage_sim.add_argument('--out', required=True, help='CSV to write')
     stage_sim.add_argument('--no-backlash', action='store_true',
                            help='a stage without backlash (clean data for the closed loop)')
-    stage_sim.add_argument('--seed', type=int, default=0)
+    stage_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
     stage_sim.set_defaults(func=cmd_simulate_stage)
 
     gantry_sim = simulated.add_parser('gantry', help='camera gantry positions measured by the '
@@ -100,7 +100,7 @@ def add_parser(sub) -> None:
     gantry_sim.add_argument('--count', type=int, default=200, help='random positions')
     gantry_sim.add_argument('--ideal', action='store_true',
                             help='a gantry without errors (clean data for the closed loop)')
-    gantry_sim.add_argument('--seed', type=int, default=0)
+    gantry_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
     gantry_sim.set_defaults(func=cmd_simulate_gantry)
 
     camera_sim = simulated.add_parser('camera', help='a tilted grid target seen by a camera '
@@ -110,9 +110,9 @@ def add_parser(sub) -> None:
     for name, default in (('k1', -0.25), ('k2', 0.08), ('p1', 0.0), ('p2', 0.0)):
         camera_sim.add_argument(f'--{name}', type=float, default=default,
                                 help='OpenCV distortion coefficient (1)')
-    camera_sim.add_argument('--views', type=int, default=12)
+    camera_sim.add_argument('--views', type=int, default=12, help='views of the target')
     camera_sim.add_argument('--noise', type=float, default=0.05, help='px, 1 sigma')
-    camera_sim.add_argument('--seed', type=int, default=0)
+    camera_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
     camera_sim.set_defaults(func=cmd_simulate_camera)
 
     axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
@@ -124,7 +124,7 @@ def add_parser(sub) -> None:
     axis_sim.add_argument('--expansion', type=float, default=0.0, help='1/K')
     axis_sim.add_argument('--temperature-rise', type=float, default=0.0, help='K over the test')
     axis_sim.add_argument('--travel', type=float, default=0.2, help='m')
-    axis_sim.add_argument('--targets', type=int, default=41)
-    axis_sim.add_argument('--cycles', type=int, default=5)
-    axis_sim.add_argument('--seed', type=int, default=0)
+    axis_sim.add_argument('--targets', type=int, default=41, help='target positions along the travel')
+    axis_sim.add_argument('--cycles', type=int, default=5, help='bidirectional measurement cycles')
+    axis_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
     axis_sim.set_defaults(func=cmd_simulate_axis)
