@@ -58,7 +58,8 @@ class CameraSimNode(Node):
         scene = make_scene(g('scene').value)
         if isinstance(scene, StageScene):
             scene = self._stage_scene(g('substrate_shift').value, g('stencil_marks').value)
-        self.camera = CameraSim(scene, optics, seed=g('seed').value)
+        self.seed = int(g('seed').value)
+        self.camera = CameraSim(scene, optics, seed=self.seed)
         self._position = None
         self._stamps = {}      # truth source -> stamp of its latest state
         self._lock = threading.Lock()
@@ -112,10 +113,23 @@ class CameraSimNode(Node):
         response.success, response.message = True, 'ok'
         return response
 
+    def _frame_noise(self, position) -> np.random.Generator:
+        """The noise of a frame, drawn from what it shows (gantry position, stage pose and
+        view, to 1 nm / 1 nrad) rather than from how many frames the free-running timer
+        rendered before: every frame of one state is the same image, so a run of the graph
+        gives the same numbers however its processes are scheduled (lock held)."""
+        state = list(np.round(np.asarray(position) * 1e9).astype(np.int64))
+        scene = self.camera.scene
+        if isinstance(scene, StageScene):
+            state += list(np.round(np.asarray(scene.pose) * 1e9).astype(np.int64))
+            state.append(0 if scene.view == 'substrate' else 1)
+        return np.random.default_rng([self.seed, *(int(v) & 0xFFFFFFFFFFFF for v in state)])
+
     def capture(self):
         with self._lock:
             position = self._position
             stamp = self._frame_stamp()
+            noise = None if position is None else self._frame_noise(position)
         if position is None:
             return  # no gantry yet: a real camera would see nothing useful either
         # Stamped with the time the rendered position was true, not with the capture time:
@@ -123,7 +137,7 @@ class CameraSimNode(Node):
         # the old position with a new stamp, which a detector waiting for a frame newer than
         # the move accepts (a few um of error after a 1 mm pre-positioning move).
         header = Header(stamp=stamp, frame_id='camera')
-        pixels = self.camera.capture(position)
+        pixels = self.camera.capture(position, noise)
         self.image_pub.publish(image_as_message(pixels, header))
         o = self.camera.optics
         info = CameraInfo(header=header, height=o.height, width=o.width,

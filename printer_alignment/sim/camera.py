@@ -96,15 +96,18 @@ class CameraSim:
                                          np.zeros(3), np.zeros(3), k, np.array(o.distortion))
         return float(projected[0, 0, 0]), float(projected[0, 0, 1])
 
-    def capture(self, camera_position: np.ndarray) -> np.ndarray:
-        """One 8-bit image (height, width) with blur, illumination, shot and read noise."""
+    def capture(self, camera_position: np.ndarray,
+                rng: np.random.Generator | None = None) -> np.ndarray:
+        """One 8-bit image (height, width) with blur, illumination, shot and read noise,
+        drawn from ``rng`` (default: the camera's own generator, advanced per frame)."""
+        rng = self.rng if rng is None else rng
         o = self.optics
         marks = [shape for shape, _ in self.true_marks(camera_position)]
         undistort = self._undistort if any(o.distortion) else None
         ideal = render(marks, o.width, o.height, o.blur_sigma, o.background, o.contrast,
                        o.gradient, undistort)
-        electrons = self.rng.poisson(np.clip(ideal, 0, None) * o.gain) / o.gain
-        noisy = electrons + self.rng.normal(0.0, o.read_noise, ideal.shape)
+        electrons = rng.poisson(np.clip(ideal, 0, None) * o.gain) / o.gain
+        noisy = electrons + rng.normal(0.0, o.read_noise, ideal.shape)
         return np.clip(np.round(noisy), 0, 255).astype(np.uint8)
 
 
