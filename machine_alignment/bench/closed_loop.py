@@ -7,7 +7,6 @@ noise floor: the held-out RMS after on the same machine without the undeclared e
 structure reported counts."""
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 from pathlib import Path
@@ -21,6 +20,7 @@ from calib_core.storage import write_atomic
 from hexapod_calib.core.geometry import nominal_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses
+from machine_alignment.bench import main_with_out
 from printer_alignment.core.loop_models import CameraLoopModel, GantryLoopModel, StageLoopModel
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
@@ -138,10 +138,7 @@ def run(out: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument('--out', default='bench_results')
-    run(Path(parser.parse_args(argv).out))
-    return 0
+    return main_with_out(run, __doc__, argv)
 
 
 if __name__ == '__main__':

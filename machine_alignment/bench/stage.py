@@ -1,7 +1,6 @@
 """Stage benchmark: the paper's alignment evaluation on the simulated stage, before
 calibration, after the stepwise and after the parametric method, and the stage's ISO 9283
 repeatability through the camera. Writes bench_results/stage.{json,md}."""
-import argparse
 import json
 from pathlib import Path
 
@@ -12,6 +11,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
 from calib_core.storage import write_atomic
+from machine_alignment.bench import main_with_out
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import ParametricModel, calibrate_stage
 from printer_alignment.sim.stage import (
@@ -90,10 +90,7 @@ def run(out: Path) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument('--out', default='bench_results')
-    run(Path(parser.parse_args(argv).out))
-    return 0
+    return main_with_out(run, __doc__, argv)
 
 
 if __name__ == '__main__':
