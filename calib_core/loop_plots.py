@@ -9,6 +9,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calib_core.closed_loop import LoopResult, MachineModel  # noqa: E402
+from calib_core.effects import LIBRARY  # noqa: E402
 
 _SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px')}
 _MAX_COVARIATE_PANELS = 12
@@ -51,8 +52,11 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     """Write the figure for ``result`` to ``path`` (PNG)."""
     report = result.report
     factor, unit = _SCALES.get(machine.unit, (1.0, machine.unit))
-    covariates = [(name, z) for name, z in result.covariates.items()
-                  if np.ptp(z) > 0][:_MAX_COVARIATE_PANELS]
+    # The covariates the added effects act on come first, so they are never cut off.
+    needed = {kind for e in report['effects_added'] for kind in LIBRARY[e['name']].requires}
+    covariates = sorted(((name, z) for name, z in result.covariates.items() if np.ptp(z) > 0),
+                        key=lambda item: item[0].split('_')[0] not in needed)
+    covariates = covariates[:_MAX_COVARIATE_PANELS]
     workspace = machine.workspace()
     panels = len(covariates) + 1 + (workspace is not None and result.residuals_after.shape[1] == 2)
     cols = min(3, panels)
@@ -102,6 +106,6 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     names = ', '.join(e['name'] for e in report['effects_added']) or 'nothing'
     fig.suptitle(f'{report["machine"]}: added {names}; held-out RMS '
                  f'{report["rms_before"] * factor:.3g} -> {report["rms_after"] * factor:.3g} {unit}')
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))   # room for the title
     fig.savefig(path, dpi=90)
     plt.close(fig)
