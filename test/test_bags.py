@@ -131,3 +131,13 @@ def test_cut_run_replays_what_it_measured_through_the_cli(tmp_path, capsys):
     assert cli_main(['calibrate', 'vision', '--bag', str(cut)]) in (0, 2)
     out = capsys.readouterr().out
     assert 'cut run' in out and '12 stops recovered' in out
+
+
+def test_a_run_cut_before_its_first_stop_says_so(tmp_path, capsys):
+    import subprocess
+    import sys
+    cut = tmp_path / 'vision_cut'
+    subprocess.run([sys.executable, '-c', KILLED_WRITER, str(cut), str(BAG), '0'],
+                   capture_output=True, timeout=60)
+    assert cli_main(['calibrate', 'vision', '--bag', str(cut)]) == 2
+    assert 'cut before its first stop' in capsys.readouterr().err

@@ -66,6 +66,9 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     MachineAlignmentError
         The bag holds no such stops (a run of another kind, or a foreign bag), or cannot be
         read."""
+    if cut_run_count(bag) == 0:
+        raise MachineAlignmentError(f'{bag} is a run cut before its first stop: nothing to '
+                                    'replay')
     topics = bag_topics(bag)
     if topics.get(stop_topic) != stop_type:
         held = ', '.join(f'{t} ({m})' for t, m in sorted(topics.items())) or 'no topics'
