@@ -139,8 +139,11 @@ def _journal_records(journal: Path) -> Iterator[tuple[str, str, int, bytes]]:
         end = start + name_length + type_length + size
         if end > len(data):
             return
-        topic = data[start:start + name_length].decode()
-        msgtype = data[start + name_length:start + name_length + type_length].decode()
+        try:
+            topic = data[start:start + name_length].decode()
+            msgtype = data[start + name_length:start + name_length + type_length].decode()
+        except UnicodeDecodeError:   # damaged from here on: what came before stands
+            return
         yield topic, msgtype, stamp, data[start + name_length + type_length:end]
         at = end
 
