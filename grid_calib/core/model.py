@@ -1,0 +1,97 @@
+"""The grid plate, its three placements and the stage error model (SI units).
+
+A plate has N x N marks, N = 2K + 1 odd, indexed i, j in -K..K about its centre, nominal
+pitch p (m). Each placement puts mark (i, j) over a stage site (m, n), nominal position
+(m p, n p) in the region's frame:
+
+- ``initial``: site (i, j);
+- ``rotated``: turned 90 degrees counter-clockwise seen from above about the plate centre:
+  site (-j, i), and the mark's own error (A_x, A_y) becomes (-A_y, A_x);
+- ``shifted``: moved one pitch along +x: site (i + 1, j).
+
+The stage reading minus the mark's nominal site position is
+``V = G(site) + A'(mark) + E(site) + noise`` with the placement's misalignment
+``E = (t_x - phi y, t_y + phi x)`` and the stage (measuring-system) error, in the
+corrected form of the source (the scale term of G_y has the opposite sign)::
+
+    G_x = O y + R x + F_x,    G_y = O x - R y + F_y
+
+O is the non-orthogonality, R the difference of the x and y scales, F the residual field
+with six zero moments (sum F, sum F x, sum F y, per component). A translation, rotation
+or isotropic scale of G cannot be told from the plate's (or the placements') and is not
+in G: the isotropic scale needs an external length.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from grid_calib.errors import PlacementError
+
+PLACEMENTS = ('initial', 'rotated', 'shifted')
+
+
+@dataclass(frozen=True)
+class Grid:
+    """An N x N plate (N = 2 half + 1) of pitch ``pitch`` (m)."""
+
+    half: int
+    pitch: float
+
+    def __post_init__(self):
+        if int(self.half) != self.half or self.half < 1:
+            raise PlacementError(f'the grid needs an odd N >= 3 marks per side (half {self.half!r})')
+        if not (np.isfinite(self.pitch) and self.pitch > 0):
+            raise PlacementError(f'pitch must be a positive length (m), not {self.pitch!r}')
+
+    @property
+    def marks(self) -> np.ndarray:
+        """Mark indices (i, j), (N^2, 2), i fastest."""
+        k = np.arange(-self.half, self.half + 1)
+        j, i = np.meshgrid(k, k, indexing='ij')
+        return np.column_stack([i.ravel(), j.ravel()])
+
+    @property
+    def sites(self) -> np.ndarray:
+        """Every stage site a placement visits (m, n), (N (N + 1), 2): the N x N region and
+        the column the shifted placement adds at m = K + 1."""
+        m = np.arange(-self.half, self.half + 2)
+        k = np.arange(-self.half, self.half + 1)
+        nn, mm = np.meshgrid(k, m, indexing='ij')
+        return np.column_stack([mm.ravel(), nn.ravel()])
+
+
+def site_of(marks: np.ndarray, placement: str) -> np.ndarray:
+    """The stage site (m, n) each mark (i, j) lies over in ``placement``, (k, 2)."""
+    i, j = marks[:, 0], marks[:, 1]
+    if placement == 'initial':
+        return np.column_stack([i, j])
+    if placement == 'rotated':
+        return np.column_stack([-j, i])
+    if placement == 'shifted':
+        return np.column_stack([i + 1, j])
+    raise PlacementError(f'unknown placement {placement!r}; the method uses {PLACEMENTS}')
+
+
+def mark_error_seen(errors: np.ndarray, placement: str) -> np.ndarray:
+    """A mark's own error (A_x, A_y) (k, 2) as the stage sees it in ``placement``."""
+    if placement == 'rotated':
+        return np.column_stack([-errors[:, 1], errors[:, 0]])
+    return errors
+
+
+def stage_error(positions: np.ndarray, non_orthogonality: float, scale_difference: float,
+                residual: np.ndarray) -> np.ndarray:
+    """G (k, 2) at ``positions`` (k, 2) (m) from O (rad), R (1) and the residual F (k, 2)."""
+    x, y = positions[:, 0], positions[:, 1]
+    return np.column_stack([non_orthogonality * y + scale_difference * x + residual[:, 0],
+                            non_orthogonality * x - scale_difference * y + residual[:, 1]])
+
+
+def misalignment(positions: np.ndarray, shift_x: float, shift_y: float,
+                 angle: float) -> np.ndarray:
+    """E (k, 2) of a placement moved by (shift_x, shift_y) (m) and turned by ``angle``
+    (rad, small) about the region's origin."""
+    x, y = positions[:, 0], positions[:, 1]
+    return np.column_stack([shift_x - angle * y, shift_y + angle * x])

@@ -1,0 +1,183 @@
+"""Self-calibration of one region: the global linear least-squares route (Qiao 2018 style;
+route B of SEEDS_CDE.md section 002). The unknowns are the residual stage error F at every
+site, O and R, every mark's own error A and each placement's misalignment; the plate
+errors are solved for and drop out of G, so a plate worse than the stage still calibrates
+it. One sparse linear system with the gauge as extra rows:
+
+- F has zero mean and zero first moments in x and y, per component (six rows): G carries
+  no translation, rotation or isotropic scale (the data cannot show them), and O and R
+  hold the shear and the scale difference;
+- A has zero mean and no net rotation (three rows): a rigid motion of the whole plate is
+  the same data as the placements' misalignments.
+
+The isotropic scale of G is therefore 0 by convention and stated as undetermined: it needs
+an external length (a certified pitch or an interferometer reading).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
+
+from grid_calib.core.model import PLACEMENTS, Grid, site_of
+from grid_calib.errors import PlacementError
+
+GAUGE = {
+    'translation': 'sum of G over the sites is 0: a stage offset is the plates\' position',
+    'rotation': 'G has no net rotation: a turned stage frame is a turned plate',
+    'isotropic_scale': 'undetermined without an external length: set to 0 in G',
+    'plate': 'the plate errors have zero mean and no net rotation (the placements\' '
+             'misalignments hold those)',
+}
+
+
+@dataclass(frozen=True)
+class Placement:
+    """One placement of the plate: which marks were measured and the stage reading minus
+    the nominal site position for each (m)."""
+
+    name: str
+    marks: np.ndarray         # (k, 2) int, mark indices (i, j)
+    deviation: np.ndarray     # (k, 2) m
+
+
+@dataclass
+class SelfCalibration:
+    """The solution of one region (SI units)."""
+
+    grid: Grid
+    non_orthogonality: float          # O, rad
+    scale_difference: float           # R, 1
+    sites: np.ndarray                 # (s, 2) site indices
+    stage_error: np.ndarray           # G at the sites, (s, 2) m
+    residual_field: np.ndarray        # F at the sites, (s, 2) m
+    mark_errors: np.ndarray           # A, (N^2, 2) m, in grid.marks order
+    misalignments: dict               # placement -> (shift_x m, shift_y m, angle rad)
+    residuals: dict                   # placement -> (k, 2) m, measured minus model
+
+    @property
+    def site_positions(self) -> np.ndarray:
+        return self.sites * self.grid.pitch
+
+    def report(self) -> dict:
+        rms = {k: float(np.sqrt(np.mean(r ** 2))) for k, r in self.residuals.items()}
+        return {'non_orthogonality_rad': self.non_orthogonality,
+                'scale_difference': self.scale_difference,
+                'sites': [{'x': float(x), 'y': float(y), 'error_x': float(gx),
+                           'error_y': float(gy)}
+                          for (x, y), (gx, gy) in zip(self.site_positions, self.stage_error)],
+                'gauge': GAUGE, 'residual_rms_m': rms,
+                'misalignments': {k: dict(zip(('shift_x_m', 'shift_y_m', 'angle_rad'),
+                                              map(float, v)))
+                                  for k, v in self.misalignments.items()}}
+
+
+def _check(grid: Grid, placements: list[Placement]) -> dict:
+    by_name = {p.name: p for p in placements}
+    missing = [n for n in PLACEMENTS if n not in by_name]
+    if missing or len(by_name) != len(placements):
+        raise PlacementError(f'the method needs each of {PLACEMENTS} once; missing '
+                             f'{missing or "none"}, given {[p.name for p in placements]}')
+    full = {tuple(m) for m in grid.marks}
+    for p in placements:
+        marks = [tuple(m) for m in np.asarray(p.marks, dtype=int)]
+        if len(set(marks)) != len(marks):
+            raise PlacementError(f'{p.name}: a mark is measured twice')
+        if set(marks) != full:
+            raise PlacementError(f'{p.name}: {len(full - set(marks))} of the plate\'s '
+                                 f'{len(full)} marks are missing')
+        if p.deviation.shape != (len(marks), 2) or not np.all(np.isfinite(p.deviation)):
+            raise PlacementError(f'{p.name}: need one finite (x, y) deviation per mark')
+    return by_name
+
+
+def _gauge_rows(grid: Grid, f0: int, a0: int, columns: int) -> sparse.csr_matrix:
+    """The nine gauge constraints (9, columns): F with zero mean and first moments per
+    component; A with zero mean and no net rotation."""
+    sites, marks = grid.sites / grid.half, grid.marks / grid.half
+    n_sites, n_marks = len(sites), len(marks)
+    rows = []
+    for component in (0, 1):
+        for weights in (np.ones(n_sites), sites[:, 0], sites[:, 1]):
+            rows.append((f0 + 2 * np.arange(n_sites) + component, weights))
+    rows.append((a0 + 2 * np.arange(n_marks), np.ones(n_marks)))
+    rows.append((a0 + 2 * np.arange(n_marks) + 1, np.ones(n_marks)))
+    rows.append((np.concatenate([a0 + 2 * np.arange(n_marks), a0 + 2 * np.arange(n_marks) + 1]),
+                 np.concatenate([-marks[:, 1], marks[:, 0]])))
+    r = np.concatenate([np.full(len(c), k) for k, (c, _) in enumerate(rows)])
+    c = np.concatenate([c for c, _ in rows])
+    v = np.concatenate([w for _, w in rows]) / np.sqrt(n_sites)
+    return sparse.csr_matrix((v, (r, c)), shape=(len(rows), columns))
+
+
+def self_calibrate(grid: Grid, placements: list[Placement],
+                   scale_sign_y: float = -1.0) -> SelfCalibration:
+    """Solve one region from its three placements.
+
+    ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
+    literal claim, is kept to show that it cannot describe a stage with a scale difference.
+
+    Raises
+    ------
+    PlacementError
+        A placement missing or doubled, marks missing or measured twice, bad values.
+    """
+    by_name = _check(grid, placements)
+    sites = grid.sites
+    site_index = {tuple(s): k for k, s in enumerate(sites)}
+    marks = grid.marks
+    mark_index = {tuple(m): k for k, m in enumerate(marks)}
+    half_size = grid.half * grid.pitch          # scales O, R and angles to lengths
+    n_sites, n_marks = len(sites), len(marks)
+    f0, o_col, a0, e0 = 0, 2 * n_sites, 2 * n_sites + 2, 2 * n_sites + 2 + 2 * n_marks
+    columns = e0 + 3 * len(PLACEMENTS)
+    rows, cols, values, rhs = [], [], [], []
+    row = 0
+
+    def add(entries, value):
+        nonlocal row
+        for c, v in entries:
+            rows.append(row)
+            cols.append(c)
+            values.append(v)
+        rhs.append(value)
+        row += 1
+
+    for p_index, name in enumerate(PLACEMENTS):
+        placement = by_name[name]
+        mark_ids = np.asarray(placement.marks, dtype=int)
+        for (i, j), deviation in zip(mark_ids, placement.deviation):
+            m, n = site_of(np.array([[i, j]]), name)[0]
+            s, a = site_index[(m, n)], mark_index[(i, j)]
+            x, y = m / grid.half, n / grid.half             # site position / half size
+            e = e0 + 3 * p_index
+            # A as seen: rotated placements swap and negate (A_x, A_y) -> (-A_y, A_x).
+            seen_x = [(a0 + 2 * a + 1, -1.0)] if name == 'rotated' else [(a0 + 2 * a, 1.0)]
+            seen_y = [(a0 + 2 * a, 1.0)] if name == 'rotated' else [(a0 + 2 * a + 1, 1.0)]
+            add([(f0 + 2 * s, 1.0), (o_col, y), (o_col + 1, x), *seen_x, (e, 1.0),
+                 (e + 2, -y)], deviation[0])
+            add([(f0 + 2 * s + 1, 1.0), (o_col, x), (o_col + 1, scale_sign_y * y), *seen_y,
+                 (e + 1, 1.0), (e + 2, x)], deviation[1])
+    design = sparse.csr_matrix((values, (rows, cols)), shape=(row, columns))
+    gauge = _gauge_rows(grid, f0, a0, columns)
+    b = np.asarray(rhs) / half_size                      # unknowns in units of half_size
+    # The gauge enters as exact constraints (Lagrange multipliers), not as rows of the
+    # fit: its rows span every site and would fill the normal matrix.
+    kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
+    solution = spsolve(kkt, np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
+    solution = solution[:columns] * half_size
+    residual = (design @ solution - np.asarray(rhs)).reshape(3, n_marks, 2)
+    if not np.all(np.isfinite(solution)):
+        raise PlacementError('the placements do not determine the stage error (singular)')
+    o_value, r_value = solution[o_col] / half_size, solution[o_col + 1] / half_size
+    field = solution[f0:f0 + 2 * n_sites].reshape(n_sites, 2)
+    positions = sites * grid.pitch
+    g = np.column_stack([o_value * positions[:, 1] + r_value * positions[:, 0],
+                         o_value * positions[:, 0] + scale_sign_y * r_value * positions[:, 1]])
+    mis = {name: (solution[e0 + 3 * k], solution[e0 + 3 * k + 1],
+                  solution[e0 + 3 * k + 2] / half_size) for k, name in enumerate(PLACEMENTS)}
+    by_placement = {name: -residual[k] for k, name in enumerate(PLACEMENTS)}
+    return SelfCalibration(grid, float(o_value), float(r_value), sites, g + field, field,
+                           solution[a0:e0].reshape(n_marks, 2), mis, by_placement)
