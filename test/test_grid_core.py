@@ -78,3 +78,36 @@ def test_bad_placements_are_refused():
         self_calibrate(GRID, [nan, placements[1], placements[2]])
     with pytest.raises(PlacementError, match='odd N'):
         Grid(half=2.5, pitch=0.01)
+
+
+def test_command_line_contract(tmp_path, capsys):
+    """`machine-align simulate grid` writes the marks CSV of the contract and `calibrate
+    grid` reads it back to the true O and R (noise-free), with the sites, the gauge and the
+    plate errors in the JSON and the plot beside it; two regions or a missing placement are
+    one clear error."""
+    import json
+
+    from machine_alignment.cli import main
+    marks, out = tmp_path / 'marks.csv', tmp_path / 'grid.json'
+    assert main(['simulate', 'grid', '--out', str(marks), '--noise', '0', '--seed', '4']) == 0
+    assert marks.read_text().splitlines()[0] == 'region,placement,i,j,x,y'
+    assert main(['calibrate', 'grid', '--data', str(marks), '--pitch', '0.01',
+                 '--json', str(out)]) == 0
+    report = json.loads(out.read_text())
+    truth = default_truth(GRID, 4)
+    assert report['non_orthogonality_rad'] == pytest.approx(truth.non_orthogonality, rel=1e-9)
+    assert report['scale_difference'] == pytest.approx(truth.scale_difference, rel=1e-9)
+    assert len(report['sites']) == 11 * 12 and set(report['sites'][0]) == {'x', 'y', 'error_x',
+                                                                              'error_y'}
+    assert 'isotropic_scale' in report['gauge'] and len(report['plate_errors']) == 121
+    assert out.with_suffix('.png').exists()
+    lines = marks.read_text().splitlines()
+    two = tmp_path / 'two.csv'
+    two.write_text('\n'.join(lines + ['1' + line[1:] for line in lines[1:]]) + '\n')
+    capsys.readouterr()
+    assert main(['calibrate', 'grid', '--data', str(two), '--pitch', '0.01']) == 2
+    assert 'stitching regions is not built yet' in capsys.readouterr().err
+    partial = tmp_path / 'partial.csv'
+    partial.write_text('\n'.join(line for line in lines if ',shifted,' not in line) + '\n')
+    assert main(['calibrate', 'grid', '--data', str(partial), '--pitch', '0.01']) == 2
+    assert 'shifted: 121 of the plate' in capsys.readouterr().err

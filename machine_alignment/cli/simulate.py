@@ -7,6 +7,9 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
+from grid_calib.core.data import write_marks
+from grid_calib.core.model import Grid
+from grid_calib.sim.plate import default_truth, measure_placements
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
@@ -76,6 +79,16 @@ def cmd_simulate_camera(args) -> int:
     return 0
 
 
+def cmd_simulate_grid(args) -> int:
+    grid = Grid(args.half, args.pitch)
+    truth = default_truth(grid, args.seed, plate_error=args.plate_error)
+    write_marks(args.out, grid, measure_placements(grid, truth, args.noise, args.seed))
+    print(f'wrote {args.out} ({2 * args.half + 1} x {2 * args.half + 1} marks, 3 placements; '
+          f'true non-orthogonality {truth.non_orthogonality * 1e6:g} urad, scale difference '
+          f'{truth.scale_difference * 1e6:g} ppm)')
+    return 0
+
+
 def add_parser(sub) -> None:
     simulate = sub.add_parser('simulate', help='write datasets measured on a simulated machine')
     simulated = simulate.add_subparsers(dest='what', required=True)
@@ -114,6 +127,17 @@ def add_parser(sub) -> None:
     camera_sim.add_argument('--noise', type=float, default=0.05, help='px, 1 sigma')
     camera_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
     camera_sim.set_defaults(func=cmd_simulate_camera)
+
+    grid_sim = simulated.add_parser('grid', help='an imperfect grid plate measured at three '
+                                                  'placements on a stage (marks CSV)')
+    grid_sim.add_argument('--out', required=True, help='CSV to write')
+    grid_sim.add_argument('--half', type=int, default=5, help='K: the plate has 2K+1 marks a side')
+    grid_sim.add_argument('--pitch', type=float, default=0.01, help='m')
+    grid_sim.add_argument('--plate-error', type=float, default=1e-6, help='m RMS')
+    grid_sim.add_argument('--noise', type=float, default=20e-9, help='m, 1 sigma')
+    grid_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed '
+                                                             'gives the same data')
+    grid_sim.set_defaults(func=cmd_simulate_grid)
 
     axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
                                                   'a simulated axis')
