@@ -56,6 +56,14 @@ class SelfCalibration:
     mark_errors: np.ndarray           # A, (N^2, 2) m, in grid.marks order
     misalignments: dict               # placement -> (shift_x m, shift_y m, angle rad)
     residuals: dict                   # placement -> (k, 2) m, measured minus model
+    noise: float                      # measurement noise sigma estimated from the residuals, m
+    noise_gain: np.ndarray | None     # (s, 2) std of G per unit of noise sigma; None if large
+
+    @property
+    def uncertainty(self) -> np.ndarray | None:
+        """1-sigma uncertainty of G at each site (s, 2) m, propagated from the noise the
+        residuals show; None where the grid was too large to propagate."""
+        return None if self.noise_gain is None else self.noise_gain * self.noise
 
     @property
     def site_positions(self) -> np.ndarray:
@@ -68,7 +76,11 @@ class SelfCalibration:
                 'sites': [{'x': float(x), 'y': float(y), 'error_x': float(gx),
                            'error_y': float(gy)}
                           for (x, y), (gx, gy) in zip(self.site_positions, self.stage_error)],
-                'gauge': GAUGE, 'residual_rms_m': rms,
+                'gauge': GAUGE, 'residual_rms_m': rms, 'noise_sigma_m': self.noise,
+                'uncertainty_m': (None if self.uncertainty is None else
+                                  [{'x': float(x), 'y': float(y), 'sigma_x': float(sx),
+                                    'sigma_y': float(sy)} for (x, y), (sx, sy)
+                                   in zip(self.site_positions, self.uncertainty)]),
                 'misalignments': {k: dict(zip(('shift_x_m', 'shift_y_m', 'angle_rad'),
                                               map(float, v)))
                                   for k, v in self.misalignments.items()}}
@@ -110,6 +122,32 @@ def _gauge_rows(grid: Grid, f0: int, a0: int, columns: int) -> sparse.csr_matrix
     c = np.concatenate([c for c, _ in rows])
     v = np.concatenate([w for _, w in rows]) / np.sqrt(n_sites)
     return sparse.csr_matrix((v, (r, c)), shape=(len(rows), columns))
+
+
+MAX_PROPAGATED = 5e7    # entries of the dense solve behind the per-site uncertainty
+
+
+def _noise_gain(grid: Grid, factor, design, o_col: int, f0: int, columns: int,
+                scale_sign_y: float) -> np.ndarray | None:
+    """Std of G at every site per unit of measurement noise, (s, 2): for the constrained
+    estimate x = P D^T b (P the KKT inverse's top block), Cov(x) = sigma^2 P D^T D P, taken
+    along each site's G. None when that dense solve would be too large."""
+    n_sites = len(grid.sites)
+    if 2 * n_sites * factor.shape[0] > MAX_PROPAGATED:
+        return None
+    xs, ys = grid.sites[:, 0] / grid.half, grid.sites[:, 1] / grid.half
+    rows = np.repeat(np.arange(2 * n_sites), 3)
+    cols = np.column_stack([f0 + np.arange(2 * n_sites), np.full(2 * n_sites, o_col),
+                            np.full(2 * n_sites, o_col + 1)]).ravel()
+    values = np.column_stack([np.ones(2 * n_sites),
+                              np.column_stack([ys, xs]).ravel(),
+                              np.column_stack([xs, scale_sign_y * ys]).ravel()]).ravel()
+    along = sparse.csr_matrix((values, (rows, cols)), shape=(2 * n_sites, columns))
+    right = np.zeros((factor.shape[0], 2 * n_sites))
+    right[:columns] = along.T.toarray()
+    z = factor.solve(right)[:columns]
+    dz = design @ z
+    return np.sqrt(np.sum(dz * dz, axis=0)).reshape(n_sites, 2)
 
 
 def self_calibrate(grid: Grid, placements: list[Placement],
@@ -168,10 +206,14 @@ def self_calibrate(grid: Grid, placements: list[Placement],
     kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
     # The matrix is symmetric: a minimum-degree ordering of its pattern fills 4-5x less than
     # SuperLU's default (COLAMD), and is 5x faster at N = 61.
-    solution = splu(kkt, permc_spec='MMD_AT_PLUS_A').solve(
-        np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
+    factor = splu(kkt, permc_spec='MMD_AT_PLUS_A')
+    solution = factor.solve(np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
     solution = solution[:columns] * half_size
     residual = (design @ solution - np.asarray(rhs)).reshape(3, n_marks, 2)
+    # Noise: the residual's variance over the degrees of freedom the fit leaves.
+    dof = design.shape[0] - (columns - gauge.shape[0])
+    sigma = float(np.sqrt(np.sum(residual ** 2) / dof)) if dof > 0 else float('nan')
+    gain = _noise_gain(grid, factor, design, o_col, f0, columns, scale_sign_y)
     if not np.all(np.isfinite(solution)):
         raise PlacementError('the placements do not determine the stage error (singular)')
     o_value, r_value = solution[o_col] / half_size, solution[o_col + 1] / half_size
@@ -183,4 +225,4 @@ def self_calibrate(grid: Grid, placements: list[Placement],
                   solution[e0 + 3 * k + 2] / half_size) for k, name in enumerate(PLACEMENTS)}
     by_placement = {name: -residual[k] for k, name in enumerate(PLACEMENTS)}
     return SelfCalibration(grid, float(o_value), float(r_value), sites, g + field, field,
-                           solution[a0:e0].reshape(n_marks, 2), mis, by_placement)
+                           solution[a0:e0].reshape(n_marks, 2), mis, by_placement, sigma, gain)

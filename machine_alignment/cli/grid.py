@@ -60,6 +60,10 @@ def cmd_calibrate_grid(args) -> int:
           f'{np.sqrt(np.mean(result.mark_errors ** 2)) * 1e6:.3f} um')
     for name, rms in report['residual_rms_m'].items():
         print(f'  residual {name}: RMS {rms * 1e9:.2f} nm')
+    print(f'  measurement noise from the residuals: {result.noise * 1e9:.2f} nm; '
+          + ('uncertainty of G per site not propagated (grid too large)'
+             if result.uncertainty is None else
+             f'uncertainty of G per site (1 sigma): up to {result.uncertainty.max() * 1e9:.2f} nm'))
     print('  isotropic scale: undetermined without an external length (0 in G)')
     report['plate_errors'] = [{'i': int(i), 'j': int(j), 'error_x': float(ax),
                                'error_y': float(ay)}
