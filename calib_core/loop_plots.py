@@ -10,6 +10,7 @@ import numpy as np  # noqa: E402
 
 from calib_core.closed_loop import LoopResult, MachineModel  # noqa: E402
 from calib_core.effects import LIBRARY  # noqa: E402
+from calib_core.figures import arrow_key  # noqa: E402
 
 _SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px')}
 _MAX_COVARIATE_PANELS = 12
@@ -38,8 +39,7 @@ def _vectors(ax, machine, result, workspace, factor: float, unit: str) -> None:
     for residuals, colour in ((before, 'tab:red'), (after, 'tab:blue')):
         arrows = ax.quiver(xy[:, 0], xy[:, 1], residuals[:, 0], residuals[:, 1], color=colour,
                            angles='xy', scale_units='xy', scale=per_length, width=0.003)
-    key = float(f'{largest / 2:.0e}')
-    ax.quiverkey(arrows, 0.84, -0.2, key, f'{key:g} {unit}', labelpos='E', coordinates='axes')
+    arrow_key(ax, arrows, largest / 2, unit)
     ax.set_aspect('equal')
     ax.set_xlabel(f'x ({place_unit})')
     ax.set_ylabel(f'y ({place_unit})')

@@ -82,11 +82,13 @@ def mark_error_seen(errors: np.ndarray, placement: str) -> np.ndarray:
 
 
 def stage_error(positions: np.ndarray, non_orthogonality: float, scale_difference: float,
-                residual: np.ndarray) -> np.ndarray:
-    """G (k, 2) at ``positions`` (k, 2) (m) from O (rad), R (1) and the residual F (k, 2)."""
+                residual: np.ndarray, scale_sign_y: float = -1.0) -> np.ndarray:
+    """G (k, 2) at ``positions`` (k, 2) (m) from O (rad), R (1) and the residual F (k, 2).
+    ``scale_sign_y`` +1 is the source's literal G_y, kept only to show it fails."""
     x, y = positions[:, 0], positions[:, 1]
     return np.column_stack([non_orthogonality * y + scale_difference * x + residual[:, 0],
-                            non_orthogonality * x - scale_difference * y + residual[:, 1]])
+                            non_orthogonality * x + scale_sign_y * scale_difference * y
+                            + residual[:, 1]])
 
 
 def misalignment(positions: np.ndarray, shift_x: float, shift_y: float,

@@ -21,7 +21,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.linalg import splu
 
-from grid_calib.core.model import PLACEMENTS, Grid, site_of
+from grid_calib.core.model import PLACEMENTS, Grid, site_of, stage_error
 from grid_calib.errors import PlacementError
 
 GAUGE = {
@@ -218,11 +218,9 @@ def self_calibrate(grid: Grid, placements: list[Placement],
         raise PlacementError('the placements do not determine the stage error (singular)')
     o_value, r_value = solution[o_col] / half_size, solution[o_col + 1] / half_size
     field = solution[f0:f0 + 2 * n_sites].reshape(n_sites, 2)
-    positions = sites * grid.pitch
-    g = np.column_stack([o_value * positions[:, 1] + r_value * positions[:, 0],
-                         o_value * positions[:, 0] + scale_sign_y * r_value * positions[:, 1]])
     mis = {name: (solution[e0 + 3 * k], solution[e0 + 3 * k + 1],
                   solution[e0 + 3 * k + 2] / half_size) for k, name in enumerate(PLACEMENTS)}
     by_placement = {name: -residual[k] for k, name in enumerate(PLACEMENTS)}
-    return SelfCalibration(grid, float(o_value), float(r_value), sites, g + field, field,
+    g = stage_error(sites * grid.pitch, o_value, r_value, field, scale_sign_y)
+    return SelfCalibration(grid, float(o_value), float(r_value), sites, g, field,
                            solution[a0:e0].reshape(n_marks, 2), mis, by_placement, sigma, gain)

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib_core.checks import MAX_POSITION_M, check_metres
 from calib_core.errors import InvalidInputError
 from hexapod_calib.core.geometry import HexapodGeometry, as_poses, rotation_matrices
 from hexapod_calib.core.kinematics import jacobian
 
 GRAVITY = 9.81  # m/s^2
-MAX_CENTRE_M = 10.0   # a payload's centre of mass further from the platform is a unit error
 
 
 def leg_forces(geometry: HexapodGeometry, poses, mass: float, centre) -> np.ndarray:
@@ -27,9 +27,7 @@ def leg_forces(geometry: HexapodGeometry, poses, mass: float, centre) -> np.ndar
         raise InvalidInputError(f'payload mass must be positive and finite (kg), not {mass}')
     if centre.shape != (3,) or not np.all(np.isfinite(centre)):
         raise InvalidInputError(f'payload centre must be 3 finite values (m), not {centre}')
-    if np.abs(centre).max() > MAX_CENTRE_M:
-        raise InvalidInputError(f'payload centre {centre} is over {MAX_CENTRE_M:g} m from the '
-                                'platform: the values look like mm; the format is SI metres')
+    check_metres(centre, 'the centre of mass', 'the payload', MAX_POSITION_M)
     poses = as_poses(poses)
     lever = np.einsum('nij,j->ni', rotation_matrices(poses[:, 3:]), centre)
     weight = np.array([0.0, 0.0, -mass * GRAVITY])

@@ -66,7 +66,8 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     MachineAlignmentError
         The bag holds no such stops (a run of another kind, or a foreign bag), or cannot be
         read."""
-    if cut_run_count(bag) == 0:
+    recovered = cut_run_count(bag)      # None for a complete bag
+    if recovered == 0:
         raise MachineAlignmentError(f'{bag} is a run cut before its first stop: nothing to '
                                     'replay')
     topics = bag_topics(bag)
@@ -83,7 +84,7 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     if not stops:
         raise MachineAlignmentError(f'{bag} holds no {what}: the run stopped before its '
                                     'first stop')
-    if cut_run_count(bag) is not None:
+    if recovered is not None:
         print(f'{bag} is a cut run (its writer was stopped before the bag was complete): '
               f'{len(stops)} stops recovered from its journal')
     return stops, recorded

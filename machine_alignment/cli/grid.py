@@ -12,6 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calib_core.errors import MachineAlignmentError  # noqa: E402
+from calib_core.figures import arrow_key  # noqa: E402
 from grid_calib.core.data import read_marks  # noqa: E402
 from grid_calib.core.selfcal import self_calibrate  # noqa: E402
 from machine_alignment.cli.common import write_json  # noqa: E402
@@ -29,8 +30,7 @@ def _plot(path: Path, result) -> None:
         longest = max(np.linalg.norm(um, axis=1).max(), 1e-9)
         arrows = ax.quiver(where[:, 0], where[:, 1], um[:, 0], um[:, 1], angles='xy',
                            scale_units='xy', scale=longest / (0.8 * result.grid.pitch * 1e3))
-        key = float(f'{longest / 2:.0e}')
-        ax.quiverkey(arrows, 0.8, -0.2, key, f'{key:g} um', labelpos='E', coordinates='axes')
+        arrow_key(ax, arrows, longest / 2, 'um')
         ax.set_title(f'{title} (longest {longest:.3g} um)', loc='left', fontsize=10)
         ax.set_xlabel('x (mm)')
         ax.set_ylabel('y (mm)')

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib_core.figures import arrow_key
 from printer_alignment.core.geometry import NOMINAL_LEADS, CameraToPlate, GantryModel
 from printer_alignment.core.marks import detect_marks
 from printer_alignment.core.vision_calibration import plate_position
@@ -48,12 +49,11 @@ def plot_errors(path, targets, before, after, title: str) -> None:
     # One arrow scale for both panels: the longest error before is drawn 25 mm long.
     longest = max(np.max(np.linalg.norm(before, axis=1)), 1e-12) * 1e6
     per_mm = longest / 25.0                                   # um of error per mm of arrow
-    key = float(f'{longest / 4:.0e}')                         # a round reference length, um
     for ax, errors, name in ((axes[0], before, 'before'), (axes[1], after, 'after')):
         arrows = ax.quiver(targets[:, 0] * 1e3, targets[:, 1] * 1e3, errors[:, 0] * 1e6,
                            errors[:, 1] * 1e6, angles='xy', scale_units='xy', scale=per_mm,
                            width=0.004, color='C0' if name == 'before' else 'C2')
-        ax.quiverkey(arrows, 0.84, -0.18, key, f'{key:g} um', labelpos='E', coordinates='axes')
+        arrow_key(ax, arrows, longest / 4, 'um')
         ax.set_title(f'{name}: longest {np.max(np.linalg.norm(errors, axis=1)) * 1e6:.1f} um '
                      '(one scale, key below)', loc='left', fontsize=10)
         ax.set_xlabel('gantry x (mm)')
