@@ -38,6 +38,25 @@ def test_the_sources_literal_scale_sign_cannot_describe_a_scale_difference():
     assert max(_rms(r) for r in literal.residuals.values()) > 10e-9
 
 
+@pytest.mark.parametrize('seed', [1, 2])
+def test_the_reference_solver_agrees_and_the_sources_literal_transitivity_fails(seed):
+    """The source's route (A eliminated by the symmetry and transitivity differences,
+    solved by LSQR) recovers the same G noise-free; with the transitivity equations as the
+    source prints them (U_0y in the x line, F_y(m+1) + F_y(m) and +U_0x in the y line) the
+    equations cannot be met and G is wrong by more than its own size."""
+    from grid_calib.core.reference import solve_by_differences
+    truth = default_truth(GRID, seed)
+    placements = measure_placements(GRID, truth, 0.0, seed)
+    g = truth.stage_error(GRID)
+    reference = solve_by_differences(GRID, placements)
+    assert np.abs(reference.stage_error - g).max() < TOLERANCE['noise_free_relative'] * np.abs(g).max()
+    assert reference.non_orthogonality == pytest.approx(truth.non_orthogonality, rel=1e-9)
+    assert reference.residual_rms < 1e-15
+    literal = solve_by_differences(GRID, placements, literal_transitivity=True)
+    assert np.abs(literal.stage_error - g).max() > np.abs(g).max()
+    assert literal.residual_rms > 100e-9
+
+
 def _error_over_noise(truth_for_seed, sigma=20e-9, runs=40) -> float:
     ratios = []
     for seed in range(runs):

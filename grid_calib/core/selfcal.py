@@ -86,7 +86,7 @@ class SelfCalibration:
                                   for k, v in self.misalignments.items()}}
 
 
-def _check(grid: Grid, placements: list[Placement]) -> dict:
+def check_placements(grid: Grid, placements: list[Placement]) -> dict:
     by_name = {p.name: p for p in placements}
     missing = [n for n in PLACEMENTS if n not in by_name]
     if missing or len(by_name) != len(placements):
@@ -162,7 +162,7 @@ def self_calibrate(grid: Grid, placements: list[Placement],
     PlacementError
         A placement missing or doubled, marks missing or measured twice, bad values.
     """
-    by_name = _check(grid, placements)
+    by_name = check_placements(grid, placements)
     sites = grid.sites
     site_index = {tuple(s): k for k, s in enumerate(sites)}
     marks = grid.marks
