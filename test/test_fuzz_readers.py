@@ -11,6 +11,10 @@ import pytest
 from calib_core.axis import AxisData
 from calib_core.errors import MachineAlignmentError
 from calib_core.sim.axis import AxisTruth, simulate_axis_test
+from grid_calib.core.data import Region, read_marks, write_marks
+from grid_calib.core.model import Grid
+from grid_calib.core.travel import calibrate_travel
+from grid_calib.sim.plate import default_travel, measure_travel
 from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry, write_geometry
 from printer_alignment.core.camera_calibration import read_boofcv_intrinsics, read_correspondences
@@ -39,8 +43,13 @@ def _valid_files(folder: Path) -> dict:
         f'{90 + 40 * (k // 3 % 3)}\n' for k in range(27)))
     geometry = folder / 'geometry.yaml'
     write_geometry(geometry, nominal)
+    marks, grid = folder / 'marks.csv', Grid(2, 0.01)
+    truth = default_travel(grid, 2, 1, seed=1)
+    write_marks(marks, grid, {r: Region(truth.origins[r], p)
+                              for r, p in measure_travel(grid, truth, 20e-9, 1).items()})
     return {
         'axis': (axis, AxisData.from_csv),
+        'grid marks': (marks, lambda p: calibrate_travel(*read_marks(p, grid.pitch))),
         'stage': (stage, StageData.from_csv),
         'poses': (poses, lambda p: PoseData.from_csv(p, nominal)),
         'camera': (camera, read_correspondences),
@@ -86,7 +95,7 @@ def valid(tmp_path_factory):
 
 
 @pytest.mark.parametrize('reader', ['axis', 'stage', 'poses', 'camera', 'geometry', 'markers',
-                                    'intrinsics'])
+                                    'intrinsics', 'grid marks'])
 def test_damaged_files_give_a_dataset_or_a_clear_error(reader, valid, tmp_path):
     source, read = valid[reader]
     read(source)                                      # the undamaged file reads

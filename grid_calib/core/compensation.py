@@ -7,20 +7,29 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from calib_core.errors import OutOfTravelError
-from grid_calib.core.selfcal import SelfCalibration
+from calib_core.errors import InvalidInputError, OutOfTravelError
 
 
 class StageErrorMap:
-    """G (m) anywhere inside the calibrated sites' rectangle; refused outside it."""
+    """G (m) anywhere inside the calibrated sites' rectangle; refused outside it.
 
-    def __init__(self, result: SelfCalibration):
-        sites = result.sites
+    Parameters
+    ----------
+    sites : (s, 2) int
+        Site indices (a full rectangle of them), e.g. a region's or a stitched travel's.
+    stage_error : (s, 2) float
+        G at the sites, m.
+    pitch : float
+        Site pitch, m.
+    """
+
+    def __init__(self, sites: np.ndarray, stage_error: np.ndarray, pitch: float):
         self.ms, self.ns = np.unique(sites[:, 0]), np.unique(sites[:, 1])
         grid = np.full((len(self.ms), len(self.ns), 2), np.nan)
         grid[np.searchsorted(self.ms, sites[:, 0]), np.searchsorted(self.ns, sites[:, 1])] = \
-            result.stage_error
-        pitch = result.grid.pitch
+            stage_error
+        if np.isnan(grid).any():
+            raise InvalidInputError('the sites do not fill a rectangle: the map would have holes')
         self.x, self.y = self.ms * pitch, self.ns * pitch
         # A reading at an edge site lies off the rectangle by the stage error (um): let it
         # through, clipped to the edge, up to a hundredth of a pitch.

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import io
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -19,16 +20,98 @@ from grid_calib.errors import PlacementError
 COLUMNS = ('region', 'placement', 'i', 'j', 'x', 'y')
 
 
-def read_marks(path, pitch: float) -> tuple[Grid, dict[int, list[Placement]]]:
-    """The grid (its size from the indices) and, per region, its placements with the
-    deviation of each reading from the mark's nominal site position (m).
+@dataclass(frozen=True)
+class Region:
+    """One region's placements, deviations from its own nominal sites (m), and where its
+    centre lies in the travel frame (site indices)."""
+
+    origin: tuple
+    placements: list
+
+
+# A placement is modelled to first order in its angle; the second-order term, angle^2 / 2
+# times the plate's half size, must stay below this (m).
+SMALL_ANGLE_LIMIT_M = 5e-9
+EXPECTED_TURN = {'initial': 0.0, 'rotated': np.pi / 2, 'shifted': 0.0}
+
+
+def _similarity(source: np.ndarray, target: np.ndarray):
+    """Least-squares similarity target ~ s R(angle) source + t: (s, angle, residuals (k, 2))."""
+    a, b = source - source.mean(axis=0), target - target.mean(axis=0)
+    dot = np.sum(a * b)
+    cross = np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    angle = np.arctan2(cross, dot)
+    scale = np.hypot(dot, cross) / np.sum(a * a)
+    c, s = np.cos(angle), np.sin(angle)
+    turned = scale * a @ np.array([[c, s], [-s, c]])
+    return scale, angle, b - turned
+
+
+def region_from_readings(grid: Grid, readings: dict, label: str = 'region') -> Region:
+    """A region from its raw readings: placement -> (marks (k, 2) int, readings (k, 2) m).
+
+    The readings themselves show how each placement lies: the plate turned by the angle
+    between the marks' indices and the readings, at the readings' pitch, shifted by the
+    readings' offset from the initial placement. Each is checked against the method's.
+
+    Raises
+    ------
+    PlacementError
+        A placement missing, turned other than as named, a pitch other than the given one,
+        marks off a regular grid, a shift other than one pitch along +x."""
+    missing = [n for n in PLACEMENTS if n not in readings or not len(readings[n][0])]
+    if missing:
+        raise PlacementError(f'{label}: placement(s) {missing} missing; the method needs '
+                             f'{PLACEMENTS}')
+    half_size = grid.half * grid.pitch
+    angle_limit = np.sqrt(2 * SMALL_ANGLE_LIMIT_M / half_size)
+    centres = {}
+    for name in PLACEMENTS:
+        marks, reading = readings[name]
+        scale, angle, rest = _similarity(marks * grid.pitch, reading)
+        off = np.angle(np.exp(1j * (angle - EXPECTED_TURN[name])))
+        if abs(off) > angle_limit:
+            raise PlacementError(
+                f'{label}, {name}: the readings show the plate turned by '
+                f'{np.degrees(angle):.3f} deg, not {np.degrees(EXPECTED_TURN[name]):.0f} deg '
+                f'({abs(off) * 1e3:.3g} mrad off; the method\'s small-angle model holds to '
+                f'{SMALL_ANGLE_LIMIT_M * 1e9:.0f} nm up to {angle_limit * 1e3:.2f} mrad at this '
+                'plate size): re-place the plate')
+        if abs(scale - 1) > 1e-3:
+            raise PlacementError(f'{label}, {name}: the readings have a pitch of '
+                                 f'{scale * grid.pitch * 1e3:.5g} mm, not the given '
+                                 f'{grid.pitch * 1e3:.5g} mm')
+        worst = np.linalg.norm(rest, axis=1).max()
+        if worst > 0.01 * grid.pitch:
+            raise PlacementError(f'{label}, {name}: marks lie off a regular grid by up to '
+                                 f'{worst * 1e6:.4g} um (an uneven pitch, or indices that do '
+                                 'not match the marks)')
+        centres[name] = np.mean(reading - site_of(marks, name) * grid.pitch, axis=0)
+    origin = np.round(centres['initial'] / grid.pitch).astype(int)
+    for name in ('rotated', 'shifted'):
+        moved = (centres[name] - centres['initial']) / grid.pitch
+        if np.abs(moved).max() > 0.25:
+            raise PlacementError(
+                f'{label}, {name}: the plate lies ({moved[0] + (name == "shifted"):.2f}, '
+                f'{moved[1]:.2f}) pitches from the initial placement; the method needs '
+                + ('one pitch along +x' if name == 'shifted' else 'a turn about the plate '
+                   'centre'))
+    placements = [Placement(n, readings[n][0],
+                            readings[n][1] - (site_of(readings[n][0], n) + origin) * grid.pitch)
+                  for n in PLACEMENTS]
+    return Region((int(origin[0]), int(origin[1])), placements)
+
+
+def read_marks(path, pitch: float) -> tuple[Grid, dict]:
+    """The grid (its size from the indices) and, per region, a ``Region``.
 
     Raises
     ------
     InvalidInputError
         Unreadable file, missing columns, values that are not numbers, lengths in mm.
     PlacementError
-        Indices that are not a centred odd grid, unknown placements."""
+        Indices that are not a centred odd grid, unknown placements, placements that do
+        not lie as the method needs."""
     try:
         rows = list(csv.DictReader(io.StringIO(read_text(path, 'a grid marks CSV'))))
     except csv.Error as exc:
@@ -44,31 +127,29 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict[int, list[Placement]]]:
     if not np.all(np.isfinite(reading)):
         raise PlacementError(f'{path}: x or y is NaN or infinite')
     check_metres(reading, 'the readings x, y', path, MAX_POSITION_M)
-    names = [r['placement'].strip() for r in rows]
+    names = np.array([r['placement'].strip() for r in rows])
     unknown = sorted(set(names) - set(PLACEMENTS))
     if unknown:
         raise PlacementError(f'{path}: unknown placement(s) {unknown}; use {PLACEMENTS}')
     half = int(np.abs(marks).max())
     if marks.min() != -half:
-        raise PlacementError(f'{path}: mark indices must be centred, -K..K (found '
-                             f'{marks.min()}..{marks.max()})')
+        raise PlacementError(f'{path}: mark indices must be centred, -K..K, for an odd N '
+                             f'(found {marks.min()}..{marks.max()})')
     grid = Grid(half, pitch)
     regions = {}
     for r in np.unique(region):
-        placements = []
-        for name in PLACEMENTS:
-            rows_of = np.flatnonzero((region == r) & (np.array(names) == name))
-            nominal = site_of(marks[rows_of], name) * pitch
-            placements.append(Placement(name, marks[rows_of], reading[rows_of] - nominal))
-        regions[int(r)] = placements
+        rows_of = {n: np.flatnonzero((region == r) & (names == n)) for n in PLACEMENTS}
+        regions[int(r)] = region_from_readings(
+            grid, {n: (marks[k], reading[k]) for n, k in rows_of.items()}, f'region {r}')
     return grid, regions
 
 
-def write_marks(path, grid: Grid, placements: list[Placement], region: int = 0) -> None:
-    """The marks CSV of one region's placements (readings = nominal site + deviation)."""
+def write_marks(path, grid: Grid, regions: dict) -> None:
+    """The marks CSV of regions (region -> Region); readings = nominal site + deviation."""
     lines = [','.join(COLUMNS)]
-    for p in placements:
-        reading = site_of(p.marks, p.name) * grid.pitch + p.deviation
-        lines += [f'{region},{p.name},{i},{j},{x:.12g},{y:.12g}'
-                  for (i, j), (x, y) in zip(p.marks, reading)]
+    for r, region in regions.items():
+        for p in region.placements:
+            reading = (site_of(p.marks, p.name) + region.origin) * grid.pitch + p.deviation
+            lines += [f'{r},{p.name},{i},{j},{x:.12g},{y:.12g}'
+                      for (i, j), (x, y) in zip(p.marks, reading)]
     write_atomic(path, '\n'.join(lines) + '\n')

@@ -97,3 +97,28 @@ def misalignment(positions: np.ndarray, shift_x: float, shift_y: float,
     (rad, small) about the region's origin."""
     x, y = positions[:, 0], positions[:, 1]
     return np.column_stack([shift_x - angle * y, shift_y + angle * x])
+
+
+def linear_parts(positions: np.ndarray, error: np.ndarray) -> dict:
+    """The least-squares affine fit of ``error`` (k, 2) m at ``positions`` (k, 2) m split
+    into ``shift`` (2,) m, ``scale`` (isotropic, 1), ``rotation`` (rad),
+    ``non_orthogonality`` O (rad) and ``scale_difference`` R (1), as in G's model."""
+    basis = np.column_stack([np.ones(len(positions)), positions])
+    c = np.linalg.lstsq(basis, error, rcond=None)[0]       # rows: 1, x, y; columns: x, y
+    return {'shift': c[0], 'scale': (c[1, 0] + c[2, 1]) / 2,
+            'rotation': (c[1, 1] - c[2, 0]) / 2,
+            'non_orthogonality': (c[2, 0] + c[1, 1]) / 2,
+            'scale_difference': (c[1, 0] - c[2, 1]) / 2}
+
+
+def without_similarity(positions: np.ndarray, error: np.ndarray,
+                       keep_scale: bool = False) -> np.ndarray:
+    """``error`` (k, 2) m at ``positions`` (k, 2) m less the translation, rotation and
+    (unless ``keep_scale``) isotropic scale of its least-squares affine fit: the part of a
+    stage error the plate can determine. The shear (O) and scale difference (R) stay."""
+    parts = linear_parts(positions, error)
+    shift, rotation = parts['shift'], parts['rotation']
+    scale = 0.0 if keep_scale else parts['scale']
+    x, y = positions[:, 0], positions[:, 1]
+    return error - np.column_stack([shift[0] + scale * x - rotation * y,
+                                    shift[1] + scale * y + rotation * x])

@@ -8,24 +8,46 @@ from dataclasses import dataclass
 import numpy as np
 
 from grid_calib.core.model import (
-    PLACEMENTS, Grid, mark_error_seen, misalignment, site_of, stage_error)
+    PLACEMENTS, Grid, linear_parts, mark_error_seen, misalignment, site_of, stage_error)
 from grid_calib.core.selfcal import Placement
+
+
+class SmoothField:
+    """A smooth vector field (low-order Fourier terms, m) over a square of half-width
+    ``extent`` (m), evaluable anywhere, with its mean and first moments removed over the
+    reference points it was made with and scaled to ``amplitude`` m RMS there."""
+
+    def __init__(self, reference: np.ndarray, extent: float, amplitude: float,
+                 rng: np.random.Generator):
+        self.extent = extent
+        self.coefficients = [(kx, ky, rng.normal(size=(2, 2)))
+                             for kx in range(1, 3) for ky in range(1, 3)]
+        self.linear = np.zeros((3, 2))
+        self.gain = 1.0
+        raw = self(reference)
+        basis = self._basis(reference)
+        self.linear = np.linalg.lstsq(basis, raw, rcond=None)[0]
+        self.gain = amplitude / np.sqrt(np.mean((raw - basis @ self.linear) ** 2))
+
+    def _basis(self, points: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.ones(len(points)), points / self.extent])
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """The field at ``points`` (k, 2) m, (k, 2) m."""
+        u = np.asarray(points, dtype=float) / self.extent
+        field = np.zeros((len(u), 2))
+        for kx, ky, c in self.coefficients:
+            field += (c[:, 0] * np.sin(np.pi * kx * u[:, :1] + ky * u[:, 1:])
+                      + c[:, 1] * np.cos(np.pi * ky * u[:, 1:] - kx * u[:, :1]))
+        return (field - self._basis(points) @ self.linear) * self.gain
 
 
 def zero_moment_field(sites: np.ndarray, grid: Grid, amplitude: float,
                       rng: np.random.Generator) -> np.ndarray:
-    """A smooth residual field F (s, 2) at ``sites`` (low-order Fourier terms over the
-    region, ``amplitude`` m RMS) with its mean and first moments removed over the sites."""
-    u = sites * grid.pitch / ((grid.half + 1) * grid.pitch)
-    field = np.zeros((len(sites), 2))
-    for kx in range(1, 3):
-        for ky in range(1, 3):
-            coefficients = rng.normal(size=(2, 2))
-            field += (coefficients[:, 0] * np.sin(np.pi * kx * u[:, :1] + ky * u[:, 1:])
-                      + coefficients[:, 1] * np.cos(np.pi * ky * u[:, 1:] - kx * u[:, :1]))
-    basis = np.column_stack([np.ones(len(sites)), u])
-    field -= basis @ np.linalg.lstsq(basis, field, rcond=None)[0]
-    return field * amplitude / np.sqrt(np.mean(field ** 2))
+    """A smooth residual field F (s, 2) at ``sites`` (indices) with zero mean and first
+    moments over them, ``amplitude`` m RMS."""
+    positions = sites * grid.pitch
+    return SmoothField(positions, (grid.half + 1) * grid.pitch, amplitude, rng)(positions)
 
 
 @dataclass(frozen=True)
@@ -76,3 +98,77 @@ def measure_placements(grid: Grid, truth: GridTruth, noise: float = 0.0,
                      + rng.normal(0.0, noise, positions.shape))
         out.append(Placement(name, marks.copy(), deviation))
     return out
+
+
+@dataclass(frozen=True)
+class TravelTruth:
+    """A stage travel covered region by region with one plate: the stage error over the
+    whole travel, the plate's mark errors, each region's centre (site indices in the travel
+    frame) and each region's placement misalignments."""
+
+    non_orthogonality: float
+    scale_difference: float
+    field: SmoothField
+    mark_errors: np.ndarray                 # (N^2, 2) m, the same plate in every region
+    origins: dict                           # region -> (m0, n0)
+    misalignments: dict                     # region -> placement -> (shift_x, shift_y, angle)
+    isotropic_scale: float = 0.0            # of the stage, 1 (the plate cannot see it)
+
+    def error_at(self, positions: np.ndarray) -> np.ndarray:
+        """The stage error G (k, 2) m at travel positions (k, 2) m."""
+        positions = np.asarray(positions, dtype=float)
+        return (stage_error(positions, self.non_orthogonality, self.scale_difference,
+                            np.zeros_like(positions)) + self.field(positions)
+                + self.isotropic_scale * positions)
+
+    def mean_pitch(self, grid: Grid) -> float:
+        """The plate's mean pitch (m), least squares over its marks: what a certificate
+        states."""
+        return grid.pitch * (1 + linear_parts(grid.marks * grid.pitch, self.mark_errors)['scale'])
+
+    def region(self, grid: Grid, region: int) -> GridTruth:
+        """One region as a single-region truth in the region's own frame (its F then holds
+        the rest of the travel's error there, not zero-moment)."""
+        local = grid.sites * grid.pitch
+        g = self.error_at(local + np.asarray(self.origins[region]) * grid.pitch)
+        linear = stage_error(local, self.non_orthogonality, self.scale_difference,
+                             np.zeros_like(local))
+        return GridTruth(self.non_orthogonality, self.scale_difference, g - linear,
+                         self.mark_errors, self.misalignments[region])
+
+
+def region_origins(grid: Grid, columns: int, rows: int) -> dict:
+    """Region centres (m0, n0) for ``columns`` x ``rows`` regions that share one row and
+    column of sites with their neighbours, centred on the travel, numbered row by row."""
+    span = 2 * grid.half
+    return {ix + columns * iy: (span * ix - span * (columns - 1) // 2,
+                                span * iy - span * (rows - 1) // 2)
+            for iy in range(rows) for ix in range(columns)}
+
+
+def default_travel(grid: Grid, columns: int = 3, rows: int = 3, seed: int = 0,
+                   plate_error: float = 1e-6, stage_residual: float = 0.3e-6,
+                   isotropic_scale: float = 0.0, plate_scale: float = 0.0) -> TravelTruth:
+    """O 20 urad, R 10 ppm and a smooth residual of ``stage_residual`` m RMS over the whole
+    travel, the stage's ``isotropic_scale``; the plate as in ``default_truth`` with its
+    mean pitch off by ``plate_scale`` (a certified pitch is ``pitch (1 + plate_scale)``);
+    placements off by up to 50 um and 100 urad."""
+    rng = np.random.default_rng(seed)
+    origins = region_origins(grid, columns, rows)
+    sites = np.unique(np.vstack([grid.sites + o for o in origins.values()]), axis=0)
+    extent = (np.abs(sites).max() + 1) * grid.pitch
+    smooth = zero_moment_field(grid.marks, grid, 1.0, rng)
+    mark_errors = ((smooth + rng.normal(size=smooth.shape)) * plate_error / np.sqrt(2)
+                   + plate_scale * grid.marks * grid.pitch)
+    mis = {r: {name: (rng.uniform(-50e-6, 50e-6), rng.uniform(-50e-6, 50e-6),
+                      rng.uniform(-100e-6, 100e-6)) for name in PLACEMENTS} for r in origins}
+    field = SmoothField(sites * grid.pitch, extent, stage_residual, rng)
+    return TravelTruth(20e-6, 10e-6, field, mark_errors, origins, mis, isotropic_scale)
+
+
+def measure_travel(grid: Grid, truth: TravelTruth, noise: float = 0.0,
+                   seed: int = 0) -> dict:
+    """Every region's three placements (region -> list of Placement), deviations from the
+    region's own nominal sites."""
+    return {r: measure_placements(grid, truth.region(grid, r), noise, seed + 7919 * r)
+            for r in truth.origins}

@@ -1,4 +1,4 @@
-"""``machine-align simulate hexapod|stage|axis``: datasets measured on a simulated
+"""``machine-align simulate hexapod|stage|axis|gantry|camera|grid``: datasets measured on a simulated
 machine, in the formats the calibrate and analyze subcommands read."""
 from __future__ import annotations
 
@@ -6,10 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from calib_core.errors import MachineAlignmentError
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
-from grid_calib.core.data import write_marks
+from grid_calib.core.data import Region, write_marks
 from grid_calib.core.model import Grid
-from grid_calib.sim.plate import default_truth, measure_placements
+from grid_calib.sim.plate import default_travel, measure_travel
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
@@ -81,11 +82,19 @@ def cmd_simulate_camera(args) -> int:
 
 def cmd_simulate_grid(args) -> int:
     grid = Grid(args.half, args.pitch)
-    truth = default_truth(grid, args.seed, plate_error=args.plate_error)
-    write_marks(args.out, grid, measure_placements(grid, truth, args.noise, args.seed))
-    print(f'wrote {args.out} ({2 * args.half + 1} x {2 * args.half + 1} marks, 3 placements; '
-          f'true non-orthogonality {truth.non_orthogonality * 1e6:g} urad, scale difference '
-          f'{truth.scale_difference * 1e6:g} ppm)')
+    columns, rows = args.regions
+    if columns < 1 or rows < 1:
+        raise MachineAlignmentError(f'--regions needs at least 1 x 1, not {columns} x {rows}')
+    truth = default_travel(grid, columns, rows, args.seed, plate_error=args.plate_error,
+                           isotropic_scale=args.isotropic_scale)
+    measured = measure_travel(grid, truth, args.noise, args.seed)
+    write_marks(args.out, grid, {r: Region(truth.origins[r], p) for r, p in measured.items()})
+    print(f'wrote {args.out} ({2 * args.half + 1} x {2 * args.half + 1} marks, 3 placements, '
+          f'{columns} x {rows} region(s) sharing one row/column; true non-orthogonality '
+          f'{truth.non_orthogonality * 1e6:g} urad, scale difference '
+          f'{truth.scale_difference * 1e6:g} ppm, isotropic scale '
+          f'{truth.isotropic_scale * 1e6:g} ppm; the plate\'s mean pitch (its certificate) '
+          f'{truth.mean_pitch(grid):.12g} m)')
     return 0
 
 
@@ -135,6 +144,10 @@ def add_parser(sub) -> None:
     grid_sim.add_argument('--pitch', type=float, default=0.01, help='m')
     grid_sim.add_argument('--plate-error', type=float, default=1e-6, help='m RMS')
     grid_sim.add_argument('--noise', type=float, default=20e-9, help='m, 1 sigma')
+    grid_sim.add_argument('--regions', type=int, nargs=2, default=(1, 1),
+                          metavar=('COLUMNS', 'ROWS'), help='regions over the travel')
+    grid_sim.add_argument('--isotropic-scale', type=float, default=0.0,
+                          help="the stage's isotropic scale error (1, e.g. 5e-6)")
     grid_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed '
                                                              'gives the same data')
     grid_sim.set_defaults(func=cmd_simulate_grid)

@@ -1,0 +1,181 @@
+"""Stitching self-calibrated regions into one stage frame (SEEDS_CDE.md section 002,
+step 8).
+
+Each region's G is known up to what one region cannot show: a translation, a rotation
+and an isotropic scale (a similarity; its O and R are its own). Neighbouring regions share
+sites; at a shared site both regions must give the same G once each carries its own
+similarity. Two ways to find the similarities:
+
+- ``joint``: all regions in one least-squares fit of every overlap (the first region
+  fixed; loops in the region graph average the noise out);
+- ``chained``: region by region along a breadth-first path from the first region, each
+  fitted to the one before it only (the source's pairwise route; errors add up along the
+  chain).
+
+The stitched G is then put in the travel's gauge: no translation, rotation or isotropic
+scale over all the sites, undetermined without an external length like a single region's.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from grid_calib.core.model import without_similarity
+from grid_calib.errors import PlacementError
+
+METHODS = ('joint', 'chained')
+
+
+@dataclass
+class StitchedMap:
+    """The stage error over the travel, one frame (SI units)."""
+
+    pitch: float                  # m
+    sites: np.ndarray             # (s, 2) site indices in the travel frame
+    stage_error: np.ndarray       # G, (s, 2) m
+    similarities: dict            # region -> (shift_x m, shift_y m, angle rad, scale 1)
+    overlap_rms: float | None     # RMS disagreement of regions at shared sites, m
+    method: str
+
+    @property
+    def site_positions(self) -> np.ndarray:
+        return self.sites * self.pitch
+
+
+def _similarity_rows(local: np.ndarray, size: float) -> np.ndarray:
+    """(2k, 4): the (x, y) change of G at local positions (k, 2) m per unit of (shift_x,
+    shift_y, angle, scale); angle and scale in units of 1 / size for conditioning."""
+    x, y = local[:, 0] / size, local[:, 1] / size
+    rows = np.zeros((2 * len(local), 4))
+    rows[0::2, 0], rows[0::2, 2], rows[0::2, 3] = 1.0, -y, x
+    rows[1::2, 1], rows[1::2, 2], rows[1::2, 3] = 1.0, x, y
+    return rows
+
+
+def _overlaps(regions: dict) -> dict:
+    """(a, b) -> (rows in a, rows in b) of the sites both regions cover."""
+    where = {}
+    for r, (origin, result) in regions.items():
+        for k, site in enumerate(map(tuple, result.sites + origin)):
+            where.setdefault(site, []).append((r, k))
+    pairs = {}
+    for covering in where.values():
+        for a, ka in covering:
+            for b, kb in covering:
+                if a < b:
+                    pairs.setdefault((a, b), ([], []))
+                    pairs[(a, b)][0].append(ka)
+                    pairs[(a, b)][1].append(kb)
+    return pairs
+
+
+def _check_connected(regions: dict, pairs: dict) -> list:
+    """Breadth-first order of the regions from the first; refuses regions that share no
+    sites with the rest (they cannot be put in one frame)."""
+    first = min(regions)
+    order, parent, queue = [first], {first: None}, deque([first])
+    while queue:
+        a = queue.popleft()
+        for b in sorted(regions):
+            if b not in parent and ((a, b) in pairs or (b, a) in pairs):
+                parent[b] = a
+                order.append(b)
+                queue.append(b)
+    alone = sorted(set(regions) - set(parent))
+    if alone:
+        raise PlacementError(f'region(s) {alone} share no sites with region {first} and its '
+                             'neighbours: regions must overlap by at least one row or column '
+                             'of sites to be stitched')
+    return [(r, parent[r]) for r in order]
+
+
+def stitch(regions: dict, pitch: float, method: str = 'joint') -> StitchedMap:
+    """Put self-calibrated regions into one frame.
+
+    Parameters
+    ----------
+    regions : dict
+        region -> (origin (2,) int site indices of the region's centre in the travel frame,
+        a result with ``sites`` (s, 2) local site indices and ``stage_error`` (s, 2) m).
+    pitch : float
+        Site pitch, m.
+    method : {'joint', 'chained'}
+
+    Raises
+    ------
+    PlacementError
+        Regions that do not overlap, or an overlap too small to fix a similarity.
+    """
+    if method not in METHODS:
+        raise PlacementError(f'unknown stitching method {method!r}; use {METHODS}')
+    regions = {r: (np.asarray(o, dtype=int), res) for r, (o, res) in regions.items()}
+    pairs = _overlaps(regions)
+    order = _check_connected(regions, pairs)
+    size = max(np.abs(res.sites).max() for _, res in regions.values()) * pitch
+    first = order[0][0]
+    unknown = [r for r, _ in order[1:]]
+    column = {r: 4 * k for k, r in enumerate(unknown)}
+    solution = {first: np.zeros(4)}
+
+    def pair_rows(a, b, rows_a, rows_b):
+        """Design blocks and right side of 'G_a + S_a = G_b + S_b' at the shared sites."""
+        (oa, ra), (ob, rb) = regions[a], regions[b]
+        da = _similarity_rows(ra.sites[rows_a] * pitch, size)
+        db = _similarity_rows(rb.sites[rows_b] * pitch, size)
+        rhs = (rb.stage_error[rows_b] - ra.stage_error[rows_a]).ravel()
+        return da, db, rhs
+
+    if method == 'joint' and unknown:
+        blocks, right = [], []
+        for (a, b), (rows_a, rows_b) in pairs.items():
+            da, db, rhs = pair_rows(a, b, rows_a, rows_b)
+            block = np.zeros((len(rhs), 4 * len(unknown)))
+            if a != first:
+                block[:, column[a]:column[a] + 4] += da
+            if b != first:
+                block[:, column[b]:column[b] + 4] -= db
+            blocks.append(block)
+            right.append(rhs)
+        design, rhs = np.vstack(blocks), np.concatenate(right)
+        x, _, rank, _ = np.linalg.lstsq(design, rhs, rcond=None)
+        if rank < design.shape[1]:
+            raise PlacementError('the overlaps between regions cannot fix every region\'s '
+                                 'shift, rotation and scale (too few shared sites)')
+        solution.update({r: x[column[r]:column[r] + 4] for r in unknown})
+    else:
+        for r, parent in order[1:]:
+            a, b = sorted((r, parent))
+            rows_a, rows_b = pairs[(a, b)]
+            da, db, rhs = pair_rows(a, b, rows_a, rows_b)
+            # da S_a - db S_b = rhs, with the parent's S already in the frame.
+            if a == r:
+                own, target = da, rhs + db @ solution[parent]
+            else:
+                own, target = db, da @ solution[parent] - rhs
+            if np.linalg.matrix_rank(own) < 4:
+                raise PlacementError(f'regions {parent} and {r} share too few sites to fix a '
+                                     'shift, rotation and scale')
+            solution[r] = np.linalg.lstsq(own, target, rcond=None)[0]
+    return _combine(regions, solution, pitch, size, method)
+
+
+def _combine(regions: dict, solution: dict, pitch: float, size: float,
+             method: str) -> StitchedMap:
+    """Every region's G with its similarity, averaged where regions share sites, in the
+    travel's gauge."""
+    values = {}
+    for r, (origin, result) in regions.items():
+        corrected = (result.stage_error
+                     + (_similarity_rows(result.sites * pitch, size) @ solution[r]).reshape(-1, 2))
+        for site, g in zip(map(tuple, result.sites + origin), corrected):
+            values.setdefault(site, []).append(g)
+    sites = np.array(sorted(values))
+    stacks = [np.array(values[tuple(s)]) for s in sites]
+    mean = np.array([v.mean(axis=0) for v in stacks])
+    spread = [(v - v.mean(axis=0)).ravel() for v in stacks if len(v) > 1]
+    overlap = float(np.sqrt(np.mean(np.concatenate(spread) ** 2))) if spread else None
+    gauge = without_similarity(sites * pitch, mean)
+    similarities = {r: (s[0], s[1], s[2] / size, s[3] / size) for r, s in solution.items()}
+    return StitchedMap(pitch, sites, gauge, similarities, overlap, method)

@@ -1,0 +1,117 @@
+"""A whole travel calibrated region by region: each region self-calibrated from its three
+placements, the regions stitched into one frame, the isotropic scale taken from a
+certified plate pitch when one is given. This is what the CLI and the node run."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from grid_calib.core.model import Grid, linear_parts
+from grid_calib.core.selfcal import self_calibrate
+from grid_calib.core.stitching import StitchedMap, stitch
+from grid_calib.errors import PlacementError
+
+UNDETERMINED_SCALE = ('undetermined: no external length given (a certified plate pitch); '
+                      'G carries no isotropic scale')
+
+
+@dataclass
+class TravelCalibration:
+    """Every region's solution and the stitched stage error (SI units)."""
+
+    grid: Grid
+    origins: dict                     # region -> (m0, n0) site indices of its centre
+    results: dict                     # region -> SelfCalibration
+    stitched: StitchedMap
+    isotropic_scale: float | None     # of the stage, 1; None if undetermined
+
+    @property
+    def plate_errors(self) -> np.ndarray:
+        """The plate's mark errors A (N^2, 2) m, averaged over the regions (each region
+        measures the same plate, in the same gauge)."""
+        return np.mean([r.mark_errors for r in self.results.values()], axis=0)
+
+    def gauge(self) -> dict:
+        return {'translation': 'G over all sites has zero mean: a stage offset is the '
+                               'plate\'s position',
+                'rotation': 'G has no net rotation over all sites: a turned stage frame is '
+                            'a turned plate',
+                'isotropic_scale': (UNDETERMINED_SCALE if self.isotropic_scale is None else
+                                    'from the certified plate pitch'),
+                'plate': 'the plate errors have zero mean and no net rotation (the '
+                         'placements\' misalignments hold those)',
+                'regions': 'each region\'s shift, rotation and scale are fixed by its '
+                           'overlaps with the others (stitching)'}
+
+    def report(self) -> dict:
+        """The JSON report: sites in the stitched frame, the gauge, the plate errors,
+        per-region misalignments, uncertainties and residuals (m, rad)."""
+        stitched = self.stitched
+        whole = linear_parts(stitched.site_positions, stitched.stage_error)
+        regions = {}
+        for r, result in self.results.items():
+            one = result.report()
+            offset = np.asarray(self.origins[r]) * self.grid.pitch
+            for row in one['sites'] + (one['uncertainty_m'] or []):
+                row['x'] += float(offset[0])
+                row['y'] += float(offset[1])
+            del one['sites'], one['gauge']
+            one['origin_m'] = [float(offset[0]), float(offset[1])]
+            one['residual_max_m'] = {k: float(np.abs(v).max())
+                                     for k, v in result.residuals.items()}
+            regions[str(r)] = one
+        return {'sites': [{'x': float(x), 'y': float(y), 'error_x': float(gx),
+                           'error_y': float(gy)}
+                          for (x, y), (gx, gy) in zip(stitched.site_positions,
+                                                      stitched.stage_error)],
+                'gauge': self.gauge(),
+                'isotropic_scale': self.isotropic_scale,
+                'non_orthogonality_rad': float(whole['non_orthogonality']),
+                'scale_difference': float(whole['scale_difference']),
+                'stitching': {'method': stitched.method, 'regions': len(self.results),
+                              'overlap_rms_m': stitched.overlap_rms,
+                              'similarities': {str(r): dict(zip(
+                                  ('shift_x_m', 'shift_y_m', 'angle_rad', 'scale'),
+                                  map(float, s))) for r, s in stitched.similarities.items()}},
+                'plate_errors': [{'i': int(i), 'j': int(j), 'error_x': float(ax),
+                                  'error_y': float(ay)}
+                                 for (i, j), (ax, ay) in zip(self.grid.marks, self.plate_errors)],
+                'regions': regions}
+
+
+def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
+                     certified_pitch: float | None = None) -> TravelCalibration:
+    """Self-calibrate every region (region -> ``data.Region``) and stitch them.
+
+    ``certified_pitch`` (m): the plate's calibrated mean pitch. The data show the sum of
+    the stage's and the plate's isotropic scales (the plate's errors carry it, G is held at
+    none); a known plate scale leaves the stage's.
+
+    Raises
+    ------
+    PlacementError
+        Bad placements in a region, regions that do not overlap, a certified pitch that is
+        not a length near the nominal one.
+    """
+    if certified_pitch is not None and not (np.isfinite(certified_pitch)
+                                            and abs(certified_pitch / grid.pitch - 1) < 1e-3):
+        raise PlacementError(f'certified pitch {certified_pitch!r} m is not within 0.1 % of '
+                             f'the nominal {grid.pitch} m')
+    results = {r: self_calibrate(grid, region.placements) for r, region in regions.items()}
+    origins = {r: region.origin for r, region in regions.items()}
+    stitched = stitch({r: (origins[r], results[r]) for r in results}, grid.pitch, method)
+    scale = None
+    if certified_pitch is not None:
+        plate_scale = certified_pitch / grid.pitch - 1
+        marks = grid.marks * grid.pitch
+        where = {tuple(s): k for k, s in enumerate(stitched.sites)}
+        estimates = []
+        for r, result in results.items():
+            seen = linear_parts(marks, result.mark_errors)['scale']
+            rows = [where[tuple(s)] for s in result.sites + origins[r]]
+            here = linear_parts(stitched.site_positions[rows], stitched.stage_error[rows])['scale']
+            estimates.append(seen - plate_scale - here)
+        scale = float(np.mean(estimates))
+        stitched.stage_error = stitched.stage_error + scale * stitched.site_positions
+    return TravelCalibration(grid, origins, results, stitched, scale)

@@ -1,0 +1,163 @@
+"""A travel calibrated region by region and stitched (issue 21): noise-free recovery in
+every region by both stitching routes, error growth of chained against joint stitching,
+the isotropic scale from a certified pitch, and placements the readings show to be wrong
+(a turn other than 90 degrees, a shift other than one pitch, an uneven pitch, an even N,
+regions that do not overlap), each refused with a message that names it."""
+import numpy as np
+import pytest
+
+from grid_calib.core.data import Region, read_marks, region_from_readings, write_marks
+from grid_calib.core.model import Grid, site_of, without_similarity
+from grid_calib.core.travel import calibrate_travel
+from grid_calib.errors import PlacementError
+from grid_calib.sim.plate import default_travel, measure_travel
+
+GRID = Grid(half=5, pitch=0.01)
+TOLERANCE = {'noise_free_relative': 1e-9, 'joint_over_sigma': 1.5, 'chained_over_joint': 2.0}
+
+
+def _rms(values) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def _regions(truth, noise=0.0, seed=0) -> dict:
+    return {r: Region(truth.origins[r], p)
+            for r, p in measure_travel(GRID, truth, noise, seed).items()}
+
+
+def _true_error(truth, calibration, keep_scale=False):
+    positions = calibration.stitched.site_positions
+    return without_similarity(positions, truth.error_at(positions), keep_scale)
+
+
+@pytest.mark.parametrize('method', ['joint', 'chained'])
+def test_noise_free_travel_is_recovered_in_every_region(method):
+    """3 x 3 regions sharing one row and column: the stitched G matches the truth (in the
+    same gauge) to 1e-9 of its size at every region's sites."""
+    truth = default_travel(GRID, 3, 3, seed=1)
+    calibration = calibrate_travel(GRID, _regions(truth), method)
+    g = _true_error(truth, calibration)
+    where = {tuple(s): k for k, s in enumerate(calibration.stitched.sites)}
+    for r, origin in truth.origins.items():
+        rows = [where[tuple(s)] for s in GRID.sites + origin]
+        error = calibration.stitched.stage_error[rows] - g[rows]
+        assert np.abs(error).max() < TOLERANCE['noise_free_relative'] * np.abs(g).max(), r
+    assert calibration.stitched.overlap_rms < 1e-15
+
+
+def test_chained_stitching_grows_the_error_joint_stitching_does_not():
+    """With 20 nm noise over 3 x 3 regions (8 seeds): joint stitching keeps RMS(G - true)
+    near sigma; chaining pairwise lets it grow to several sigma."""
+    sigma, joint, chained = 20e-9, [], []
+    for seed in range(8):
+        truth = default_travel(GRID, 3, 3, seed=seed)
+        regions = _regions(truth, sigma, seed)
+        for method, out in (('joint', joint), ('chained', chained)):
+            calibration = calibrate_travel(GRID, regions, method)
+            out.append(_rms(calibration.stitched.stage_error - _true_error(truth, calibration)))
+    assert np.mean(joint) / sigma < TOLERANCE['joint_over_sigma']
+    assert np.mean(chained) / np.mean(joint) > TOLERANCE['chained_over_joint']
+
+
+def test_a_certified_pitch_fixes_the_isotropic_scale():
+    """Stage isotropic scale 5 ppm, plate pitch 3 ppm short: without an external length the
+    scale is undetermined (None, G holds none); with the plate's certified mean pitch the
+    stage's 5 ppm is recovered and G matches the truth including it."""
+    truth = default_travel(GRID, 2, 1, seed=2, isotropic_scale=5e-6, plate_scale=-3e-6)
+    regions = _regions(truth)
+    assert calibrate_travel(GRID, regions).isotropic_scale is None
+    calibration = calibrate_travel(GRID, regions, certified_pitch=truth.mean_pitch(GRID))
+    assert calibration.isotropic_scale == pytest.approx(5e-6, rel=1e-6)
+    g = _true_error(truth, calibration, keep_scale=True)
+    assert np.abs(calibration.stitched.stage_error - g).max() < 1e-9 * np.abs(g).max()
+    with pytest.raises(PlacementError, match='certified pitch'):
+        calibrate_travel(GRID, regions, certified_pitch=0.0101)
+
+
+def test_regions_that_do_not_overlap_are_refused():
+    truth = default_travel(GRID, 2, 1, seed=3)
+    regions = _regions(truth)
+    far = regions[1]
+    regions[1] = Region((far.origin[0] + 12, far.origin[1]), far.placements)
+    with pytest.raises(PlacementError, match=r'region\(s\) \[1\] share no sites'):
+        calibrate_travel(GRID, regions)
+
+
+def _readings(seed=4) -> dict:
+    """One region's raw readings, placement -> (marks, readings m)."""
+    truth = default_travel(GRID, 1, 1, seed=seed)
+    placements = measure_travel(GRID, truth, 20e-9, seed)[0]
+    return {p.name: (p.marks, site_of(p.marks, p.name) * GRID.pitch + p.deviation)
+            for p in placements}
+
+
+@pytest.mark.parametrize('turn, shown', [((0, 1, -1, 0), '-90.00'),
+                                         ((-1, 0, 0, -1), '-?180.00'),
+                                         ((1, 0, 0, 1), '-?0.00')])
+def test_a_turn_other_than_90_degrees_counter_clockwise_is_detected(turn, shown):
+    """The 'rotated' placement turned clockwise, by 180 degrees or not at all: the readings
+    show the angle, and it is named."""
+    readings = _readings()
+    marks, reading = readings['rotated']
+    sites = marks @ np.array(turn).reshape(2, 2).T            # where the marks really were
+    g = reading - site_of(marks, 'rotated') * GRID.pitch
+    readings['rotated'] = (marks, sites * GRID.pitch + g)
+    with pytest.raises(PlacementError, match=f'rotated: the readings show the plate turned by '
+                                             f'{shown}'):
+        region_from_readings(GRID, readings)
+
+
+def test_a_turn_within_the_small_angle_model_passes_and_one_beyond_it_is_refused():
+    readings = _readings()
+    for angle, passes in ((150e-6, True), (1e-3, False)):
+        changed = dict(readings)
+        marks, reading = readings['rotated']
+        c, s = np.cos(angle), np.sin(angle)
+        changed['rotated'] = (marks, reading @ np.array([[c, s], [-s, c]]))
+        if passes:
+            region_from_readings(GRID, changed)
+        else:
+            with pytest.raises(PlacementError, match='small-angle model'):
+                region_from_readings(GRID, changed)
+
+
+def test_a_shift_along_y_or_of_two_pitches_is_refused():
+    readings = _readings()
+    for move, shown in (((-1, 1), r'\(0.00, 1.00\) pitches'), ((1, 0), r'\(2.00, 0.00\)')):
+        changed = dict(readings)
+        marks, reading = readings['shifted']
+        changed['shifted'] = (marks, reading + np.array(move) * GRID.pitch)
+        with pytest.raises(PlacementError, match=shown + '.*one pitch along \\+x'):
+            region_from_readings(GRID, changed)
+
+
+def test_an_uneven_or_wrong_pitch_is_refused():
+    readings = _readings()
+    marks, reading = readings['initial']
+    wrong = dict(readings, initial=(marks, reading * 1.01))
+    with pytest.raises(PlacementError, match='pitch of 10.1 mm, not the given 10 mm'):
+        region_from_readings(GRID, wrong)
+    bent = reading.copy()
+    bent[7] += [0.4e-3, 0.0]
+    with pytest.raises(PlacementError, match='off a regular grid'):
+        region_from_readings(GRID, dict(readings, initial=(marks, bent)))
+
+
+def test_marks_csv_faults_are_named(tmp_path):
+    """An even N (indices 0..9), a doubled mark, and the two-region file read back."""
+    truth = default_travel(GRID, 2, 1, seed=5)
+    path = tmp_path / 'marks.csv'
+    write_marks(path, GRID, _regions(truth))
+    grid, regions = read_marks(path, GRID.pitch)
+    assert grid == GRID and {r: reg.origin for r, reg in regions.items()} == truth.origins
+    lines = path.read_text().splitlines()
+    doubled = tmp_path / 'doubled.csv'
+    doubled.write_text('\n'.join(lines + [lines[5]]) + '\n')
+    _, regions = read_marks(doubled, GRID.pitch)
+    with pytest.raises(PlacementError, match='measured twice'):
+        calibrate_travel(GRID, regions)
+    even = tmp_path / 'even.csv'
+    even.write_text('region,placement,i,j,x,y\n' + '\n'.join(
+        f'0,initial,{i},{j},{i * 0.01},{j * 0.01}' for i in range(10) for j in range(10)) + '\n')
+    with pytest.raises(PlacementError, match='centred, -K..K, for an odd N'):
+        read_marks(even, GRID.pitch)
