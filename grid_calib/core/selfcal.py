@@ -150,12 +150,13 @@ def _noise_gain(grid: Grid, factor, design, o_col: int, f0: int, columns: int,
     return np.sqrt(np.sum(dz * dz, axis=0)).reshape(n_sites, 2)
 
 
-def self_calibrate(grid: Grid, placements: list[Placement],
-                   scale_sign_y: float = -1.0) -> SelfCalibration:
+def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float = -1.0,
+                   ordering: str = 'MMD_AT_PLUS_A') -> SelfCalibration:
     """Solve one region from its three placements.
 
     ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
     literal claim, is kept to show that it cannot describe a stage with a scale difference.
+    ``ordering`` is SuperLU's column ordering (the bench compares it with the default).
 
     Raises
     ------
@@ -206,7 +207,7 @@ def self_calibrate(grid: Grid, placements: list[Placement],
     kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
     # The matrix is symmetric: a minimum-degree ordering of its pattern fills 4-5x less than
     # SuperLU's default (COLAMD), and is 5x faster at N = 61.
-    factor = splu(kkt, permc_spec='MMD_AT_PLUS_A')
+    factor = splu(kkt, permc_spec=ordering)
     solution = factor.solve(np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
     solution = solution[:columns] * half_size
     residual = (design @ solution - np.asarray(rhs)).reshape(3, n_marks, 2)
