@@ -124,7 +124,10 @@ def _gauge_rows(grid: Grid, f0: int, a0: int, columns: int) -> sparse.csr_matrix
     return sparse.csr_matrix((v, (r, c)), shape=(len(rows), columns))
 
 
-MAX_PROPAGATED = 5e7    # entries of the dense solve behind the per-site uncertainty
+# Work of the solve behind the per-site uncertainty (right-hand sides x unknowns): up to
+# N = 41; larger grids would take minutes (bench_results/grid.md).
+MAX_PROPAGATED = 5e7
+PROPAGATION_BLOCK = 256   # right-hand sides solved at once
 
 
 def _noise_gain(grid: Grid, factor, design, o_col: int, f0: int, columns: int,
@@ -142,21 +145,27 @@ def _noise_gain(grid: Grid, factor, design, o_col: int, f0: int, columns: int,
     values = np.column_stack([np.ones(2 * n_sites),
                               np.column_stack([ys, xs]).ravel(),
                               np.column_stack([xs, scale_sign_y * ys]).ravel()]).ravel()
-    along = sparse.csr_matrix((values, (rows, cols)), shape=(2 * n_sites, columns))
-    right = np.zeros((factor.shape[0], 2 * n_sites))
-    right[:columns] = along.T.toarray()
-    z = factor.solve(right)[:columns]
-    dz = design @ z
-    return np.sqrt(np.sum(dz * dz, axis=0)).reshape(n_sites, 2)
+    along = sparse.csr_matrix((values, (rows, cols)), shape=(2 * n_sites, columns)).T.tocsc()
+    variance = np.empty(2 * n_sites)
+    # In blocks of right-hand sides: the dense solve would otherwise hold two (unknowns x
+    # 2 sites) matrices at once (about 0.5 GB at N = 41).
+    for start in range(0, 2 * n_sites, PROPAGATION_BLOCK):
+        block = along[:, start:start + PROPAGATION_BLOCK].toarray()
+        right = np.zeros((factor.shape[0], block.shape[1]))
+        right[:columns] = block
+        dz = design @ factor.solve(right)[:columns]
+        variance[start:start + block.shape[1]] = np.sum(dz * dz, axis=0)
+    return np.sqrt(variance).reshape(n_sites, 2)
 
 
 def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float = -1.0,
-                   ordering: str = 'MMD_AT_PLUS_A') -> SelfCalibration:
+                   ordering: str = 'MMD_AT_PLUS_A', propagate: bool = True) -> SelfCalibration:
     """Solve one region from its three placements.
 
     ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
     literal claim, is kept to show that it cannot describe a stage with a scale difference.
-    ``ordering`` is SuperLU's column ordering (the bench compares it with the default).
+    ``ordering`` is SuperLU's column ordering (the bench compares it with the default);
+    ``propagate`` False skips the per-site uncertainty (most of the time from N = 41 on).
 
     Raises
     ------
@@ -214,7 +223,8 @@ def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float 
     # Noise: the residual's variance over the degrees of freedom the fit leaves.
     dof = design.shape[0] - (columns - gauge.shape[0])
     sigma = float(np.sqrt(np.sum(residual ** 2) / dof)) if dof > 0 else float('nan')
-    gain = _noise_gain(grid, factor, design, o_col, f0, columns, scale_sign_y)
+    gain = (_noise_gain(grid, factor, design, o_col, f0, columns, scale_sign_y)
+            if propagate else None)
     if not np.all(np.isfinite(solution)):
         raise PlacementError('the placements do not determine the stage error (singular)')
     o_value, r_value = solution[o_col] / half_size, solution[o_col + 1] / half_size
