@@ -122,3 +122,12 @@ def without_similarity(positions: np.ndarray, error: np.ndarray,
     x, y = positions[:, 0], positions[:, 1]
     return error - np.column_stack([shift[0] + scale * x - rotation * y,
                                     shift[1] + scale * y + rotation * x])
+
+
+def region_origins(grid: Grid, columns: int, rows: int) -> dict:
+    """Region centres (m0, n0) for ``columns`` x ``rows`` regions that share one row and
+    column of sites with their neighbours, centred on the travel, numbered row by row."""
+    span = 2 * grid.half
+    return {ix + columns * iy: (span * ix - span * (columns - 1) // 2,
+                                span * iy - span * (rows - 1) // 2)
+            for iy in range(rows) for ix in range(columns)}

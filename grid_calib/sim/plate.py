@@ -8,7 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from grid_calib.core.model import (
-    PLACEMENTS, Grid, linear_parts, mark_error_seen, misalignment, site_of, stage_error)
+    PLACEMENTS, Grid, linear_parts, mark_error_seen, misalignment, region_origins, site_of,
+    stage_error)
 from grid_calib.core.selfcal import Placement
 
 
@@ -135,15 +136,6 @@ class TravelTruth:
                              np.zeros_like(local))
         return GridTruth(self.non_orthogonality, self.scale_difference, g - linear,
                          self.mark_errors, self.misalignments[region])
-
-
-def region_origins(grid: Grid, columns: int, rows: int) -> dict:
-    """Region centres (m0, n0) for ``columns`` x ``rows`` regions that share one row and
-    column of sites with their neighbours, centred on the travel, numbered row by row."""
-    span = 2 * grid.half
-    return {ix + columns * iy: (span * ix - span * (columns - 1) // 2,
-                                span * iy - span * (rows - 1) // 2)
-            for iy in range(rows) for ix in range(columns)}
 
 
 def default_travel(grid: Grid, columns: int = 3, rows: int = 3, seed: int = 0,

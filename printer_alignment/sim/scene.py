@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -20,11 +21,14 @@ class PlateMark:
 
 @dataclass(frozen=True)
 class DotPlate:
-    """A calibration plate with a square grid of dots: dot (i, j) at (i, j) * pitch (m)."""
+    """A calibration plate with a square grid of dots: dot (i, j) at (i, j) * pitch (m),
+    plus ``error`` (a function of the nominal positions (k, 2) m giving (k, 2) m) for a
+    plate that is not perfect."""
 
     pitch: float = 0.5e-3
     radius: float = 0.1e-3
     extent: tuple[float, float, float, float] = (-0.01, 0.22, -0.01, 0.17)  # x0, x1, y0, y1 (m)
+    error: Callable[[np.ndarray], np.ndarray] | None = None
 
     def marks_within(self, x0: float, x1: float, y0: float, y1: float) -> list[PlateMark]:
         """Dots whose centres lie in the rectangle (m), found by arithmetic, not search."""
@@ -33,8 +37,30 @@ class DotPlate:
         i1 = int(np.floor(min(x1, ex1) / self.pitch))
         j0 = int(np.ceil(max(y0, ey0) / self.pitch))
         j1 = int(np.floor(min(y1, ey1) / self.pitch))
-        return [PlateMark('circle', i * self.pitch, j * self.pitch, self.radius)
-                for j in range(j0, j1 + 1) for i in range(i0, i1 + 1)]
+        nominal = np.array([(i * self.pitch, j * self.pitch) for j in range(j0, j1 + 1)
+                            for i in range(i0, i1 + 1)]).reshape(-1, 2)
+        where = nominal if self.error is None else nominal + self.error(nominal)
+        return [PlateMark('circle', x, y, self.radius) for x, y in where]
+
+
+class PlacedPlate:
+    """A plate of dots at ``marks`` (k, 2) m in its own frame (true positions, its errors
+    included), put down on the machine by :meth:`place`; nothing is seen before that."""
+
+    def __init__(self, marks: np.ndarray, radius: float):
+        self.marks = np.asarray(marks, dtype=float)
+        self.radius = radius
+        self.where = np.empty((0, 2))
+
+    def place(self, x: float, y: float, angle: float) -> None:
+        """Put the plate's origin at (x, y) m, turned by ``angle`` rad counter-clockwise."""
+        c, s = np.cos(angle), np.sin(angle)
+        self.where = self.marks @ np.array([[c, s], [-s, c]]) + np.array([x, y])
+
+    def marks_within(self, x0: float, x1: float, y0: float, y1: float) -> list[PlateMark]:
+        w = self.where
+        inside = (w[:, 0] >= x0) & (w[:, 0] <= x1) & (w[:, 1] >= y0) & (w[:, 1] <= y1)
+        return [PlateMark('circle', x, y, self.radius) for x, y in w[inside]]
 
 
 @dataclass(frozen=True)
