@@ -16,6 +16,7 @@ NODES = {
     'hexapod_sim': 'hexapod_calib.nodes.hexapod_sim',
     'pose_sensor_sim': 'hexapod_calib.nodes.pose_sensor_sim',
     'hexapod_calibrator': 'hexapod_calib.nodes.hexapod_calibrator',
+    'grid_calibrator': 'grid_calib.nodes.grid_calibrator',
     'recorder': 'calib_core.nodes.recorder',
     'player': 'calib_core.nodes.player',
 }

@@ -69,6 +69,26 @@ def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> 
     ]
 
 
+def grid_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
+               camera_rate_hz: float = 10.0, half: int = 4, pitch: float = 7.5e-3,
+               columns: int = 3, rows: int = 2) -> list[NodeSpec]:
+    """The printer's camera gantry over a grid plate: gantry, camera (the simulated operator
+    places the plate as asked), detector, vision calibrator (publishing the calibration in
+    force: the camera's pixel size) and the grid calibrator."""
+    return [
+        NodeSpec('printer_alignment.nodes.gantry_sim'),
+        NodeSpec('printer_alignment.nodes.camera_sim',
+                 {'scene': 'grid_plate', 'rate_hz': camera_rate_hz, 'grid_half': half,
+                  'grid_pitch': pitch}),
+        NodeSpec('printer_alignment.nodes.mark_detector', {'continuous': False}),
+        NodeSpec('printer_alignment.nodes.vision_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir}),
+        NodeSpec('grid_calib.nodes.grid_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir, 'half': half,
+                  'pitch': pitch, 'columns': columns, 'rows': rows}),
+    ]
+
+
 def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment') -> list[dict]:
     """Keyword arguments of one ``launch_ros.actions.Node`` per node of a graph: the
     executable is the module's console script (named after the module, see setup.py)."""

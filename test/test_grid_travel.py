@@ -161,3 +161,27 @@ def test_marks_csv_faults_are_named(tmp_path):
         f'0,initial,{i},{j},{i * 0.01},{j * 0.01}' for i in range(10) for j in range(10)) + '\n')
     with pytest.raises(PlacementError, match='centred, -K..K, for an odd N'):
         read_marks(even, GRID.pitch)
+
+
+def test_a_cut_run_replays_its_complete_regions_and_names_the_rest():
+    """Readings as a run killed during region 1's shifted placement left them: region 0
+    solves, region 1 is named as incomplete; a NaN reading is refused."""
+    from types import SimpleNamespace
+
+    from grid_calib.core.records import regions_from_readings
+    truth = default_travel(GRID, 2, 1, seed=6)
+    messages = []
+    for r, region in _regions(truth).items():
+        for p in region.placements:
+            reading = (site_of(p.marks, p.name) + region.origin) * GRID.pitch + p.deviation
+            messages += [SimpleNamespace(region=r, placement=p.name, i=i, j=j, x=x, y=y)
+                         for (i, j), (x, y) in zip(p.marks, reading)]
+    cut = messages[:-40]
+    regions, left_out = regions_from_readings(GRID, cut)
+    assert list(regions) == [0]
+    assert left_out == ['region 1 left out: incomplete (initial 121/121, rotated 121/121, '
+                        'shifted 81/121)']
+    calibrate_travel(GRID, regions)
+    cut[3].x = float('nan')
+    with pytest.raises(PlacementError, match=r'mark \(.*NaN'):
+        regions_from_readings(GRID, cut)

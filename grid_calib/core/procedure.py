@@ -82,14 +82,16 @@ class GridPlan:
 def measure_grid(plan: GridPlan, place: Callable[[int, str, np.ndarray], None],
                  move: Callable[[float, float], np.ndarray],
                  locate: Callable[[], np.ndarray],
-                 progress: Callable[[int, int, str], None] = lambda *a: None) -> dict:
+                 progress: Callable[[int, int, str], None] = lambda *a: None,
+                 record: Callable[[int, str, tuple, np.ndarray], None] = lambda *a: None) -> dict:
     """Measure every mark of every placement of every region.
 
     ``place(region, placement, centre)`` has the plate put in that placement over the
     region whose centre is at ``centre`` (m; an operator on a real machine, the simulation
     here) and returns when it is done; ``move(x, y)`` moves to a target (m) and returns the
     measuring system's reading there (m, (2,)); ``locate()`` returns the mark's offset from
-    the image centre (m, (2,)) in the same frame. Returns region -> ``Region``.
+    the image centre (m, (2,)) in the same frame; ``record(region, placement, mark,
+    reading)`` gets every reading as it is taken. Returns region -> ``Region``.
 
     Raises
     ------
@@ -108,6 +110,7 @@ def measure_grid(plan: GridPlan, place: Callable[[int, str, np.ndarray], None],
                 move(x - plan.approach, y - plan.approach)
                 reading = np.asarray(move(x, y), dtype=float)
                 seen.append(reading + np.asarray(locate(), dtype=float))
+                record(region, placement, tuple(marks[len(seen) - 1]), seen[-1])
                 done += 1
                 if done % len(grid.marks) == 0 or done == total:
                     progress(done, total, f'region {region}, {placement}: '

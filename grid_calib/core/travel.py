@@ -115,3 +115,13 @@ def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
         scale = float(np.mean(estimates))
         stitched.stage_error = stitched.stage_error + scale * stitched.site_positions
     return TravelCalibration(grid, origins, results, stitched, scale)
+
+
+def grid_result_content(calibration: TravelCalibration) -> dict:
+    """What a grid calibration file holds: the stage error map (site indices, G in m, the
+    pitch) that ``compensation.StageErrorMap`` is built from, and the full report."""
+    stitched = calibration.stitched
+    return {'pitch': calibration.grid.pitch,
+            'sites': stitched.sites.astype(int).tolist(),
+            'stage_error': stitched.stage_error.tolist(),
+            'report': calibration.report()}

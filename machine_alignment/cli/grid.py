@@ -1,6 +1,6 @@
 """``machine-align calibrate grid``: self-calibration of a 2-D stage's measuring system
 with an imperfect grid plate at three placements, region by region, stitched into one
-frame."""
+frame, from a marks CSV or a run recorded by grid_calibrator."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,11 +11,15 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from calib_core.bags import decode_bag  # noqa: E402
+from calib_core.errors import MachineAlignmentError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
 from grid_calib.core.data import read_marks  # noqa: E402
+from grid_calib.core.records import (  # noqa: E402
+    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
-from machine_alignment.cli.common import write_json  # noqa: E402
+from machine_alignment.cli.common import read_run, write_json  # noqa: E402
 
 
 def _vectors(ax, where_mm, vectors_m, spacing_mm, title):
@@ -72,8 +76,29 @@ def _plot(path: Path, calibration) -> None:
     plt.close(fig)
 
 
+def _from_bag(bag):
+    """The grid and regions of a run recorded by grid_calibrator, the regions a cut run
+    left incomplete named, and the live run's report (None if it ended without one)."""
+    readings, recorded = read_run(bag, READINGS_TOPIC, 'alignment_msgs/msg/GridMarkReading',
+                                  lambda msg: msg, 'grid mark readings', RESULT_TOPIC)
+    grid = grid_from_placements([m for _, _, m in decode_bag(bag, [PLACEMENT_TOPIC])])
+    regions, left_out = regions_from_readings(grid, readings)
+    for line in left_out:
+        print(line)
+    if not regions:
+        raise MachineAlignmentError(f'{bag}: no region was measured completely; nothing to '
+                                    'solve')
+    return grid, regions, recorded
+
+
 def cmd_calibrate_grid(args) -> int:
-    grid, regions = read_marks(args.data, args.pitch)
+    recorded = None
+    if args.bag:
+        grid, regions, recorded = _from_bag(args.bag)
+    else:
+        if args.pitch is None:
+            raise MachineAlignmentError('--data needs --pitch (the plate\'s nominal pitch, m)')
+        grid, regions = read_marks(args.data, args.pitch)
     calibration = calibrate_travel(grid, regions, args.stitch, args.certified_pitch)
     report = calibration.report()
     stitched = calibration.stitched
@@ -99,6 +124,12 @@ def cmd_calibrate_grid(args) -> int:
                                    if calibration.isotropic_scale is None else
                                    f'{calibration.isotropic_scale * 1e6:.4f} ppm from the '
                                    'certified pitch'))
+    if recorded is not None:
+        live = np.array([[p['error_x'], p['error_y']] for p in recorded['sites']])
+        if live.shape == stitched.stage_error.shape:
+            report['max_difference_to_live_m'] = float(np.abs(live - stitched.stage_error).max())
+            print(f'  same as the live run: max |G difference| '
+                  f'{report["max_difference_to_live_m"]:.3g} m')
     if args.json:
         write_json(args.json, report)
         plot = Path(args.json).with_suffix('.png')
@@ -110,10 +141,12 @@ def cmd_calibrate_grid(args) -> int:
 def add_parser(what) -> None:
     grid = what.add_parser('grid', help='2-D stage error from an imperfect grid plate at '
                                         'three placements, region by region')
-    grid.add_argument('--data', required=True,
-                      help='CSV: region, placement (initial / rotated / shifted), i, j '
-                           '(centred mark indices), x, y (stage reading, m)')
-    grid.add_argument('--pitch', type=float, required=True, help='nominal plate pitch, m')
+    source = grid.add_mutually_exclusive_group(required=True)
+    source.add_argument('--data', help='CSV: region, placement (initial / rotated / shifted), '
+                                       'i, j (centred mark indices), x, y (stage reading, m)')
+    source.add_argument('--bag', help='a run recorded by grid_calibrator (plate and pitch '
+                                      'from the run)')
+    grid.add_argument('--pitch', type=float, help='nominal plate pitch, m (with --data)')
     grid.add_argument('--stitch', choices=METHODS, default='joint',
                       help='regions in one fit (joint) or pairwise along a chain')
     grid.add_argument('--certified-pitch', type=float,

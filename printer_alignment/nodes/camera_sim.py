@@ -10,11 +10,17 @@ Scene ``stage``: the printer with its XY-Theta stage. The platform's Marks move 
 (SelectView) switches between the ``substrate`` (down) and the ``stencil`` (up). Parameters
 ``substrate_shift`` (x m, y m, rad: how the substrate is fixed on the platform) and
 ``stencil_marks`` (plate x, y of each stencil fiducial, m; empty: the default stencil).
+
+Scene ``grid_plate``: a (2 ``grid_half`` + 1)-square plate of ``grid_pitch`` (m) with 1 um
+RMS mark errors, placed as the grid calibration asks on ``/grid_calibrator/placement``:
+the simulated operator puts its centre mark under the camera (turned 90 degrees
+counter-clockwise for ``rotated``, one pitch along +x for ``shifted``) to within 50 um and
+100 urad, then confirms with ``grid_calibrator/confirm_placement``.
 """
 import threading
 
 import numpy as np
-from alignment_msgs.msg import StagePose
+from alignment_msgs.msg import GridPlacement, StagePose
 from alignment_msgs.srv import SelectView
 from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
@@ -22,14 +28,17 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+from std_srvs.srv import Trigger
 
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.geometry import CameraToPlate
 from printer_alignment.nodes.conversions import image_as_message
 from printer_alignment.sim.camera import CameraOptics, CameraSim
-from printer_alignment.sim.scene import StageScene
-from printer_alignment.sim.scenes import make_scene, stage_scene
+from printer_alignment.sim.scene import PlacedPlate, StageScene
+from printer_alignment.sim.scenes import grid_plate, make_scene, stage_scene
+
+PLACEMENT_TOPIC = '/grid_calibrator/placement'      # the grid calibrator's request
 
 
 class CameraSimNode(Node):
@@ -47,6 +56,8 @@ class CameraSimNode(Node):
         self.declare_parameter('gradient_x', 0.0)
         self.declare_parameter('substrate_shift', [0.0, 0.0, 0.0])
         self.declare_parameter('stencil_marks', [0.0])
+        self.declare_parameter('grid_half', 4)
+        self.declare_parameter('grid_pitch', 7.5e-3)
         g = self.get_parameter
         rate = g('rate_hz').value
         if not rate > 0 or not g('pixel_size').value > 0 or g('blur_sigma').value < 0:
@@ -59,6 +70,10 @@ class CameraSimNode(Node):
         if isinstance(scene, StageScene):
             scene = self._stage_scene(g('substrate_shift').value, g('stencil_marks').value)
         self.seed = int(g('seed').value)
+        if isinstance(scene, PlacedPlate):
+            if not (g('grid_half').value >= 1 and 0 < g('grid_pitch').value < 0.05):
+                raise ValueError('grid_half must be >= 1 and grid_pitch a length in m')
+            scene = grid_plate(g('grid_half').value, g('grid_pitch').value, seed=self.seed)
         self.camera = CameraSim(scene, optics, seed=self.seed)
         self._position = None
         self._stamps = {}      # truth source -> stamp of its latest state
@@ -69,6 +84,9 @@ class CameraSimNode(Node):
         if isinstance(scene, StageScene):
             self.create_subscription(StagePose, 'sim/truth/stage_pose', self.on_stage, LATCHED)
             self.create_service(SelectView, 'camera/select_view', self.on_select_view)
+        if isinstance(scene, PlacedPlate):
+            self.create_subscription(GridPlacement, PLACEMENT_TOPIC, self.on_placement, LATCHED)
+            self.confirm_client = self.create_client(Trigger, 'grid_calibrator/confirm_placement')
         self.create_timer(1.0 / rate, self.capture)
 
     @staticmethod
@@ -113,6 +131,22 @@ class CameraSimNode(Node):
         response.success, response.message = True, 'ok'
         return response
 
+    def on_placement(self, msg):
+        """Place the plate as asked, as an operator would: centre mark under the camera,
+        off by up to 50 um and 100 urad (seeded per region and placement), then confirm."""
+        if self._position is None:
+            self.get_logger().error('placement requested before the gantry state is known')
+            return
+        rng = np.random.default_rng([self.seed, int(msg.region), len(msg.placement),
+                                     ord(msg.placement[:1] or ' ')])
+        shift = np.array([msg.pitch, 0.0]) if msg.placement == 'shifted' else np.zeros(2)
+        turn = np.pi / 2 if msg.placement == 'rotated' else 0.0
+        with self._lock:
+            x, y = self._position + shift + rng.uniform(-50e-6, 50e-6, 2)
+            self.camera.scene.place(x, y, turn + rng.uniform(-100e-6, 100e-6))
+        self.get_logger().info(f'grid plate placed: region {msg.region}, {msg.placement}')
+        self.confirm_client.call_async(Trigger.Request())
+
     def _frame_noise(self, position) -> np.random.Generator:
         """The noise of a frame, drawn from what it shows (gantry position, stage pose and
         view, to 1 nm / 1 nrad) rather than from how many frames the free-running timer
@@ -123,6 +157,8 @@ class CameraSimNode(Node):
         if isinstance(scene, StageScene):
             state += list(np.round(np.asarray(scene.pose) * 1e9).astype(np.int64))
             state.append(0 if scene.view == 'substrate' else 1)
+        if isinstance(scene, PlacedPlate):
+            state += list(np.round(np.asarray(scene.pose) * 1e9).astype(np.int64))
         return np.random.default_rng([self.seed, *(int(v) & 0xFFFFFFFFFFFF for v in state)])
 
     def capture(self):

@@ -51,9 +51,11 @@ class PlacedPlate:
         self.marks = np.asarray(marks, dtype=float)
         self.radius = radius
         self.where = np.empty((0, 2))
+        self.pose = (0.0, 0.0, 0.0)
 
     def place(self, x: float, y: float, angle: float) -> None:
         """Put the plate's origin at (x, y) m, turned by ``angle`` rad counter-clockwise."""
+        self.pose = (float(x), float(y), float(angle))
         c, s = np.cos(angle), np.sin(angle)
         self.where = self.marks @ np.array([[c, s], [-s, c]]) + np.array([x, y])
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from printer_alignment.sim.scene import DotPlate, MarkSet, PlateMark, StageScene
+from printer_alignment.sim.scene import DotPlate, MarkSet, PlacedPlate, PlateMark, StageScene
 from printer_alignment.sim.stage import CALIBRATION_MARKS, SUBSTRATE_MARKS, TRUE_STAGE
 
 
@@ -24,8 +24,19 @@ def stage_scene(substrate_shift=(0.0, 0.0, 0.0), stencil=None) -> StageScene:
     return StageScene(np.vstack([CALIBRATION_MARKS, substrate]), stencil)
 
 
+def grid_plate(half: int = 4, pitch: float = 7.5e-3, mark_error: float = 1e-6,
+               seed: int = 0) -> PlacedPlate:
+    """A (2 ``half`` + 1)-square grid plate of ``pitch`` (m) whose dots (0.3 mm radius) are
+    off their nominal places by ``mark_error`` m RMS (a cheap plate), not yet placed."""
+    k = np.arange(-half, half + 1)
+    nominal = np.stack(np.meshgrid(k, k), -1).reshape(-1, 2) * pitch
+    errors = np.random.default_rng([seed, 21]).normal(0.0, mark_error / np.sqrt(2), nominal.shape)
+    return PlacedPlate(nominal + errors, 0.3e-3)
+
+
 def make_scene(name: str):
-    """The scene called ``name``: ``dot_plate``, ``substrate``, ``stencil`` or ``stage``."""
+    """The scene called ``name``: ``dot_plate``, ``substrate``, ``stencil``, ``stage`` or
+    ``grid_plate`` (placed by the grid calibration's requests)."""
     if name == 'stage':
         return stage_scene()
     if name == 'dot_plate':
@@ -36,4 +47,7 @@ def make_scene(name: str):
     if name == 'stencil':
         return MarkSet((PlateMark('cross', 0.020, 0.020, 0.6e-3, 0.2e-3),
                         PlateMark('cross', 0.180, 0.130, 0.6e-3, 0.2e-3)))
-    raise ValueError(f'unknown scene {name!r}; use dot_plate, substrate, stencil or stage')
+    if name == 'grid_plate':
+        return grid_plate()
+    raise ValueError(f'unknown scene {name!r}; use dot_plate, substrate, stencil, stage or '
+                     'grid_plate')

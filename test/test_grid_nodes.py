@@ -1,0 +1,73 @@
+"""The grid calibrator on the live graph (gantry, camera over a grid plate that the
+simulated operator places as asked, detector), as separate processes over DDS: one
+service call measures every placement of every region, writes the map and records the
+run; the recorded run solves again offline to the same map; a plan that leaves the travel
+is refused before anything moves."""
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+DOMAIN = str(230 + os.getpid() % 3)   # each DDS test module has its own band
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+import rclpy  # noqa: E402
+from alignment_msgs.msg import CalibrationResult, GridPlacement  # noqa: E402
+from alignment_msgs.srv import RunCalibration  # noqa: E402
+
+from calib_core.nodes.qos import LATCHED  # noqa: E402
+from calib_core.storage import read_calibration  # noqa: E402
+from grid_calib.core.records import PLACEMENT_TOPIC, RESULT_TOPIC  # noqa: E402
+from machine_alignment.launcher import grid_graph  # noqa: E402
+from dds import call, machine_align, running  # noqa: E402
+
+PLAN = {'half': 1, 'pitch': 7.5e-3, 'columns': 2, 'rows': 1}     # 2 regions of 3 x 3 marks
+
+
+@pytest.fixture(scope='module')
+def graph(tmp_path_factory):
+    out = tmp_path_factory.mktemp('grid_graph')
+    spec = grid_graph(str(out / 'calibration'), str(out / 'runs'), camera_rate_hz=20.0, **PLAN)
+    with running(spec, DOMAIN, out, 'grid_test_client') as (graph, node):
+        yield graph, node, out
+
+
+def test_one_call_measures_every_placement_and_writes_the_map(graph):
+    running_graph, node, out = graph
+    placements, results = [], []
+    node.create_subscription(GridPlacement, PLACEMENT_TOPIC, placements.append, LATCHED)
+    node.create_subscription(CalibrationResult, RESULT_TOPIC, results.append, LATCHED)
+    client = node.create_client(RunCalibration, 'grid_calibrator/calibrate')
+    response = call(node, client, RunCalibration.Request(), timeout=240.0)
+    assert response.success, response.message
+    assert all(running_graph.alive())
+    result = response.result
+    assert result.kind == 'grid' and result.residual_unit == 'm' and result.version == 1
+    report = json.loads(result.report_json)
+    # 2 regions of 3 x 4 sites, two columns shared (one with the shifted column): 18 sites.
+    assert len(report['sites']) == 18 and report['stitching']['regions'] == 2
+    assert 'nominal pixel size' in report['camera']       # no vision calibration in force
+    content = read_calibration(out / 'calibration', 'grid')
+    assert len(content['stage_error']) == 18 and Path(content['bag']).exists()
+    rclpy.spin_once(node, timeout_sec=1.0)
+    assert results and results[-1].version == 1
+    assert {(p.region, p.placement) for p in placements} >= {(1, 'shifted')}
+
+
+def test_the_recorded_run_solves_again_offline_to_the_same_map(graph, tmp_path):
+    _, _, out = graph
+    bag = read_calibration(out / 'calibration', 'grid')['bag']
+    done = machine_align(DOMAIN, 'calibrate', 'grid', '--bag', bag, '--json',
+                         str(tmp_path / 'replay.json'))
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / 'replay.json').read_text())['max_difference_to_live_m'] < 1e-12
+
+
+def test_a_plan_outside_the_travel_is_refused_before_anything_moves(graph):
+    _, node, out = graph
+    bags = set((out / 'runs').iterdir())
+    client = node.create_client(RunCalibration, 'grid_calibrator/calibrate')
+    response = call(node, client, RunCalibration.Request(plan_yaml='columns: 40'))
+    assert not response.success and 'outside the travel' in response.message
+    assert set((out / 'runs').iterdir()) == bags
