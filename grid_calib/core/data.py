@@ -1,7 +1,8 @@
 """The marks CSV of ``machine-align calibrate grid``: one row per mark and placement,
 columns ``region`` (integer), ``placement`` (initial, rotated, shifted), ``i``, ``j`` (the
 mark's centred indices, -K..K) and ``x``, ``y`` (the stage's measuring-system reading, m,
-with the camera centred on the mark)."""
+with the camera centred on the mark); optional ``time`` (s) and ``temperature`` (K) per
+reading, for the closed loop."""
 from __future__ import annotations
 
 import csv
@@ -18,6 +19,8 @@ from grid_calib.core.selfcal import Placement
 from grid_calib.errors import PlacementError
 
 COLUMNS = ('region', 'placement', 'i', 'j', 'x', 'y')
+# Logged with the readings where the machine has them; the closed loop uses them.
+OPTIONAL_COLUMNS = ('time', 'temperature')
 
 
 @dataclass(frozen=True)
@@ -47,8 +50,10 @@ def _similarity(source: np.ndarray, target: np.ndarray):
     return scale, angle, b - turned
 
 
-def region_from_readings(grid: Grid, readings: dict, label: str = 'region') -> Region:
-    """A region from its raw readings: placement -> (marks (k, 2) int, readings (k, 2) m).
+def region_from_readings(grid: Grid, readings: dict, label: str = 'region',
+                         covariates: dict | None = None) -> Region:
+    """A region from its raw readings: placement -> (marks (k, 2) int, readings (k, 2) m),
+    with the covariates logged per reading (placement -> {name: (k,)}) if any.
 
     The readings themselves show how each placement lies: the plate turned by the angle
     between the marks' indices and the readings, at the readings' pitch, shifted by the
@@ -97,7 +102,8 @@ def region_from_readings(grid: Grid, readings: dict, label: str = 'region') -> R
                 + ('one pitch along +x' if name == 'shifted' else 'a turn about the plate '
                    'centre'))
     placements = [Placement(n, readings[n][0],
-                            readings[n][1] - (site_of(readings[n][0], n) + origin) * grid.pitch)
+                            readings[n][1] - (site_of(readings[n][0], n) + origin) * grid.pitch,
+                            (covariates or {}).get(n))
                   for n in PLACEMENTS]
     return Region((int(origin[0]), int(origin[1])), placements)
 
@@ -126,6 +132,15 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict]:
         raise PlacementError(f'{path}: region, i, j must be integers and x, y numbers ({exc})') from None
     if not np.all(np.isfinite(reading)):
         raise PlacementError(f'{path}: x or y is NaN or infinite')
+    logged = {}
+    for name in OPTIONAL_COLUMNS:
+        if name in rows[0]:
+            try:
+                logged[name] = np.array([float(r[name]) for r in rows])
+            except (TypeError, ValueError) as exc:
+                raise PlacementError(f'{path}: {name} must be a number in every row ({exc})') from None
+            if not np.all(np.isfinite(logged[name])):
+                raise PlacementError(f'{path}: {name} is NaN or infinite')
     check_metres(reading, 'the readings x, y', path, MAX_POSITION_M)
     names = np.array([r['placement'].strip() for r in rows])
     unknown = sorted(set(names) - set(PLACEMENTS))
@@ -140,16 +155,23 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict]:
     for r in np.unique(region):
         rows_of = {n: np.flatnonzero((region == r) & (names == n)) for n in PLACEMENTS}
         regions[int(r)] = region_from_readings(
-            grid, {n: (marks[k], reading[k]) for n, k in rows_of.items()}, f'region {r}')
+            grid, {n: (marks[k], reading[k]) for n, k in rows_of.items()}, f'region {r}',
+            {n: {c: v[k] for c, v in logged.items()} for n, k in rows_of.items()} if logged
+            else None)
     return grid, regions
 
 
 def write_marks(path, grid: Grid, regions: dict) -> None:
     """The marks CSV of regions (region -> Region); readings = nominal site + deviation."""
-    lines = [','.join(COLUMNS)]
+    logged = [c for c in OPTIONAL_COLUMNS
+              if all((p.covariates or {}).get(c) is not None
+                     for region in regions.values() for p in region.placements)]
+    lines = [','.join(COLUMNS + tuple(logged))]
     for r, region in regions.items():
         for p in region.placements:
             reading = (site_of(p.marks, p.name) + region.origin) * grid.pitch + p.deviation
+            extra = [p.covariates[c] for c in logged]
             lines += [f'{r},{p.name},{i},{j},{x:.12g},{y:.12g}'
-                      for (i, j), (x, y) in zip(p.marks, reading)]
+                      + ''.join(f',{v[k]:.12g}' for v in extra)
+                      for k, ((i, j), (x, y)) in enumerate(zip(p.marks, reading))]
     write_atomic(path, '\n'.join(lines) + '\n')

@@ -41,6 +41,7 @@ class Placement:
     name: str
     marks: np.ndarray         # (k, 2) int, mark indices (i, j)
     deviation: np.ndarray     # (k, 2) m
+    covariates: dict | None = None   # per mark: 'time' (s), 'temperature' (K), if logged
 
 
 @dataclass
@@ -158,27 +159,30 @@ def _noise_gain(grid: Grid, factor, design, o_col: int, f0: int, columns: int,
     return np.sqrt(variance).reshape(n_sites, 2)
 
 
-def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float = -1.0,
-                   ordering: str = 'MMD_AT_PLUS_A', propagate: bool = True) -> SelfCalibration:
-    """Solve one region from its three placements.
+@dataclass(frozen=True)
+class LinearSystem:
+    """One region's self-calibration as a linear least-squares problem with the gauge as
+    exact constraints. Unknowns are in units of the region's half size (``half_size``, m)
+    for conditioning: F, A and the shifts as lengths over it, O, R and the angles as they
+    are times it. Rows: the placements in ``PLACEMENTS`` order, their marks in the order
+    given, x then y."""
 
-    ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
-    literal claim, is kept to show that it cannot describe a stage with a scale difference.
-    ``ordering`` is SuperLU's column ordering (the bench compares it with the default);
-    ``propagate`` False skips the per-site uncertainty (most of the time from N = 41 on).
+    design: sparse.csr_matrix       # (rows, columns)
+    rhs: np.ndarray                 # (rows,) m: reading minus nominal site
+    gauge: sparse.csr_matrix        # (9, columns)
+    half_size: float                # m
+    f0: int                         # first column of F
+    o_col: int                      # O, then R
+    a0: int                         # first column of A
+    e0: int                         # first column of the misalignments (3 per placement)
 
-    Raises
-    ------
-    PlacementError
-        A placement missing or doubled, marks missing or measured twice, bad values.
-    """
-    by_name = check_placements(grid, placements)
+
+def linear_system(grid: Grid, by_name: dict, scale_sign_y: float = -1.0) -> LinearSystem:
+    """The design of ``check_placements``' placements (name -> Placement)."""
     sites = grid.sites
     site_index = {tuple(s): k for k, s in enumerate(sites)}
-    marks = grid.marks
-    mark_index = {tuple(m): k for k, m in enumerate(marks)}
-    half_size = grid.half * grid.pitch          # scales O, R and angles to lengths
-    n_sites, n_marks = len(sites), len(marks)
+    mark_index = {tuple(m): k for k, m in enumerate(grid.marks)}
+    n_sites, n_marks = len(sites), len(grid.marks)
     f0, o_col, a0, e0 = 0, 2 * n_sites, 2 * n_sites + 2, 2 * n_sites + 2 + 2 * n_marks
     columns = e0 + 3 * len(PLACEMENTS)
     rows, cols, values, rhs = [], [], [], []
@@ -209,17 +213,47 @@ def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float 
             add([(f0 + 2 * s + 1, 1.0), (o_col, x), (o_col + 1, scale_sign_y * y), *seen_y,
                  (e + 1, 1.0), (e + 2, x)], deviation[1])
     design = sparse.csr_matrix((values, (rows, cols)), shape=(row, columns))
-    gauge = _gauge_rows(grid, f0, a0, columns)
-    b = np.asarray(rhs) / half_size                      # unknowns in units of half_size
-    # The gauge enters as exact constraints (Lagrange multipliers), not as rows of the
-    # fit: its rows span every site and would fill the normal matrix.
+    return LinearSystem(design, np.asarray(rhs), _gauge_rows(grid, f0, a0, columns),
+                        grid.half * grid.pitch, f0, o_col, a0, e0)
+
+
+def solve_constrained(design: sparse.csr_matrix, gauge: sparse.csr_matrix, b: np.ndarray,
+                      ordering: str = 'MMD_AT_PLUS_A'):
+    """Least squares ``design x ~ b`` with ``gauge x = 0`` exactly (Lagrange multipliers):
+    (x, the factor of the KKT matrix, whose top-left block of the inverse maps the normal
+    right-hand side to x)."""
+    # Not as rows of the fit: the gauge rows span every site and would fill the normal
+    # matrix.
     kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
     # The matrix is symmetric: a minimum-degree ordering of its pattern fills 4-5x less than
     # SuperLU's default (COLAMD), and is 5x faster at N = 61.
     factor = splu(kkt, permc_spec=ordering)
-    solution = factor.solve(np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
-    solution = solution[:columns] * half_size
-    residual = (design @ solution - np.asarray(rhs)).reshape(3, n_marks, 2)
+    x = factor.solve(np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
+    return x[:design.shape[1]], factor
+
+
+def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float = -1.0,
+                   ordering: str = 'MMD_AT_PLUS_A', propagate: bool = True) -> SelfCalibration:
+    """Solve one region from its three placements.
+
+    ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
+    literal claim, is kept to show that it cannot describe a stage with a scale difference.
+    ``ordering`` is SuperLU's column ordering (the bench compares it with the default);
+    ``propagate`` False skips the per-site uncertainty (most of the time from N = 41 on).
+
+    Raises
+    ------
+    PlacementError
+        A placement missing or doubled, marks missing or measured twice, bad values.
+    """
+    system = linear_system(grid, check_placements(grid, placements), scale_sign_y)
+    design, gauge, half_size = system.design, system.gauge, system.half_size
+    f0, o_col, a0, e0 = system.f0, system.o_col, system.a0, system.e0
+    sites, n_marks = grid.sites, len(grid.marks)
+    n_sites, columns = len(sites), design.shape[1]
+    solution, factor = solve_constrained(design, gauge, system.rhs / half_size, ordering)
+    solution = solution * half_size
+    residual = (design @ solution - system.rhs).reshape(3, n_marks, 2)
     # Noise: the residual's variance over the degrees of freedom the fit leaves.
     dof = design.shape[0] - (columns - gauge.shape[0])
     sigma = float(np.sqrt(np.sum(residual ** 2) / dof)) if dof > 0 else float('nan')

@@ -81,23 +81,32 @@ def default_truth(grid: Grid, seed: int = 0, plate_error: float = 1e-6,
                      mark_errors, mis)
 
 
-def measure_placements(grid: Grid, truth: GridTruth, noise: float = 0.0,
-                       seed: int = 0) -> list[Placement]:
+def measure_placements(grid: Grid, truth: GridTruth, noise: float = 0.0, seed: int = 0,
+                       expansion: float = 0.0, warm_up: float = 0.0,
+                       origin=(0.0, 0.0)) -> list[Placement]:
     """The three placements measured: stage reading minus nominal site position for every
-    mark, with Gaussian ``noise`` (m, per coordinate)."""
+    mark, with Gaussian ``noise`` (m, per coordinate). Each reading takes 3 s and each
+    re-placement 120 s; the machine warms at ``warm_up`` K/s from 20 C and its scale
+    expands by ``expansion`` (1/K) about ``origin`` (m, the travel's zero), which the
+    self-calibration's model lacks. Time (s) and temperature (K) are logged per reading."""
     rng = np.random.default_rng(seed + 1000)
     marks = grid.marks
     site_row = {tuple(s): k for k, s in enumerate(grid.sites)}
-    out = []
+    out, clock = [], 0.0
     for name in PLACEMENTS:
         sites = site_of(marks, name)
         positions = sites * grid.pitch
         field = truth.residual_field[[site_row[tuple(s)] for s in sites]]
         g = stage_error(positions, truth.non_orthogonality, truth.scale_difference, field)
+        time = clock + 3.0 * np.arange(len(marks))
+        clock = time[-1] + 120.0
+        warming = warm_up * time
         deviation = (g + mark_error_seen(truth.mark_errors, name)
                      + misalignment(positions, *truth.misalignments[name])
+                     + expansion * warming[:, None] * (positions + np.asarray(origin))
                      + rng.normal(0.0, noise, positions.shape))
-        out.append(Placement(name, marks.copy(), deviation))
+        out.append(Placement(name, marks.copy(), deviation,
+                             {'time': time, 'temperature': 293.15 + warming}))
     return out
 
 
@@ -158,9 +167,11 @@ def default_travel(grid: Grid, columns: int = 3, rows: int = 3, seed: int = 0,
     return TravelTruth(20e-6, 10e-6, field, mark_errors, origins, mis, isotropic_scale)
 
 
-def measure_travel(grid: Grid, truth: TravelTruth, noise: float = 0.0,
-                   seed: int = 0) -> dict:
+def measure_travel(grid: Grid, truth: TravelTruth, noise: float = 0.0, seed: int = 0,
+                   expansion: float = 0.0, warm_up: float = 0.0) -> dict:
     """Every region's three placements (region -> list of Placement), deviations from the
-    region's own nominal sites."""
-    return {r: measure_placements(grid, truth.region(grid, r), noise, seed + 7919 * r)
-            for r in truth.origins}
+    region's own nominal sites; ``expansion`` and ``warm_up`` as in
+    :func:`measure_placements` (each region's clock starts at 0)."""
+    return {r: measure_placements(grid, truth.region(grid, r), noise, seed + 7919 * r,
+                                  expansion, warm_up, np.asarray(o) * grid.pitch)
+            for r, o in truth.origins.items()}

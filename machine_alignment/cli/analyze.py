@@ -7,6 +7,9 @@ from pathlib import Path
 
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
 from calib_core.closed_loop import LoopConfig, analyze, format_report
+from calib_core.errors import MachineAlignmentError
+from grid_calib.core.data import read_marks
+from grid_calib.core.residual_loop import analyze_region
 from calib_core.iso230_2 import format_figures
 from calib_core.loop_plots import plot_loop
 from hexapod_calib.core.calibration import PoseData
@@ -91,6 +94,42 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def cmd_analyze_grid(args) -> int:
+    """The closed loop on each region's self-calibration (its own method: the base model
+    holds a value per site and per mark, too many for the general loop's hold-out)."""
+    grid, regions = read_marks(args.data, args.pitch)
+    chosen = regions if args.region is None else {args.region: regions.get(args.region)}
+    if None in chosen.values():
+        raise MachineAlignmentError(f'{args.data} has no region {args.region}; it has '
+                                    f'{sorted(regions)}')
+    reports = {}
+    for r, region in chosen.items():
+        report = analyze_region(grid, region.placements, args.min_effect)
+        reports[str(r)] = report
+        before, after = report['held_out']['before'], report['held_out']['after']
+        print(f'region {r}: {report["base_model"]}')
+        for effect in report['effects']:
+            values = ', '.join(f'{n} {v:.4g} +- {effect["std_devs"][n]:.2g} '
+                               f'{effect["units"][n]}' for n, v in effect['parameters'].items()
+                               if n not in effect['not_determined'])
+            held = (f'; not determined (held at 0): {", ".join(effect["not_determined"])}'
+                    if effect['not_determined'] else '')
+            print(f'  added {effect["name"]} ({effect["meaning"]}): {values}{held}')
+        for name, verdict in report['verdicts'].items():
+            if verdict != 'added':
+                print(f'  {name}: {verdict}')
+        for name, reason in report['skipped'].items():
+            print(f'  {name}: not tested ({reason})')
+        print(f'  held-out (leave-one-out, {before["predicted"]} readings; '
+              f'{before["unpredictable"]} no other reading predicts): RMS '
+              f'{before["rms_m"] * 1e9:.2f} -> {after["rms_m"] * 1e9:.2f} nm, max '
+              f'{before["max_m"] * 1e9:.2f} -> {after["max_m"] * 1e9:.2f} nm; G changes by up '
+              f'to {report["stage_error_change_m"] * 1e9:.2f} nm')
+    if args.json:
+        write_json(args.json, {'data': str(args.data), 'regions': reports})
+    return 0
+
+
 def add_parser(sub) -> None:
     analyze_parser = sub.add_parser('analyze', help='closed loop: find the effect a model '
                                                     'lacks, refit, report before/after on '
@@ -119,3 +158,13 @@ def add_parser(sub) -> None:
                                  help='payload mass (kg) and centre of mass (m, platform '
                                       'frame): leg forces for leg_play and compliance')
         machine.set_defaults(func=cmd_analyze)
+    grid = machines.add_parser('grid', help='the closed loop on a grid self-calibration '
+                                            '(marks CSV, optional time and temperature)')
+    grid.add_argument('--data', required=True, help='marks CSV of calibrate grid, with time '
+                                                    '(s) and temperature (K) if logged')
+    grid.add_argument('--pitch', type=float, required=True, help='nominal plate pitch, m')
+    grid.add_argument('--region', type=int, help='one region (default: each)')
+    grid.add_argument('--min-effect', type=float, default=5e-9,
+                      help='smallest effect worth adding, RMS over the readings, m')
+    grid.add_argument('--json', help='report to write')
+    grid.set_defaults(func=cmd_analyze_grid)

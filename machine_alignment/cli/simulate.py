@@ -87,7 +87,7 @@ def cmd_simulate_grid(args) -> int:
         raise MachineAlignmentError(f'--regions needs at least 1 x 1, not {columns} x {rows}')
     truth = default_travel(grid, columns, rows, args.seed, plate_error=args.plate_error,
                            isotropic_scale=args.isotropic_scale)
-    measured = measure_travel(grid, truth, args.noise, args.seed)
+    measured = measure_travel(grid, truth, args.noise, args.seed, args.expansion, args.warm_up)
     write_marks(args.out, grid, {r: Region(truth.origins[r], p) for r, p in measured.items()})
     print(f'wrote {args.out} ({2 * args.half + 1} x {2 * args.half + 1} marks, 3 placements, '
           f'{columns} x {rows} region(s) sharing one row/column; true non-orthogonality '
@@ -148,6 +148,12 @@ def add_parser(sub) -> None:
                           metavar=('COLUMNS', 'ROWS'), help='regions over the travel')
     grid_sim.add_argument('--isotropic-scale', type=float, default=0.0,
                           help="the stage's isotropic scale error (1, e.g. 5e-6)")
+    grid_sim.add_argument('--warm-up', type=float, default=1 / 3600,
+                          help='the machine warms by this much during the run, K/s '
+                               '(logged per reading with the time)')
+    grid_sim.add_argument('--expansion', type=float, default=0.0,
+                          help='thermal expansion of the stage\'s scale, 1/K (an effect the '
+                               'self-calibration lacks; e.g. 10e-6)')
     grid_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed '
                                                              'gives the same data')
     grid_sim.set_defaults(func=cmd_simulate_grid)
