@@ -110,7 +110,7 @@ def test_command_line_contract(tmp_path, capsys):
     from machine_alignment.cli import main
     marks, out = tmp_path / 'marks.csv', tmp_path / 'grid.json'
     assert main(['simulate', 'grid', '--out', str(marks), '--noise', '0', '--seed', '4']) == 0
-    assert marks.read_text().splitlines()[0] == 'region,placement,i,j,x,y'
+    assert marks.read_text().splitlines()[0] == 'region,placement,i,j,x,y,time,temperature'
     assert main(['calibrate', 'grid', '--data', str(marks), '--pitch', '0.01',
                  '--json', str(out)]) == 0
     report = json.loads(out.read_text())
