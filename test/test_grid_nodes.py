@@ -71,3 +71,9 @@ def test_a_plan_outside_the_travel_is_refused_before_anything_moves(graph):
     response = call(node, client, RunCalibration.Request(plan_yaml='columns: 40'))
     assert not response.success and 'outside the travel' in response.message
     assert set((out / 'runs').iterdir()) == bags
+
+
+def test_the_operator_confirms_a_placement_from_the_command_line(graph):
+    done = machine_align(DOMAIN, 'call', 'grid_calibrator/confirm_placement', timeout=60.0)
+    assert done.returncode == 0, done.stderr
+    assert 'placement confirmed' in done.stdout

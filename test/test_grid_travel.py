@@ -185,3 +185,11 @@ def test_a_cut_run_replays_its_complete_regions_and_names_the_rest():
     cut[3].x = float('nan')
     with pytest.raises(PlacementError, match=r'mark \(.*NaN'):
         regions_from_readings(GRID, cut)
+
+
+def test_a_plate_centred_between_sites_is_refused():
+    readings = _readings()
+    moved = {name: (marks, reading + [0.3 * GRID.pitch, 0.0])
+             for name, (marks, reading) in readings.items()}
+    with pytest.raises(PlacementError, match=r'\(3.0\d\d, 0.0\d\d\) mm from the nearest site'):
+        region_from_readings(GRID, moved)

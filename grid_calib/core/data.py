@@ -35,6 +35,7 @@ class Region:
 # A placement is modelled to first order in its angle; the second-order term, angle^2 / 2
 # times the plate's half size, must stay below this (m).
 SMALL_ANGLE_LIMIT_M = 5e-9
+LATTICE_TOLERANCE = 0.05     # of a pitch: a region's centre off its site by more is refused
 EXPECTED_TURN = {'initial': 0.0, 'rotated': np.pi / 2, 'shifted': 0.0}
 
 
@@ -93,6 +94,14 @@ def region_from_readings(grid: Grid, readings: dict, label: str = 'region',
                                  'not match the marks)')
         centres[name] = np.mean(reading - site_of(marks, name) * grid.pitch, axis=0)
     origin = np.round(centres['initial'] / grid.pitch).astype(int)
+    # The sites are the reading frame's lattice: a plate centred between them would have
+    # G sampled off the sites it is filed under, differently in each region.
+    off = centres['initial'] - origin * grid.pitch
+    if np.abs(off).max() > LATTICE_TOLERANCE * grid.pitch:
+        raise PlacementError(
+            f'{label}: the plate\'s centre lies ({off[0] * 1e3:.3f}, {off[1] * 1e3:.3f}) mm '
+            'from the nearest site: site (m, n) must be at (m, n) x pitch in the reading '
+            'frame (subtract that offset from x, y, or place the centre mark on a site)')
     for name in ('rotated', 'shifted'):
         moved = (centres[name] - centres['initial']) / grid.pitch
         if np.abs(moved).max() > 0.25:

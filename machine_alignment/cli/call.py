@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 from alignment_msgs.srv import Align, AnalyzeResiduals, RunCalibration
+from std_srvs.srv import Trigger
 
 from calib_core.errors import CalibrationError
 from machine_alignment.cli.common import progress, quantity, write_json
@@ -18,6 +19,9 @@ SERVICES = {
                                                'plan'),
     'stage_calibrator/calibrate': (RunCalibration, '/stage_calibrator/progress', 'plan'),
     'hexapod_calibrator/calibrate': (RunCalibration, '/hexapod_calibrator/progress', 'plan'),
+    'grid_calibrator/calibrate': (RunCalibration, '/grid_calibrator/progress', 'plan'),
+    # The operator's answer to a placement request: the plate lies as asked.
+    'grid_calibrator/confirm_placement': (Trigger, None, 'nothing'),
     'vision_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
     'stage_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
     'hexapod_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
@@ -30,6 +34,8 @@ def _request(service_type, text: str, apply: bool):
         return RunCalibration.Request(plan_yaml=text)
     if service_type is AnalyzeResiduals:
         return AnalyzeResiduals.Request(plan_yaml=text, apply=apply)
+    if service_type is Trigger:
+        return Trigger.Request()
     return Align.Request(model=text.strip())
 
 
@@ -74,6 +80,9 @@ def cmd_call(args) -> int:
         report = _print_calibration(response.result)
     elif service_type is AnalyzeResiduals:
         report = _print_analysis(response.analysis)
+    elif service_type is Trigger:
+        print(response.message)
+        return 0
     else:
         print(f'aligned: {response.position_error * 1e6:.2f} um, '
               f'{response.orientation_error * 180 / 3.141592653589793 * 3600:.2f} arcsec left '
@@ -85,7 +94,8 @@ def cmd_call(args) -> int:
 
 def add_parser(sub) -> None:
     call = sub.add_parser('call', help='trigger a service on a running graph (calibrate, '
-                                       'analyze_residuals, align), showing its progress')
+                                       'analyze_residuals, align, confirm a plate '
+                                       'placement), showing its progress')
     call.add_argument('service', choices=sorted(SERVICES), metavar='SERVICE',
                       help='one of: ' + ', '.join(sorted(SERVICES)))
     call.add_argument('yaml', nargs='?', default='',
