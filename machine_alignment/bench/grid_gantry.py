@@ -173,7 +173,7 @@ def plot(path: Path, one: dict) -> None:
         ax.set_xlabel('x (mm)')
         ax.set_ylabel('y (mm)')
         ax.set_aspect('equal')
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    fig.tight_layout(rect=(0, 0.12, 1, 1))     # room for the arrow keys below the axes
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
