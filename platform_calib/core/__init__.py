@@ -1,0 +1,1 @@
+"""Models, identification and compensation of the platform; numpy/scipy, no ROS."""

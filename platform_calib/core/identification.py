@@ -1,0 +1,187 @@
+"""Identification of the 18 parameters from laser-tracker poses and the feeds' displacement
+sensors (the source's least squares, chain by chain): for chain i and pose k the loop must
+close, ``|C_i(P_k) - A_i - rho_ik e_i| = L_i``. One equation per chain and pose, six
+unknowns per chain: at least 6 poses, and poses that move every chain's joint in enough
+directions. The residual is the closure error in m."""
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from calib_core.checks import MAX_POSITION_M, check_metres
+from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.files import read_text
+from calib_core.storage import write_atomic
+from platform_calib.core.geometry import CHAIN_PARAMETERS, UNITS, PlatformGeometry, parameter_names
+from platform_calib.core.kinematics import joint_positions, pose_jacobians, slide_positions
+
+MIN_POSES = 6
+COLUMNS = ('feed1', 'feed2', 'feed3', 'x', 'y', 'theta')
+# Below this singular value (of the chain's Jacobian with unit columns, relative to the
+# largest) a parameter combination is taken as not determined by the poses.
+RANK_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class PoseData:
+    """Measured poses (n, 3) (x m, y m, theta rad, tracker's base frame) and the feeds'
+    sensor readings (n, 3) m; ``covariates`` (name -> (n,) or (n, 3)) for the closed loop:
+    ``direction`` of each feed's last motion (+1 / -1), ``time`` (s), ``temperature`` (K)."""
+
+    poses: np.ndarray
+    feeds: np.ndarray
+    covariates: dict | None = None
+
+    def __post_init__(self):
+        for name in ('poses', 'feeds'):
+            value = np.atleast_2d(np.asarray(getattr(self, name), dtype=float))
+            if value.ndim != 2 or value.shape[1] != 3:
+                raise InvalidInputError(f'{name} must be rows of three values')
+            if not np.all(np.isfinite(value)):
+                raise InvalidInputError(f'{name} contain NaN or infinite values')
+            object.__setattr__(self, name, value)
+        if len(self.poses) != len(self.feeds):
+            raise InvalidInputError('one feed triple per pose is needed')
+        check_metres(self.poses[:, :2], 'the pose positions x, y', 'the pose data',
+                     MAX_POSITION_M)
+        check_metres(self.feeds, 'the feeds', 'the pose data', 1.0)
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @classmethod
+    def from_csv(cls, path) -> 'PoseData':
+        """Columns feed1, feed2, feed3 (m), x, y (m), theta (rad); optional direction1..3,
+        time, temperature."""
+        try:
+            rows = list(csv.DictReader(io.StringIO(read_text(path, 'a platform poses CSV'))))
+        except csv.Error as exc:
+            raise InvalidInputError(f'{path} is not a CSV file: {exc}') from None
+        if not rows or any(c not in rows[0] for c in COLUMNS):
+            raise InvalidInputError(f'{path} needs the columns {", ".join(COLUMNS)}')
+        try:
+            table = {c: np.array([float(r[c]) for r in rows]) for c in rows[0]
+                     if c in COLUMNS or c in ('direction1', 'direction2', 'direction3',
+                                              'time', 'temperature')}
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f'{path}: every value must be a number ({exc})') from None
+        covariates = {k: table[k] for k in ('time', 'temperature') if k in table}
+        if all(f'direction{i}' in table for i in (1, 2, 3)):
+            covariates['direction'] = np.column_stack([table[f'direction{i}'] for i in (1, 2, 3)])
+        return cls(np.column_stack([table['x'], table['y'], table['theta']]),
+                   np.column_stack([table['feed1'], table['feed2'], table['feed3']]),
+                   covariates or None)
+
+    def to_csv(self, path) -> None:
+        extra = dict(self.covariates or {})
+        direction = extra.pop('direction', None)
+        header = list(COLUMNS) + (['direction1', 'direction2', 'direction3']
+                                  if direction is not None else []) + sorted(extra)
+        lines = [','.join(header)]
+        for k in range(len(self)):
+            values = list(self.feeds[k]) + list(self.poses[k])
+            if direction is not None:
+                values += list(direction[k])
+            values += [extra[name][k] for name in sorted(extra)]
+            lines.append(','.join(f'{v:.12g}' for v in values))
+        write_atomic(path, '\n'.join(lines) + '\n')
+
+
+@dataclass(frozen=True)
+class Identification:
+    """The identified geometry with 1-sigma standard deviations (18,) in SI units (NaN
+    where the poses leave no redundancy), the closure residuals (n, 3) m and each chain's
+    condition number."""
+
+    geometry: PlatformGeometry
+    std_devs: np.ndarray
+    residuals: np.ndarray
+    condition: np.ndarray
+
+    def report(self) -> dict:
+        names = parameter_names()
+        r = self.residuals
+        return {'parameters': self.geometry.as_dict(),
+                'std_devs': dict(zip(names, map(float, self.std_devs))),
+                'units': {n: UNITS[n.rstrip('123')] for n in names},
+                'residual_rms_m': float(np.sqrt(np.mean(r ** 2))),
+                'residual_max_m': float(np.abs(r).max()),
+                'condition_per_chain': [float(c) for c in self.condition],
+                'poses': int(len(r))}
+
+
+def _chain_residual(geometry: PlatformGeometry, chain: int, vector: np.ndarray,
+                    data: PoseData) -> np.ndarray:
+    full = geometry.vector()
+    full[6 * chain:6 * chain + 6] = vector
+    candidate = geometry.with_vector(full)
+    d = (joint_positions(candidate, data.poses) - slide_positions(candidate, data.feeds))[:, chain]
+    return np.linalg.norm(d, axis=-1) - candidate.length[chain]
+
+
+def _chain_jacobian(geometry: PlatformGeometry, chain: int, vector: np.ndarray,
+                    data: PoseData) -> np.ndarray:
+    full = geometry.vector()
+    full[6 * chain:6 * chain + 6] = vector
+    candidate = geometry.with_vector(full)
+    d = (joint_positions(candidate, data.poses) - slide_positions(candidate, data.feeds))[:, chain]
+    distance = np.linalg.norm(d, axis=-1)
+    g_par = pose_jacobians(candidate, data.poses, data.feeds)[2][:, chain, 6 * chain:6 * chain + 6]
+    jacobian = g_par / (2 * distance[:, None])      # d|d|/de = (dg/de) / (2 |d|)
+    jacobian[:, 3] = -1.0                            # d(|d| - L)/dL
+    return jacobian
+
+
+def undetermined(jacobian: np.ndarray, chain: int) -> list[str]:
+    """Names of the chain's parameters in directions the poses do not determine."""
+    scale = np.linalg.norm(jacobian, axis=0)
+    if np.any(scale == 0):
+        return [f'{CHAIN_PARAMETERS[k]}{chain + 1}' for k in np.flatnonzero(scale == 0)]
+    _, singular, vt = np.linalg.svd(jacobian / scale, full_matrices=False)
+    weak = singular < RANK_TOLERANCE * singular[0]
+    names = set()
+    for row in vt[weak]:
+        names |= {f'{CHAIN_PARAMETERS[k]}{chain + 1}' for k in np.flatnonzero(np.abs(row) > 0.3)}
+    return sorted(names)
+
+
+def identify(data: PoseData, start: PlatformGeometry) -> Identification:
+    """The 18 parameters by least squares, chain by chain, from ``start`` (the nominal).
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 6 poses, or poses that do not determine a chain's parameters (named)."""
+    if len(data) < MIN_POSES:
+        raise CalibrationError(f'the 18 parameters need at least {MIN_POSES} poses (6 per '
+                               f'chain, one equation each per pose); got {len(data)}')
+    geometry, std, residuals, condition = start, np.full(18, np.nan), [], []
+    for chain in range(3):
+        x0 = start.vector()[6 * chain:6 * chain + 6]
+        lacking = undetermined(_chain_jacobian(start, chain, x0, data), chain)
+        if lacking:
+            raise CalibrationError(f'the poses do not determine chain {chain + 1}: '
+                                   f'{", ".join(lacking)} (move the platform in x, y and '
+                                   'theta, with every feed over its stroke)')
+        solution = least_squares(
+            lambda v: _chain_residual(start, chain, v, data), x0,
+            jac=lambda v: _chain_jacobian(start, chain, v, data), method='lm',
+            xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        full = geometry.vector()
+        full[6 * chain:6 * chain + 6] = solution.x
+        geometry = geometry.with_vector(full)
+        jacobian = solution.jac
+        scale = np.linalg.norm(jacobian, axis=0)
+        singular = np.linalg.svd(jacobian / scale, compute_uv=False)
+        condition.append(singular[0] / singular[-1])
+        dof = len(data) - 6
+        if dof > 0:
+            variance = float(solution.fun @ solution.fun) / dof
+            cov = np.linalg.inv(jacobian.T @ jacobian) * variance
+            std[6 * chain:6 * chain + 6] = np.sqrt(np.clip(np.diag(cov), 0, None))
+        residuals.append(solution.fun)
+    return Identification(geometry, std, np.column_stack(residuals), np.array(condition))

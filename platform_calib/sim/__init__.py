@@ -1,0 +1,1 @@
+"""The simulated platform and laser tracker (tests, benches and sim nodes only)."""

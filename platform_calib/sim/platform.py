@@ -1,0 +1,73 @@
+"""The simulated platform with true parameter errors, its feed sensors and a laser tracker
+(SEEDS_CDE.md section 004, proposed values). Truth is for tests, benches and sim nodes."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from platform_calib.core.geometry import PlatformGeometry, nominal_geometry
+from platform_calib.core.identification import PoseData
+from platform_calib.core.kinematics import check_stroke, forward, inverse
+
+TRACKER_NOISE = (10e-6, 10e-6, 20e-6)      # x m, y m, theta rad, 1 sigma
+FEED_SENSOR_NOISE = 1e-6                   # m, 1 sigma
+
+
+def true_geometry(seed: int = 0, scale: float = 1.0,
+                  nominal: PlatformGeometry | None = None) -> PlatformGeometry:
+    """The nominal platform with every length off by 0.2-1 mm and every feed direction by
+    up to 0.5 degree (random signs), all times ``scale``."""
+    nominal = nominal or nominal_geometry()
+    rng = np.random.default_rng(seed)
+    v = nominal.vector().reshape(3, 6)
+    lengths = rng.uniform(0.2e-3, 1e-3, (3, 5)) * rng.choice([-1, 1], (3, 5))
+    v[:, [0, 1, 3, 4, 5]] += scale * lengths
+    v[:, 2] += scale * np.deg2rad(rng.uniform(-0.5, 0.5, 3))
+    return nominal.with_vector(v.ravel())
+
+
+@dataclass
+class PlatformSim:
+    """The platform at its current feeds. ``move`` refuses feeds outside the stroke (the
+    platform stays); ``true_pose`` is truth; ``read_feeds`` and ``track`` are the sensors."""
+
+    geometry: PlatformGeometry
+    seed: int = 0
+    feed_noise: float = FEED_SENSOR_NOISE
+    tracker_noise: tuple = TRACKER_NOISE
+
+    def __post_init__(self):
+        self.feeds = inverse(self.geometry, np.zeros(3))[0]
+        self.pose = np.zeros(3)
+        self.rng = np.random.default_rng(self.seed)
+
+    def move(self, feeds) -> np.ndarray:
+        """Drive the feeds to ``feeds`` (3,) m; the pose they give (truth)."""
+        feeds = check_stroke(self.geometry, feeds)[0]
+        self.pose = forward(self.geometry, feeds[None], self.pose[None])[0]
+        self.feeds = feeds
+        return self.pose
+
+    def read_feeds(self) -> np.ndarray:
+        return self.feeds + self.rng.normal(0.0, self.feed_noise, 3)
+
+    def track(self) -> np.ndarray:
+        return self.pose + self.rng.normal(0.0, self.tracker_noise, 3)
+
+
+def plan_poses(count: int, seed: int = 0, span=(5e-3, 5e-3, np.deg2rad(5.0))) -> np.ndarray:
+    """``count`` random poses within +-``span`` (x m, y m, theta rad)."""
+    rng = np.random.default_rng(seed + 77)
+    return rng.uniform(-1, 1, (count, 3)) * np.asarray(span)
+
+
+def measure_poses(sim: PlatformSim, targets: np.ndarray, nominal: PlatformGeometry) -> PoseData:
+    """Command each target through the nominal inverse kinematics, then read the feed
+    sensors and the tracker (the identification's data)."""
+    feeds, poses = [], []
+    for target in targets:
+        sim.move(inverse(nominal, target[None])[0])
+        feeds.append(sim.read_feeds())
+        poses.append(sim.track())
+    return PoseData(np.array(poses), np.array(feeds))

@@ -1,0 +1,130 @@
+"""The 3-PRR screen-registration platform without ROS (issue 22): kinematics round trip
+and Jacobians against finite differences, the 18 parameters recovered against the
+simulation's truth (noise-free exactly from 6 poses, with noise within 3 sigma),
+compensation by the exact inverse, Levenberg-Marquardt and the source's particle swarm,
+and bad input refused."""
+import numpy as np
+import pytest
+
+from calib_core.errors import CalibrationError, InvalidInputError
+from platform_calib.core.compensation import PSOSettings, compensate, composite_error
+from platform_calib.core.geometry import nominal_geometry, parameter_names
+from platform_calib.core.identification import PoseData, identify
+from platform_calib.core.kinematics import (
+    feed_jacobian, forward, inverse, parameter_jacobian)
+from platform_calib.errors import WorkspaceError
+from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
+
+NOMINAL = nominal_geometry()
+TOLERANCE = {'round_trip': 1e-12, 'jacobian': 1e-8, 'noise_free': 1e-9, 'sigmas': 3.0}
+
+
+def test_inverse_and_forward_round_trip():
+    poses = plan_poses(50, seed=1)
+    for geometry in (NOMINAL, true_geometry(2)):
+        assert np.abs(forward(geometry, inverse(geometry, poses)) - poses).max() < \
+            TOLERANCE['round_trip']
+
+
+def test_jacobians_match_finite_differences():
+    geometry, poses = true_geometry(3), plan_poses(8, seed=3)
+    feeds = inverse(geometry, poses)
+    analytic = parameter_jacobian(geometry, poses, feeds)
+    v, h = geometry.vector(), 1e-7
+    for k in range(18):
+        up, down = v.copy(), v.copy()
+        up[k] += h
+        down[k] -= h
+        numeric = (forward(geometry.with_vector(up), feeds, poses)
+                   - forward(geometry.with_vector(down), feeds, poses)) / (2 * h)
+        assert np.abs(analytic[:, :, k] - numeric).max() < TOLERANCE['jacobian'], parameter_names()[k]
+    by_feed = feed_jacobian(geometry, poses, feeds)
+    for i in range(3):
+        up, down = feeds.copy(), feeds.copy()
+        up[:, i] += h
+        down[:, i] -= h
+        numeric = (forward(geometry, up, poses) - forward(geometry, down, poses)) / (2 * h)
+        assert np.abs(by_feed[:, :, i] - numeric).max() < TOLERANCE['jacobian']
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_noise_free_six_poses_recover_all_18_parameters(seed):
+    truth = true_geometry(seed)
+    sim = PlatformSim(truth, seed, feed_noise=0.0, tracker_noise=(0.0, 0.0, 0.0))
+    result = identify(measure_poses(sim, plan_poses(6, seed), NOMINAL), NOMINAL)
+    assert np.abs(result.geometry.vector() - truth.vector()).max() < TOLERANCE['noise_free']
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_with_noise_every_parameter_lies_within_three_sigma(seed):
+    truth = true_geometry(seed)
+    result = identify(measure_poses(PlatformSim(truth, seed), plan_poses(30, seed), NOMINAL),
+                      NOMINAL)
+    z = (result.geometry.vector() - truth.vector()) / result.std_devs
+    assert np.abs(z).max() < TOLERANCE['sigmas'], dict(zip(parameter_names(), z))
+
+
+def test_too_few_or_degenerate_poses_are_refused_with_the_parameters_named():
+    sim = PlatformSim(true_geometry(1), 1)
+    with pytest.raises(CalibrationError, match='at least 6 poses'):
+        identify(measure_poses(sim, plan_poses(5, 1), NOMINAL), NOMINAL)
+    same = np.repeat(plan_poses(1, 1), 8, axis=0)
+    with pytest.raises(CalibrationError, match=r'do not determine chain 1: .*x_A1'):
+        identify(measure_poses(sim, same, NOMINAL), NOMINAL)
+    data = measure_poses(sim, plan_poses(8, 1), NOMINAL)
+    with pytest.raises(InvalidInputError, match='NaN'):
+        PoseData(data.poses * np.nan, data.feeds)
+
+
+def test_targets_outside_the_workspace_or_stroke_are_refused():
+    with pytest.raises(WorkspaceError, match='outside the stroke'):
+        inverse(NOMINAL, [[0.03, 0.0, 0.0]])
+    with pytest.raises(WorkspaceError, match='cannot reach'):
+        inverse(NOMINAL, [[0.0, 0.0, np.deg2rad(60)]], check=False)
+    # Feeds whose only closure lies on the other branch (the link folded back).
+    folded = inverse(NOMINAL, [[0.0, 0.0, 0.0]], check=False)
+    folded[0, 0] += 2 * NOMINAL.length[0]
+    with pytest.raises(WorkspaceError, match='other branch|no pose closes'):
+        forward(NOMINAL, folded)
+    sim = PlatformSim(NOMINAL)
+    before = sim.pose.copy()
+    with pytest.raises(WorkspaceError):
+        sim.move([0.05, 0.02, 0.02])
+    assert np.array_equal(sim.pose, before)
+
+
+def test_compensation_exact_and_lm_reach_the_floor_the_source_swarm_does_not_converge():
+    truth = true_geometry(4, scale=0.15)
+    model = identify(measure_poses(PlatformSim(truth, 4), plan_poses(30, 4), NOMINAL),
+                     NOMINAL).geometry
+    target = np.array([2e-3, -1e-3, np.deg2rad(3.0)])
+    before = composite_error(forward(truth, inverse(NOMINAL, target[None]), target[None]),
+                             target[None])[0]
+    after = {}
+    for method, pso in (('exact', None), ('lm', None), ('pso', PSOSettings.source(1)),
+                        ('pso-stable', PSOSettings.stable(1))):
+        result = compensate(model, NOMINAL, target, method.split('-')[0],
+                            pso=pso or PSOSettings())
+        after[method] = composite_error(forward(truth, result.feeds[None], target[None]),
+                                        target[None])[0]
+        if method == 'pso':
+            assert not result.converged and 'not converged' in result.message
+        if method == 'pso-stable':
+            assert result.converged, result.message
+    assert before > 0.2e-3
+    assert after['exact'] < 0.05 * before
+    assert abs(after['lm'] - after['exact']) < 1e-9
+    assert after['pso'] > 10 * after['exact']
+    assert abs(after['pso-stable'] - after['exact']) < 1e-6
+    assert not PSOSettings.source().order2_stable() and PSOSettings.stable().order2_stable()
+
+
+def test_pose_csv_round_trip(tmp_path):
+    data = measure_poses(PlatformSim(true_geometry(5), 5), plan_poses(7, 5), NOMINAL)
+    path = tmp_path / 'poses.csv'
+    data.to_csv(path)
+    back = PoseData.from_csv(path)
+    assert np.allclose(back.poses, data.poses, atol=1e-15) and np.allclose(back.feeds, data.feeds)
+    path.write_text('feed1,feed2\n1,2\n')
+    with pytest.raises(InvalidInputError, match='needs the columns'):
+        PoseData.from_csv(path)
