@@ -128,3 +128,25 @@ def test_pose_csv_round_trip(tmp_path):
     path.write_text('feed1,feed2\n1,2\n')
     with pytest.raises(InvalidInputError, match='needs the columns'):
         PoseData.from_csv(path)
+
+
+def test_command_line_simulate_calibrate_compensate(tmp_path, capsys):
+    """The three subcommands chain on files; an unconverged swarm is reported and exits 2
+    so a script does not use its feeds."""
+    from machine_alignment.cli import main
+    poses, geometry = tmp_path / 'poses.csv', tmp_path / 'identified.yaml'
+    assert main(['simulate', 'platform', '--out', str(poses), '--poses', '12', '--seed', '3']) == 0
+    assert main(['calibrate', 'platform', '--data', str(poses), '--out', str(geometry)]) == 0
+    assert main(['compensate', 'platform', '--geometry', str(geometry), '--count', '4',
+                 '--json', str(tmp_path / 'exact.json')]) == 0
+    assert (tmp_path / 'exact.png').exists()
+    capsys.readouterr()
+    assert main(['compensate', 'platform', '--geometry', str(geometry), '--count', '2',
+                 '--method', 'pso']) == 2
+    assert 'NOT CONVERGED' in capsys.readouterr().out
+    assert main(['compensate', 'platform', '--geometry', str(geometry), '--count', '2',
+                 '--method', 'pso', '--swarm', 'stable']) == 0
+    short = tmp_path / 'short.csv'
+    short.write_text('\n'.join(poses.read_text().splitlines()[:5]) + '\n')
+    assert main(['calibrate', 'platform', '--data', str(short)]) == 2
+    assert 'at least 6 poses' in capsys.readouterr().err

@@ -9,7 +9,8 @@ import sys
 import cv2
 
 from calib_core.errors import MachineAlignmentError
-from machine_alignment.cli import analyze, calibrate, call, detect, evaluate, graphs, simulate
+from machine_alignment.cli import (
+    analyze, calibrate, call, detect, evaluate, graphs, platform, simulate)
 from machine_alignment.cli.common import check_writable
 
 
@@ -18,6 +19,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest='command', required=True)
     for group in (detect, calibrate, evaluate, simulate, analyze, call, graphs):
         group.add_parser(sub)
+    platform.add_compensate_parser(sub)
     return parser
 
 

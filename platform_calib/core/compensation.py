@@ -150,8 +150,10 @@ def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compe
     the model's composite error."""
 
     def cost(corrections):
-        return np.array([_predicted(model, nominal_feeds + c, target, screen, target[None])
-                         for c in corrections])
+        # All particles in one batched Newton; a candidate no pose closes costs infinity.
+        reached = forward(model, nominal_feeds + corrections, target[None], strict=False)
+        errors = composite_error(reached, np.repeat(target[None], len(reached), 0), screen)
+        return np.where(np.isfinite(errors), errors, np.inf)
 
     bound = np.full(3, settings.bound)
     # pyswarms draws from numpy's global generator: seed it for this run and put the

@@ -16,8 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import yaml
 
 from calib_core.errors import InvalidInputError
+from calib_core.files import read_yaml
+from calib_core.storage import write_atomic
 
 CHAIN_PARAMETERS = ('x_A', 'y_A', 'alpha', 'L', 'x_C', 'y_C')
 UNITS = {'x_A': 'm', 'y_A': 'm', 'alpha': 'rad', 'L': 'm', 'x_C': 'm', 'y_C': 'm'}
@@ -96,3 +99,33 @@ def nominal_geometry(side: float = 0.200, link: float = 0.060,
     direction = np.column_stack([np.cos(alpha), np.sin(alpha)])
     base = joints - (mid_stroke + link) * direction
     return PlatformGeometry(base, alpha, np.full(3, link), joints, -np.ones(3))
+
+
+def write_geometry(path, geometry: PlatformGeometry, extra: dict | None = None) -> None:
+    """A YAML file any tool can read: the 18 named parameters (SI), the branches, the
+    stroke, and ``extra`` (e.g. standard deviations, the report)."""
+    content = {'parameters': geometry.as_dict(), 'units': {n: UNITS[n.rstrip('123')]
+                                                          for n in parameter_names()},
+               'branch': [int(b) for b in geometry.branch],
+               'stroke_m': [float(v) for v in geometry.stroke], **(extra or {})}
+    write_atomic(path, yaml.safe_dump(content, sort_keys=False))
+
+
+def read_geometry(path) -> PlatformGeometry:
+    """The geometry of :func:`write_geometry`'s file.
+
+    Raises
+    ------
+    InvalidInputError
+        Unreadable, not YAML, or a parameter missing or not a number."""
+    content = read_yaml(path, 'a platform geometry')
+    try:
+        values = [float(content['parameters'][n]) for n in parameter_names()]
+        branch = np.asarray(content.get('branch', [-1, -1, -1]), dtype=float)
+        stroke = tuple(float(v) for v in content.get('stroke_m', (0.0, 0.040)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InvalidInputError(f'{path}: a platform geometry needs parameters '
+                                f'{", ".join(parameter_names())} as numbers ({exc!r})') from None
+    nominal = nominal_geometry()
+    return PlatformGeometry(nominal.base, nominal.alpha, nominal.length, nominal.joints,
+                            branch, stroke).with_vector(np.array(values))

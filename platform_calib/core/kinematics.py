@@ -125,9 +125,10 @@ def pose_jacobians(geometry: PlatformGeometry, poses, feeds):
 
 
 def forward(geometry: PlatformGeometry, feeds, start=None, tolerance: float = 1e-14,
-            iterations: int = 50) -> np.ndarray:
+            iterations: int = 50, strict: bool = True) -> np.ndarray:
     """Poses (n, 3) for ``feeds`` (n, 3) m by Newton on the loop closure, from ``start``
-    (default P = 0), checked to lie on the assembly's branch.
+    (default P = 0), checked to lie on the assembly's branch. With ``strict`` False, rows
+    that fail are NaN instead (an optimiser's candidates).
 
     Raises
     ------
@@ -144,11 +145,19 @@ def forward(geometry: PlatformGeometry, feeds, start=None, tolerance: float = 1e
         if np.all(np.abs(g) < tolerance * geometry.length.max()):
             break
         g_pose = pose_jacobians(geometry, poses, feeds)[0]
-        try:
-            poses = poses - np.linalg.solve(g_pose, g[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            raise WorkspaceError('the forward kinematics met a singular pose') from None
+        singular = np.abs(np.linalg.det(g_pose)) < 1e-300
+        if singular.any() and strict:
+            raise WorkspaceError('the forward kinematics met a singular pose')
+        g_pose[singular] = np.eye(3)
+        poses = poses - np.linalg.solve(g_pose, g[..., None])[..., 0]
+        poses[singular] = np.nan
     residual = np.abs(closure(geometry, poses, feeds))
+    if not strict:
+        failed = ~np.all(np.isfinite(residual) & (residual <= 1e-9), axis=1)
+        failed |= np.any(_branch_of(geometry, np.nan_to_num(poses), feeds) != geometry.branch,
+                         axis=1)
+        poses[failed] = np.nan
+        return poses
     if not np.all(np.isfinite(residual)) or residual.max() > 1e-9:
         raise WorkspaceError(f'no pose closes the chains for these feeds (closure '
                              f'{np.nanmax(residual):.3g} m after {iterations} Newton steps)')

@@ -1,0 +1,179 @@
+"""``machine-align simulate|calibrate|compensate platform``: the 3-DOF screen-registration
+platform (issue 22): pose data from the simulated platform, the 18-parameter
+identification, and the feed compensation by the exact inverse, Levenberg-Marquardt or
+the source's particle swarm, with plots."""
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from calib_core.errors import InvalidInputError  # noqa: E402
+from calib_core.files import read_text  # noqa: E402
+from machine_alignment.cli.common import quantity, write_json  # noqa: E402
+from platform_calib.core.compensation import (  # noqa: E402
+    METHODS, SCREEN, PSOSettings, compensate, composite_error)
+from platform_calib.core.geometry import (  # noqa: E402
+    nominal_geometry, read_geometry, write_geometry)
+from platform_calib.core.identification import PoseData, identify  # noqa: E402
+from platform_calib.core.kinematics import forward, inverse  # noqa: E402
+from platform_calib.sim.platform import (  # noqa: E402
+    PlatformSim, measure_poses, plan_poses, true_geometry)
+
+
+def cmd_simulate_platform(args) -> int:
+    nominal = nominal_geometry()
+    truth = true_geometry(args.seed, args.scale)
+    sim = PlatformSim(truth, args.seed)
+    measure_poses(sim, plan_poses(args.poses, args.seed), nominal).to_csv(args.out)
+    print(f'wrote {args.out} ({args.poses} poses within +-5 mm, +-5 deg: feeds from the '
+          f'sensors, poses from the tracker)')
+    if args.truth:
+        write_geometry(args.truth, truth)
+        print(f'wrote {args.truth} (the simulation\'s true geometry)')
+    return 0
+
+
+def cmd_calibrate_platform(args) -> int:
+    nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
+    data = PoseData.from_csv(args.data)
+    result = identify(data, nominal)
+    report = result.report()
+    print(f'{len(data)} poses; closure residual RMS {report["residual_rms_m"] * 1e6:.2f} um, '
+          f'max {report["residual_max_m"] * 1e6:.2f} um; condition per chain '
+          + ', '.join(f'{c:.3g}' for c in result.condition))
+    for name, value in report['parameters'].items():
+        print(f'  {name:>7} = {quantity(value, report["std_devs"][name], report["units"][name])}')
+    if args.out:
+        write_geometry(args.out, result.geometry, {'std_devs': report['std_devs']})
+        print(f'wrote {args.out}')
+    write_json(args.json, report)
+    return 0
+
+
+def _targets(path) -> np.ndarray:
+    """x, y (m), theta (rad) per row."""
+    rows = list(csv.DictReader(io.StringIO(read_text(path, 'a targets CSV'))))
+    try:
+        targets = np.array([[float(r['x']), float(r['y']), float(r['theta'])] for r in rows])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InvalidInputError(f'{path} needs numeric columns x, y (m), theta (rad) ({exc!r})') from None
+    if not len(targets) or not np.all(np.isfinite(targets)):
+        raise InvalidInputError(f'{path}: no targets, or NaN in them')
+    return targets
+
+
+def _plot(path: Path, targets, before, after, method, history) -> None:
+    """Composite error before and after over the targets (one log scale), and the
+    swarm's best cost against iterations."""
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
+    order = np.argsort(before)
+    axes[0].semilogy(np.arange(len(order)), before[order] * 1e3, 'o', color='C3',
+                     label='before (nominal inverse kinematics)')
+    axes[0].semilogy(np.arange(len(order)), np.maximum(after[order], 1e-12) * 1e3, 's',
+                     color='C2', label=f'after ({method}), as the model predicts')
+    axes[0].set_xlabel('target (sorted by the error before)')
+    axes[0].set_ylabel('composite mark error |AA\'| + |BB\'| (mm, log)')
+    axes[0].legend(fontsize=8)
+    if history:
+        for k, h in enumerate(history[:20]):
+            axes[1].semilogy(np.arange(1, len(h) + 1), np.maximum(h, 1e-12) * 1e3,
+                             color='C0', alpha=0.4, label='best cost, one target' if k == 0 else None)
+        axes[1].set_xlabel('swarm iteration')
+        axes[1].set_ylabel('best composite error (mm, log)')
+        axes[1].legend(fontsize=8)
+    else:
+        axes[1].text(0.5, 0.5, f'{method}: no iterations to show', ha='center',
+                     transform=axes[1].transAxes)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def cmd_compensate_platform(args) -> int:
+    nominal = read_geometry(args.nominal) if args.nominal else nominal_geometry()
+    model = read_geometry(args.geometry)
+    targets = _targets(args.targets) if args.targets else plan_poses(args.count, args.seed)
+    settings = (PSOSettings.stable(args.seed, args.iterations or 200) if args.swarm == 'stable'
+                else PSOSettings(seed=args.seed, iterations=args.iterations or 4))
+    rows, history = [], []
+    for target in targets:
+        result = compensate(model, nominal, target, args.method, pso=settings)
+        before = composite_error(forward(model, inverse(nominal, target[None]), target[None]),
+                                 target[None])[0]
+        rows.append({'target': [float(v) for v in target],
+                     'feeds_m': [float(v) for v in result.feeds],
+                     'corrections_m': [float(v) for v in result.feeds
+                                       - inverse(nominal, target[None])[0]],
+                     'predicted_before_m': float(before),
+                     'predicted_after_m': result.predicted_error,
+                     'seconds': result.seconds, 'converged': result.converged,
+                     'message': result.message})
+        history.append(result.history)
+    before = np.array([r['predicted_before_m'] for r in rows])
+    after = np.array([r['predicted_after_m'] for r in rows])
+    unconverged = [k for k, r in enumerate(rows) if not r['converged']]
+    print(f'{len(rows)} targets, method {args.method}: composite error the model predicts '
+          f'{np.median(before) * 1e3:.3f} mm (median) before, {np.median(after) * 1e6:.3f} um '
+          f'after (worst {after.max() * 1e6:.3f} um); '
+          f'{np.mean([r["seconds"] for r in rows]) * 1e3:.2f} ms per target')
+    if unconverged:
+        print(f'  NOT CONVERGED for {len(unconverged)} target(s) (e.g. target {unconverged[0]}: '
+              f'{rows[unconverged[0]]["message"]}): do not use these feeds')
+    report = {'method': args.method, 'screen_m': list(SCREEN), 'targets': rows,
+              'pso': vars(settings) if args.method == 'pso' else None,
+              'pso_order2_stable': settings.order2_stable() if args.method == 'pso' else None}
+    if args.json:
+        write_json(args.json, report)
+        plot = Path(args.json).with_suffix('.png')
+        _plot(plot, targets, before, after, args.method, [h for h in history if h])
+        print(f'wrote {plot}')
+    return 2 if unconverged else 0
+
+
+def add_simulate_parser(simulated) -> None:
+    platform = simulated.add_parser('platform', help='poses of the simulated screen-'
+                                                     'registration platform (tracker, feeds)')
+    platform.add_argument('--out', required=True, help='poses CSV to write')
+    platform.add_argument('--poses', type=int, default=20)
+    platform.add_argument('--seed', type=int, default=0)
+    platform.add_argument('--scale', type=float, default=0.15,
+                          help='size of the true parameter errors (1: 0.2-1 mm, 0.5 deg)')
+    platform.add_argument('--truth', help='also write the true geometry (YAML)')
+    platform.set_defaults(func=cmd_simulate_platform)
+
+
+def add_calibrate_parser(what) -> None:
+    platform = what.add_parser('platform', help='the 18 parameters of the screen-registration '
+                                                'platform from tracker poses and feeds')
+    platform.add_argument('--data', required=True, help='CSV: feed1..feed3 (m), x, y (m), '
+                                                        'theta (rad)')
+    platform.add_argument('--geometry', help='nominal geometry YAML (default: the built-in)')
+    platform.add_argument('--out', help='identified geometry YAML to write')
+    platform.add_argument('--json', help='report to write')
+    platform.set_defaults(func=cmd_calibrate_platform)
+
+
+def add_compensate_parser(sub) -> None:
+    compensate_parser = sub.add_parser('compensate', help='feeds that put the marks on target')
+    what = compensate_parser.add_subparsers(dest='what', required=True)
+    platform = what.add_parser('platform', help='the screen-registration platform')
+    platform.add_argument('--geometry', required=True, help='identified geometry YAML')
+    platform.add_argument('--nominal', help='nominal geometry YAML (the controller\'s; '
+                                            'default: the built-in)')
+    platform.add_argument('--method', choices=METHODS, default='exact')
+    platform.add_argument('--targets', help='CSV: x, y (m), theta (rad); default: random '
+                                            'targets over the workspace')
+    platform.add_argument('--count', type=int, default=50, help='random targets')
+    platform.add_argument('--swarm', choices=('source', 'stable'), default='source',
+                          help='source: 40 particles, c1 = c2 = 2, w = 0.8; stable: Clerc')
+    platform.add_argument('--iterations', type=int, help='swarm iterations (source 4, stable 200)')
+    platform.add_argument('--seed', type=int, default=0)
+    platform.add_argument('--json', help='report to write; the plot goes beside it')
+    platform.set_defaults(func=cmd_compensate_platform)
