@@ -145,7 +145,8 @@ def layers(count: int = 30, seeds: int = 20) -> dict:
             sim = PlatformSim(truth, seed)
             model = NOMINAL if name.startswith('nominal') else identify(
                 measure_poses(sim, plan_poses(POSES, seed), NOMINAL), NOMINAL).geometry
-            feeds = sim.move(inverse(NOMINAL, np.zeros((1, 3)))[0]) is not None and sim.feeds
+            sim.move(inverse(NOMINAL, np.zeros((1, 3)))[0])
+            feeds = sim.feeds
             previous = None
             for _ in range(count):
                 screen = np.array([*rng.uniform(-1e-3, 1e-3, 2), np.deg2rad(rng.uniform(-0.3, 0.3))])

@@ -17,6 +17,10 @@ from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
 from machine_alignment.cli.common import parse_size, progress, write_json
+from platform_calib.core.geometry import nominal_geometry as nominal_platform
+from platform_calib.core.geometry import read_geometry as read_platform
+from platform_calib.core.identification import PoseData as PlatformPoseData
+from platform_calib.core.loop_model import PlatformLoopModel
 from printer_alignment.core.camera_calibration import read_correspondences
 from printer_alignment.core.loop_models import (
     CameraLoopModel, GantryData, GantryLoopModel, StageLoopModel)
@@ -30,6 +34,8 @@ FORMATS = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional cycl
            'camera': 'CSV: view, model_x, model_y (m), u, v (px)',
            'stage': 'CSV: q1..q3 (m), mark1_x, mark1_y, mark2_x, mark2_y (m, plate '
                     'frame); optional direction1..3, time, temperature',
+           'platform': 'CSV: feed1..feed3 (m), x, y (m), theta (rad); optional '
+                       'direction1..direction3, time, temperature',
            'hexapod': 'CSV: x..yaw, meas_x..meas_yaw (m, rad); optional l1..l6 (m), '
                       'force1..force6 (N, compression positive), direction1..direction6, '
                       'time, temperature'}
@@ -46,6 +52,9 @@ def _loop_machine(args, dropped: dict):
         return CameraLoopModel(read_correspondences(args.data), size)
     if args.machine == 'stage':
         return StageLoopModel(StageData.from_csv(args.data, dropped))
+    if args.machine == 'platform':
+        nominal = read_platform(args.geometry) if args.geometry else nominal_platform()
+        return PlatformLoopModel(PlatformPoseData.from_csv(args.data), nominal)
     nominal = read_geometry(args.geometry)
     data = PoseData.from_csv(args.data, nominal, dropped)
     forces = None
@@ -151,6 +160,8 @@ def add_parser(sub) -> None:
                                   '(m; px for the camera); default: the machine\'s')
         if name == 'camera':
             machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
+        if name == 'platform':
+            machine.add_argument('--geometry', help='nominal geometry YAML (default: built-in)')
         if name == 'hexapod':
             machine.add_argument('--geometry', required=True, help='nominal geometry YAML')
             machine.add_argument('--payload', type=float, nargs=4,

@@ -30,7 +30,8 @@ from platform_calib.sim.platform import (  # noqa: E402
 def cmd_simulate_platform(args) -> int:
     nominal = nominal_geometry()
     truth = true_geometry(args.seed, args.scale)
-    sim = PlatformSim(truth, args.seed)
+    sim = PlatformSim(truth, args.seed, screw_amplitude=(args.screw,) * 3,
+                      backlash=(args.backlash,) * 3)
     measure_poses(sim, plan_poses(args.poses, args.seed), nominal).to_csv(args.out)
     print(f'wrote {args.out} ({args.poses} poses within +-5 mm, +-5 deg: feeds from the '
           f'sensors, poses from the tracker)')
@@ -146,6 +147,11 @@ def add_simulate_parser(simulated) -> None:
     platform.add_argument('--scale', type=float, default=0.15,
                           help='size of the true parameter errors (1: 0.2-1 mm, 0.5 deg)')
     platform.add_argument('--truth', help='also write the true geometry (YAML)')
+    platform.add_argument('--screw', type=float, default=0.0,
+                          help='ball-screw periodic error of every feed, m (5 mm lead; an '
+                               'effect the model lacks, e.g. 10e-6)')
+    platform.add_argument('--backlash', type=float, default=0.0,
+                          help='backlash of every feed, m (e.g. 8e-6)')
     platform.set_defaults(func=cmd_simulate_platform)
 
 

@@ -167,10 +167,13 @@ def identify(data: PoseData, start: PlatformGeometry) -> Identification:
             raise CalibrationError(f'the poses do not determine chain {chain + 1}: '
                                    f'{", ".join(lacking)} (move the platform in x, y and '
                                    'theta, with every feed over its stroke)')
+        # The link length stays positive (a geometry needs it); nothing else is bounded.
+        lower = np.full(6, -np.inf)
+        lower[3] = 1e-6
         solution = least_squares(
             lambda v: _chain_residual(start, chain, v, data), x0,
-            jac=lambda v: _chain_jacobian(start, chain, v, data), method='lm',
-            xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            jac=lambda v: _chain_jacobian(start, chain, v, data), method='trf',
+            bounds=(lower, np.inf), xtol=1e-15, ftol=1e-15, gtol=1e-15)
         full = geometry.vector()
         full[6 * chain:6 * chain + 6] = solution.x
         geometry = geometry.with_vector(full)

@@ -30,22 +30,45 @@ def true_geometry(seed: int = 0, scale: float = 1.0,
 @dataclass
 class PlatformSim:
     """The platform at its current feeds. ``move`` refuses feeds outside the stroke (the
-    platform stays); ``true_pose`` is truth; ``read_feeds`` and ``track`` are the sensors."""
+    platform stays); ``pose`` is truth; ``read_feeds`` and ``track`` are the sensors.
+
+    Effects the 18-parameter model lacks, off by default: each ball screw's periodic error
+    (``screw_amplitude`` (3,) m, once per ``lead`` m of feed) and ``backlash`` (3,) m (the
+    slide lags the drive by half of it against the last direction of motion). The drive
+    reports the commanded feed; the slide is where these put it."""
 
     geometry: PlatformGeometry
     seed: int = 0
     feed_noise: float = FEED_SENSOR_NOISE
     tracker_noise: tuple = TRACKER_NOISE
+    screw_amplitude: tuple = (0.0, 0.0, 0.0)
+    backlash: tuple = (0.0, 0.0, 0.0)
+    lead: float = 5e-3
 
     def __post_init__(self):
         self.feeds = inverse(self.geometry, np.zeros(3))[0]
         self.pose = np.zeros(3)
+        self.direction = np.ones(3)
         self.rng = np.random.default_rng(self.seed)
+        self.phase = self.rng.uniform(0, 2 * np.pi, 3)
+
+    def slides(self, feeds) -> np.ndarray:
+        """Where the slides are for commanded ``feeds`` (3,) (m)."""
+        return (feeds + np.asarray(self.screw_amplitude)
+                * np.sin(2 * np.pi * feeds / self.lead + self.phase)
+                - np.asarray(self.backlash) / 2 * self.direction)
 
     def move(self, feeds) -> np.ndarray:
         """Drive the feeds to ``feeds`` (3,) m; the pose they give (truth)."""
         feeds = check_stroke(self.geometry, feeds)[0]
-        self.pose = forward(self.geometry, feeds[None], self.pose[None])[0]
+        moving = feeds != self.feeds
+        direction = np.where(moving, np.sign(feeds - self.feeds), self.direction)
+        previous, self.direction = self.direction, direction
+        try:
+            self.pose = forward(self.geometry, self.slides(feeds)[None], self.pose[None])[0]
+        except Exception:
+            self.direction = previous
+            raise
         self.feeds = feeds
         return self.pose
 
@@ -64,10 +87,12 @@ def plan_poses(count: int, seed: int = 0, span=(5e-3, 5e-3, np.deg2rad(5.0))) ->
 
 def measure_poses(sim: PlatformSim, targets: np.ndarray, nominal: PlatformGeometry) -> PoseData:
     """Command each target through the nominal inverse kinematics, then read the feed
-    sensors and the tracker (the identification's data)."""
-    feeds, poses = [], []
+    sensors and the tracker (the identification's data, with each feed's direction of
+    approach)."""
+    feeds, poses, directions = [], [], []
     for target in targets:
         sim.move(inverse(nominal, target[None])[0])
         feeds.append(sim.read_feeds())
         poses.append(sim.track())
-    return PoseData(np.array(poses), np.array(feeds))
+        directions.append(sim.direction.copy())
+    return PoseData(np.array(poses), np.array(feeds), {'direction': np.array(directions)})
