@@ -17,6 +17,9 @@ NODES = {
     'pose_sensor_sim': 'hexapod_calib.nodes.pose_sensor_sim',
     'hexapod_calibrator': 'hexapod_calib.nodes.hexapod_calibrator',
     'grid_calibrator': 'grid_calib.nodes.grid_calibrator',
+    'platform_sim': 'platform_calib.nodes.platform_sim',
+    'laser_tracker_sim': 'platform_calib.nodes.laser_tracker_sim',
+    'platform_calibrator': 'platform_calib.nodes.platform_calibrator',
     'recorder': 'calib_core.nodes.recorder',
     'player': 'calib_core.nodes.player',
 }

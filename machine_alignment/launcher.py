@@ -89,6 +89,18 @@ def grid_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
     ]
 
 
+def platform_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
+                   screw: float = 0.0, backlash: float = 0.0) -> list[NodeSpec]:
+    """The screen-registration platform: the platform with its mark cameras, the laser
+    tracker and the calibrator (identification and registration)."""
+    return [
+        NodeSpec('platform_calib.nodes.platform_sim', {'screw': screw, 'backlash': backlash}),
+        NodeSpec('platform_calib.nodes.laser_tracker_sim'),
+        NodeSpec('platform_calib.nodes.platform_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir}),
+    ]
+
+
 def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment') -> list[dict]:
     """Keyword arguments of one ``launch_ros.actions.Node`` per node of a graph: the
     executable is the module's console script (named after the module, see setup.py)."""

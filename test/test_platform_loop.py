@@ -2,7 +2,6 @@
 nothing; a ball screw's periodic error and backlash in the feeds, which the 18-parameter
 model lacks, are found (the period within 3 sigma of the true lead) and lower the held-out
 error."""
-import numpy as np
 import pytest
 
 from calib_core.closed_loop import LoopConfig, analyze

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-from alignment_msgs.srv import Align, AnalyzeResiduals, RunCalibration
+from alignment_msgs.srv import Align, AnalyzeResiduals, RegisterScreen, RunCalibration
 from std_srvs.srv import Trigger
 
 from calib_core.errors import CalibrationError
@@ -20,6 +20,8 @@ SERVICES = {
     'stage_calibrator/calibrate': (RunCalibration, '/stage_calibrator/progress', 'plan'),
     'hexapod_calibrator/calibrate': (RunCalibration, '/hexapod_calibrator/progress', 'plan'),
     'grid_calibrator/calibrate': (RunCalibration, '/grid_calibrator/progress', 'plan'),
+    'platform_calibrator/calibrate': (RunCalibration, '/platform_calibrator/progress', 'plan'),
+    'platform_calibrator/register': (RegisterScreen, None, 'method'),
     # The operator's answer to a placement request: the plate lies as asked.
     'grid_calibrator/confirm_placement': (Trigger, None, 'nothing'),
     'vision_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
@@ -36,6 +38,8 @@ def _request(service_type, text: str, apply: bool):
         return AnalyzeResiduals.Request(plan_yaml=text, apply=apply)
     if service_type is Trigger:
         return Trigger.Request()
+    if service_type is RegisterScreen:
+        return RegisterScreen.Request(method=text.strip())
     return Align.Request(model=text.strip())
 
 
@@ -83,6 +87,10 @@ def cmd_call(args) -> int:
     elif service_type is Trigger:
         print(response.message)
         return 0
+    elif service_type is RegisterScreen:
+        print(f'registered: marks off by {response.measured_error * 1e6:.2f} um (composite, '
+              f'measured after the move; the model predicted {response.predicted_error * 1e6:.3f} um)')
+        report = json.loads(response.report_json)
     else:
         print(f'aligned: {response.position_error * 1e6:.2f} um, '
               f'{response.orientation_error * 180 / 3.141592653589793 * 3600:.2f} arcsec left '
@@ -100,7 +108,8 @@ def add_parser(sub) -> None:
                       help='one of: ' + ', '.join(sorted(SERVICES)))
     call.add_argument('yaml', nargs='?', default='',
                       help='calibrate: plan overrides (YAML mapping, e.g. "{nx: 3, ny: 2}"); '
-                           'analyze_residuals: options; align: the model name')
+                           'analyze_residuals: options; align: the model name; register: '
+                           'the method (exact, lm, pso)')
     call.add_argument('--apply', action='store_true',
                       help='analyze_residuals: make the extended model the calibration in force')
     call.add_argument('--domain', type=int, default=None,

@@ -16,13 +16,16 @@ import numpy as np  # noqa: E402
 
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.files import read_text  # noqa: E402
-from machine_alignment.cli.common import quantity, write_json  # noqa: E402
+from machine_alignment.cli.common import quantity, read_run, write_json  # noqa: E402
 from platform_calib.core.compensation import (  # noqa: E402
     METHODS, SCREEN, PSOSettings, compensate, composite_error)
 from platform_calib.core.geometry import (  # noqa: E402
     nominal_geometry, read_geometry, write_geometry)
 from platform_calib.core.identification import PoseData, identify  # noqa: E402
 from platform_calib.core.kinematics import forward, inverse  # noqa: E402
+from platform_calib.core.procedure import data_of, evaluate  # noqa: E402
+from platform_calib.core.records import (  # noqa: E402
+    MEASUREMENTS_TOPIC, RESULT_TOPIC, stop_from_message)
 from platform_calib.sim.platform import (  # noqa: E402
     PlatformSim, measure_poses, plan_poses, true_geometry)
 
@@ -43,9 +46,26 @@ def cmd_simulate_platform(args) -> int:
 
 def cmd_calibrate_platform(args) -> int:
     nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
-    data = PoseData.from_csv(args.data)
+    recorded = None
+    if args.bag:
+        stops, recorded = read_run(args.bag, MEASUREMENTS_TOPIC,
+                                   'alignment_msgs/msg/PlatformMeasurement', stop_from_message,
+                                   'platform measurements', RESULT_TOPIC)
+        data = data_of([s for s in stops if s.phase == 'identify'])
+    else:
+        data = PoseData.from_csv(args.data)
     result = identify(data, nominal)
     report = result.report()
+    if args.bag:
+        report['evaluation'] = evaluate(stops)
+        for phase, row in report['evaluation'].items():
+            print(f'  {phase}: composite mark error (tracker) median {row["median_m"] * 1e6:.1f} '
+                  f'um, max {row["max_m"] * 1e6:.1f} um over {row["poses"]} poses')
+    if recorded is not None:
+        live = np.array([recorded['parameters'][n] for n in report['parameters']])
+        report['max_difference_to_live'] = float(np.abs(live - result.geometry.vector()).max())
+        print(f'  same as the live run: max |difference| {report["max_difference_to_live"]:.3g} '
+              '(SI units)')
     print(f'{len(data)} poses; closure residual RMS {report["residual_rms_m"] * 1e6:.2f} um, '
           f'max {report["residual_max_m"] * 1e6:.2f} um; condition per chain '
           + ', '.join(f'{c:.3g}' for c in result.condition))
@@ -158,8 +178,9 @@ def add_simulate_parser(simulated) -> None:
 def add_calibrate_parser(what) -> None:
     platform = what.add_parser('platform', help='the 18 parameters of the screen-registration '
                                                 'platform from tracker poses and feeds')
-    platform.add_argument('--data', required=True, help='CSV: feed1..feed3 (m), x, y (m), '
-                                                        'theta (rad)')
+    source = platform.add_mutually_exclusive_group(required=True)
+    source.add_argument('--data', help='CSV: feed1..feed3 (m), x, y (m), theta (rad)')
+    source.add_argument('--bag', help='a run recorded by platform_calibrator')
     platform.add_argument('--geometry', help='nominal geometry YAML (default: the built-in)')
     platform.add_argument('--out', help='identified geometry YAML to write')
     platform.add_argument('--json', help='report to write')

@@ -1,0 +1,112 @@
+"""The platform's calibration run: plan poses, command each through the nominal inverse
+kinematics, read the feeds and the tracker, identify, then evaluate on separate poses with
+the nominal and the calibrated commands. Hardware is passed in as callables, so the node,
+the tests and the offline replay run the same code."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from calib_core.checks import whole_number
+from calib_core.errors import InvalidInputError
+from platform_calib.core.compensation import composite_error
+from platform_calib.core.geometry import PlatformGeometry
+from platform_calib.core.identification import MIN_POSES, Identification, PoseData, identify
+from platform_calib.core.kinematics import inverse
+
+
+@dataclass(frozen=True)
+class PlatformPlan:
+    """``poses`` random poses within +-``span`` (x m, y m, theta rad) to identify from, and
+    ``evaluation_poses`` others to evaluate on, drawn with ``seed``."""
+
+    poses: int = 20
+    evaluation_poses: int = 10
+    span: tuple = (5e-3, 5e-3, np.deg2rad(5.0))
+    seed: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, 'poses', whole_number(self.poses, 'poses', MIN_POSES))
+        object.__setattr__(self, 'evaluation_poses',
+                           whole_number(self.evaluation_poses, 'evaluation_poses', 1))
+        object.__setattr__(self, 'seed', whole_number(self.seed, 'seed', 0))
+        span = np.asarray(self.span, dtype=float)
+        if span.shape != (3,) or not np.all(np.isfinite(span)) or np.any(span <= 0) \
+                or np.any(span[:2] > 0.1) or span[2] > np.pi / 4:
+            raise InvalidInputError(f'span must be three positive values (x m, y m, theta '
+                                    f'rad; up to 0.1 m and pi/4), not {self.span!r}')
+        object.__setattr__(self, 'span', tuple(float(v) for v in span))
+
+    def targets(self) -> tuple[np.ndarray, np.ndarray]:
+        rng = np.random.default_rng(self.seed)
+        draw = rng.uniform(-1, 1, (self.poses + self.evaluation_poses, 3)) * np.asarray(self.span)
+        return draw[:self.poses], draw[self.poses:]
+
+
+@dataclass(frozen=True)
+class Stop:
+    """One stop: the phase, the pose aimed at, the feeds read there (m), each feed's
+    direction of approach, the pose the tracker measured."""
+
+    phase: str
+    target: np.ndarray
+    feeds: np.ndarray
+    direction: np.ndarray
+    measured: np.ndarray
+
+
+def data_of(stops: list) -> PoseData:
+    return PoseData(np.array([s.measured for s in stops]), np.array([s.feeds for s in stops]),
+                    {'direction': np.array([s.direction for s in stops])})
+
+
+def evaluate(stops: list) -> dict:
+    """Composite mark error (m) measured by the tracker against the target, per phase."""
+    out = {}
+    for phase in sorted({s.phase for s in stops}):
+        rows = [s for s in stops if s.phase == phase]
+        errors = composite_error(np.array([s.measured for s in rows]),
+                                 np.array([s.target for s in rows]))
+        out[phase] = {'median_m': float(np.median(errors)), 'max_m': float(errors.max()),
+                      'poses': len(rows)}
+    return out
+
+
+def run_platform_calibration(plan: PlatformPlan, nominal: PlatformGeometry,
+                             move: Callable[[np.ndarray], tuple],
+                             measure: Callable[[], np.ndarray],
+                             record: Callable[[Stop], None] = lambda stop: None,
+                             progress: Callable[[int, int, str], None] = lambda *a: None
+                             ) -> tuple[Identification, dict, list]:
+    """Identify and evaluate. ``move(feeds)`` returns (feeds read, directions);
+    ``measure()`` the tracker's pose (3,).
+
+    Raises
+    ------
+    WorkspaceError
+        A planned pose the nominal platform cannot reach (refused before anything moves).
+    CalibrationError
+        Poses that do not determine the parameters."""
+    identify_at, evaluate_at = plan.targets()
+    nominal_feeds = inverse(nominal, np.vstack([identify_at, evaluate_at]))   # checked first
+    total = len(identify_at) + 2 * len(evaluate_at)
+    stops = []
+
+    def stop(phase, target, feeds):
+        reading, direction = move(feeds)
+        stops.append(Stop(phase, target, np.asarray(reading, float),
+                          np.asarray(direction, float), np.asarray(measure(), float)))
+        record(stops[-1])
+        progress(len(stops), total, f'{phase} {len(stops)}/{total}')
+
+    for target, feeds in zip(identify_at, nominal_feeds):
+        stop('identify', target, feeds)
+    result = identify(data_of([s for s in stops if s.phase == 'identify']), nominal)
+    calibrated = inverse(result.geometry, evaluate_at)
+    for target, feeds in zip(evaluate_at, nominal_feeds[len(identify_at):]):
+        stop('evaluate_nominal', target, feeds)
+    for target, feeds in zip(evaluate_at, calibrated):
+        stop('evaluate_calibrated', target, feeds)
+    return result, evaluate(stops), stops

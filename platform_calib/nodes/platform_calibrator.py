@@ -1,0 +1,197 @@
+"""platform_calibrator: the screen-registration platform's identification and registration
+on the live graph.
+
+Service ``platform_calibrator/calibrate`` (RunCalibration; plan keys ``poses``,
+``evaluation_poses``, ``span`` (x m, y m, theta rad), ``seed``) plans random poses (all
+checked against the stroke before anything moves), commands each through the nominal
+inverse kinematics (``platform/move``), reads the feed sensors and the laser tracker
+(``laser_tracker/measure``), identifies the 18 parameters, then evaluates on separate poses
+with the nominal and the calibrated commands (composite mark error measured by the
+tracker). The geometry is written as an atomic, versioned ``platform`` file (readable by
+``machine-align compensate platform --geometry``), published latched on
+``/platform_calibrator/result``, and the run recorded to MCAP (``machine-align calibrate
+platform --bag`` solves it again).
+
+Service ``platform_calibrator/register`` (RegisterScreen) measures the screen's two marks
+(``platform/measure_marks``), computes the pose that puts them on target (the marks of the
+screen at the platform's zero) and the feeds by ``method`` (exact, lm, pso: the source's
+swarm, refused when it has not converged), moves, and measures again.
+"""
+import json
+import threading
+
+import numpy as np
+from alignment_msgs.msg import CalibrationResult, PlatformMeasurement, Progress
+from alignment_msgs.srv import MeasureMarks, MeasurePose, MovePlatform, RegisterScreen, RunCalibration
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from std_msgs.msg import Header
+
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.calibrator import (
+    CalibrationService, call_service, declare_paths, publish_calibration_in_force)
+from calib_core.nodes.conversions import calibration_result_as_message
+from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.spin import run_node
+from platform_calib.core.compensation import METHODS, composite_error, mark_positions
+from platform_calib.core.geometry import nominal_geometry, read_geometry
+from platform_calib.core.kinematics import inverse
+from platform_calib.core.procedure import PlatformPlan, run_platform_calibration
+from platform_calib.core.records import MEASUREMENTS_TOPIC, RESULT_TOPIC
+from platform_calib.core.registration import pose_of_marks, register
+from platform_calib.nodes.conversions import planar_pose_from_message
+
+PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed')
+
+
+def platform_result_message(content: dict, header, file_path='', version=0):
+    report = content['report']
+    units = report['units']
+    return calibration_result_as_message(
+        'platform', header, content['parameters'], report['std_devs'], units, report,
+        report['residual_rms_m'], report['residual_max_m'], 'm', report['poses'], file_path,
+        version)
+
+
+class PlatformCalibratorNode(Node):
+
+    def __init__(self):
+        super().__init__('platform_calibrator')
+        declare_paths(self, 'output_dir', 'record_dir')
+        self.declare_parameter('poses', 20)
+        self.declare_parameter('evaluation_poses', 10)
+        self.declare_parameter('span', [5e-3, 5e-3, float(np.deg2rad(5.0))])
+        self.declare_parameter('seed', 0)
+        self.declare_parameter('method', 'exact')
+        self.declare_parameter('nominal_geometry', '')     # YAML; empty: the built-in
+        self.declare_parameter('call_timeout_s', 10.0)
+        self._plan_from_parameters({})                      # a bad plan stops the start
+        if self.get_parameter('method').value not in METHODS:
+            raise ValueError(f'method must be one of {METHODS}')
+        path = self.get_parameter('nominal_geometry').value
+        self.nominal = read_geometry(path) if path else nominal_geometry()
+        self.timeout = float(self.get_parameter('call_timeout_s').value)
+        self.model, self.feeds = None, None
+        group = ReentrantCallbackGroup()
+        self.move_client = self.create_client(MovePlatform, 'platform/move', callback_group=group)
+        self.tracker_client = self.create_client(MeasurePose, 'laser_tracker/measure',
+                                                 callback_group=group)
+        self.marks_client = self.create_client(MeasureMarks, 'platform/measure_marks',
+                                               callback_group=group)
+        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.measurement_pub = self.create_publisher(PlatformMeasurement, MEASUREMENTS_TOPIC, 10)
+        self.progress_pub = self.create_publisher(Progress, '/platform_calibrator/progress', 10)
+        self.calibration_service = CalibrationService(self, 'platform', self._run, self._header)
+        self.create_service(RunCalibration, 'platform_calibrator/calibrate',
+                            self.calibration_service, callback_group=group)
+        self.create_service(RegisterScreen, 'platform_calibrator/register', self.on_register,
+                            callback_group=group)
+        publish_calibration_in_force(self, 'platform', self.result_pub, self._in_force)
+
+    def _in_force(self, content, path):
+        self.model = read_geometry(path)
+        return platform_result_message(content, self._header(), path, content.get('version', 0))
+
+    def _header(self):
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id='base')
+
+    def _plan_from_parameters(self, overrides: dict) -> PlatformPlan:
+        unknown = set(overrides) - set(PLAN_KEYS)
+        if unknown:
+            raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
+        g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
+        return PlatformPlan(g('poses'), g('evaluation_poses'), tuple(g('span')), g('seed'))
+
+    def _move(self, feeds):
+        self._moved_at = self.get_clock().now()
+        reached = call_service(self.move_client, MovePlatform.Request(
+            feeds=[float(v) for v in feeds]), 'platform move', self.timeout)
+        self.feeds = np.array(reached.feeds)
+        return self.feeds, np.array(reached.direction, dtype=float)
+
+    def _track(self):
+        measured = call_service(self.tracker_client, MeasurePose.Request(
+            not_before=self._moved_at.to_msg()), 'laser tracker', self.timeout)
+        return planar_pose_from_message(measured.pose.pose.pose)
+
+    def _marks(self):
+        measured = call_service(self.marks_client, MeasureMarks.Request(), 'mark measurement',
+                                self.timeout)
+        return np.array(measured.marks, dtype=float).reshape(2, 2)
+
+    def _progress(self, step, total, message):
+        self.progress_pub.publish(Progress(header=self._header(), task='platform_calibration',
+                                           step=step, total=total, message=message))
+        self.get_logger().info(f'[{step}/{total}] {message}')
+
+    def _record(self, run, stop):
+        run.record(MEASUREMENTS_TOPIC, PlatformMeasurement(
+            header=self._header(), phase=stop.phase, target=[float(v) for v in stop.target],
+            feeds=[float(v) for v in stop.feeds], direction=[int(v) for v in stop.direction],
+            measured=[float(v) for v in stop.measured]), self.measurement_pub)
+
+    def _run(self, overrides: dict) -> CalibrationResult:
+        plan = self._plan_from_parameters(overrides)
+        with RecordedRun(self, 'platform', {
+                MEASUREMENTS_TOPIC: 'alignment_msgs/msg/PlatformMeasurement',
+                RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
+            result, evaluation, _ = run_platform_calibration(
+                plan, self.nominal, self._move, self._track,
+                lambda stop: self._record(run, stop), self._progress)
+            report = {**result.report(), 'evaluation': evaluation}
+            geometry = result.geometry
+            path, version, content = run.save('platform', {
+                'parameters': geometry.as_dict(), 'branch': [int(b) for b in geometry.branch],
+                'stroke_m': [float(v) for v in geometry.stroke], 'report': report})
+            message = platform_result_message(content, self._header(), str(path), version)
+            run.record(RESULT_TOPIC, message, self.result_pub)
+        self.model = geometry
+        e = evaluation
+        self._progress(1, 1, f'done: composite mark error (tracker) median '
+                             f'{e["evaluate_nominal"]["median_m"] * 1e6:.1f} um nominal, '
+                             f'{e["evaluate_calibrated"]["median_m"] * 1e6:.1f} um calibrated; '
+                             f'wrote {path}')
+        return message
+
+    def on_register(self, request, response):
+        if not self.calibration_service.busy.acquire(blocking=False):
+            response.success, response.message = False, 'a calibration is running'
+            return response
+        try:
+            if self.model is None:
+                raise CalibrationError('no platform calibration in force: call '
+                                       'platform_calibrator/calibrate first')
+            method = request.method or self.get_parameter('method').value
+            if self.feeds is None:               # home first: the feeds are not known yet
+                self._move(inverse(self.nominal, np.zeros((1, 3)))[0])
+            targets = mark_positions(np.zeros((1, 3)))[0]
+            pose, result = register(self.model, self.nominal, self.feeds, self._marks,
+                                    self._move, targets, method)
+            after = self._marks()
+            measured = float(composite_error(pose_of_marks(after)[None],
+                                             pose_of_marks(targets)[None])[0])
+            response.pose = [float(v) for v in pose]
+            response.feeds = [float(v) for v in result.feeds]
+            response.predicted_error = float(result.predicted_error)
+            response.measured_error = measured
+            response.report_json = json.dumps({'method': method, 'message': result.message,
+                                               'seconds': result.seconds,
+                                               'marks_after_m': after.tolist()})
+            response.success, response.message = True, 'ok'
+            self.get_logger().info(f'registered ({method}): marks off by {measured * 1e6:.1f} um '
+                                   '(composite, measured)')
+        except MachineAlignmentError as exc:
+            self.get_logger().error(f'registration failed: {exc}')
+            response.success, response.message = False, str(exc)
+        finally:
+            self.calibration_service.busy.release()
+        return response
+
+
+def main(args=None):
+    run_node(PlatformCalibratorNode, args, threads=4)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,62 @@
+"""The screen-registration platform on the live graph (platform with its mark cameras,
+laser tracker, calibrator) as separate processes over DDS: one call identifies and
+evaluates, the recorded run solves again offline to the same parameters, registration puts
+the marks on target with the exact method and refuses the source's unconverged swarm."""
+import json
+import os
+
+import pytest
+
+DOMAIN = str(90 + os.getpid() % 10)   # each DDS test module has its own band
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+from alignment_msgs.srv import RegisterScreen, RunCalibration  # noqa: E402
+
+from calib_core.storage import read_calibration  # noqa: E402
+from machine_alignment.launcher import platform_graph  # noqa: E402
+from dds import call, machine_align, running  # noqa: E402
+
+
+@pytest.fixture(scope='module')
+def graph(tmp_path_factory):
+    out = tmp_path_factory.mktemp('platform_graph')
+    with running(platform_graph(str(out / 'calibration'), str(out / 'runs')), DOMAIN, out,
+                 'platform_test_client') as (graph, node):
+        yield graph, node, out
+
+
+def test_one_call_identifies_and_the_calibration_beats_the_nominal(graph):
+    running_graph, node, out = graph
+    client = node.create_client(RunCalibration, 'platform_calibrator/calibrate')
+    response = call(node, client, RunCalibration.Request(plan_yaml='{poses: 15, evaluation_poses: 8}'),
+                    timeout=120.0)
+    assert response.success, response.message
+    assert all(running_graph.alive())
+    report = json.loads(response.result.report_json)
+    evaluation = report['evaluation']
+    assert evaluation['evaluate_calibrated']['median_m'] < \
+        0.3 * evaluation['evaluate_nominal']['median_m']
+    assert len(response.result.names) == 18
+    assert read_calibration(out / 'calibration', 'platform')['report']['poses'] == 15
+
+
+def test_the_recorded_run_solves_again_offline(graph, tmp_path):
+    _, _, out = graph
+    bag = read_calibration(out / 'calibration', 'platform')['bag']
+    done = machine_align(DOMAIN, 'calibrate', 'platform', '--bag', bag, '--json',
+                         str(tmp_path / 'replay.json'))
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / 'replay.json').read_text())['max_difference_to_live'] < 1e-9
+
+
+def test_registration_exact_and_the_unconverged_swarm_refused(graph):
+    _, node, _ = graph
+    client = node.create_client(RegisterScreen, 'platform_calibrator/register')
+    response = call(node, client, RegisterScreen.Request(method='exact'))
+    assert response.success, response.message
+    assert response.measured_error < 50e-6            # marks measured after the move
+    refused = call(node, client, RegisterScreen.Request(method='pso'))
+    assert not refused.success and 'did not converge' in refused.message
+    done = machine_align(DOMAIN, 'call', 'platform_calibrator/register', 'lm')
+    assert done.returncode == 0, done.stderr
+    assert 'registered: marks off by' in done.stdout
