@@ -18,7 +18,6 @@ screen at the platform's zero) and the feeds by ``method`` (exact, lm, pso: the 
 swarm, refused when it has not converged), moves, and measures again.
 """
 import json
-import threading
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, PlatformMeasurement, Progress
