@@ -175,9 +175,13 @@ def plot(path: Path, result: dict) -> None:
     errors = result['compensation']['errors']
     low = max(min(min(v) for v in errors.values()), 1e-7) * 1e3
     bins = np.geomspace(low, max(max(v) for v in errors.values()) * 1e3 * 1.1, 60)
+    # exact, lm and the stable swarm give the same feeds: drawn wide, dashed and dotted so
+    # all three show.
+    style = {'exact': (4, '-'), 'lm': (2.5, '--'), 'pso, stable settings (200 iterations)': (1.5, ':')}
     for k, (name, values) in enumerate(errors.items()):
-        axes[0].hist(np.maximum(values, 1e-10) * 1e3, bins=bins, histtype='step', lw=1.5,
-                     color=f'C{k}', label=name)
+        width, line = style.get(name, (1.5, '-'))
+        axes[0].hist(np.maximum(values, 1e-10) * 1e3, bins=bins, histtype='step', lw=width,
+                     ls=line, color=f'C{k}', label=name)
     axes[0].axvline(0.10, color='k', ls='--', lw=1, label='source: about 0.10 mm after')
     axes[0].set_xscale('log')
     axes[0].set_xlabel('composite mark error against truth, |AA\'| + |BB\'| (mm, log scale)')
