@@ -28,7 +28,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(include=['calib_core*', 'printer_alignment*', 'hexapod_calib*',
-                                    'grid_calib*', 'platform_calib*', 'machine_alignment*']),
+                                    'grid_calib*', 'platform_calib*', 'dispenser_calib*',
+                                    'machine_alignment*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

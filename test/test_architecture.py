@@ -15,7 +15,8 @@ import ast
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-MACHINES = ('printer_alignment', 'hexapod_calib', 'grid_calib', 'platform_calib')
+MACHINES = ('printer_alignment', 'hexapod_calib', 'grid_calib', 'platform_calib',
+            'dispenser_calib')
 APP = 'machine_alignment'
 ROS = ('rclpy', 'alignment_msgs', 'sensor_msgs', 'std_msgs', 'std_srvs', 'builtin_interfaces',
        'geometry_msgs', 'launch', 'launch_ros')

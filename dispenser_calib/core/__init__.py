@@ -1,0 +1,1 @@
+"""Models, identification and localisation of the dispenser; numpy/scipy/OpenCV, no ROS."""

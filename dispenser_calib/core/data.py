@@ -1,0 +1,87 @@
+"""The dispenser's observations: per image the commanded pose and the board dots seen.
+The CSV contract of ``machine-align calibrate five-axis``: one row per dot and image,
+``image`` (a name), ``x``, ``y``, ``z`` (commanded linear axes, m), ``a``, ``c`` (commanded
+rotary axes, rad, the table's right-hand rotations about +X and +Z), ``i``, ``j`` (the
+dot's indices on the board, centred), ``u``, ``v`` (its centre in px, OpenCV: the
+top-left pixel's centre is (0, 0)). The board's dots lie at (i, j, 0) x pitch in its own
+frame."""
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+from calib_core.files import read_text
+from calib_core.storage import write_atomic
+
+COLUMNS = ('image', 'x', 'y', 'z', 'a', 'c', 'i', 'j', 'u', 'v')
+BOARD = (11, 9)          # dots along x and y
+PITCH = 2e-3             # m
+
+
+@dataclass(frozen=True)
+class Image:
+    """One image: its name, the commanded pose (5,) (x, y, z m; a, c rad), the board
+    indices (k, 2) of the dots seen and their centres (k, 2) px."""
+
+    name: str
+    pose: np.ndarray
+    indices: np.ndarray
+    pixels: np.ndarray
+
+
+def board_points(board=BOARD, pitch: float = PITCH) -> tuple[np.ndarray, np.ndarray]:
+    """The board's dots (k, 3) m in its frame (centred, z = 0) and their indices (k, 2)."""
+    ki = np.arange(board[0]) - (board[0] - 1) // 2
+    kj = np.arange(board[1]) - (board[1] - 1) // 2
+    jj, ii = np.meshgrid(kj, ki, indexing='ij')
+    indices = np.column_stack([ii.ravel(), jj.ravel()])
+    return np.column_stack([indices * pitch, np.zeros(len(indices))]), indices
+
+
+def write_observations(path, images: list[Image]) -> None:
+    lines = [','.join(COLUMNS)]
+    for image in images:
+        pose = ','.join(f'{v:.12g}' for v in image.pose)
+        lines += [f'{image.name},{pose},{i},{j},{u:.6f},{v:.6f}'
+                  for (i, j), (u, v) in zip(image.indices, image.pixels)]
+    write_atomic(path, '\n'.join(lines) + '\n')
+
+
+def read_observations(path) -> list[Image]:
+    """Images in the file's order.
+
+    Raises
+    ------
+    InvalidInputError
+        Unreadable file, missing columns, values that are not numbers or NaN, an image
+        whose rows disagree on the pose, a dot seen twice in one image (each named)."""
+    try:
+        rows = list(csv.DictReader(io.StringIO(read_text(path, 'a five-axis observations CSV'))))
+    except csv.Error as exc:
+        raise InvalidInputError(f'{path} is not a CSV file: {exc}') from None
+    if not rows or any(c not in rows[0] for c in COLUMNS):
+        raise InvalidInputError(f'{path} needs the columns {", ".join(COLUMNS)}')
+    by_image = {}
+    for number, row in enumerate(rows, start=2):
+        try:
+            pose = tuple(float(row[k]) for k in ('x', 'y', 'z', 'a', 'c'))
+            index = (int(row['i']), int(row['j']))
+            pixel = (float(row['u']), float(row['v']))
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f'{path}, line {number}: {exc}') from None
+        if not np.all(np.isfinite(pose + pixel)):
+            raise InvalidInputError(f'{path}, line {number}: NaN or infinite value')
+        entry = by_image.setdefault(row['image'], {'pose': pose, 'dots': {}})
+        if entry['pose'] != pose:
+            raise InvalidInputError(f'{path}, line {number}: image {row["image"]!r} has rows with '
+                                    'different poses (inconsistent correspondences)')
+        if index in entry['dots']:
+            raise InvalidInputError(f'{path}, line {number}: image {row["image"]!r} has dot '
+                                    f'{index} twice (inconsistent correspondences)')
+        entry['dots'][index] = pixel
+    return [Image(name, np.array(e['pose']), np.array(list(e['dots'])),
+                  np.array(list(e['dots'].values()))) for name, e in by_image.items()]

@@ -1,0 +1,212 @@
+"""The XYZAC chain of the dual-turntable dispenser with its camera on Z (SEEDS_CDE.md
+section 003, rebuilt): a board point p_W (the board's frame at a = c = 0) is seen by the
+camera at
+
+    p_V = R_M T_A(a) T_C(c) p_W + M [x y z 1]^T,
+    T_C(c) p = R(v_c, c) (p - t_c) + t_c,   T_A(a) p = R(v_a, a) (p - t_a) + t_a,
+
+C applied first because A carries C. R_M (constant: the linear axes only translate) and
+the 3 x 4 M hold the camera's mounting, the linear axes' directions and scales
+(squareness included) and the board's place at reset; v_a, t_a and v_c, t_c are the
+rotary axes' lines (direction and a point) in the board-at-reset frame. Pixels follow
+OpenCV's pinhole with k1, k2, p1, p2 on normalised coordinates.
+
+Rotation signs (tested): a and c turn the table by the right-hand rule about +v_a (nominal
++X) and +v_c (nominal +Z): a positive c carries a table point on +x towards +y, a positive
+a one on +y towards +z. (ISO 841 names such table rotations with primed letters, A' and
+C', whose positive sense is opposite to the unprimed tool-relative A and C; the data here
+are the table's own angles.)
+
+Gauge: a point's position along a rotary axis is not observable (turning about the axis
+leaves it where it is): t_a and t_c are held perpendicular to their axes, ``t . v = 0``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+
+INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2')
+GEOMETRY_NAMES = (('rm_x', 'rm_y', 'rm_z')
+                  + tuple(f'M{r}{c}' for r in range(3) for c in range(4))
+                  + ('a_tilt_1', 'a_tilt_2', 'a_offset_1', 'a_offset_2',
+                     'c_tilt_1', 'c_tilt_2', 'c_offset_1', 'c_offset_2'))
+NAMES = INTRINSIC_NAMES + GEOMETRY_NAMES
+A_NOMINAL, C_NOMINAL = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+# The camera looking straight down: its x along the board's x, its y along -y, z down.
+LOOKING_DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+def rodrigues(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations by ``angle`` (n,) rad about the unit ``axis`` (3,)."""
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    angle = np.atleast_1d(angle)[:, None, None]
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+
+
+def rotation_vector_matrix(vector: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation of a rotation vector (rad)."""
+    angle = np.linalg.norm(vector)
+    if angle < 1e-15:
+        return np.eye(3)
+    return rodrigues(vector / angle, np.array([angle]))[0]
+
+
+def _basis(nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors perpendicular to ``nominal``: the directions of its tilts and of
+    the offsets of its line."""
+    first = np.array([0.0, 1.0, 0.0]) if abs(nominal[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    first = first - nominal * (first @ nominal)
+    first /= np.linalg.norm(first)
+    return first, np.cross(nominal, first)
+
+
+@dataclass(frozen=True)
+class DispenserModel:
+    """Intrinsics (px; distortion unitless) and the 23 geometric parameters (m, rad).
+
+    The rotary axes are parametrised about their nominal directions: ``a_tilt_1, 2`` tilt
+    v_a towards the two perpendicular directions (rad, small), ``a_offset_1, 2`` place its
+    line along them (m); the same for C. For A (nominal +X) the perpendiculars are +Y and
+    +Z, for C (nominal +Z) +Y and -X."""
+
+    values: np.ndarray        # (len(NAMES),) in NAMES order
+
+    def __post_init__(self):
+        values = np.asarray(self.values, dtype=float)
+        if values.shape != (len(NAMES),) or not np.all(np.isfinite(values)):
+            raise InvalidInputError(f'a dispenser model needs {len(NAMES)} finite values')
+        object.__setattr__(self, 'values', values)
+
+    def __getitem__(self, name: str) -> float:
+        return float(self.values[NAMES.index(name)])
+
+    def with_values(self, **changes) -> 'DispenserModel':
+        values = self.values.copy()
+        for name, value in changes.items():
+            values[NAMES.index(name)] = value
+        return replace(self, values=values)
+
+    @property
+    def camera_matrix(self) -> np.ndarray:
+        return np.array([[self['fx'], 0, self['cx']], [0, self['fy'], self['cy']], [0, 0, 1.0]])
+
+    @property
+    def distortion(self) -> np.ndarray:
+        return np.array([self['k1'], self['k2'], self['p1'], self['p2']])
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """R_M: the camera's tilt (rotation vector ``rm_x, rm_y, rm_z``, rad, in the camera
+        frame) from looking straight down."""
+        tilt = rotation_vector_matrix(np.array([self['rm_x'], self['rm_y'], self['rm_z']]))
+        return tilt @ LOOKING_DOWN
+
+    @property
+    def affine(self) -> np.ndarray:
+        """M (3, 4)."""
+        start = NAMES.index('M00')
+        return self.values[start:start + 12].reshape(3, 4)
+
+    def _axis(self, prefix: str, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        first, second = _basis(nominal)
+        direction = nominal + self[f'{prefix}_tilt_1'] * first + self[f'{prefix}_tilt_2'] * second
+        direction /= np.linalg.norm(direction)
+        point = self[f'{prefix}_offset_1'] * first + self[f'{prefix}_offset_2'] * second
+        # The gauge: the point is held perpendicular to the (tilted) axis.
+        return direction, point - direction * (point @ direction)
+
+    @property
+    def a_axis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(v_a, t_a) in the board-at-reset frame."""
+        return self._axis('a', A_NOMINAL)
+
+    @property
+    def c_axis(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._axis('c', C_NOMINAL)
+
+
+def table_points(model: DispenserModel, points: np.ndarray, a: np.ndarray,
+                 c: np.ndarray) -> np.ndarray:
+    """Board points (k, 3) carried by the table at angles a, c (n,) rad: (n, k, 3) in the
+    board-at-reset frame."""
+    (va, ta), (vc, tc) = model.a_axis, model.c_axis
+    turned_c = np.einsum('nij,kj->nki', rodrigues(vc, c), points - tc) + tc
+    return np.einsum('nij,nkj->nki', rodrigues(va, a), turned_c - ta) + ta
+
+
+def camera_points(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Board points (k, 3) in the camera frame for poses (n, 5) = x, y, z (m), a, c (rad):
+    (n, k, 3)."""
+    poses = np.atleast_2d(poses)
+    on_table = table_points(model, points, poses[:, 3], poses[:, 4])
+    q = np.column_stack([poses[:, :3], np.ones(len(poses))])
+    return np.einsum('ij,nkj->nki', model.rotation, on_table) + (q @ model.affine.T)[:, None, :]
+
+
+def distort(model: DispenserModel, normalised: np.ndarray) -> np.ndarray:
+    """Pixels of normalised image coordinates (..., 2) (OpenCV's k1, k2, p1, p2)."""
+    x, y = normalised[..., 0], normalised[..., 1]
+    k1, k2, p1, p2 = model.distortion
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([model['fx'] * xd + model['cx'], model['fy'] * yd + model['cy']], -1)
+
+
+def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Pixels (k, 2) of board points (k, 3), each seen at its own pose (k, 5): every dot of
+    every image in one call."""
+    (va, ta), (vc, tc) = model.a_axis, model.c_axis
+    turned = np.einsum('kij,kj->ki', rodrigues(vc, poses[:, 4]), points - tc) + tc
+    turned = np.einsum('kij,kj->ki', rodrigues(va, poses[:, 3]), turned - ta) + ta
+    q = np.column_stack([poses[:, :3], np.ones(len(poses))])
+    p = turned @ model.rotation.T + q @ model.affine.T
+    depth = p[:, 2]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        normalised = p[:, :2] / np.where(depth > 0, depth, np.nan)[:, None]
+    return distort(model, normalised)
+
+
+def project(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Pixels (n, k, 2) of board points (k, 3) at poses (n, 5); points behind the camera
+    are NaN."""
+    p = camera_points(model, points, poses)
+    depth = p[..., 2]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        normalised = p[..., :2] / np.where(depth > 0, depth, np.nan)[..., None]
+    return distort(model, normalised)
+
+
+def nominal_model(focal_px: float = 7246.0, size=(2448, 2048),
+                  working_distance: float = 0.120, a_height: float = -0.030) -> DispenserModel:
+    """SEEDS_CDE.md's proposed machine without errors: the camera looking straight down
+    (its x along the machine's X, y along -Y, z down), at ``working_distance`` above the
+    board's centre with the axes at zero; A along X through a line ``a_height`` below the
+    board surface, C along Z through the board's centre. X and Z move the camera, Y the
+    table, so M's columns are -R_M e_X, +R_M e_Y, -R_M e_Z and the board's place."""
+    values = dict.fromkeys(NAMES, 0.0)
+    values.update(fx=focal_px, fy=focal_px, cx=(size[0] - 1) / 2, cy=(size[1] - 1) / 2)
+    rotation = LOOKING_DOWN
+    columns = np.column_stack([-rotation[:, 0], rotation[:, 1], -rotation[:, 2],
+                               np.array([0.0, 0.0, working_distance])])
+    for r in range(3):
+        for c in range(4):
+            values[f'M{r}{c}'] = columns[r, c]
+    values['a_offset_2'] = a_height                 # A's line: y = 0, z = a_height
+    return DispenserModel(np.array([values[n] for n in NAMES]))
+
+
+def place(model: DispenserModel, point: np.ndarray, a: float, c: float,
+          at_camera: np.ndarray) -> np.ndarray:
+    """The pose (5,) that brings board ``point`` (3,) m, with the table at ``a``, ``c``
+    rad, to ``at_camera`` (3,) m in the camera frame (the optical axis at the working
+    distance to look at it; the needle's tip to dispense on it): the inverse kinematics
+    of the linear axes, exact for the model."""
+    turned = table_points(model, np.asarray(point, float)[None], np.array([a]), np.array([c]))[0, 0]
+    m = model.affine
+    xyz = np.linalg.solve(m[:, :3], np.asarray(at_camera, float) - model.rotation @ turned - m[:, 3])
+    return np.array([*xyz, a, c])

@@ -1,0 +1,1 @@
+"""The simulated dispenser and its camera (tests and benches only)."""

@@ -1,0 +1,102 @@
+"""The simulated five-axis dispenser: true errors of realistic size (SEEDS_CDE.md section
+003, proposed), the dot board's images as dot centres with detection noise, some images
+with a mis-detected dot, and the stroke limits (refused). Truth is for tests and benches."""
+from __future__ import annotations
+
+import numpy as np
+
+from dispenser_calib.core.data import Image, board_points
+from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, place, project
+from dispenser_calib.errors import StrokeError
+
+IMAGE_SIZE = (2448, 2048)
+WORKING_DISTANCE = 0.120
+STROKES = {'x': (-0.200, 0.200), 'y': (-0.150, 0.150), 'z': (-0.050, 0.050),
+           'a': (-np.pi / 2, np.pi / 2), 'c': (-2 * np.pi, 2 * np.pi)}
+
+
+def true_model(seed: int = 0) -> DispenserModel:
+    """The nominal machine with: intrinsics off by up to 1 % and a lens with k1 -0.08,
+    k2 0.15 and small tangential terms; the camera tilted by up to 3 degrees; the linear
+    axes out of square by 50-200 urad and off in scale by up to 100 ppm; the board placed
+    within 1 mm; each rotary axis tilted by 100-500 urad and its line off by 20-200 um."""
+    rng = np.random.default_rng(seed)
+    nominal = nominal_model()
+    v = dict(zip(NAMES, nominal.values))
+
+    def signed(low, high):
+        return float(rng.uniform(low, high) * rng.choice([-1, 1]))
+    v['fx'] *= 1 + rng.uniform(-0.01, 0.01)
+    v['fy'] = v['fx'] * (1 + rng.uniform(-1e-3, 1e-3))
+    v['cx'] += rng.uniform(-20, 20)
+    v['cy'] += rng.uniform(-20, 20)
+    v.update(k1=-0.08, k2=0.15, p1=rng.uniform(-5e-4, 5e-4), p2=rng.uniform(-5e-4, 5e-4))
+    v['rm_x'] += np.deg2rad(rng.uniform(-3, 3))
+    v['rm_y'] += np.deg2rad(rng.uniform(-3, 3))
+    v['rm_z'] += np.deg2rad(rng.uniform(-3, 3))
+    for name in ('a_tilt_1', 'a_tilt_2', 'c_tilt_1', 'c_tilt_2'):
+        v[name] = signed(100e-6, 500e-6)
+    for name in ('a_offset_1', 'c_offset_1', 'c_offset_2'):
+        v[name] = signed(20e-6, 200e-6)
+    v['a_offset_2'] += signed(20e-6, 200e-6)
+    model = DispenserModel(np.array([v[n] for n in NAMES]))
+    # The linear axes as the camera sees them: directions out of square, scales off.
+    rotation = model.rotation
+    directions = np.eye(3) + np.array([[0, signed(50e-6, 200e-6), signed(50e-6, 200e-6)],
+                                       [0, 0, signed(50e-6, 200e-6)], [0, 0, 0]]).T
+    scale = 1 + rng.uniform(-100e-6, 100e-6, 3)
+    columns = np.column_stack([-rotation @ directions[:, 0] * scale[0],
+                               rotation @ directions[:, 1] * scale[1],
+                               -rotation @ directions[:, 2] * scale[2],
+                               np.array([0, 0, WORKING_DISTANCE])
+                               + rotation @ rng.uniform(-1e-3, 1e-3, 3) * [1, 1, 0.2]])
+    return model.with_values(**{f'M{r}{c}': columns[r, c] for r in range(3) for c in range(4)})
+
+
+def check_stroke(pose: np.ndarray) -> None:
+    for value, (name, (low, high)) in zip(pose, STROKES.items()):
+        if not low <= value <= high:
+            raise StrokeError(f'{name} = {value:.6g} is outside the stroke {low:.6g}..{high:.6g}; '
+                              'nothing moved')
+
+
+def plan_stops(nominal: DispenserModel, seed: int = 0) -> np.ndarray:
+    """The stepwise plan (n, 5): 12 linear stops (a = c = 0, not coplanar), A alone at
+    -60, -30, 30, 60 degrees, C alone every 30 degrees; each aimed (nominal model) so the
+    board's centre is on the optical axis at the working distance, then moved a little."""
+    rng = np.random.default_rng(seed + 50)
+    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+    stops = []
+    for _ in range(12):
+        pose = place(nominal, np.zeros(3), 0.0, 0.0, centre)
+        stops.append(pose + np.r_[rng.uniform(-3e-3, 3e-3, 2), rng.uniform(-4e-3, 4e-3), 0, 0])
+    for a in np.deg2rad([-60, -30, 30, 60]):
+        stops.append(place(nominal, np.zeros(3), a, 0.0, centre))
+    for c in np.deg2rad(np.arange(30, 360, 30)):
+        stops.append(place(nominal, np.zeros(3), 0.0, c, centre))
+    return np.array(stops)
+
+
+def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, seed: int = 0,
+            bad_fraction: float = 0.0) -> tuple[list[Image], list[str]]:
+    """The board imaged at each stop: the visible dots' centres with ``noise_px`` of
+    detection noise; a ``bad_fraction`` of the images has one dot mis-detected by 15-30 px
+    and one occluded. Stops outside the strokes are refused. Returns the images and the
+    names of the bad ones (truth)."""
+    rng = np.random.default_rng(seed + 60)
+    board, indices = board_points()
+    images = []
+    bad = set(rng.choice(len(stops), int(round(bad_fraction * len(stops))), replace=False))
+    for k, pose in enumerate(stops):
+        check_stroke(pose)
+        pixels = project(truth, board, pose[None])[0]
+        inside = (np.all(np.isfinite(pixels), axis=1) & (pixels[:, 0] >= 0)
+                  & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] >= 0)
+                  & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
+        pixels = pixels + rng.normal(0, noise_px, pixels.shape)
+        if k in bad:
+            wrong = rng.choice(np.flatnonzero(inside), 2, replace=False)
+            pixels[wrong[0]] += rng.uniform(15, 30) * rng.choice([-1, 1], 2)
+            inside[wrong[1]] = False
+        images.append(Image(f'image{k:03d}', pose.copy(), indices[inside], pixels[inside]))
+    return images, sorted(images[k].name for k in bad)
