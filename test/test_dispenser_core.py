@@ -121,3 +121,31 @@ def test_degenerate_poses_and_bad_data_are_refused(tmp_path):
     path.write_text('\n'.join(lines[:2] + [lines[2].rsplit(',', 1)[0] + ',nan']) + '\n')
     with pytest.raises(InvalidInputError, match='NaN'):
         read_observations(path)
+
+
+def test_command_line_simulate_calibrate_locate(tmp_path, capsys):
+    from machine_alignment.cli import main
+    obs, cal = tmp_path / 'obs.csv', tmp_path / 'cal.yaml'
+    assert main(['simulate', 'five-axis', '--out', str(obs), '--seed', '3']) == 0
+    assert obs.read_text().splitlines()[0] == 'image,x,y,z,a,c,i,j,u,v'
+    assert main(['calibrate', 'five-axis', '--data', str(obs), '--out', str(cal),
+                 '--json', str(tmp_path / 'cal.json')]) == 0
+    assert (tmp_path / 'cal.png').exists()
+    from dispenser_calib.core.model import read_model
+    model, truth = read_model(cal), true_model(3)
+    feature = np.array([0.01, -0.005, 0.004])
+    rows = ['feature,x,y,z,a,c,u,v']
+    for a, c in ((0.0, 0.0), (0.3, 1.0), (-0.3, 2.5)):
+        pose = place(model, feature, a, c, np.array([0, 0, 0.12]))
+        u, v = project_rows(truth, feature[None], pose[None])[0]
+        rows.append('f1,' + ','.join(f'{x:.12g}' for x in pose) + f',{u:.6f},{v:.6f}')
+    views = tmp_path / 'views.csv'
+    views.write_text('\n'.join(rows) + '\n')
+    capsys.readouterr()
+    assert main(['locate', '--calibration', str(cal), '--data', str(views)]) == 0
+    import re
+    found = [float(v) for v in re.search(r'f1: \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) mm',
+                                         capsys.readouterr().out).groups()]
+    assert np.abs(np.array(found) * 1e-3 - feature).max() < 2e-6       # um-level, noise-free
+    views.write_text('\n'.join(rows[:2]) + '\n')
+    assert main(['locate', '--calibration', str(cal), '--data', str(views)]) == 2

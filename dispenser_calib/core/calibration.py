@@ -13,8 +13,7 @@ from scipy.optimize import least_squares
 from calib_core.errors import CalibrationError
 from dispenser_calib.core.data import Image, board_points
 from dispenser_calib.core.model import (
-    A_NOMINAL, C_NOMINAL, LOOKING_DOWN, NAMES, DispenserModel, _basis, nominal_model, project,
-    project_rows)
+    A_NOMINAL, C_NOMINAL, LOOKING_DOWN, NAMES, DispenserModel, _basis, project, project_rows)
 
 ZERO_ANGLE = 1e-9             # rad: a rotary axis at this or less counts as at zero
 MIN_DOTS = 6
@@ -46,7 +45,7 @@ def _chordal_mean(rotations: list) -> np.ndarray:
     return u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt
 
 
-def _axis_line(rotation_m, affine, rotations, translations, poses, angle_index, nominal):
+def _axis_line(rotation_m, affine, rotations, translations, poses, nominal):
     """A rotary axis's direction and a point on it (board-at-reset frame) from the images
     where only it turned: R_i = R_M R_axis, (I - R_axis) t = R_M^T (t_i - M q_i)."""
     directions, rows, right = [], [], []
@@ -103,9 +102,9 @@ def stepwise(images: list[Image], image_size) -> DispenserModel:
     rotation_m = _chordal_mean([rotations[i] for i in linear])
     affine = np.linalg.lstsq(q, np.array([translations[i] for i in linear]), rcond=None)[0].T
     a_line = _axis_line(rotation_m, affine, [rotations[i] for i in only_a],
-                        [translations[i] for i in only_a], poses[only_a], 3, A_NOMINAL)
+                        [translations[i] for i in only_a], poses[only_a], A_NOMINAL)
     c_line = _axis_line(rotation_m, affine, [rotations[i] for i in only_c],
-                        [translations[i] for i in only_c], poses[only_c], 4, C_NOMINAL)
+                        [translations[i] for i in only_c], poses[only_c], C_NOMINAL)
     tilt = cv2.Rodrigues(rotation_m @ LOOKING_DOWN.T)[0].ravel()
     values = [k[0, 0], k[1, 1], k[0, 2], k[1, 2], *dist, *tilt,
               *affine.ravel(), *_axis_parameters(*a_line, A_NOMINAL),
@@ -199,8 +198,3 @@ def calibrate(images: list[Image], image_size, threshold_px: float | None = None
     result.outliers = {images[k].name: float(final[k]) for k in range(len(images))
                        if k not in set(inliers)}
     return start, result
-
-
-def nominal_start() -> DispenserModel:
-    """The drawing's machine, for the convergence from nominal."""
-    return nominal_model()

@@ -25,8 +25,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+import yaml
 
 from calib_core.errors import InvalidInputError
+from calib_core.files import read_yaml
+from calib_core.storage import write_atomic
 
 INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2')
 GEOMETRY_NAMES = (('rm_x', 'rm_y', 'rm_z')
@@ -210,3 +213,24 @@ def place(model: DispenserModel, point: np.ndarray, a: float, c: float,
     m = model.affine
     xyz = np.linalg.solve(m[:, :3], np.asarray(at_camera, float) - model.rotation @ turned - m[:, 3])
     return np.array([*xyz, a, c])
+
+
+def write_model(path, model: DispenserModel, extra: dict | None = None) -> None:
+    """YAML: the named parameters (px, 1, m, rad) and ``extra`` (std devs, the report)."""
+    content = {'parameters': dict(zip(NAMES, map(float, model.values))), **(extra or {})}
+    write_atomic(path, yaml.safe_dump(content, sort_keys=False))
+
+
+def read_model(path) -> DispenserModel:
+    """The model of :func:`write_model`'s file.
+
+    Raises
+    ------
+    InvalidInputError
+        Unreadable, not YAML, a parameter missing or not a number."""
+    content = read_yaml(path, 'a five-axis calibration')
+    try:
+        return DispenserModel(np.array([float(content['parameters'][n]) for n in NAMES]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InvalidInputError(f'{path}: a five-axis calibration needs the parameters '
+                                f'{", ".join(NAMES)} as numbers ({exc!r})') from None

@@ -10,7 +10,7 @@ import cv2
 
 from calib_core.errors import MachineAlignmentError
 from machine_alignment.cli import (
-    analyze, calibrate, call, detect, evaluate, graphs, platform, simulate)
+    analyze, calibrate, call, detect, evaluate, five_axis, graphs, platform, simulate)
 from machine_alignment.cli.common import check_writable
 
 
@@ -20,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     for group in (detect, calibrate, evaluate, simulate, analyze, call, graphs):
         group.add_parser(sub)
     platform.add_compensate_parser(sub)
+    five_axis.add_locate_parser(sub)
     return parser
 
 

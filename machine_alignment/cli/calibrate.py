@@ -10,7 +10,7 @@ from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_ge
 from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
-from machine_alignment.cli import camera, grid, platform
+from machine_alignment.cli import camera, five_axis, grid, platform
 from machine_alignment.cli.common import print_pose_summary, quantity, read_run, write_json
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
@@ -143,6 +143,7 @@ def add_parser(sub) -> None:
     camera.add_parser(what)
     grid.add_parser(what)
     platform.add_calibrate_parser(what)
+    five_axis.add_calibrate_parser(what)
     vision = what.add_parser('vision', help='pixel size and gantry model from a recorded run')
     vision.add_argument('--bag', required=True, help='a run recorded by vision_calibrator/calibrate')
     vision.add_argument('--pitch', type=float, default=0.5e-3, help='dot pitch, m')

@@ -1,4 +1,4 @@
-"""``machine-align simulate hexapod|stage|axis|gantry|camera|grid|platform``: datasets measured on a simulated
+"""``machine-align simulate hexapod|stage|axis|gantry|camera|grid|platform|five-axis``: datasets measured on a simulated
 machine, in the formats the calibrate and analyze subcommands read."""
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from grid_calib.core.data import Region, write_marks
 from grid_calib.core.model import Grid
 from grid_calib.sim.plate import default_travel, measure_travel
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
-from machine_alignment.cli import platform
+from machine_alignment.cli import five_axis, platform
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
 from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
@@ -103,6 +103,7 @@ def add_parser(sub) -> None:
     simulate = sub.add_parser('simulate', help='write datasets measured on a simulated machine')
     simulated = simulate.add_subparsers(dest='what', required=True)
     platform.add_simulate_parser(simulated)
+    five_axis.add_simulate_parser(simulated)
     hexapod_sim = simulated.add_parser('hexapod', help='pose files from the simulated hexapod')
     hexapod_sim.add_argument('--out', required=True, help='directory')
     hexapod_sim.add_argument('--poses', type=int, default=30, help='calibration poses to measure')

@@ -1,0 +1,161 @@
+"""``machine-align simulate|calibrate five-axis`` and ``machine-align locate``: the
+five-axis dispenser's vision calibration from board images (observations CSV) and the
+localisation of a workpiece's features through the calibrated chain (issue 23)."""
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from calib_core.errors import InvalidInputError  # noqa: E402
+from calib_core.figures import arrow_key  # noqa: E402
+from calib_core.files import read_text  # noqa: E402
+from dispenser_calib.core.calibration import calibrate, reprojection  # noqa: E402
+from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
+from dispenser_calib.core.localisation import locate  # noqa: E402
+from dispenser_calib.core.model import (  # noqa: E402
+    NAMES, nominal_model, read_model, write_model)
+from dispenser_calib.sim.machine import IMAGE_SIZE, observe, plan_stops, true_model  # noqa: E402
+from machine_alignment.cli.common import parse_size, quantity, write_json  # noqa: E402
+
+
+def cmd_simulate(args) -> int:
+    truth = true_model(args.seed)
+    images, bad = observe(truth, plan_stops(nominal_model(), args.seed), args.noise, args.seed,
+                          args.bad_fraction)
+    write_observations(args.out, images)
+    print(f'wrote {args.out} ({len(images)} images of an 11 x 9 dot board, 2 mm pitch, '
+          f'{IMAGE_SIZE[0]}x{IMAGE_SIZE[1]} px; {len(bad)} with a mis-detected dot: '
+          f'{", ".join(bad) or "none"})')
+    if args.truth:
+        write_model(args.truth, truth)
+        print(f'wrote {args.truth} (the simulation\'s true model)')
+    return 0
+
+
+def _plot(path: Path, images, result) -> None:
+    """Reprojection per image, convergence per iteration, residual vectors of all dots
+    (one scale, a key), and the rotary axes' directions as tilts."""
+    errors = reprojection(result.model, images)
+    per_image = [float(np.sqrt(np.mean(e ** 2))) for e in errors]
+    fig, axes = plt.subplots(2, 2, figsize=(13, 9.5))
+    colours = ['C3' if im.name in result.outliers else 'C0' for im in images]
+    axes[0, 0].bar(np.arange(len(images)), per_image, color=colours)
+    axes[0, 0].set_yscale('log')
+    axes[0, 0].set_xlabel('image (red: set aside by RANSAC)')
+    axes[0, 0].set_ylabel('RMS reprojection (px, log)')
+    axes[0, 1].semilogy(np.arange(len(result.history)), result.history, 'o-')
+    axes[0, 1].set_xlabel('iteration')
+    axes[0, 1].set_ylabel('mean reprojection (px, log)')
+    used = [(im, e) for im, e in zip(images, errors) if im.name not in result.outliers]
+    uv = np.concatenate([im.pixels for im, _ in used])
+    r = np.concatenate([e for _, e in used])
+    longest = max(np.linalg.norm(r, axis=1).max(), 1e-9)
+    arrows = axes[1, 0].quiver(uv[:, 0], uv[:, 1], r[:, 0], r[:, 1], angles='xy',
+                               scale_units='xy', scale=longest / 60.0, width=0.002)
+    arrow_key(axes[1, 0], arrows, longest / 2, 'px')
+    axes[1, 0].set_xlim(0, IMAGE_SIZE[0])
+    axes[1, 0].set_ylim(IMAGE_SIZE[1], 0)
+    axes[1, 0].set_xlabel('u (px)')
+    axes[1, 0].set_ylabel('v (px)')
+    axes[1, 0].set_title(f'residuals of the images used (longest {longest:.3g} px)', loc='left',
+                         fontsize=10)
+    model = result.model
+    names = ['a_tilt_1', 'a_tilt_2', 'c_tilt_1', 'c_tilt_2']
+    values = [model[n] * 1e6 for n in names]
+    sigmas = [result.std_devs[NAMES.index(n)] * 1e6 for n in names]
+    axes[1, 1].errorbar(np.arange(4), values, yerr=sigmas, fmt='o', capsize=4)
+    axes[1, 1].set_xticks(np.arange(4), names)
+    axes[1, 1].axhline(0, color='k', lw=0.8)
+    axes[1, 1].set_ylabel('rotary axis tilt from nominal (urad, 1 sigma bars)')
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def cmd_calibrate(args) -> int:
+    images = read_observations(args.data)
+    size = parse_size(args.image_size) if args.image_size else IMAGE_SIZE
+    start, result = calibrate(images, size)
+    report = result.report(images)
+    print(f'{len(images)} images, {report["images_used"]} used; mean reprojection '
+          f'{report["mean_reprojection_px"]:.3f} px (RMS {report["rms_reprojection_px"]:.3f} '
+          f'px); per iteration from the stepwise start: '
+          + ', '.join(f'{h:.3g}' for h in result.history[:6]))
+    for name, error in result.outliers.items():
+        print(f'  set aside by RANSAC: {name} (RMS {error:.2f} px)')
+    for name in NAMES:
+        unit = {'fx': 'px', 'fy': 'px', 'cx': 'px', 'cy': 'px'}.get(
+            name, 'rad' if name.startswith(('rm_', 'a_tilt', 'c_tilt')) else
+            '1' if name in ('k1', 'k2', 'p1', 'p2') else 'm')
+        print(f'  {name:>11} = {quantity(report["parameters"][name], report["std_devs"][name], unit)}')
+    print(f'  gauge: {report["gauge"]}')
+    if args.out:
+        write_model(args.out, result.model, {'std_devs': report['std_devs']})
+        print(f'wrote {args.out}')
+    if args.json:
+        write_json(args.json, report)
+        plot = Path(args.json).with_suffix('.png')
+        _plot(plot, images, result)
+        print(f'wrote {plot}')
+    return 0
+
+
+def cmd_locate(args) -> int:
+    """Features from views: CSV feature, x, y, z, a, c, u, v."""
+    model = read_model(args.calibration)
+    rows = list(csv.DictReader(io.StringIO(read_text(args.data, 'a features CSV'))))
+    views = {}
+    try:
+        for row in rows:
+            views.setdefault(row['feature'], []).append(
+                [float(row[k]) for k in ('x', 'y', 'z', 'a', 'c', 'u', 'v')])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InvalidInputError(f'{args.data} needs feature, x, y, z, a, c, u, v ({exc!r})') from None
+    located = {}
+    for name, table in views.items():
+        table = np.array(table)
+        point, rms = locate(model, table[:, :5], table[:, 5:])
+        located[name] = {'position_m': point.tolist(), 'reprojection_rms_px': rms,
+                         'views': len(table)}
+        print(f'{name}: ({point[0] * 1e3:.4f}, {point[1] * 1e3:.4f}, {point[2] * 1e3:.4f}) mm '
+              f'from {len(table)} views, reprojection RMS {rms:.3f} px')
+    write_json(args.json, located)
+    return 0
+
+
+def add_simulate_parser(simulated) -> None:
+    p = simulated.add_parser('five-axis', help='board images of the simulated five-axis '
+                                               'dispenser (observations CSV)')
+    p.add_argument('--out', required=True)
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--noise', type=float, default=0.1, help='dot-centre noise, px')
+    p.add_argument('--bad-fraction', type=float, default=0.05,
+                   help='images with a mis-detected dot')
+    p.add_argument('--truth', help='also write the true model (YAML)')
+    p.set_defaults(func=cmd_simulate)
+
+
+def add_calibrate_parser(what) -> None:
+    p = what.add_parser('five-axis', help='the dispenser\'s camera and kinematic chain from '
+                                          'board images')
+    p.add_argument('--data', required=True, help='CSV: image, x, y, z (m), a, c (rad), i, j, '
+                                                 'u, v (px)')
+    p.add_argument('--image-size', help='WxH px (default 2448x2048)')
+    p.add_argument('--out', help='calibration YAML to write')
+    p.add_argument('--json', help='report to write; the plot goes beside it')
+    p.set_defaults(func=cmd_calibrate)
+
+
+def add_locate_parser(sub) -> None:
+    p = sub.add_parser('locate', help='a workpiece\'s features through the calibrated chain')
+    p.add_argument('--calibration', required=True, help='five-axis calibration YAML')
+    p.add_argument('--data', required=True, help='CSV: feature, x, y, z (m), a, c (rad), u, v (px)')
+    p.add_argument('--json', help='positions to write')
+    p.set_defaults(func=cmd_locate)
