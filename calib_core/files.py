@@ -3,6 +3,8 @@ missing, a directory, unreadable, binary or not UTF-8, not YAML. The message nam
 file and says what it is for."""
 from __future__ import annotations
 
+import csv
+import io
 import os
 
 import yaml
@@ -32,6 +34,18 @@ def read_text(path: str | os.PathLike, what: str) -> str:
     if '\x00' in text:
         raise InvalidInputError(f'{path} holds NUL bytes: a binary file, not {what}')
     return text
+
+
+def read_csv_rows(path: str | os.PathLike, what: str, columns, error=InvalidInputError) -> list:
+    """The rows of a CSV file as dicts, refused (``error``, an InvalidInputError) when it is
+    not CSV, empty, or lacks one of ``columns``."""
+    try:
+        rows = list(csv.DictReader(io.StringIO(read_text(path, what))))
+    except csv.Error as exc:
+        raise error(f'{path} is not a CSV file: {exc}') from None
+    if not rows or any(c not in rows[0] for c in columns):
+        raise error(f'{path} needs the columns {", ".join(columns)}')
+    return rows
 
 
 def read_yaml(path: str | os.PathLike, what: str):

@@ -7,14 +7,12 @@ top-left pixel's centre is (0, 0)). The board's dots lie at (i, j, 0) x pitch in
 frame."""
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass
 
 import numpy as np
 
 from calib_core.errors import InvalidInputError
-from calib_core.files import read_text
+from calib_core.files import read_csv_rows
 from calib_core.storage import write_atomic
 
 COLUMNS = ('image', 'x', 'y', 'z', 'a', 'c', 'i', 'j', 'u', 'v')
@@ -59,12 +57,7 @@ def read_observations(path) -> list[Image]:
     InvalidInputError
         Unreadable file, missing columns, values that are not numbers or NaN, an image
         whose rows disagree on the pose, a dot seen twice in one image (each named)."""
-    try:
-        rows = list(csv.DictReader(io.StringIO(read_text(path, 'a five-axis observations CSV'))))
-    except csv.Error as exc:
-        raise InvalidInputError(f'{path} is not a CSV file: {exc}') from None
-    if not rows or any(c not in rows[0] for c in COLUMNS):
-        raise InvalidInputError(f'{path} needs the columns {", ".join(COLUMNS)}')
+    rows = read_csv_rows(path, 'a five-axis observations CSV', COLUMNS)
     by_image = {}
     for number, row in enumerate(rows, start=2):
         try:

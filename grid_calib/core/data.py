@@ -5,14 +5,12 @@ with the camera centred on the mark); optional ``time`` (s) and ``temperature`` 
 reading, for the closed loop."""
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass
 
 import numpy as np
 
 from calib_core.checks import MAX_POSITION_M, check_metres
-from calib_core.files import read_text
+from calib_core.files import read_csv_rows
 from calib_core.storage import write_atomic
 from grid_calib.core.model import PLACEMENTS, Grid, site_of
 from grid_calib.core.selfcal import Placement
@@ -127,12 +125,7 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict]:
     PlacementError
         Indices that are not a centred odd grid, unknown placements, placements that do
         not lie as the method needs."""
-    try:
-        rows = list(csv.DictReader(io.StringIO(read_text(path, 'a grid marks CSV'))))
-    except csv.Error as exc:
-        raise PlacementError(f'{path} is not a CSV file: {exc}') from None
-    if not rows or any(c not in rows[0] for c in COLUMNS):
-        raise PlacementError(f'{path} needs the columns {", ".join(COLUMNS)}')
+    rows = read_csv_rows(path, 'a grid marks CSV', COLUMNS, PlacementError)
     try:
         region = np.array([int(r['region']) for r in rows])
         marks = np.array([[int(r['i']), int(r['j'])] for r in rows])

@@ -3,8 +3,6 @@ five-axis dispenser's vision calibration from board images (observations CSV) an
 localisation of a workpiece's features through the calibrated chain (issue 23)."""
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 
 import matplotlib
@@ -15,7 +13,7 @@ import numpy as np  # noqa: E402
 
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
-from calib_core.files import read_text  # noqa: E402
+from calib_core.files import read_csv_rows  # noqa: E402
 from dispenser_calib.core.calibration import calibrate, reprojection  # noqa: E402
 from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
 from dispenser_calib.core.localisation import locate  # noqa: E402
@@ -110,7 +108,7 @@ def cmd_calibrate(args) -> int:
 def cmd_locate(args) -> int:
     """Features from views: CSV feature, x, y, z, a, c, u, v."""
     model = read_model(args.calibration)
-    rows = list(csv.DictReader(io.StringIO(read_text(args.data, 'a features CSV'))))
+    rows = read_csv_rows(args.data, 'a features CSV', ('feature', 'x', 'y', 'z', 'a', 'c', 'u', 'v'))
     views = {}
     try:
         for row in rows:

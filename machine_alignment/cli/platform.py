@@ -4,8 +4,6 @@ identification, and the feed compensation by the exact inverse, Levenberg-Marqua
 the source's particle swarm, with plots."""
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 
 import matplotlib
@@ -15,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calib_core.errors import InvalidInputError  # noqa: E402
-from calib_core.files import read_text  # noqa: E402
+from calib_core.files import read_csv_rows  # noqa: E402
 from machine_alignment.cli.common import quantity, read_run, write_json  # noqa: E402
 from platform_calib.core.compensation import (  # noqa: E402
     METHODS, SCREEN, PSOSettings, compensate, composite_error)
@@ -80,7 +78,7 @@ def cmd_calibrate_platform(args) -> int:
 
 def _targets(path) -> np.ndarray:
     """x, y (m), theta (rad) per row."""
-    rows = list(csv.DictReader(io.StringIO(read_text(path, 'a targets CSV'))))
+    rows = read_csv_rows(path, 'a targets CSV', ('x', 'y', 'theta'))
     try:
         targets = np.array([[float(r['x']), float(r['y']), float(r['theta'])] for r in rows])
     except (KeyError, TypeError, ValueError) as exc:

@@ -5,8 +5,6 @@ unknowns per chain: at least 6 poses, and poses that move every chain's joint in
 directions. The residual is the closure error in m."""
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,7 +12,7 @@ from scipy.optimize import least_squares
 
 from calib_core.checks import MAX_POSITION_M, check_metres
 from calib_core.errors import CalibrationError, InvalidInputError
-from calib_core.files import read_text
+from calib_core.files import read_csv_rows
 from calib_core.storage import write_atomic
 from platform_calib.core.geometry import CHAIN_PARAMETERS, UNITS, PlatformGeometry, parameter_names
 from platform_calib.core.kinematics import joint_positions, pose_jacobians, slide_positions
@@ -57,12 +55,7 @@ class PoseData:
     def from_csv(cls, path) -> 'PoseData':
         """Columns feed1, feed2, feed3 (m), x, y (m), theta (rad); optional direction1..3,
         time, temperature."""
-        try:
-            rows = list(csv.DictReader(io.StringIO(read_text(path, 'a platform poses CSV'))))
-        except csv.Error as exc:
-            raise InvalidInputError(f'{path} is not a CSV file: {exc}') from None
-        if not rows or any(c not in rows[0] for c in COLUMNS):
-            raise InvalidInputError(f'{path} needs the columns {", ".join(COLUMNS)}')
+        rows = read_csv_rows(path, 'a platform poses CSV', COLUMNS)
         try:
             table = {c: np.array([float(r[c]) for r in rows]) for c in rows[0]
                      if c in COLUMNS or c in ('direction1', 'direction2', 'direction3',
