@@ -107,21 +107,25 @@ class Identification:
                 'poses': int(len(r))}
 
 
-def _chain_residual(geometry: PlatformGeometry, chain: int, vector: np.ndarray,
-                    data: PoseData) -> np.ndarray:
+def _chain_gap(geometry: PlatformGeometry, chain: int, vector: np.ndarray, data: PoseData):
+    """The geometry with chain ``chain``'s six parameters set to ``vector``, and C_i - B_i
+    of that chain at every pose (n, 2) m."""
     full = geometry.vector()
     full[6 * chain:6 * chain + 6] = vector
     candidate = geometry.with_vector(full)
-    d = (joint_positions(candidate, data.poses) - slide_positions(candidate, data.feeds))[:, chain]
+    gap = joint_positions(candidate, data.poses) - slide_positions(candidate, data.feeds)
+    return candidate, gap[:, chain]
+
+
+def _chain_residual(geometry: PlatformGeometry, chain: int, vector: np.ndarray,
+                    data: PoseData) -> np.ndarray:
+    candidate, d = _chain_gap(geometry, chain, vector, data)
     return np.linalg.norm(d, axis=-1) - candidate.length[chain]
 
 
 def _chain_jacobian(geometry: PlatformGeometry, chain: int, vector: np.ndarray,
                     data: PoseData) -> np.ndarray:
-    full = geometry.vector()
-    full[6 * chain:6 * chain + 6] = vector
-    candidate = geometry.with_vector(full)
-    d = (joint_positions(candidate, data.poses) - slide_positions(candidate, data.feeds))[:, chain]
+    candidate, d = _chain_gap(geometry, chain, vector, data)
     distance = np.linalg.norm(d, axis=-1)
     g_par = pose_jacobians(candidate, data.poses, data.feeds)[2][:, chain, 6 * chain:6 * chain + 6]
     jacobian = g_par / (2 * distance[:, None])      # d|d|/de = (dg/de) / (2 |d|)
