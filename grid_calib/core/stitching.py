@@ -121,7 +121,7 @@ def stitch(regions: dict, pitch: float, method: str = 'joint') -> StitchedMap:
 
     def pair_rows(a, b, rows_a, rows_b):
         """Design blocks and right side of 'G_a + S_a = G_b + S_b' at the shared sites."""
-        (oa, ra), (ob, rb) = regions[a], regions[b]
+        ra, rb = regions[a][1], regions[b][1]
         da = _similarity_rows(ra.sites[rows_a] * pitch, size)
         db = _similarity_rows(rb.sites[rows_b] * pitch, size)
         rhs = (rb.stage_error[rows_b] - ra.stage_error[rows_a]).ravel()
