@@ -20,6 +20,8 @@ NODES = {
     'platform_sim': 'platform_calib.nodes.platform_sim',
     'laser_tracker_sim': 'platform_calib.nodes.laser_tracker_sim',
     'platform_calibrator': 'platform_calib.nodes.platform_calibrator',
+    'five_axis_sim': 'dispenser_calib.nodes.five_axis_sim',
+    'five_axis_calibrator': 'dispenser_calib.nodes.five_axis_calibrator',
     'recorder': 'calib_core.nodes.recorder',
     'player': 'calib_core.nodes.player',
 }

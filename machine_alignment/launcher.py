@@ -101,6 +101,17 @@ def platform_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
     ]
 
 
+def five_axis_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
+                    bad_fraction: float = 0.05) -> list[NodeSpec]:
+    """The five-axis dispenser: the machine with its camera over the dot board, and the
+    calibrator."""
+    return [
+        NodeSpec('dispenser_calib.nodes.five_axis_sim', {'bad_fraction': bad_fraction}),
+        NodeSpec('dispenser_calib.nodes.five_axis_calibrator',
+                 {'output_dir': output_dir, 'record_dir': record_dir}),
+    ]
+
+
 def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment') -> list[dict]:
     """Keyword arguments of one ``launch_ros.actions.Node`` per node of a graph: the
     executable is the module's console script (named after the module, see setup.py)."""

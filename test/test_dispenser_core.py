@@ -12,7 +12,8 @@ from dispenser_calib.core.localisation import locate, place_path, reached, tool_
 from dispenser_calib.core.model import (
     NAMES, nominal_model, place, project_rows, table_points)
 from dispenser_calib.errors import StrokeError
-from dispenser_calib.sim.machine import IMAGE_SIZE, observe, plan_stops, true_model
+from dispenser_calib.core.procedure import plan_stops
+from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
 
 NOMINAL = nominal_model()
 TOLERANCE = {'noise_free_relative': 1e-9, 'sigmas': 3.0, 'ransac_sigmas': 4.0,

@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 
 from machine_alignment.launcher import (
-    grid_graph, hexapod_graph, platform_graph, printer_graph, stage_graph)
+    five_axis_graph, grid_graph, hexapod_graph, platform_graph, printer_graph, stage_graph)
 
 ROOT = Path(__file__).resolve().parents[1]
 GRAPHS = {'printer_sim': printer_graph, 'stage_sim': stage_graph, 'hexapod_sim': hexapod_graph,
-          'grid_sim': grid_graph, 'platform_sim': platform_graph}
+          'grid_sim': grid_graph, 'platform_sim': platform_graph, 'five_axis_sim': five_axis_graph}
 
 
 def _nodes() -> dict:

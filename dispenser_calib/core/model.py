@@ -37,6 +37,16 @@ GEOMETRY_NAMES = (('rm_x', 'rm_y', 'rm_z')
                   + ('a_tilt_1', 'a_tilt_2', 'a_offset_1', 'a_offset_2',
                      'c_tilt_1', 'c_tilt_2', 'c_offset_1', 'c_offset_2'))
 NAMES = INTRINSIC_NAMES + GEOMETRY_NAMES
+def parameter_unit(name: str) -> str:
+    """The unit of a parameter: px for the focal lengths and principal point, 1 for the
+    distortion, rad for tilts, m for the rest."""
+    if name in ('fx', 'fy', 'cx', 'cy'):
+        return 'px'
+    if name in ('k1', 'k2', 'p1', 'p2'):
+        return '1'
+    return 'rad' if name.startswith(('rm_', 'a_tilt', 'c_tilt')) else 'm'
+
+
 A_NOMINAL, C_NOMINAL = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
 # The camera looking straight down: its x along the board's x, its y along -y, z down.
 LOOKING_DOWN = np.diag([1.0, -1.0, -1.0])

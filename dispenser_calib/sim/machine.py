@@ -6,13 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from dispenser_calib.core.data import Image, board_points
-from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, place, project
-from dispenser_calib.errors import StrokeError
+from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, project
+from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
 
 IMAGE_SIZE = (2448, 2048)
-WORKING_DISTANCE = 0.120
-STROKES = {'x': (-0.200, 0.200), 'y': (-0.150, 0.150), 'z': (-0.050, 0.050),
-           'a': (-np.pi / 2, np.pi / 2), 'c': (-2 * np.pi, 2 * np.pi)}
 
 
 def true_model(seed: int = 0) -> DispenserModel:
@@ -51,30 +48,6 @@ def true_model(seed: int = 0) -> DispenserModel:
                                np.array([0, 0, WORKING_DISTANCE])
                                + rotation @ rng.uniform(-1e-3, 1e-3, 3) * [1, 1, 0.2]])
     return model.with_values(**{f'M{r}{c}': columns[r, c] for r in range(3) for c in range(4)})
-
-
-def check_stroke(pose: np.ndarray) -> None:
-    for value, (name, (low, high)) in zip(pose, STROKES.items()):
-        if not low <= value <= high:
-            raise StrokeError(f'{name} = {value:.6g} is outside the stroke {low:.6g}..{high:.6g}; '
-                              'nothing moved')
-
-
-def plan_stops(nominal: DispenserModel, seed: int = 0) -> np.ndarray:
-    """The stepwise plan (n, 5): 12 linear stops (a = c = 0, not coplanar), A alone at
-    -60, -30, 30, 60 degrees, C alone every 30 degrees; each aimed (nominal model) so the
-    board's centre is on the optical axis at the working distance, then moved a little."""
-    rng = np.random.default_rng(seed + 50)
-    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
-    stops = []
-    for _ in range(12):
-        pose = place(nominal, np.zeros(3), 0.0, 0.0, centre)
-        stops.append(pose + np.r_[rng.uniform(-3e-3, 3e-3, 2), rng.uniform(-4e-3, 4e-3), 0, 0])
-    for a in np.deg2rad([-60, -30, 30, 60]):
-        stops.append(place(nominal, np.zeros(3), a, 0.0, centre))
-    for c in np.deg2rad(np.arange(30, 360, 30)):
-        stops.append(place(nominal, np.zeros(3), 0.0, c, centre))
-    return np.array(stops)
 
 
 def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, seed: int = 0,

@@ -13,7 +13,8 @@ from calib_core.storage import write_atomic
 from dispenser_calib.core.calibration import calibrate, refine, stepwise
 from dispenser_calib.core.localisation import locate, place_path, reached, tool_centre
 from dispenser_calib.core.model import NAMES, nominal_model, place, project_rows
-from dispenser_calib.sim.machine import IMAGE_SIZE, WORKING_DISTANCE, observe, plan_stops, true_model
+from dispenser_calib.core.procedure import WORKING_DISTANCE, plan_stops
+from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
 from machine_alignment.bench import main_with_out
 
 NOMINAL = nominal_model()

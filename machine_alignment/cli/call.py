@@ -22,6 +22,7 @@ SERVICES = {
     'grid_calibrator/calibrate': (RunCalibration, '/grid_calibrator/progress', 'plan'),
     'platform_calibrator/calibrate': (RunCalibration, '/platform_calibrator/progress', 'plan'),
     'platform_calibrator/register': (RegisterScreen, None, 'method'),
+    'five_axis_calibrator/calibrate': (RunCalibration, '/five_axis_calibrator/progress', 'plan'),
     # The operator's answer to a placement request: the plate lies as asked.
     'grid_calibrator/confirm_placement': (Trigger, None, 'nothing'),
     'vision_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),

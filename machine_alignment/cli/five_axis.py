@@ -15,12 +15,16 @@ from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
 from dispenser_calib.core.calibration import calibrate, reprojection  # noqa: E402
+from dispenser_calib.core.procedure import finish  # noqa: E402
+from dispenser_calib.core.records import (  # noqa: E402
+    OBSERVATIONS_TOPIC, RESULT_TOPIC, image_from_message)
 from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
 from dispenser_calib.core.localisation import locate  # noqa: E402
 from dispenser_calib.core.model import (  # noqa: E402
-    NAMES, nominal_model, read_model, write_model)
-from dispenser_calib.sim.machine import IMAGE_SIZE, observe, plan_stops, true_model  # noqa: E402
-from machine_alignment.cli.common import parse_size, quantity, write_json  # noqa: E402
+    NAMES, nominal_model, parameter_unit, read_model, write_model)
+from dispenser_calib.core.procedure import plan_stops  # noqa: E402
+from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model  # noqa: E402
+from machine_alignment.cli.common import parse_size, quantity, read_run, write_json  # noqa: E402
 
 
 def cmd_simulate(args) -> int:
@@ -78,10 +82,19 @@ def _plot(path: Path, images, result) -> None:
 
 
 def cmd_calibrate(args) -> int:
-    images = read_observations(args.data)
     size = parse_size(args.image_size) if args.image_size else IMAGE_SIZE
-    start, result = calibrate(images, size)
-    report = result.report(images)
+    recorded = None
+    if args.bag:
+        stops, recorded = read_run(args.bag, OBSERVATIONS_TOPIC,
+                                   'alignment_msgs/msg/FiveAxisObservation', image_from_message,
+                                   'five-axis observations', RESULT_TOPIC)
+        images = [im for im, phase in stops if phase == 'calibrate']
+        result, report, _ = finish(nominal_model(size=size), size, images,
+                                   [im for im, phase in stops if phase == 'evaluate'])
+    else:
+        images = read_observations(args.data)
+        _, result = calibrate(images, size)
+        report = result.report(images)
     print(f'{len(images)} images, {report["images_used"]} used; mean reprojection '
           f'{report["mean_reprojection_px"]:.3f} px (RMS {report["rms_reprojection_px"]:.3f} '
           f'px); per iteration from the stepwise start: '
@@ -89,11 +102,21 @@ def cmd_calibrate(args) -> int:
     for name, error in result.outliers.items():
         print(f'  set aside by RANSAC: {name} (RMS {error:.2f} px)')
     for name in NAMES:
-        unit = {'fx': 'px', 'fy': 'px', 'cx': 'px', 'cy': 'px'}.get(
-            name, 'rad' if name.startswith(('rm_', 'a_tilt', 'c_tilt')) else
-            '1' if name in ('k1', 'k2', 'p1', 'p2') else 'm')
-        print(f'  {name:>11} = {quantity(report["parameters"][name], report["std_devs"][name], unit)}')
+        print(f'  {name:>11} = {quantity(report["parameters"][name], report["std_devs"][name], parameter_unit(name))}')
     print(f'  gauge: {report["gauge"]}')
+    if 'held_out' in report:
+        held = report['held_out']
+        print(f'  held out ({held["images"]} images, A and C both turned): RMS '
+              f'{held["rms_px_calibrated"]:.3f} px calibrated, {held["rms_px_nominal"]:.1f} px '
+              'nominal')
+    if recorded is not None:
+        # In standard deviations: the refinement stops at its tolerances, which floating
+        # point in another process can cross an iteration earlier or later.
+        live = np.array([recorded['parameters'][n] for n in NAMES])
+        report['max_difference_to_live_sigma'] = float(
+            (np.abs(live - result.model.values) / result.std_devs).max())
+        print(f'  same as the live run: max |difference| '
+              f'{report["max_difference_to_live_sigma"]:.3g} sigma')
     if args.out:
         write_model(args.out, result.model, {'std_devs': report['std_devs']})
         print(f'wrote {args.out}')
@@ -143,8 +166,9 @@ def add_simulate_parser(simulated) -> None:
 def add_calibrate_parser(what) -> None:
     p = what.add_parser('five-axis', help='the dispenser\'s camera and kinematic chain from '
                                           'board images')
-    p.add_argument('--data', required=True, help='CSV: image, x, y, z (m), a, c (rad), i, j, '
-                                                 'u, v (px)')
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument('--data', help='CSV: image, x, y, z (m), a, c (rad), i, j, u, v (px)')
+    source.add_argument('--bag', help='a run recorded by five_axis_calibrator')
     p.add_argument('--image-size', help='WxH px (default 2448x2048)')
     p.add_argument('--out', help='calibration YAML to write')
     p.add_argument('--json', help='report to write; the plot goes beside it')

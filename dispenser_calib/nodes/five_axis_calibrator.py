@@ -1,0 +1,134 @@
+"""five_axis_calibrator: the five-axis dispenser's vision calibration on the live graph.
+
+Service ``five_axis_calibrator/calibrate`` (RunCalibration; plan keys ``seed``,
+``evaluation``) plans the stepwise stops (linear, A alone, C alone) and ``evaluation``
+held-out stops where A and C both turn, checks every stop against the strokes before
+anything moves, drives (``five_axis/move``), images the board (``five_axis/capture_board``),
+calibrates (Zhang, stepwise start, joint refinement with RANSAC over images) and evaluates
+on the held-out images. The calibration is written as an atomic, versioned ``five_axis``
+file (readable by ``machine-align locate --calibration``), published latched on
+``/five_axis_calibrator/result``, and the run recorded to MCAP (``machine-align calibrate
+five-axis --bag`` solves it again).
+"""
+import numpy as np
+from alignment_msgs.msg import CalibrationResult, FiveAxisObservation, Progress
+from alignment_msgs.srv import CaptureDots, MoveFiveAxis, RunCalibration
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from std_msgs.msg import Header
+
+from calib_core.checks import whole_number
+from calib_core.errors import InvalidInputError
+from calib_core.nodes.calibrator import (
+    CalibrationService, call_service, declare_paths, publish_calibration_in_force)
+from calib_core.nodes.conversions import calibration_result_as_message
+from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.spin import run_node
+from dispenser_calib.core.model import NAMES, nominal_model, parameter_unit
+from dispenser_calib.core.procedure import run_five_axis_calibration
+from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
+
+PLAN_KEYS = ('seed', 'evaluation')
+
+
+def five_axis_result_message(content: dict, header, file_path='', version=0):
+    report = content['report']
+    return calibration_result_as_message(
+        'five-axis', header, report['parameters'], report['std_devs'],
+        {n: parameter_unit(n) for n in NAMES}, report, report['rms_reprojection_px'],
+        max(report['per_image_rms_px'].values()), 'px', report['images_used'], file_path,
+        version)
+
+
+class FiveAxisCalibratorNode(Node):
+
+    def __init__(self):
+        super().__init__('five_axis_calibrator')
+        declare_paths(self, 'output_dir', 'record_dir')
+        self.declare_parameter('seed', 0)
+        self.declare_parameter('evaluation', 6)
+        self.declare_parameter('image_size', [2448, 2048])
+        self.declare_parameter('call_timeout_s', 10.0)
+        self._plan_from_parameters({})
+        size = [int(v) for v in self.get_parameter('image_size').value]
+        if len(size) != 2 or min(size) <= 0:
+            raise ValueError('image_size must be two positive px counts')
+        self.image_size = tuple(size)
+        self.timeout = float(self.get_parameter('call_timeout_s').value)
+        self.nominal = nominal_model(size=self.image_size)
+        group = ReentrantCallbackGroup()
+        self.move_client = self.create_client(MoveFiveAxis, 'five_axis/move', callback_group=group)
+        self.capture_client = self.create_client(CaptureDots, 'five_axis/capture_board',
+                                                 callback_group=group)
+        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.observation_pub = self.create_publisher(FiveAxisObservation, OBSERVATIONS_TOPIC, 10)
+        self.progress_pub = self.create_publisher(Progress, '/five_axis_calibrator/progress', 10)
+        self.calibration_service = CalibrationService(self, 'five-axis', self._run, self._header)
+        self.create_service(RunCalibration, 'five_axis_calibrator/calibrate',
+                            self.calibration_service, callback_group=group)
+        publish_calibration_in_force(
+            self, 'five_axis', self.result_pub,
+            lambda content, path: five_axis_result_message(content, self._header(), path,
+                                                           content.get('version', 0)))
+
+    def _header(self):
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id='camera')
+
+    def _plan_from_parameters(self, overrides: dict) -> tuple[int, int]:
+        unknown = set(overrides) - set(PLAN_KEYS)
+        if unknown:
+            raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
+        g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
+        return whole_number(g('seed'), 'seed', 0), whole_number(g('evaluation'), 'evaluation', 0)
+
+    def _move(self, pose):
+        reached = call_service(self.move_client, MoveFiveAxis.Request(
+            pose=[float(v) for v in pose]), 'five-axis move', self.timeout)
+        return np.array(reached.pose)
+
+    def _capture(self):
+        found = call_service(self.capture_client, CaptureDots.Request(), 'board image',
+                             self.timeout)
+        return (np.column_stack([found.i, found.j]).reshape(-1, 2),
+                np.column_stack([found.u, found.v]).reshape(-1, 2))
+
+    def _record(self, run, image, phase):
+        run.record(OBSERVATIONS_TOPIC, FiveAxisObservation(
+            header=self._header(), image=image.name, phase=phase,
+            pose=[float(v) for v in image.pose], i=[int(v) for v in image.indices[:, 0]],
+            j=[int(v) for v in image.indices[:, 1]], u=[float(v) for v in image.pixels[:, 0]],
+            v=[float(v) for v in image.pixels[:, 1]]), self.observation_pub)
+
+    def _progress(self, step, total, message):
+        self.progress_pub.publish(Progress(header=self._header(), task='five_axis_calibration',
+                                           step=step, total=total, message=message))
+        self.get_logger().info(f'[{step}/{total}] {message}')
+
+    def _run(self, overrides: dict) -> CalibrationResult:
+        seed, evaluation = self._plan_from_parameters(overrides)
+        with RecordedRun(self, 'five_axis', {
+                OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
+                RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
+            result, report, _ = run_five_axis_calibration(
+                self.nominal, self.image_size, seed, evaluation, self._move, self._capture,
+                lambda image, phase: self._record(run, image, phase), self._progress)
+            path, version, content = run.save('five_axis', {
+                'parameters': report['parameters'], 'std_devs': report['std_devs'],
+                'report': report})
+            message = five_axis_result_message(content, self._header(), str(path), version)
+            run.record(RESULT_TOPIC, message, self.result_pub)
+        held = report.get('held_out', {})
+        self._progress(1, 1, f'done: mean reprojection {report["mean_reprojection_px"]:.3f} px; '
+                             f'held out {held.get("rms_px_calibrated", float("nan")):.3f} px RMS '
+                             f'(nominal {held.get("rms_px_nominal", float("nan")):.1f}); '
+                             f'set aside {sorted(result.outliers) or "none"}; wrote {path}')
+        return message
+
+
+def main(args=None):
+    run_node(FiveAxisCalibratorNode, args, threads=4)
+
+
+if __name__ == '__main__':
+    main()

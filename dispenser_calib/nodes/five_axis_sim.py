@@ -1,0 +1,75 @@
+"""five_axis_sim: the simulated five-axis dispenser (XYZAC, camera on Z) with true errors
+of realistic size (``seed``), and its camera looking at the dot board on the table.
+
+Service ``five_axis/move`` (MoveFiveAxis) drives the axes to a pose (refused outside a
+stroke: nothing moves); ``five_axis/capture_board`` (CaptureDots) images the board at the
+current pose and returns the dots found, with ``noise_px`` of detection noise and, with
+probability ``bad_fraction``, one dot mis-detected and one occluded.
+"""
+import threading
+
+import numpy as np
+from alignment_msgs.srv import CaptureDots, MoveFiveAxis
+from rclpy.node import Node
+
+from calib_core.errors import MachineAlignmentError
+from calib_core.nodes.spin import run_node
+from dispenser_calib.core.procedure import check_stroke
+from dispenser_calib.sim.machine import observe, true_model
+
+
+class FiveAxisSimNode(Node):
+
+    def __init__(self):
+        super().__init__('five_axis_sim')
+        self.declare_parameter('seed', 0)
+        self.declare_parameter('noise_px', 0.1)
+        self.declare_parameter('bad_fraction', 0.0)
+        g = lambda n: self.get_parameter(n).value  # noqa: E731
+        if g('noise_px') < 0 or not 0 <= g('bad_fraction') <= 1:
+            raise ValueError('noise_px must be >= 0 and bad_fraction in [0, 1]')
+        self.seed, self.noise, self.bad = int(g('seed')), float(g('noise_px')), float(g('bad_fraction'))
+        self.truth = true_model(self.seed)
+        self.pose = np.zeros(5)
+        self.captures = 0
+        self.rng = np.random.default_rng(self.seed + 90)
+        self._lock = threading.Lock()
+        self.create_service(MoveFiveAxis, 'five_axis/move', self.on_move)
+        self.create_service(CaptureDots, 'five_axis/capture_board', self.on_capture)
+
+    def on_move(self, request, response):
+        try:
+            pose = np.asarray(request.pose, dtype=float)
+            if pose.shape != (5,) or not np.all(np.isfinite(pose)):
+                raise MachineAlignmentError('a pose is five finite values: x, y, z (m), a, c (rad)')
+            check_stroke(pose)
+        except MachineAlignmentError as exc:
+            self.get_logger().error(f'move refused: {exc}')
+            response.success, response.message = False, str(exc)
+            return response
+        with self._lock:
+            self.pose = pose
+        response.success, response.message, response.pose = True, 'ok', [float(v) for v in pose]
+        return response
+
+    def on_capture(self, request, response):
+        with self._lock:
+            pose, self.captures = self.pose.copy(), self.captures + 1
+            bad = 1.0 if self.rng.random() < self.bad else 0.0
+            images, _ = observe(self.truth, pose[None], self.noise,
+                                self.seed * 100003 + self.captures, bad)
+        image = images[0]
+        response.success, response.message = True, f'{len(image.indices)} dots'
+        response.i = [int(v) for v in image.indices[:, 0]]
+        response.j = [int(v) for v in image.indices[:, 1]]
+        response.u = [float(v) for v in image.pixels[:, 0]]
+        response.v = [float(v) for v in image.pixels[:, 1]]
+        return response
+
+
+def main(args=None):
+    run_node(FiveAxisSimNode, args)
+
+
+if __name__ == '__main__':
+    main()
