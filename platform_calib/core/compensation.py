@@ -146,8 +146,8 @@ def _levenberg_marquardt(model, target, nominal_feeds, screen) -> Compensation:
 
 
 def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compensation:
-    """The source's route: corrections to the nominal feeds within +-``bound``, the cost
-    the model's composite error."""
+    """The source's route: corrections to the nominal feeds within +-``bound`` (and the
+    stroke), the cost the model's composite error."""
 
     def cost(corrections):
         # All particles in one batched Newton; a candidate no pose closes costs infinity.
@@ -155,7 +155,10 @@ def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compe
         errors = composite_error(reached, np.repeat(target[None], len(reached), 0), screen)
         return np.where(np.isfinite(errors), errors, np.inf)
 
-    bound = np.full(3, settings.bound)
+    # The corrections within +-bound and the feeds within their stroke.
+    low, high = model.stroke
+    lower = np.maximum(-settings.bound, low - nominal_feeds)
+    upper = np.minimum(settings.bound, high - nominal_feeds)
     # pyswarms draws from numpy's global generator: seed it for this run and put the
     # caller's state back.
     state = np.random.get_state()
@@ -164,7 +167,7 @@ def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compe
         optimizer = pyswarms.single.GlobalBestPSO(
             settings.particles, 3, {'c1': settings.c1, 'c2': settings.c2,
                                     'w': settings.inertia},
-            bounds=(-bound, bound), bh_strategy='reflective')
+            bounds=(lower, upper), bh_strategy='reflective')
         best, correction = optimizer.optimize(cost, iters=settings.iterations, verbose=False)
     finally:
         np.random.set_state(state)
