@@ -68,3 +68,25 @@ def reached(model: DispenserModel, tip: np.ndarray, poses: np.ndarray) -> np.nda
         p = rodrigues(va, np.array([-q[3]]))[0] @ (on_table - ta) + ta
         out.append(rodrigues(vc, np.array([-q[4]]))[0] @ (p - tc) + tc)
     return np.array(out)
+
+
+def fit_part_pose(cad: np.ndarray, located: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The rigid motion (R (3, 3), t (3,) m) that carries the part's CAD features (k, 3) onto
+    their located positions (k, 3) (Kabsch), and the RMS misfit (m).
+
+    Raises
+    ------
+    InvalidInputError
+        Fewer than 3 features, or features on one line (the pose is not determined)."""
+    cad, located = np.atleast_2d(cad), np.atleast_2d(located)
+    if len(cad) < 3 or cad.shape != located.shape:
+        raise InvalidInputError('a part pose needs at least 3 located features matching its CAD')
+    centred_cad, centred = cad - cad.mean(axis=0), located - located.mean(axis=0)
+    if np.linalg.matrix_rank(centred_cad, tol=1e-9) < 2:
+        raise InvalidInputError('the CAD features lie on one line: the part\'s pose is not '
+                                'determined')
+    u, _, vt = np.linalg.svd(centred_cad.T @ centred)
+    rotation = (u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt).T
+    translation = located.mean(axis=0) - rotation @ cad.mean(axis=0)
+    misfit = located - (cad @ rotation.T + translation)
+    return rotation, translation, float(np.sqrt(np.mean(np.sum(misfit ** 2, axis=1))))

@@ -7,14 +7,25 @@ from __future__ import annotations
 
 from typing import Callable
 
+import cv2
 import numpy as np
 
+from calib_core.errors import InvalidInputError
 from dispenser_calib.core.calibration import calibrate, reprojection
 from dispenser_calib.core.data import Image
+from dispenser_calib.core.localisation import fit_part_pose, locate, place_path
 from dispenser_calib.core.model import DispenserModel, place
 from dispenser_calib.errors import StrokeError
 
 WORKING_DISTANCE = 0.120        # m, the camera to the board's centre
+# A part for the localisation: its features (m, part frame), a 12-point circle to
+# dispense (m), the needle tip in the camera frame (m) and the views of each feature.
+PART_CAD = np.array([[0.02, 0.01, 0.005], [-0.03, 0.02, 0.008], [0.04, -0.03, 0.003],
+                     [-0.02, -0.025, 0.006]])
+PART_PATH = np.array([[0.01 * np.cos(t), 0.01 * np.sin(t), 0.006]
+                      for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)])
+NEEDLE_TIP = np.array([0.03, 0.0, 0.125])
+FEATURE_VIEWS = ((0.0, 0.0), (0.35, 0.0), (-0.35, 1.57), (0.26, 3.5))
 STROKES = {'x': (-0.200, 0.200), 'y': (-0.150, 0.150), 'z': (-0.050, 0.050),
            'a': (-np.pi / 2, np.pi / 2), 'c': (-2 * np.pi, 2 * np.pi)}
 
@@ -108,3 +119,51 @@ def finish(nominal: DispenserModel, image_size, images: list, evaluation_images:
                               'bad_images': [im.name for im, e in zip(evaluation_images, per_image)
                                              if e >= limit]}
     return result, report, images
+
+
+def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, tip: np.ndarray,
+                     views, path_angles, move: Callable[[np.ndarray], np.ndarray],
+                     capture: Callable[[], tuple]) -> dict:
+    """Image each CAD feature (k, 3) (part frame, m) from ``views`` ((a, c) rad each; the
+    camera aimed at where the feature would be with the part at the board's origin),
+    triangulate it, fit the part's pose, and place the CAD ``path`` (p, 3) on the located
+    part with the table at ``path_angles`` (a, c) and the needle tip ``tip`` (camera
+    frame). ``capture()`` returns (feature numbers (n,), pixels (n, 2)). Every pose is
+    checked against the strokes before the machine goes there.
+
+    Raises
+    ------
+    StrokeError
+        A view or a path pose outside a stroke.
+    InvalidInputError
+        A feature seen in fewer than 2 views, or too few features for a pose."""
+    cad, centre = np.atleast_2d(cad), np.array([0.0, 0.0, WORKING_DISTANCE])
+    plan = [(k, place(model, feature, a, c, centre)) for k, feature in enumerate(cad)
+            for a, c in views]
+    for _, pose in plan:
+        check_stroke(pose)
+    seen = {k: ([], []) for k in range(len(cad))}
+    for k, pose in plan:
+        reached = np.asarray(move(pose), dtype=float)
+        numbers, pixels = capture()
+        for number, pixel in zip(numbers, np.atleast_2d(pixels)):
+            if int(number) == k:
+                seen[k][0].append(reached)
+                seen[k][1].append(pixel)
+    located, rms = [], []
+    for k, (poses, pixels) in seen.items():
+        if len(poses) < 2:
+            raise InvalidInputError(f'feature {k} was seen in {len(poses)} view(s); it needs 2')
+        point, error = locate(model, np.array(poses), np.array(pixels), cad[k])
+        located.append(point)
+        rms.append(error)
+    located = np.array(located)
+    rotation, translation, misfit = fit_part_pose(cad, located)
+    on_table = np.atleast_2d(path) @ rotation.T + translation
+    path_poses = place_path(model, tip, on_table, *path_angles)
+    for pose in path_poses:
+        check_stroke(pose)
+    return {'features_m': located.tolist(), 'reprojection_rms_px': rms,
+            'pose': {'translation_m': translation.tolist(),
+                     'rotation_vector_rad': cv2.Rodrigues(rotation)[0].ravel().tolist()},
+            'cad_misfit_rms_m': misfit, 'path_poses': path_poses.tolist()}

@@ -9,24 +9,34 @@ on the held-out images. The calibration is written as an atomic, versioned ``fiv
 file (readable by ``machine-align locate --calibration``), published latched on
 ``/five_axis_calibrator/result``, and the run recorded to MCAP (``machine-align calibrate
 five-axis --bag`` solves it again).
+
+Service ``five_axis_calibrator/locate`` (LocateWorkpiece; plan keys ``views`` (list of
+[a, c] rad), ``path_angles`` [a, c]) images each of the part's CAD features (``part_cad``)
+from several views (``five_axis/capture_features``), triangulates them through the
+calibration in force, fits the part's pose and places the dispensing path (``part_path``,
+needle tip ``needle_tip`` in the camera frame); every pose is checked against the strokes
+first.
 """
+import json
+
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, FiveAxisObservation, Progress
-from alignment_msgs.srv import CaptureDots, MoveFiveAxis, RunCalibration
+from alignment_msgs.srv import CaptureDots, LocateWorkpiece, MoveFiveAxis, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
 
 from calib_core.checks import whole_number
-from calib_core.errors import InvalidInputError
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, declare_paths, publish_calibration_in_force)
+    CalibrationService, call_service, declare_paths, parse_plan, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
-from dispenser_calib.core.model import NAMES, nominal_model, parameter_unit
-from dispenser_calib.core.procedure import run_five_axis_calibration
+from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, parameter_unit
+from dispenser_calib.core.procedure import (
+    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, locate_workpiece, run_five_axis_calibration)
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
 
 PLAN_KEYS = ('seed', 'evaluation')
@@ -50,7 +60,16 @@ class FiveAxisCalibratorNode(Node):
         self.declare_parameter('evaluation', 6)
         self.declare_parameter('image_size', [2448, 2048])
         self.declare_parameter('call_timeout_s', 10.0)
+        self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
+        self.declare_parameter('part_path', PART_PATH.ravel().tolist())
+        self.declare_parameter('needle_tip', NEEDLE_TIP.tolist())
         self._plan_from_parameters({})
+        self.cad = self._triples('part_cad')
+        self.path = self._triples('part_path')
+        self.tip = np.asarray(self.get_parameter('needle_tip').value, dtype=float)
+        if self.tip.shape != (3,) or not np.all(np.isfinite(self.tip)):
+            raise ValueError('needle_tip must be x, y, z (m) in the camera frame')
+        self.model = None
         size = [int(v) for v in self.get_parameter('image_size').value]
         if len(size) != 2 or min(size) <= 0:
             raise ValueError('image_size must be two positive px counts')
@@ -61,16 +80,27 @@ class FiveAxisCalibratorNode(Node):
         self.move_client = self.create_client(MoveFiveAxis, 'five_axis/move', callback_group=group)
         self.capture_client = self.create_client(CaptureDots, 'five_axis/capture_board',
                                                  callback_group=group)
+        self.features_client = self.create_client(CaptureDots, 'five_axis/capture_features',
+                                                  callback_group=group)
         self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
         self.observation_pub = self.create_publisher(FiveAxisObservation, OBSERVATIONS_TOPIC, 10)
         self.progress_pub = self.create_publisher(Progress, '/five_axis_calibrator/progress', 10)
         self.calibration_service = CalibrationService(self, 'five-axis', self._run, self._header)
         self.create_service(RunCalibration, 'five_axis_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
-        publish_calibration_in_force(
-            self, 'five_axis', self.result_pub,
-            lambda content, path: five_axis_result_message(content, self._header(), path,
-                                                           content.get('version', 0)))
+        self.create_service(LocateWorkpiece, 'five_axis_calibrator/locate', self.on_locate,
+                            callback_group=group)
+        publish_calibration_in_force(self, 'five_axis', self.result_pub, self._in_force)
+
+    def _triples(self, name: str) -> np.ndarray:
+        values = np.asarray(self.get_parameter(name).value, dtype=float)
+        if values.size == 0 or values.size % 3 or not np.all(np.isfinite(values)):
+            raise ValueError(f'{name} must be x y z triples (m)')
+        return values.reshape(-1, 3)
+
+    def _in_force(self, content, path):
+        self.model = DispenserModel(np.array([content['parameters'][n] for n in NAMES]))
+        return five_axis_result_message(content, self._header(), path, content.get('version', 0))
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='camera')
@@ -87,11 +117,16 @@ class FiveAxisCalibratorNode(Node):
             pose=[float(v) for v in pose]), 'five-axis move', self.timeout)
         return np.array(reached.pose)
 
-    def _capture(self):
-        found = call_service(self.capture_client, CaptureDots.Request(), 'board image',
+    def _capture(self, client=None, what='board image'):
+        found = call_service(client or self.capture_client, CaptureDots.Request(), what,
                              self.timeout)
         return (np.column_stack([found.i, found.j]).reshape(-1, 2),
                 np.column_stack([found.u, found.v]).reshape(-1, 2))
+
+    def _capture_features(self):
+        """(feature numbers (n,), pixels (n, 2)) in the current image."""
+        numbers, pixels = self._capture(self.features_client, 'feature image')
+        return numbers[:, 0], pixels
 
     def _record(self, run, image, phase):
         run.record(OBSERVATIONS_TOPIC, FiveAxisObservation(
@@ -118,12 +153,50 @@ class FiveAxisCalibratorNode(Node):
                 'report': report})
             message = five_axis_result_message(content, self._header(), str(path), version)
             run.record(RESULT_TOPIC, message, self.result_pub)
+        self.model = result.model
         held = report.get('held_out', {})
         self._progress(1, 1, f'done: mean reprojection {report["mean_reprojection_px"]:.3f} px; '
                              f'held out {held.get("rms_px_calibrated", float("nan")):.3f} px RMS '
                              f'(nominal {held.get("rms_px_nominal", float("nan")):.1f}); '
                              f'set aside {sorted(result.outliers) or "none"}; wrote {path}')
         return message
+
+
+    def on_locate(self, request, response):
+        if not self.calibration_service.busy.acquire(blocking=False):
+            response.success, response.message = False, 'a calibration is running'
+            return response
+        try:
+            if self.model is None:
+                raise CalibrationError('no five-axis calibration in force: call '
+                                       'five_axis_calibrator/calibrate first')
+            options = parse_plan(request.plan_yaml)
+            unknown = set(options) - {'views', 'path_angles'}
+            if unknown:
+                raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: views, '
+                                        'path_angles')
+            views = np.asarray(options.get('views', FEATURE_VIEWS), dtype=float)
+            angles = np.asarray(options.get('path_angles', [0.17, 0.8]), dtype=float)
+            if views.ndim != 2 or views.shape[1] != 2 or len(views) < 2 or angles.shape != (2,):
+                raise InvalidInputError('views must be at least two [a, c] pairs (rad) and '
+                                        'path_angles one [a, c]')
+            result = locate_workpiece(
+                self.model, self.cad, self.path, self.tip, [tuple(v) for v in views],
+                tuple(angles), self._move, self._capture_features)
+            response.features = [float(v) for v in np.ravel(result['features_m'])]
+            response.pose = [float(v) for v in result['pose']['translation_m']
+                             + result['pose']['rotation_vector_rad']]
+            response.path_poses = [float(v) for v in np.ravel(result['path_poses'])]
+            response.report_json = json.dumps(result)
+            response.success, response.message = True, 'ok'
+            self.get_logger().info(f'part located: CAD misfit {result["cad_misfit_rms_m"] * 1e6:.2f} '
+                                   f'um RMS; {len(result["path_poses"])} path poses')
+        except (MachineAlignmentError, TypeError, ValueError) as exc:
+            self.get_logger().error(f'localisation failed: {exc}')
+            response.success, response.message = False, str(exc)
+        finally:
+            self.calibration_service.busy.release()
+        return response
 
 
 def main(args=None):

@@ -4,7 +4,10 @@ of realistic size (``seed``), and its camera looking at the dot board on the tab
 Service ``five_axis/move`` (MoveFiveAxis) drives the axes to a pose (refused outside a
 stroke: nothing moves); ``five_axis/capture_board`` (CaptureDots) images the board at the
 current pose and returns the dots found, with ``noise_px`` of detection noise and, with
-probability ``bad_fraction``, one dot mis-detected and one occluded.
+probability ``bad_fraction``, one dot mis-detected and one occluded. A part lies on the
+table: its CAD features ``part_cad`` (x y z per feature, m) placed at ``part_pose`` (x, y,
+z m, rotation vector rad); ``five_axis/capture_features`` (CaptureDots: i the feature's
+number) returns the features in view with the same noise.
 """
 import threading
 
@@ -14,8 +17,9 @@ from rclpy.node import Node
 
 from calib_core.errors import MachineAlignmentError
 from calib_core.nodes.spin import run_node
-from dispenser_calib.core.procedure import check_stroke
-from dispenser_calib.sim.machine import observe, true_model
+from dispenser_calib.core.model import project_rows, rotation_vector_matrix
+from dispenser_calib.core.procedure import PART_CAD, check_stroke
+from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
 
 
 class FiveAxisSimNode(Node):
@@ -25,7 +29,14 @@ class FiveAxisSimNode(Node):
         self.declare_parameter('seed', 0)
         self.declare_parameter('noise_px', 0.1)
         self.declare_parameter('bad_fraction', 0.0)
+        self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
+        self.declare_parameter('part_pose', [1.5e-3, -1e-3, 0.0, 0.0, 0.0, 0.03])
         g = lambda n: self.get_parameter(n).value  # noqa: E731
+        cad = np.asarray(g('part_cad'), dtype=float)
+        placed = np.asarray(g('part_pose'), dtype=float)
+        if cad.size % 3 or not np.all(np.isfinite(cad)) or placed.shape != (6,):
+            raise ValueError('part_cad must be x y z triples (m) and part_pose six values')
+        self.features = cad.reshape(-1, 3) @ rotation_vector_matrix(placed[3:]).T + placed[:3]
         if g('noise_px') < 0 or not 0 <= g('bad_fraction') <= 1:
             raise ValueError('noise_px must be >= 0 and bad_fraction in [0, 1]')
         self.seed, self.noise, self.bad = int(g('seed')), float(g('noise_px')), float(g('bad_fraction'))
@@ -36,6 +47,7 @@ class FiveAxisSimNode(Node):
         self._lock = threading.Lock()
         self.create_service(MoveFiveAxis, 'five_axis/move', self.on_move)
         self.create_service(CaptureDots, 'five_axis/capture_board', self.on_capture)
+        self.create_service(CaptureDots, 'five_axis/capture_features', self.on_features)
 
     def on_move(self, request, response):
         try:
@@ -64,6 +76,21 @@ class FiveAxisSimNode(Node):
         response.j = [int(v) for v in image.indices[:, 1]]
         response.u = [float(v) for v in image.pixels[:, 0]]
         response.v = [float(v) for v in image.pixels[:, 1]]
+        return response
+
+
+    def on_features(self, request, response):
+        with self._lock:
+            pose = self.pose.copy()
+        pixels = project_rows(self.truth, self.features, np.repeat(pose[None], len(self.features), 0))
+        pixels = pixels + self.rng.normal(0.0, self.noise, pixels.shape)
+        inside = (np.all(np.isfinite(pixels), axis=1) & np.all(pixels >= 0, axis=1)
+                  & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
+        numbers = np.flatnonzero(inside)
+        response.success, response.message = True, f'{len(numbers)} features'
+        response.i, response.j = [int(k) for k in numbers], [0] * len(numbers)
+        response.u = [float(v) for v in pixels[numbers, 0]]
+        response.v = [float(v) for v in pixels[numbers, 1]]
         return response
 
 
