@@ -141,22 +141,42 @@ class DispenserModel:
         return self._axis('c', C_NOMINAL)
 
 
+def _table_rows(model: DispenserModel, points: np.ndarray, a: np.ndarray,
+                c: np.ndarray) -> np.ndarray:
+    """Points (k, 3), each carried by the table at its own angles a, c (k,) rad: (k, 3) in
+    the board-at-reset frame (C first: A carries C)."""
+    (va, ta), (vc, tc) = model.a_axis, model.c_axis
+    turned = np.einsum('kij,kj->ki', rodrigues(vc, c), points - tc) + tc
+    return np.einsum('kij,kj->ki', rodrigues(va, a), turned - ta) + ta
+
+
+def _camera_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Points (k, 3), each at its own pose (k, 5), in the camera frame: (k, 3)."""
+    turned = _table_rows(model, points, poses[:, 3], poses[:, 4])
+    q = np.column_stack([poses[:, :3], np.ones(len(poses))])
+    return turned @ model.rotation.T + q @ model.affine.T
+
+
+def _every_pose(points: np.ndarray, poses: np.ndarray):
+    """Every point at every pose as rows: points (n k, 3), poses (n k, 5)."""
+    points, poses = np.atleast_2d(points), np.atleast_2d(poses)
+    return np.tile(points, (len(poses), 1)), np.repeat(poses, len(points), axis=0)
+
+
 def table_points(model: DispenserModel, points: np.ndarray, a: np.ndarray,
                  c: np.ndarray) -> np.ndarray:
     """Board points (k, 3) carried by the table at angles a, c (n,) rad: (n, k, 3) in the
     board-at-reset frame."""
-    (va, ta), (vc, tc) = model.a_axis, model.c_axis
-    turned_c = np.einsum('nij,kj->nki', rodrigues(vc, c), points - tc) + tc
-    return np.einsum('nij,nkj->nki', rodrigues(va, a), turned_c - ta) + ta
+    a, c = np.atleast_1d(a), np.atleast_1d(c)
+    rows, angles = _every_pose(points, np.column_stack([a, c]))
+    return _table_rows(model, rows, angles[:, 0], angles[:, 1]).reshape(len(a), -1, 3)
 
 
 def camera_points(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """Board points (k, 3) in the camera frame for poses (n, 5) = x, y, z (m), a, c (rad):
     (n, k, 3)."""
     poses = np.atleast_2d(poses)
-    on_table = table_points(model, points, poses[:, 3], poses[:, 4])
-    q = np.column_stack([poses[:, :3], np.ones(len(poses))])
-    return np.einsum('ij,nkj->nki', model.rotation, on_table) + (q @ model.affine.T)[:, None, :]
+    return _camera_rows(model, *_every_pose(points, poses)).reshape(len(poses), -1, 3)
 
 
 def distort(model: DispenserModel, normalised: np.ndarray) -> np.ndarray:
@@ -172,12 +192,8 @@ def distort(model: DispenserModel, normalised: np.ndarray) -> np.ndarray:
 
 def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """Pixels (k, 2) of board points (k, 3), each seen at its own pose (k, 5): every dot of
-    every image in one call."""
-    (va, ta), (vc, tc) = model.a_axis, model.c_axis
-    turned = np.einsum('kij,kj->ki', rodrigues(vc, poses[:, 4]), points - tc) + tc
-    turned = np.einsum('kij,kj->ki', rodrigues(va, poses[:, 3]), turned - ta) + ta
-    q = np.column_stack([poses[:, :3], np.ones(len(poses))])
-    p = turned @ model.rotation.T + q @ model.affine.T
+    every image in one call; points behind the camera are NaN."""
+    p = _camera_rows(model, points, poses)
     depth = p[:, 2]
     with np.errstate(divide='ignore', invalid='ignore'):
         normalised = p[:, :2] / np.where(depth > 0, depth, np.nan)[:, None]
@@ -187,11 +203,8 @@ def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -
 def project(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
     """Pixels (n, k, 2) of board points (k, 3) at poses (n, 5); points behind the camera
     are NaN."""
-    p = camera_points(model, points, poses)
-    depth = p[..., 2]
-    with np.errstate(divide='ignore', invalid='ignore'):
-        normalised = p[..., :2] / np.where(depth > 0, depth, np.nan)[..., None]
-    return distort(model, normalised)
+    poses = np.atleast_2d(poses)
+    return project_rows(model, *_every_pose(points, poses)).reshape(len(poses), -1, 2)
 
 
 def nominal_model(focal_px: float = 7246.0, size=(2448, 2048),
