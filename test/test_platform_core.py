@@ -126,7 +126,7 @@ def test_pose_csv_round_trip(tmp_path):
     back = PoseData.from_csv(path)
     assert np.allclose(back.poses, data.poses, atol=1e-15) and np.allclose(back.feeds, data.feeds)
     path.write_text('feed1,feed2\n1,2\n')
-    with pytest.raises(InvalidInputError, match='needs the columns'):
+    with pytest.raises(InvalidInputError, match='lacks column.*feed3, x, y, theta'):
         PoseData.from_csv(path)
 
 

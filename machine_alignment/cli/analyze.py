@@ -54,7 +54,7 @@ def _loop_machine(args, dropped: dict):
         return StageLoopModel(StageData.from_csv(args.data, dropped))
     if args.machine == 'platform':
         nominal = read_platform(args.geometry) if args.geometry else nominal_platform()
-        return PlatformLoopModel(PlatformPoseData.from_csv(args.data), nominal)
+        return PlatformLoopModel(PlatformPoseData.from_csv(args.data, dropped), nominal)
     nominal = read_geometry(args.geometry)
     data = PoseData.from_csv(args.data, nominal, dropped)
     forces = None

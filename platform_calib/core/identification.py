@@ -12,13 +12,14 @@ from scipy.optimize import least_squares
 
 from calib_core.checks import MAX_POSITION_M, check_metres
 from calib_core.errors import CalibrationError, InvalidInputError
-from calib_core.files import read_csv_rows
-from calib_core.storage import write_atomic
+from calib_core.datasets import read_columns, write_columns
 from platform_calib.core.geometry import CHAIN_PARAMETERS, UNITS, PlatformGeometry, parameter_names
 from platform_calib.core.kinematics import joint_positions, pose_jacobians, slide_positions
 
 MIN_POSES = 6
 COLUMNS = ('feed1', 'feed2', 'feed3', 'x', 'y', 'theta')
+DIRECTION_COLUMNS = ('direction1', 'direction2', 'direction3')
+COVARIATE_COLUMNS = ('time', 'temperature')
 # Below this singular value (of the chain's Jacobian with unit columns, relative to the
 # largest) a parameter combination is taken as not determined by the poses.
 RANK_TOLERANCE = 1e-6
@@ -52,36 +53,23 @@ class PoseData:
         return len(self.poses)
 
     @classmethod
-    def from_csv(cls, path) -> 'PoseData':
+    def from_csv(cls, path, dropped: dict | None = None) -> 'PoseData':
         """Columns feed1, feed2, feed3 (m), x, y (m), theta (rad); optional direction1..3,
-        time, temperature."""
-        rows = read_csv_rows(path, 'a platform poses CSV', COLUMNS)
-        try:
-            table = {c: np.array([float(r[c]) for r in rows]) for c in rows[0]
-                     if c in COLUMNS or c in ('direction1', 'direction2', 'direction3',
-                                              'time', 'temperature')}
-        except (TypeError, ValueError) as exc:
-            raise InvalidInputError(f'{path}: every value must be a number ({exc})') from None
-        covariates = {k: table[k] for k in ('time', 'temperature') if k in table}
-        if all(f'direction{i}' in table for i in (1, 2, 3)):
-            covariates['direction'] = np.column_stack([table[f'direction{i}'] for i in (1, 2, 3)])
-        return cls(np.column_stack([table['x'], table['y'], table['theta']]),
-                   np.column_stack([table['feed1'], table['feed2'], table['feed3']]),
+        time, temperature (covariates with NaN are left out and named in ``dropped``)."""
+        columns = read_columns(path, list(COLUMNS), dropped)
+        covariates = {k: columns[k] for k in COVARIATE_COLUMNS if k in columns}
+        if all(c in columns for c in DIRECTION_COLUMNS):
+            covariates['direction'] = np.column_stack([columns[c] for c in DIRECTION_COLUMNS])
+        return cls(np.column_stack([columns['x'], columns['y'], columns['theta']]),
+                   np.column_stack([columns['feed1'], columns['feed2'], columns['feed3']]),
                    covariates or None)
 
     def to_csv(self, path) -> None:
         extra = dict(self.covariates or {})
         direction = extra.pop('direction', None)
-        header = list(COLUMNS) + (['direction1', 'direction2', 'direction3']
-                                  if direction is not None else []) + sorted(extra)
-        lines = [','.join(header)]
-        for k in range(len(self)):
-            values = list(self.feeds[k]) + list(self.poses[k])
-            if direction is not None:
-                values += list(direction[k])
-            values += [extra[name][k] for name in sorted(extra)]
-            lines.append(','.join(f'{v:.12g}' for v in values))
-        write_atomic(path, '\n'.join(lines) + '\n')
+        names = list(COLUMNS) + (list(DIRECTION_COLUMNS) if direction is not None else [])
+        columns = [self.feeds, self.poses] + ([direction] if direction is not None else [])
+        write_columns(path, names + sorted(extra), columns + [extra[k] for k in sorted(extra)])
 
 
 @dataclass(frozen=True)
