@@ -20,6 +20,8 @@ system as extra columns, so the joint fit is exact and one solve:
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 from scipy import sparse, stats
 
@@ -118,8 +120,10 @@ class _Fit:
             h[start:start + block.shape[1]] = np.sum(block * z, axis=0)
         return h
 
+    @cached_property
     def held_out(self) -> dict:
-        """Leave-one-out prediction errors (PRESS) over the predictable readings."""
+        """Leave-one-out prediction errors (PRESS) over the predictable readings (one
+        leverage solve per fit, however often the loop asks)."""
         h = self.leverage()
         predictable = (1 - h) > 1e-6
         press = self.residual[predictable] / (1 - h[predictable])
@@ -198,7 +202,7 @@ def analyze_region(grid: Grid, placements: list[Placement],
         if not significant:
             break
         best = max(significant, key=lambda e: e['f_statistic'])
-        before, after = current.held_out(), best['fit'].held_out()
+        before, after = current.held_out, best['fit'].held_out
         if after['rms_m'] >= before['rms_m']:
             verdicts[best['name']] = ('rejected: significant but does not lower the held-out '
                                       f'error ({before["rms_m"] * 1e9:.2f} -> '
@@ -240,7 +244,7 @@ def _report(grid, system, base: _Fit, final: _Fit, added, verdicts, skipped, dro
                 'depend on the position only: the self-calibration holds them in G')},
             'held_out': {'method': 'leave-one-out prediction (PRESS), exact for the linear '
                                    'fit; readings no other reading predicts left out',
-                         'before': base.held_out(), 'after': final.held_out()},
+                         'before': base.held_out, 'after': final.held_out},
             'fit_rms_m': {'before': float(np.sqrt(base.rss / len(system.rhs))),
                           'after': float(np.sqrt(final.rss / len(system.rhs)))},
             'stage_error_change_m': float(np.abs(g_final - g_base).max()),

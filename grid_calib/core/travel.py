@@ -53,7 +53,7 @@ class TravelCalibration:
         for r, result in self.results.items():
             one = result.report()
             offset = np.asarray(self.origins[r]) * self.grid.pitch
-            for row in one['sites'] + (one['uncertainty_m'] or []):
+            for row in one['uncertainty_m'] or []:
                 row['x'] += float(offset[0])
                 row['y'] += float(offset[1])
             del one['sites'], one['gauge']

@@ -52,24 +52,21 @@ class PlatformSim:
         self.rng = np.random.default_rng(self.seed)
         self.phase = self.rng.uniform(0, 2 * np.pi, 3)
 
-    def slides(self, feeds) -> np.ndarray:
-        """Where the slides are for commanded ``feeds`` (3,) (m)."""
+    def slides(self, feeds, direction) -> np.ndarray:
+        """Where the slides are for commanded ``feeds`` (3,) (m) last moved in
+        ``direction`` (3,)."""
         return (feeds + np.asarray(self.screw_amplitude)
                 * np.sin(2 * np.pi * feeds / self.lead + self.phase)
-                - np.asarray(self.backlash) / 2 * self.direction)
+                - np.asarray(self.backlash) / 2 * direction)
 
     def move(self, feeds) -> np.ndarray:
         """Drive the feeds to ``feeds`` (3,) m; the pose they give (truth)."""
         feeds = check_stroke(self.geometry, feeds)[0]
         moving = feeds != self.feeds
         direction = np.where(moving, np.sign(feeds - self.feeds), self.direction)
-        previous, self.direction = self.direction, direction
-        try:
-            self.pose = forward(self.geometry, self.slides(feeds)[None], self.pose[None])[0]
-        except Exception:
-            self.direction = previous
-            raise
-        self.feeds = feeds
+        # The state changes only once the pose is known: a refused move leaves it as it was.
+        self.pose = forward(self.geometry, self.slides(feeds, direction)[None], self.pose[None])[0]
+        self.feeds, self.direction = feeds, direction
         return self.pose
 
     def read_feeds(self) -> np.ndarray:
