@@ -131,7 +131,8 @@ def cmd_calibrate(args) -> int:
 def cmd_locate(args) -> int:
     """Features from views: CSV feature, x, y, z, a, c, u, v."""
     model = read_model(args.calibration)
-    rows = read_csv_rows(args.data, 'a features CSV', ('feature', 'x', 'y', 'z', 'a', 'c', 'u', 'v'))
+    rows = read_csv_rows(args.data, 'a features CSV',
+                         ('feature', 'x', 'y', 'z', 'a', 'c', 'u', 'v'))
     views = {}
     try:
         for row in rows:
