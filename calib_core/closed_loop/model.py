@@ -2,11 +2,11 @@
 channels, covariates, residuals) and how it runs (:class:`LoopConfig`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from calib_core.effects import CATEGORICAL_COVARIATES
+from calib_core.effects import CATEGORICAL_COVARIATES, Effect, Prepared
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import ParameterSet
 
@@ -24,6 +24,8 @@ class MachineModel:
     base_model = ''
     unit = 'm'
     channels: tuple = ()
+    channel_units: tuple = ()   # per channel when not every one is in m (rad: rotary axis)
+    effect_channels: dict = {}  # candidate name -> the channels it may act on (default all)
     candidates: tuple = ()
     min_effect = 50e-9   # smallest effect worth adding, RMS in the residuals' unit
 
@@ -68,6 +70,50 @@ class MachineModel:
     def workspace(self) -> np.ndarray | None:
         """2-D position of each row for a residual vector plot, (N, 2), or None."""
         return None
+
+
+def prepare_effect(effect: Effect, machine: MachineModel, context: dict,
+                   channel_residuals: np.ndarray):
+    """``effect`` prepared on the channels the machine lets it act on (its
+    ``effect_channels``, else every channel), its term widened back to every channel and
+    its units in the channels' own; or why it cannot be tested."""
+    allowed = machine.effect_channels.get(effect.name)
+    if not allowed:
+        prepared = effect.prepare(context, machine.channels, channel_residuals)
+        return prepared if isinstance(prepared, str) else in_channel_units(prepared, machine)
+    index = [machine.channels.index(c) for c in allowed]
+    width = len(machine.channels)
+
+    def narrow(ctx):
+        return {k: v[:, index] if np.ndim(v) == 2 and np.shape(v)[1] == width else v
+                for k, v in ctx.items()}
+    prepared = effect.prepare(narrow(context), tuple(allowed), channel_residuals[:, index])
+    if isinstance(prepared, str):
+        return prepared
+
+    def term(params, ctx, inner=prepared.term):
+        part = inner(params, narrow(ctx))
+        out = np.zeros((len(part), width))
+        out[:, index] = part
+        return out
+    determined = prepared.determined and (lambda ctx, inner=prepared.determined: inner(narrow(ctx)))
+    return in_channel_units(replace(prepared, term=term, determined=determined), machine)
+
+
+def in_channel_units(prepared: Prepared, machine: MachineModel) -> Prepared:
+    """``prepared`` with the length unit of each parameter named after a channel
+    (``rate_c``, ``backlash_a``) replaced by that channel's own unit: an effect's term is in
+    its channel's unit, rad for a rotary axis (m/s becomes rad/s)."""
+    if not machine.channel_units:
+        return prepared
+    own = dict(zip(machine.channels, machine.channel_units))
+    units = []
+    for name, unit in zip(prepared.names, prepared.units):
+        channel = next((c for c in machine.channels if name.endswith(f'_{c}')), None)
+        if channel and own[channel] != 'm' and (unit == 'm' or unit.startswith('m/')):
+            unit = own[channel] + unit[1:]
+        units.append(unit)
+    return replace(prepared, units=tuple(units))
 
 
 SCALAR_COVARIATES = ('time', 'temperature', 'sequence') + CATEGORICAL_COVARIATES

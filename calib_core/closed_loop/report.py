@@ -91,6 +91,12 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
     unexplained = structure_tests(
         machine.channels, residuals_by_channel(machine, final, train),
         {k: v[train] for k, v in covariates.items()}, config.alpha)
+    if machine.channel_units:
+        own = dict(zip(machine.channels, machine.channel_units))
+        for item in unexplained:
+            item['unit'] = own[item['component'].removeprefix('residual_')]
+            along = next((c for c in machine.channels if item['covariate'].endswith(f'_{c}')), None)
+            item['covariate_unit'] = own.get(along, '')
     std = final.std_devs()
     nb = len(final.base.free_names)
     effects_added = []
@@ -159,6 +165,11 @@ def _plain(value):
     return value
 
 
+def _in_small_units(value: float, unit: str) -> tuple[float, str]:
+    """m as um and rad as urad, for the printed lines."""
+    return (value * 1e6, {'m': 'um', 'rad': 'urad'}[unit]) if unit in ('m', 'rad') else (value, unit)
+
+
 def format_report(report: dict) -> str:
     """Lines for people: what was added and how consistently, the held-out error before
     and after, what the data cannot determine, what was rejected or skipped, and what
@@ -206,8 +217,12 @@ def format_report(report: dict) -> str:
                      f'{outliers["limit"] * factor:.3g} {unit} ({OUTLIER_SIGMAS:g} robust sigma) '
                      f'under the extended model, e.g. {described}')
     for item in report['unexplained']:
-        period = f' (period {item["period"] * 1e3:.4g} mm)' if 'period' in item else ''
+        period = ''
+        if 'period' in item:
+            period = (f' (period {np.degrees(item["period"]):.4g} deg)'
+                      if item.get('covariate_unit') == 'rad' else
+                      f' (period {item["period"] * 1e3:.4g} mm)')
+        size, label = _in_small_units(item['structure_rms'], item.get('unit', report['unit']))
         lines.append(f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
-                     f'{item["covariate"]}: {item["structure_rms"] * factor:.3g} {unit} RMS '
-                     f'(p = {item["p_value"]:.2g})')
+                     f'{item["covariate"]}: {size:.3g} {label} RMS (p = {item["p_value"]:.2g})')
     return '\n'.join(lines)

@@ -16,7 +16,7 @@ from calib_core.closed_loop.fitting import (
     residuals_by_channel, without_effects)
 from calib_core.closed_loop.identifiability import (
     minimum_residuals, pure_error_variance, undetermined_reason)
-from calib_core.closed_loop.model import LoopConfig, MachineModel
+from calib_core.closed_loop.model import LoopConfig, MachineModel, prepare_effect
 from calib_core.closed_loop.report import LoopResult, loop_result
 
 
@@ -57,7 +57,7 @@ def _make_split(machine, config: LoopConfig, seed: int):
 def _try_candidate(machine, current: Fit, name: str, train, context, channel_residuals):
     """Prepare effect ``name`` on the current residuals and refit it jointly (replacing
     any effect it supersedes). Returns a scored entry, or a string: why it was not tested."""
-    prepared = LIBRARY[name].prepare(context, machine.channels, channel_residuals)
+    prepared = prepare_effect(LIBRARY[name], machine, context, channel_residuals)
     if isinstance(prepared, str):
         return prepared
     effects, values = without_effects(current, prepared.effect.supersedes)

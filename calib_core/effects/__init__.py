@@ -10,6 +10,7 @@ Each machine says what its channels are and supplies the covariates an effect ne
 ``time``         (n,) s, ``temperature`` (n,) K (differences matter, not the zero)
 ``load``         (n, C) static axial force per channel, N, compression positive
 ``normalized``   (n, 2) normalised image coordinates of a camera (x/z, y/z)
+``angle``        (n, C) rad, the angle of each rotary channel (NaN for a linear one)
 
 Names are stable (they appear in reports):
 
@@ -29,10 +30,13 @@ Names are stable (they appear in reports):
 ``leg_play``                joint play taken up by the static leg force,
                             term = -play/2 * sign(load) (m)
 ``compliance``              elastic deflection, term = -c * load (m/N)
+``angular_harmonics``       a rotary axis's angular error repeating every turn (worm gear,
+                            encoder eccentricity), sum of a_k cos(k theta) + b_k sin(k theta),
+                            orders resolved by the angles sampled (rad)
 ==========================  ============================================================
 
 Modules: ``base`` (Effect, Prepared and shared shapes), ``per_channel``, ``leg_play``,
-``periodic``, ``position``, ``categorical``, ``camera``.
+``periodic``, ``position``, ``categorical``, ``camera``, ``rotary``.
 """
 from calib_core.effects.base import Effect, Prepared
 from calib_core.effects.camera import RadialDistortion, TangentialDistortion
@@ -42,13 +46,16 @@ from calib_core.effects.per_channel import (
     Compliance, DriftTemperature, DriftTime, Offset, Reversal, Scale, Squareness)
 from calib_core.effects.periodic import Periodic, resolvable_periods
 from calib_core.effects.position import LeadError, ReversalByPosition
+from calib_core.effects.rotary import RotaryHarmonics, resolvable_orders
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
                                ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
                                DriftTime(), DriftTemperature(), RadialDistortion(),
-                               TangentialDistortion(), LegPlay(), Compliance())}
+                               TangentialDistortion(), LegPlay(), Compliance(),
+                               RotaryHarmonics())}
 
 __all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'DriftTemperature',
            'DriftTime', 'Effect', 'LeadError', 'LegPlay', 'Offset', 'Periodic', 'Prepared',
-           'RadialDistortion', 'Reversal', 'ReversalByPosition', 'Scale', 'Squareness',
-           'TangentialDistortion', 'WarmUp', 'resolvable_periods']
+           'RadialDistortion', 'Reversal', 'ReversalByPosition', 'RotaryHarmonics', 'Scale',
+           'Squareness', 'TangentialDistortion', 'WarmUp', 'resolvable_orders',
+           'resolvable_periods']

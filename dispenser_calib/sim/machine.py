@@ -4,10 +4,12 @@ with a mis-detected dot, and the stroke limits (refused). Truth is for tests and
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from dispenser_calib.core.data import Image, board_points
-from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, project
+from dispenser_calib.core.model import NAMES, DispenserModel, _camera_rows, nominal_model, project
 from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
+from dispenser_calib.core.rotary import TargetPoses, chain_rotation
 
 IMAGE_SIZE = (2448, 2048)
 
@@ -73,3 +75,35 @@ def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, see
             inside[wrong[1]] = False
         images.append(Image(f'image{k:03d}', pose.copy(), indices[inside], pixels[inside]))
     return images, sorted(images[k].name for k in bad)
+
+
+def measure_target_poses(truth: DispenserModel, a: np.ndarray, c: np.ndarray,
+                         times: np.ndarray, position_noise: float = 20e-6,
+                         rotation_noise: float = 50e-6, seed: int = 0,
+                         angular_error=None, drift: np.ndarray | None = None) -> TargetPoses:
+    """The board's pose measured by the machine's own camera (linear axes at zero) at
+    each table angle a, c (n,) rad and time (n,) s: the board's frame at reset is the table
+    frame, so the truth's axes are those of the measured target. ``angular_error`` (a
+    function of c, rad) is what C turns beyond its reading (a worm gear's error);
+    ``drift`` (3,) m/s moves the board in the camera frame (Z's thermal drift); noise is
+    normal, ``position_noise`` m per coordinate and ``rotation_noise`` rad per axis."""
+    rng = np.random.default_rng(seed + 70)
+    turned = c + (angular_error(c) if angular_error is not None else 0.0)
+    stops = np.column_stack([np.zeros((len(a), 3)), a, turned])
+    position = _camera_rows(truth, np.zeros((len(a), 3)), stops)
+    if drift is not None:
+        position = position + np.outer(times - times[0], drift)
+    rotation = chain_rotation(truth, a, turned)
+    wobble = Rotation.from_rotvec(rng.normal(0, rotation_noise, (len(a), 3))).as_matrix()
+    return TargetPoses(np.asarray(a, float), np.asarray(c, float), wobble @ rotation,
+                       position + rng.normal(0, position_noise, position.shape),
+                       {'time': np.asarray(times, float)})
+
+
+def positioner_schedule(step_seconds: float = 36.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The real positioner data set's sampling (test/data/measured/ric_two_axis_positioner):
+    A from -30 to +30 deg in 5 deg steps, at each a full turn of C in 22.5 deg steps, one
+    pose every ``step_seconds``; returns a, c (rad) and time (s)."""
+    a, c = np.meshgrid(np.deg2rad(np.arange(-30, 31, 5)), np.deg2rad(np.arange(0, 360, 22.5)),
+                       indexing='ij')
+    return a.ravel(), c.ravel(), step_seconds * np.arange(a.size)
