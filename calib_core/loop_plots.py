@@ -48,6 +48,17 @@ def _vectors(ax, machine, result, workspace, factor: float, unit: str) -> None:
                  + (', too short to see' if small else ''), fontsize=9, loc='left')
 
 
+def _covariate_scale(machine: MachineModel, name: str, kind: str) -> tuple[float, str]:
+    """Factor and unit to plot covariate ``name`` in: a channel's position or angle in
+    mm or deg by the channel's unit, the others in their own."""
+    if kind not in ('position', 'angle'):
+        return 1.0, _COVARIATE_UNITS.get(kind, '')
+    units = dict(zip(machine.channels, machine.channel_units or ('m',) * len(machine.channels)))
+    channel = next((c for c in machine.channels if name.endswith(f'_{c}')), None)
+    unit = units.get(channel, machine.unit)
+    return {'m': (1e3, 'mm'), 'rad': (180 / np.pi, 'deg')}.get(unit, (1.0, unit))
+
+
 def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     """Write the figure for ``result`` to ``path`` (PNG)."""
     report = result.report
@@ -66,6 +77,7 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     held = result.holdout
     for ax, (name, z) in zip(axes, covariates):
         kind = name.split('_')[0]
+        scale, covariate_unit = _covariate_scale(machine, name, kind)
         for shift, residuals, colour, label in (
                 (-0.12, result.residuals_before, 'tab:red', 'base model'),
                 (0.12, result.residuals_after, 'tab:blue', 'after loop')):
@@ -73,17 +85,15 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
             zz = np.broadcast_to(z[:, None], r.shape) if r.ndim == 2 else z
             if kind == 'direction':   # a category: side by side at -1 and +1, not an axis
                 zz = zz + shift
-            elif kind == 'position' and machine.unit == 'm':
-                zz = zz * 1e3
+            else:
+                zz = zz * scale
             ax.plot(zz.ravel(), r.ravel(), '.', ms=2, color=colour, alpha=0.5, label=label)
         if kind == 'direction':
             ax.set_xticks([-1, 1], ['-1: from above', '+1: from below'])
             ax.set_xlim(-1.6, 1.6)
             ax.set_xlabel(name)
-        elif kind == 'position' and machine.unit == 'm':
-            ax.set_xlabel(f'{name} (mm)')
         else:
-            ax.set_xlabel(f'{name} ({_COVARIATE_UNITS.get(kind, "")})')
+            ax.set_xlabel(f'{name} ({covariate_unit})')
         ax.set_ylabel(f'residual ({unit})')
         ax.grid(alpha=0.3)
     axes[0].legend(loc='best', fontsize=8)

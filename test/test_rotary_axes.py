@@ -1,6 +1,7 @@
 """The rotary axes from measured target poses and the closed loop on them: simulated
 with stated truth (the dispenser's table, sampled like the real positioner), and the real
 positioner (test/data/measured/ric_two_axis_positioner, Apache-2.0, see SOURCES.md)."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from dispenser_calib.core.rotary import (
     axis_lines_in_camera, identify_rotary_axes, read_target_poses, squareness,
     write_target_poses)
 from dispenser_calib.sim.machine import measure_target_poses, positioner_schedule, true_model
+from machine_alignment.cli import main
 
 REAL = Path(__file__).parent / 'data' / 'measured' / 'ric_two_axis_positioner'
 TOLERANCE = {'direction': 1e-9, 'point_m': 1e-9}
@@ -162,3 +164,25 @@ def test_real_positioner_loop(real_poses):
     assert report['rms_after'] < 0.8 * report['rms_before']
     assert 'temperature' in report['skipped']['drift_temperature']
     assert any(item['covariate'] in ('position_c', 'angle_c') for item in report['unexplained'])
+
+
+def test_cli_analyze_rotary_on_the_real_positioner(tmp_path, capsys):
+    report_path = tmp_path / 'positioner.json'
+    assert main(['analyze', 'rotary', '--data', str(REAL / 'positioner_poses.csv'),
+                 '--a-column', 'j1', '--c-column', 'j2', '--json', str(report_path)]) == 0
+    out = capsys.readouterr().out
+    assert 'A and C 89.98' in out and 'angular_harmonics' in out
+    report = json.loads(report_path.read_text())
+    assert report['identification']['lever_m'] == 0.1
+    assert report_path.with_suffix('.png').stat().st_size > 10_000
+    degrees = tmp_path / 'degrees.csv'
+    lines = (REAL / 'positioner_poses.csv').read_text().splitlines()
+    header = lines[0].split(',')
+    rows = [r.split(',') for r in lines[1:]]
+    for r in rows:
+        r[header.index('j2')] = str(np.degrees(float(r[header.index('j2')])))
+    degrees.write_text('\n'.join([lines[0]] + [','.join(r) for r in rows]))
+    assert main(['analyze', 'rotary', '--data', str(degrees), '--a-column', 'j1',
+                 '--c-column', 'j2']) == 2
+    err = capsys.readouterr().err
+    assert 'degrees given?' in err and 'Traceback' not in err

@@ -42,8 +42,8 @@ class RotaryLoopModel(MachineModel):
 
     def __init__(self, poses: TargetPoses, lever: float = LEVER):
         self.poses, self.lever = poses, lever
-        start = identify_rotary_axes(poses, lever)
-        self.frame, self.camera_start, self.start = start.frame, start.camera_start, start.values
+        self.identified = identify_rotary_axes(poses, lever)   # every pose, base model only
+        self.frame, self.camera_start = self.identified.frame, self.identified.camera_start
         angles = np.column_stack([poses.a, poses.c])
         self.directions = directions_from_order(angles)
         self._scalars = scalar_covariates(poses.covariates)
@@ -58,7 +58,7 @@ class RotaryLoopModel(MachineModel):
 
     def initial(self) -> ParameterSet:
         return ParameterSet([Parameter(n, float(v), _unit(n))
-                             for n, v in zip(FITTED_NAMES, self.start)])
+                             for n, v in zip(FITTED_NAMES, self.identified.values)])
 
     def context(self, base, rows):
         n = len(rows)

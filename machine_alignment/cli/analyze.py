@@ -5,9 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
 from calib_core.closed_loop import LoopConfig, analyze, format_report
 from calib_core.errors import MachineAlignmentError
+from dispenser_calib.core.loop_model import RotaryLoopModel
+from dispenser_calib.core.rotary import LEVER, read_target_poses
 from grid_calib.core.data import read_marks
 from grid_calib.core.residual_loop import analyze_region
 from calib_core.iso230_2 import format_figures
@@ -38,7 +42,10 @@ FORMATS = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional cycl
                        'direction1..direction3, time, temperature',
            'hexapod': 'CSV: x..yaw, meas_x..meas_yaw (m, rad); optional l1..l6 (m), '
                       'force1..force6 (N, compression positive), direction1..direction6, '
-                      'time, temperature'}
+                      'time, temperature',
+           'rotary': 'CSV: a, c (rad; other names with --a-column, --c-column), x, y, z (m, '
+                     'target origin in the instrument frame), qw, qx, qy, qz (instrument to '
+                     'target); optional time (s), temperature (K)'}
 
 
 def _loop_machine(args, dropped: dict):
@@ -55,6 +62,9 @@ def _loop_machine(args, dropped: dict):
     if args.machine == 'platform':
         nominal = read_platform(args.geometry) if args.geometry else nominal_platform()
         return PlatformLoopModel(PlatformPoseData.from_csv(args.data, dropped), nominal)
+    if args.machine == 'rotary':
+        return RotaryLoopModel(read_target_poses(args.data, args.a_column, args.c_column),
+                               args.lever)
     nominal = read_geometry(args.geometry)
     data = PoseData.from_csv(args.data, nominal, dropped)
     forces = None
@@ -95,6 +105,12 @@ def cmd_analyze(args) -> int:
         print(f'  column {name}: {reason}')
     if args.machine == 'axis':
         _axis_figures(machine, result, report, args.json)
+    if args.machine == 'rotary':
+        report['identification'] = identified = machine.identified.report()
+        print(f'  all poses, base model: A and C {90 - np.degrees(identified["squareness_a_c_rad"]):.4f}'
+              f' deg apart (+- {np.degrees(identified["squareness_std_rad"]):.4f} deg); position '
+              f'error RMS {identified["position_error_m"]["rms"] * 1e6:.0f} um, orientation '
+              f'{identified["orientation_error_rad"]["rms"] * 1e6:.0f} urad')
     if args.json:
         write_json(args.json, report)
         plot = Path(args.json).with_suffix('.png')
@@ -162,6 +178,12 @@ def add_parser(sub) -> None:
             machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
         if name == 'platform':
             machine.add_argument('--geometry', help='nominal geometry YAML (default: built-in)')
+        if name == 'rotary':
+            machine.add_argument('--a-column', default='a', help='the tilt axis A\'s column')
+            machine.add_argument('--c-column', default='c', help='the rotary table C\'s column')
+            machine.add_argument('--lever', type=float, default=LEVER,
+                                 help='m: orientation errors count as the displacement of a '
+                                      'point this far from the target origin')
         if name == 'hexapod':
             machine.add_argument('--geometry', required=True, help='nominal geometry YAML')
             machine.add_argument('--payload', type=float, nargs=4,
