@@ -176,12 +176,11 @@ def model_from(fitted: np.ndarray, camera_start: np.ndarray) -> DispenserModel:
 def _start(poses: TargetPoses, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The camera's orientation (chordal mean over every pose, nominal axes) and the
     target place and axis points by linear least squares with the gauge rows."""
-    turns = rodrigues(np.array([1.0, 0, 0]), poses.a) @ rodrigues(np.array([0, 0, 1.0]), poses.c)
-    each = poses.rotation @ frame.T @ np.transpose(turns, (0, 2, 1))
-    u, _, vt = np.linalg.svd(each.sum(axis=0))
-    camera = u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt
     ra = rodrigues(np.array([1.0, 0, 0]), poses.a)
     rc = rodrigues(np.array([0, 0, 1.0]), poses.c)
+    each = poses.rotation @ frame.T @ np.transpose(ra @ rc, (0, 2, 1))
+    u, _, vt = np.linalg.svd(each.sum(axis=0))
+    camera = u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt
     # origin in camera = R_M R_A (I - R_C) t_c + R_M (I - R_A) t_a + m
     rows = np.concatenate([np.concatenate([camera @ ra[k] @ (np.eye(3) - rc[k]),
                                            camera @ (np.eye(3) - ra[k]), np.eye(3)], axis=1)
