@@ -8,7 +8,7 @@ import pytest
 from machine_alignment.cli import main as cli_main
 from calib_core.datasets import read_columns
 from calib_core.errors import InvalidInputError
-from printer_alignment.sim.render import MarkShape, render
+from calib_core.sim.render import MarkShape, render
 
 
 def test_detect_writes_mark_centres(tmp_path, rng):

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from calib_core.errors import DetectionError, InvalidInputError
-from printer_alignment.core.marks.intensity import dot_edge_model
-from printer_alignment.core.marks import detect_marks
-from printer_alignment.sim.render import MarkShape, coverage, render
+from calib_core.marks.intensity import dot_edge_model
+from calib_core.marks import detect_marks
+from calib_core.sim.render import MarkShape, coverage, render
 
 
 def _frame(rng, kind, size, blur, noise_fraction, contrast=-150.0, n=1):

@@ -7,7 +7,7 @@ import pytest
 from calib_core.errors import CalibrationError, InvalidInputError, OutOfTravelError
 from calib_core.storage import read_calibration, write_calibration
 from printer_alignment.core.geometry import NOMINAL_LEAD_X, NOMINAL_LEADS
-from printer_alignment.core.marks import detect_marks
+from calib_core.marks import detect_marks
 from printer_alignment.core.vision_calibration import (
     GantryObservation, calibrate_gantry, calibrate_pixel_size)
 from printer_alignment.core.vision_procedure import VisionPlan, run_vision_calibration
@@ -152,7 +152,7 @@ def _tilted_grid(rng, tilt_rad, cols=10, rows=8, pitch=0.025, dot_radius=0.0075)
     its x axis): each dot rendered as the ellipse the homography's local affine map
     makes of it. Returns the image and the ellipse centres (px) in target_points order."""
     from printer_alignment.core.camera_calibration import target_points
-    from printer_alignment.sim.render import MarkShape, render
+    from calib_core.sim.render import MarkShape, render
     model = target_points('circles', cols, rows, pitch) - [pitch * (cols - 1) / 2, pitch * (rows - 1) / 2]
     focal, distance = 500.0, 0.45
     c, s = np.cos(tilt_rad), np.sin(tilt_rad)

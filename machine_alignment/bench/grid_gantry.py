@@ -27,7 +27,7 @@ from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from grid_calib.sim.plate import SmoothField, default_truth  # noqa: E402
 from machine_alignment.bench import main_with_out  # noqa: E402
 from printer_alignment.core.geometry import NOMINAL_LEADS, GantryModel  # noqa: E402
-from printer_alignment.core.marks import detect_marks  # noqa: E402
+from calib_core.marks import detect_marks  # noqa: E402
 from printer_alignment.core.vision_procedure import VisionPlan, run_vision_calibration  # noqa: E402
 from printer_alignment.sim.camera import CameraSim  # noqa: E402
 from printer_alignment.sim.gantry import GantryErrors, GantrySim  # noqa: E402

@@ -17,8 +17,8 @@ from calib_core.errors import MachineAlignmentError
 from printer_alignment.core.camera_calibration import (
     calibrate_intrinsics, camera_arrays, read_boofcv_intrinsics, reprojection_errors, rms_px, views_from_images)
 from printer_alignment.core.dot_markers import LlahIndex, load_uchiya_markers, read_marker_photos
-from printer_alignment.core.marks import detect_marks
-from printer_alignment.sim.render import MarkShape, coverage, render
+from calib_core.marks import detect_marks
+from calib_core.sim.render import MarkShape, coverage, render
 
 REAL = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'real'
 BACKGROUND, CONTRAST = 200.0, -150.0

@@ -8,7 +8,7 @@ import numpy as np
 
 from calib_core.errors import MachineAlignmentError
 from machine_alignment.cli.common import progress, write_json
-from printer_alignment.core.marks import DetectorConfig, detect_marks
+from calib_core.marks import DetectorConfig, detect_marks
 
 
 def cmd_detect(args) -> int:

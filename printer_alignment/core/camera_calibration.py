@@ -11,7 +11,7 @@ from calib_core.checks import MAX_POSITION_M, check_metres
 from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
 from calib_core.files import read_yaml
-from printer_alignment.core.marks import detect_marks
+from calib_core.marks import detect_marks
 
 INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3')
 

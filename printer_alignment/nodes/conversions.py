@@ -7,7 +7,7 @@ from alignment_msgs.msg import GantryState, Mark as MarkMsg, MarkArray
 from sensor_msgs.msg import Image
 
 from calib_core.errors import InvalidInputError
-from printer_alignment.core.marks import Mark
+from calib_core.marks import Mark
 
 _ENCODINGS = {'mono8': (np.uint8, 1), '8UC1': (np.uint8, 1), 'mono16': (np.uint16, 1),
               '16UC1': (np.uint16, 1), 'bgr8': (np.uint8, 3), 'rgb8': (np.uint8, 3)}

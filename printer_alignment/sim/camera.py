@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from printer_alignment.core.geometry import CameraToPlate
-from printer_alignment.sim.render import MarkShape, render
+from calib_core.sim.render import MarkShape, render
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import numpy as np
 
 from calib_core.figures import arrow_key
 from printer_alignment.core.geometry import NOMINAL_LEADS, CameraToPlate, GantryModel
-from printer_alignment.core.marks import detect_marks
+from calib_core.marks import detect_marks
 from printer_alignment.core.vision_calibration import plate_position
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from calib_core.errors import InvalidInputError, OutOfTravelError
 from calib_core.iso9283 import multidirectional_variation, pose_repeatability
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
-from printer_alignment.core.marks import detect_marks
+from calib_core.marks import detect_marks
 from printer_alignment.core.stage import (
     NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, path_from_below,
     platform_points_in_plate)

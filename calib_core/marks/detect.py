@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import DetectionError, InvalidInputError
-from printer_alignment.core.marks.circle import CircleStart, circle_start, fit_circles
-from printer_alignment.core.marks.config import (
+from calib_core.marks.circle import CircleStart, circle_start, fit_circles
+from calib_core.marks.config import (
     ELLIPSE_ABOVE_ASPECT, ELLIPSE_MIN_FILL, MAX_ASPECT, MAX_ELLIPSE_ASPECT, MAX_SIGMA_OF_SIZE,
     MIN_ELLIPSE_OVERLAP, MIN_FILL, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark)
-from printer_alignment.core.marks.cross import fit_cross
-from printer_alignment.core.marks.pixels import candidate_depth, check_image, full_scale
-from printer_alignment.core.marks.segmentation import estimate_noise, moment_shape, segment
+from calib_core.marks.cross import fit_cross
+from calib_core.marks.pixels import candidate_depth, check_image, full_scale
+from calib_core.marks.segmentation import estimate_noise, moment_shape, segment
 
 
 def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',

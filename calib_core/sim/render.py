@@ -23,7 +23,7 @@ import numpy as np
 from scipy.special import erf
 from scipy.stats import ncx2
 
-from printer_alignment.core.marks.intensity import cross_coverage, edge_sigma
+from calib_core.marks.intensity import cross_coverage, edge_sigma
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from printer_alignment.core.marks.config import (
+from calib_core.marks.config import (
     EXTREME_PIXELS, MAX_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN,
     SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
 

@@ -20,8 +20,8 @@ Modules: ``config`` (settings and result types), ``segmentation`` (candidates),
 sub-pixel fits), ``pixels`` (shared helpers), ``detect`` (:func:`detect_marks`); the
 batched Levenberg-Marquardt solver is ``calib_core.least_squares``.
 """
-from printer_alignment.core.marks.config import SHAPES, Detection, DetectorConfig, Mark
-from printer_alignment.core.marks.detect import detect_marks
-from printer_alignment.core.marks.segmentation import estimate_noise
+from calib_core.marks.config import SHAPES, Detection, DetectorConfig, Mark
+from calib_core.marks.detect import detect_marks
+from calib_core.marks.segmentation import estimate_noise
 
 __all__ = ['SHAPES', 'Detection', 'DetectorConfig', 'Mark', 'detect_marks', 'estimate_noise']

@@ -11,13 +11,13 @@ import numpy as np
 
 from calib_core.errors import DetectionError
 from calib_core.least_squares import batched_levenberg_marquardt
-from printer_alignment.core.marks.intensity import (
+from calib_core.marks.intensity import (
     PIXEL_APERTURE_VARIANCE, dot_edge_model, ellipse_edge_distance)
-from printer_alignment.core.marks.config import (
+from calib_core.marks.config import (
     DEGENERATE_FIT, EDGE_BAND_PX, MIN_BAND_PX, ONE_STEP_ABOVE_PX, ROUGH_FIT_PX, Mark)
-from printer_alignment.core.marks.pixels import (
+from calib_core.marks.pixels import (
     centre_covariances, check_saturation, clipped_window, residual_variance, upper_median)
-from printer_alignment.core.marks.segmentation import MomentShape
+from calib_core.marks.segmentation import MomentShape
 
 
 @dataclass(frozen=True)

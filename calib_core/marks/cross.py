@@ -5,10 +5,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calib_core.errors import DetectionError
-from printer_alignment.core.marks.intensity import cross_coverage, edge_sigma
-from printer_alignment.core.marks.config import (
+from calib_core.marks.intensity import cross_coverage, edge_sigma
+from calib_core.marks.config import (
     CROSS_MAX_EVALUATIONS, DEGENERATE_FIT, MIN_QUARTER_TURN_OVERLAP, Mark)
-from printer_alignment.core.marks.pixels import (
+from calib_core.marks.pixels import (
     centre_covariances, check_saturation, outer_ring, pixel_patch, residual_variance,
     upper_median)
 
