@@ -11,7 +11,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calib_core.errors import CalibrationError
-from dispenser_calib.core.data import Image, board_points
+from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
 from dispenser_calib.core.model import (
     A_NOMINAL, C_NOMINAL, LOOKING_DOWN, NAMES, DispenserModel, _basis, project, project_rows)
 
@@ -113,8 +113,10 @@ def stepwise(images: list[Image], image_size) -> DispenserModel:
 
 
 def reprojection(model: DispenserModel, images: list[Image]) -> list[np.ndarray]:
-    """Per image, the observed minus projected pixels (k, 2)."""
-    return [im.pixels - project(model, _board_of(im), im.pose[None])[0] for im in images]
+    """Per image, the observed minus projected pixels (k, 2) (of the dots' ellipse
+    centres, as a detector finds them)."""
+    return [im.pixels - project(model, _board_of(im), im.pose[None], DOT_RADIUS)[0]
+            for im in images]
 
 
 @dataclass
@@ -151,7 +153,7 @@ def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50)
     scale = np.maximum(np.abs(start.values), 1e-3)
 
     def residual(x):
-        r = (project_rows(DispenserModel(x * scale), points, poses) - observed).ravel()
+        r = (project_rows(DispenserModel(x * scale), points, poses, DOT_RADIUS) - observed).ravel()
         return np.where(np.isfinite(r), r, 1e6)
 
     history = [float(np.mean(np.linalg.norm(residual(start.values / scale).reshape(-1, 2),

@@ -4,7 +4,7 @@ The CSV contract of ``machine-align calibrate five-axis``: one row per dot and i
 rotary axes, rad, the table's right-hand rotations about +X and +Z), ``i``, ``j`` (the
 dot's indices on the board, centred), ``u``, ``v`` (its centre in px, OpenCV: the
 top-left pixel's centre is (0, 0)). The board's dots lie at (i, j, 0) x pitch in its own
-frame."""
+frame, each a circle of DOT_RADIUS."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,6 +18,7 @@ from calib_core.storage import write_atomic
 COLUMNS = ('image', 'x', 'y', 'z', 'a', 'c', 'i', 'j', 'u', 'v')
 BOARD = (11, 9)          # dots along x and y
 PITCH = 2e-3             # m
+DOT_RADIUS = 0.4e-3      # m: the board's dots are 0.8 mm circles
 
 
 @dataclass(frozen=True)

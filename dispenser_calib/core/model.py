@@ -190,21 +190,42 @@ def distort(model: DispenserModel, normalised: np.ndarray) -> np.ndarray:
     return np.stack([model['fx'] * xd + model['cx'], model['fy'] * yd + model['cy']], -1)
 
 
-def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+def _board_axes_rows(model: DispenserModel, poses: np.ndarray) -> np.ndarray:
+    """The board's x and y axes in the camera frame at each pose (k, 5): (k, 3, 2)."""
+    (va, _), (vc, _) = model.a_axis, model.c_axis
+    turned = model.rotation @ rodrigues(va, poses[:, 3]) @ rodrigues(vc, poses[:, 4])
+    return turned[:, :, :2]
+
+
+def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray,
+                 dot_radius: float = 0.0) -> np.ndarray:
     """Pixels (k, 2) of board points (k, 3), each seen at its own pose (k, 5): every dot of
-    every image in one call; points behind the camera are NaN."""
+    every image in one call; points behind the camera are NaN.
+
+    With ``dot_radius`` (m), each point is the centre of a circle of that radius on the
+    board, and its pixel is the centre of the circle's image, which a dot detector finds:
+    under perspective the image of a circle is an ellipse whose centre is not the image
+    of the circle's centre. The ellipse's centre is the pole of the line at infinity,
+    H diag(1, 1, -1/r^2) H^T e3 with H = [a1 a2 p] (the board's axes and the dot in the
+    camera frame), i.e. p p_z - r^2 (a1 a1_z + a2 a2_z) in homogeneous normalised
+    coordinates (Heikkila 2000). Lens distortion then moves that centre (the distortion's
+    own bias across the dot, second order in its size, is not modelled)."""
     p = _camera_rows(model, points, poses)
     depth = p[:, 2]
+    if dot_radius:
+        axes = _board_axes_rows(model, poses)
+        p = p * depth[:, None] - dot_radius ** 2 * np.einsum('kij,kj->ki', axes, axes[:, 2, :])
     with np.errstate(divide='ignore', invalid='ignore'):
-        normalised = p[:, :2] / np.where(depth > 0, depth, np.nan)[:, None]
+        normalised = p[:, :2] / np.where(depth > 0, p[:, 2], np.nan)[:, None]
     return distort(model, normalised)
 
 
-def project(model: DispenserModel, points: np.ndarray, poses: np.ndarray) -> np.ndarray:
-    """Pixels (n, k, 2) of board points (k, 3) at poses (n, 5); points behind the camera
-    are NaN."""
+def project(model: DispenserModel, points: np.ndarray, poses: np.ndarray,
+            dot_radius: float = 0.0) -> np.ndarray:
+    """Pixels (n, k, 2) of board points (k, 3) at poses (n, 5) (dot centres as
+    :func:`project_rows`); points behind the camera are NaN."""
     poses = np.atleast_2d(poses)
-    return project_rows(model, *_every_pose(points, poses)).reshape(len(poses), -1, 2)
+    return project_rows(model, *_every_pose(points, poses), dot_radius).reshape(len(poses), -1, 2)
 
 
 def nominal_model(focal_px: float = 7246.0, size=(2448, 2048),

@@ -1,12 +1,12 @@
 """The simulated five-axis dispenser: true errors of realistic size (SEEDS_CDE.md section
-003, proposed), the dot board's images as dot centres with detection noise, some images
+003, proposed), the dot board's images as the dots' ellipse centres with detection noise, some images
 with a mis-detected dot, and the stroke limits (refused). Truth is for tests and benches."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dispenser_calib.core.data import Image, board_points
+from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
 from dispenser_calib.core.model import NAMES, DispenserModel, _camera_rows, nominal_model, project
 from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
 from dispenser_calib.core.rotary import TargetPoses, chain_rotation
@@ -54,9 +54,9 @@ def true_model(seed: int = 0) -> DispenserModel:
 
 def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, seed: int = 0,
             bad_fraction: float = 0.0) -> tuple[list[Image], list[str]]:
-    """The board imaged at each stop: the visible dots' centres with ``noise_px`` of
-    detection noise; a ``bad_fraction`` of the images has one dot mis-detected by 15-30 px
-    and one occluded. Stops outside the strokes are refused. Returns the images and the
+    """The board imaged at each stop: the visible dots' ellipse centres (as a detector
+    finds them) with ``noise_px`` of detection noise; a ``bad_fraction`` of the images has
+    one dot mis-detected by 15-30 px and one occluded. Stops outside the strokes are refused. Returns the images and the
     names of the bad ones (truth)."""
     rng = np.random.default_rng(seed + 60)
     board, indices = board_points()
@@ -64,7 +64,7 @@ def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, see
     bad = set(rng.choice(len(stops), int(round(bad_fraction * len(stops))), replace=False))
     for k, pose in enumerate(stops):
         check_stroke(pose)
-        pixels = project(truth, board, pose[None])[0]
+        pixels = project(truth, board, pose[None], DOT_RADIUS)[0]
         inside = (np.all(np.isfinite(pixels), axis=1) & (pixels[:, 0] >= 0)
                   & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] >= 0)
                   & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
