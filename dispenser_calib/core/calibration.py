@@ -112,10 +112,12 @@ def stepwise(images: list[Image], image_size) -> DispenserModel:
     return DispenserModel(np.array(values, dtype=float))
 
 
-def reprojection(model: DispenserModel, images: list[Image]) -> list[np.ndarray]:
+def reprojection(model: DispenserModel, images: list[Image],
+                 dot_radius: float = DOT_RADIUS) -> list[np.ndarray]:
     """Per image, the observed minus projected pixels (k, 2) (of the dots' ellipse
-    centres, as a detector finds them)."""
-    return [im.pixels - project(model, _board_of(im), im.pose[None], DOT_RADIUS)[0]
+    centres, as a detector finds them; ``dot_radius`` 0 takes the images of the dots'
+    centres instead)."""
+    return [im.pixels - project(model, _board_of(im), im.pose[None], dot_radius)[0]
             for im in images]
 
 
@@ -144,16 +146,19 @@ class Refinement:
                          'point\'s place along a rotary axis is not observable)'}
 
 
-def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50) -> Refinement:
+def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50,
+           dot_radius: float = DOT_RADIUS) -> Refinement:
     """All parameters together by least squares on the reprojection error (trust-region
-    reflective), from ``start``; the mean reprojection recorded per iteration."""
+    reflective), from ``start``; the mean reprojection recorded per iteration. Each dot is
+    projected as the centre of its circle's image (``dot_radius``, m; 0: the image of its
+    centre, which a dot detector does not find under perspective)."""
     points = np.concatenate([_board_of(im) for im in images])
     poses = np.concatenate([np.repeat(im.pose[None], len(im.indices), 0) for im in images])
     observed = np.concatenate([im.pixels for im in images])
     scale = np.maximum(np.abs(start.values), 1e-3)
 
     def residual(x):
-        r = (project_rows(DispenserModel(x * scale), points, poses, DOT_RADIUS) - observed).ravel()
+        r = (project_rows(DispenserModel(x * scale), points, poses, dot_radius) - observed).ravel()
         return np.where(np.isfinite(r), r, 1e6)
 
     history = [float(np.mean(np.linalg.norm(residual(start.values / scale).reshape(-1, 2),

@@ -1,0 +1,63 @@
+"""The dispenser's rendered board frames through the shared Mark detector: the dots'
+ellipse centres (perspective included) and their names. The full calibration on rendered
+frames runs in `make bench` (bench_results/five_axis.md)."""
+import numpy as np
+import pytest
+
+from calib_core.errors import CalibrationError
+from dispenser_calib.core.board_images import name_dots, observe_frame
+from dispenser_calib.core.data import DOT_RADIUS, board_points
+from dispenser_calib.core.model import nominal_model, project
+from dispenser_calib.core.procedure import plan_stops
+from dispenser_calib.sim.images import dot_ellipse, render_board
+from dispenser_calib.sim.machine import IMAGE_SIZE, true_model
+
+TOLERANCE = {'conic_px': 1e-9, 'detected_px': 0.06, 'perspective_shift_px': 0.01}
+
+
+def _tilted_stop():
+    """A calibration stop where A alone turns (the dots seen most obliquely)."""
+    stops = plan_stops(nominal_model())
+    return next(s for s in stops if abs(s[3]) > 0.3 and s[4] == 0)
+
+
+def test_ellipse_centre_of_a_projected_dot_is_not_the_projected_centre():
+    """The closed form of project_rows(dot_radius) against the conic mapped by the
+    homography (no distortion: both are exact); the perspective shift itself is real."""
+    model = true_model(1).with_values(k1=0.0, k2=0.0, p1=0.0, p2=0.0)
+    board, _ = board_points()
+    pose = _tilted_stop()
+    conic = np.array([[m.u, m.v] for m in (dot_ellipse(model, pose, p) for p in board)])
+    closed = project(model, board, pose[None], DOT_RADIUS)[0]
+    centre = project(model, board, pose[None])[0]
+    assert np.abs(conic - closed).max() < TOLERANCE['conic_px']
+    assert np.abs(conic - centre).max() > TOLERANCE['perspective_shift_px']
+
+
+def test_rendered_frame_gives_every_dot_named_at_its_ellipse_centre():
+    truth, nominal = true_model(0), nominal_model()
+    pose = _tilted_stop()
+    image = observe_frame(render_board(truth, pose, IMAGE_SIZE, seed=3), pose, nominal, 'tilted')
+    board, indices = board_points()
+    assert len(image.indices) == len(indices)
+    where = {tuple(i): k for k, i in enumerate(indices)}
+    expected = project(truth, board, pose[None], DOT_RADIUS)[0][[where[tuple(i)] for i in image.indices]]
+    assert np.abs(image.pixels - expected).max() < TOLERANCE['detected_px']
+
+
+@pytest.mark.parametrize('shift_pitches', [0.3, 0.7, 1.3])
+def test_naming_survives_a_prediction_off_by_more_than_half_a_pitch(shift_pitches):
+    """The full board in view: the whole-pitch lattice shift is unique and corrects it."""
+    board, indices = board_points()
+    truth_pixels = project(true_model(0), board, plan_stops(nominal_model())[0][None])[0]
+    pitch_px = np.linalg.norm(truth_pixels[1] - truth_pixels[0])
+    predicted = truth_pixels + np.array([shift_pitches * pitch_px, 0.2 * pitch_px])
+    detected = truth_pixels[::-1] + np.random.default_rng(0).normal(0, 0.05, truth_pixels.shape)
+    names = name_dots(detected, predicted, indices)
+    assert np.array_equal(names, np.arange(len(board))[::-1])
+
+
+def test_blank_frame_is_a_clear_error_naming_the_image():
+    blank = np.full((IMAGE_SIZE[1], IMAGE_SIZE[0]), 200, np.uint8)
+    with pytest.raises(CalibrationError, match='image007: no board dots found.*out of view'):
+        observe_frame(blank, plan_stops(nominal_model())[0], nominal_model(), 'image007')
