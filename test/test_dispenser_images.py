@@ -1,12 +1,14 @@
-"""The dispenser's rendered board frames through the shared Mark detector: the dots'
-ellipse centres (perspective included) and their names. The full calibration on rendered
-frames runs in `make bench` (bench_results/five_axis.md)."""
+"""The dispenser's rendered board frames through the shared Mark detector (the dots'
+ellipse centres, perspective included, and their names) and the ISO 230-7 names of its
+axes' errors. The full calibration on rendered frames runs in `make bench`
+(bench_results/five_axis.md)."""
 import numpy as np
 import pytest
 
 from calib_core.errors import CalibrationError
 from dispenser_calib.core.board_images import name_dots, observe_frame
 from dispenser_calib.core.data import DOT_RADIUS, board_points
+from dispenser_calib.core.iso230 import iso230_7
 from dispenser_calib.core.model import nominal_model, project
 from dispenser_calib.core.procedure import plan_stops
 from dispenser_calib.sim.images import dot_ellipse, render_board
@@ -61,3 +63,32 @@ def test_blank_frame_is_a_clear_error_naming_the_image():
     blank = np.full((IMAGE_SIZE[1], IMAGE_SIZE[0]), 200, np.uint8)
     with pytest.raises(CalibrationError, match='image007: no board dots found.*out of view'):
         observe_frame(blank, plan_stops(nominal_model())[0], nominal_model(), 'image007')
+
+
+def test_iso230_7_names_in_the_machine_frame():
+    """Known errors on the nominal machine (board frame = machine frame) read back under
+    their ISO names and signs; the same machine seen by a camera turned otherwise and a
+    board placed elsewhere gives the same values."""
+    model = nominal_model().with_values(c_tilt_1=1e-4, c_tilt_2=-2e-4, a_tilt_1=3e-4,
+                                        a_tilt_2=-5e-5, c_offset_1=50e-6, c_offset_2=-20e-6,
+                                        a_offset_1=30e-6)
+    iso = iso230_7(model)
+    # C tilted towards +y by 1e-4 is turned about x by -1e-4 (right-hand rule)
+    assert iso['E_A0C'] == pytest.approx(-1e-4, rel=1e-3)
+    assert iso['E_B0C'] == pytest.approx(2e-4, rel=1e-3)          # c_tilt_2 is along -x
+    assert iso['E_C0A'] == pytest.approx(3e-4, rel=1e-3)          # a_tilt_1 is along +y
+    assert iso['E_B0A'] == pytest.approx(5e-5, rel=1e-3)          # a_tilt_2 along +z: -rot about y
+    assert iso['E_Z0A'] == pytest.approx(-0.030, abs=1e-9)        # A's line 30 mm below the board
+    assert iso['E_Y0A'] == pytest.approx(30e-6, abs=1e-9)
+    assert iso['E_Y0C'] == pytest.approx(50e-6, abs=1e-8)
+    assert iso['E_X0C'] == pytest.approx(20e-6, abs=1e-8)         # c_offset_2 is along -x
+    assert iso['offset_C_from_A_y'] == pytest.approx(20e-6, abs=1e-8)
+    # The camera turned by 2 degrees about its axis: the same machine, other parameters.
+    turn = np.deg2rad(2.0)
+    turned = model.with_values(rm_z=turn)
+    extra = turned.rotation @ model.rotation.T
+    affine = extra @ model.affine
+    turned = turned.with_values(**{f'M{r}{c}': affine[r, c] for r in range(3) for c in range(4)})
+    again = iso230_7(turned)
+    for name, value in iso.items():
+        assert again[name] == pytest.approx(value, abs=1e-12), name

@@ -12,6 +12,7 @@ from scipy.optimize import least_squares
 
 from calib_core.errors import CalibrationError
 from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
+from dispenser_calib.core.iso230 import iso230_7_report
 from dispenser_calib.core.model import (
     A_NOMINAL, C_NOMINAL, LOOKING_DOWN, NAMES, DispenserModel, _basis, project, project_rows)
 
@@ -123,14 +124,18 @@ def reprojection(model: DispenserModel, images: list[Image],
 
 @dataclass
 class Refinement:
-    """The refined model, each parameter's 1-sigma, the mean reprojection error per
+    """The refined model, the parameters' covariance, the mean reprojection error per
     iteration (px), the images used and those RANSAC set aside (with their error, px)."""
 
     model: DispenserModel
-    std_devs: np.ndarray
+    covariance: np.ndarray
     history: list
     inliers: list
     outliers: dict = field(default_factory=dict)
+
+    @property
+    def std_devs(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance), 0, None))
 
     def report(self, images: list[Image]) -> dict:
         errors = reprojection(self.model, images)
@@ -142,6 +147,7 @@ class Refinement:
                 'rms_reprojection_px': float(np.sqrt(np.mean(used ** 2))),
                 'per_image_rms_px': per_image, 'history_mean_px': self.history,
                 'bad_images': self.outliers, 'images_used': len(self.inliers),
+                'iso230_7': iso230_7_report(self.model, self.covariance),
                 'gauge': 'the points t_a, t_c are held perpendicular to their axes (a '
                          'point\'s place along a rotary axis is not observable)'}
 
@@ -175,8 +181,8 @@ def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50,
     variance = float(solution.fun @ solution.fun) / dof
     # In the scaled variables the normal matrix is well conditioned; scale back after.
     jacobian = solution.jac
-    std = np.sqrt(np.clip(np.diag(np.linalg.inv(jacobian.T @ jacobian)) * variance, 0, None)) * scale
-    return Refinement(model, std, history, [im.name for im in images])
+    covariance = np.linalg.inv(jacobian.T @ jacobian) * variance * np.outer(scale, scale)
+    return Refinement(model, covariance, history, [im.name for im in images])
 
 
 def calibrate(images: list[Image], image_size, threshold_px: float | None = None,

@@ -14,6 +14,7 @@ from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.calibration import calibrate, refine, stepwise
 from dispenser_calib.core.localisation import locate, place_path, reached, tool_centre
 from dispenser_calib.core.data import board_points
+from dispenser_calib.core.iso230 import iso230_7
 from dispenser_calib.core.model import NAMES, nominal_model, place, project, project_rows
 from dispenser_calib.core.procedure import WORKING_DISTANCE, plan_stops
 from dispenser_calib.sim.images import render_board
@@ -34,7 +35,7 @@ def _calibrated(seed, bad_fraction=0.0):
 
 
 def recovery(seeds=10) -> dict:
-    noise_free, z_max, inside = [], [], []
+    noise_free, z_max, inside, iso_z, iso_std = [], [], [], [], []
     for seed in range(seeds):
         truth = true_model(seed)
         images, _ = observe(truth, plan_stops(NOMINAL, seed), 0.0, seed)
@@ -47,8 +48,14 @@ def recovery(seeds=10) -> dict:
         z = np.abs(result.model.values - truth.values) / result.std_devs
         z_max.append(float(z.max()))
         inside.append(float(np.mean(z < 3)))
+        iso, true_iso = result.report(images)['iso230_7'], iso230_7(truth)
+        iso_z.append([abs(iso['values'][k] - true_iso[k]) / iso['std_devs'][k] for k in true_iso])
+        iso_std.append([iso['std_devs'][k] for k in true_iso])
     return {'noise_free_max_relative': max(noise_free), 'noisy_seeds': seeds,
-            'max_abs_z': max(z_max), 'fraction_within_3_sigma': float(np.mean(inside))}
+            'max_abs_z': max(z_max), 'fraction_within_3_sigma': float(np.mean(inside)),
+            'iso230_7_max_abs_z': float(np.max(iso_z)),
+            'iso230_7_median_std': dict(zip(iso230_7(true_model(0)),
+                                            map(float, np.median(iso_std, axis=0))))}
 
 
 def convergence(seeds=10) -> dict:
@@ -194,7 +201,12 @@ def run(out: Path) -> None:
              f'- Noise-free: every parameter within {r["noise_free_max_relative"]:.2g} '
              '(relative) of the truth.',
              f'- With noise, {r["noisy_seeds"]} machines: {r["fraction_within_3_sigma"] * 100:.1f} % '
-             f'of the parameters within 3 sigma, largest |error| / sigma {r["max_abs_z"]:.2f}.',
+             f'of the parameters within 3 sigma, largest |error| / sigma {r["max_abs_z"]:.2f}. '
+             f'ISO 230-7 errors in the machine frame: largest |error| / sigma '
+             f'{r["iso230_7_max_abs_z"]:.2f}; median 1-sigma '
+             + ', '.join(f'{k} {v * 1e6:.3g} ' + ('urad' if k.startswith('E_') and k[2] in 'ABC'
+                                                 else 'um')
+                         for k, v in r['iso230_7_median_std'].items()) + '.',
              '- From the nominal model, mean reprojection per iteration (median of 10): '
              + ' -> '.join(f'{v:.3g}' for v in history) + f' px; worst after 2 iterations '
              f'{c["worst_after_2_iterations_px"]:.3g} px; the noise floor is '

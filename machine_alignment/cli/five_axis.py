@@ -104,6 +104,10 @@ def cmd_calibrate(args) -> int:
     for name in NAMES:
         print(f'  {name:>11} = {quantity(report["parameters"][name], report["std_devs"][name], parameter_unit(name))}')
     print(f'  gauge: {report["gauge"]}')
+    iso = report['iso230_7']
+    print(f'  ISO 230-7, {iso["frame"]}:')
+    for name, value in iso['values'].items():
+        print(f'  {name:>17} = {quantity(value, iso["std_devs"][name], iso["units"][name])}')
     if 'held_out' in report:
         held = report['held_out']
         print(f'  held out ({held["images"]} images, A and C both turned): RMS '
