@@ -30,10 +30,10 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from calib_core.nodes.images import image_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.geometry import CameraToPlate
-from printer_alignment.nodes.conversions import image_as_message
 from printer_alignment.sim.camera import CameraOptics, CameraSim
 from printer_alignment.sim.scene import PlacedPlate, StageScene
 from printer_alignment.sim.scenes import grid_plate, make_scene, stage_scene

@@ -15,9 +15,10 @@ from rclpy.time import Time
 from sensor_msgs.msg import Image
 
 from calib_core.errors import MachineAlignmentError
-from calib_core.nodes.spin import run_node
 from calib_core.marks import SHAPES, DetectorConfig, detect_marks
-from printer_alignment.nodes.conversions import image_from_message, marks_as_message
+from calib_core.nodes.images import image_from_message
+from calib_core.nodes.spin import run_node
+from printer_alignment.nodes.conversions import marks_as_message
 
 LATEST_IMAGE = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                           reliability=ReliabilityPolicy.BEST_EFFORT)
