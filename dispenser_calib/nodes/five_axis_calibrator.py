@@ -1,10 +1,12 @@
 """five_axis_calibrator: the five-axis dispenser's vision calibration on the live graph.
 
 Service ``five_axis_calibrator/calibrate`` (RunCalibration; plan keys ``seed``,
-``evaluation``) plans the stepwise stops (linear, A alone, C alone) and ``evaluation``
+``evaluation``, ``frames``) plans the stepwise stops (linear, A alone, C alone) and ``evaluation``
 held-out stops where A and C both turn, checks every stop against the strokes before
-anything moves, drives (``five_axis/move``), images the board (``five_axis/capture_board``),
-calibrates (Zhang, stepwise start, joint refinement with RANSAC over images) and evaluates
+anything moves, drives (``five_axis/move``), images the board (``five_axis/capture_board``;
+with ``frames`` true (plan key or parameter), takes the camera's frame from ``five_axis/capture_frame`` and finds and
+names the dots itself with the Mark detector and the calibration in force, else the
+nominal model), calibrates (Zhang, stepwise start, joint refinement with RANSAC over images) and evaluates
 on the held-out images. The calibration is written as an atomic, versioned ``five_axis``
 file (readable by ``machine-align locate --calibration``), published latched on
 ``/five_axis_calibrator/result``, and the run recorded to MCAP (``machine-align calibrate
@@ -21,7 +23,8 @@ import json
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, FiveAxisObservation, Progress
-from alignment_msgs.srv import CaptureDots, LocateWorkpiece, MoveFiveAxis, RunCalibration
+from alignment_msgs.srv import (
+    CaptureDots, CaptureFrame, LocateWorkpiece, MoveFiveAxis, RunCalibration)
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
@@ -31,15 +34,17 @@ from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignm
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, declare_paths, parse_plan, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
+from calib_core.nodes.images import image_from_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
+from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, parameter_unit
 from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, locate_workpiece, run_five_axis_calibration)
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
 
-PLAN_KEYS = ('seed', 'evaluation')
+PLAN_KEYS = ('seed', 'evaluation', 'frames')
 
 
 def five_axis_result_message(content: dict, header, file_path='', version=0):
@@ -63,6 +68,7 @@ class FiveAxisCalibratorNode(Node):
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
         self.declare_parameter('part_path', PART_PATH.ravel().tolist())
         self.declare_parameter('needle_tip', NEEDLE_TIP.tolist())
+        self.declare_parameter('frames', False)
         self._plan_from_parameters({})
         self.cad = self._triples('part_cad')
         self.path = self._triples('part_path')
@@ -75,6 +81,7 @@ class FiveAxisCalibratorNode(Node):
             raise ValueError('image_size must be two positive px counts')
         self.image_size = tuple(size)
         self.timeout = float(self.get_parameter('call_timeout_s').value)
+        self.pose = np.zeros(5)
         self.nominal = nominal_model(size=self.image_size)
         group = ReentrantCallbackGroup()
         self.move_client = self.create_client(MoveFiveAxis, 'five_axis/move', callback_group=group)
@@ -82,6 +89,8 @@ class FiveAxisCalibratorNode(Node):
                                                  callback_group=group)
         self.features_client = self.create_client(CaptureDots, 'five_axis/capture_features',
                                                   callback_group=group)
+        self.frame_client = self.create_client(CaptureFrame, 'five_axis/capture_frame',
+                                               callback_group=group)
         self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
         self.observation_pub = self.create_publisher(FiveAxisObservation, OBSERVATIONS_TOPIC, 10)
         self.progress_pub = self.create_publisher(Progress, '/five_axis_calibrator/progress', 10)
@@ -105,23 +114,36 @@ class FiveAxisCalibratorNode(Node):
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='camera')
 
-    def _plan_from_parameters(self, overrides: dict) -> tuple[int, int]:
+    def _plan_from_parameters(self, overrides: dict) -> tuple[int, int, bool]:
         unknown = set(overrides) - set(PLAN_KEYS)
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
-        return whole_number(g('seed'), 'seed', 0), whole_number(g('evaluation'), 'evaluation', 0)
+        if not isinstance(g('frames'), bool):
+            raise InvalidInputError(f'frames must be true or false, not {g("frames")!r}')
+        return (whole_number(g('seed'), 'seed', 0), whole_number(g('evaluation'), 'evaluation', 0),
+                g('frames'))
 
     def _move(self, pose):
         reached = call_service(self.move_client, MoveFiveAxis.Request(
             pose=[float(v) for v in pose]), 'five-axis move', self.timeout)
-        return np.array(reached.pose)
+        self.pose = np.array(reached.pose)
+        return self.pose
 
     def _capture(self, client=None, what='board image'):
         found = call_service(client or self.capture_client, CaptureDots.Request(), what,
                              self.timeout)
         return (np.column_stack([found.i, found.j]).reshape(-1, 2),
                 np.column_stack([found.u, found.v]).reshape(-1, 2))
+
+    def _capture_frame(self):
+        """The board's dots (indices (k, 2), pixels (k, 2)) found in a camera frame and
+        named with the calibration in force (the nominal model before the first)."""
+        taken = call_service(self.frame_client, CaptureFrame.Request(), 'camera frame',
+                             self.timeout)
+        image = observe_frame(image_from_message(taken.image), self.pose,
+                              self.model or self.nominal, f'frame at {self.pose.round(6).tolist()}')
+        return image.indices, image.pixels
 
     def _capture_features(self):
         """(feature numbers (n,), pixels (n, 2)) in the current image."""
@@ -141,12 +163,13 @@ class FiveAxisCalibratorNode(Node):
         self.get_logger().info(f'[{step}/{total}] {message}')
 
     def _run(self, overrides: dict) -> CalibrationResult:
-        seed, evaluation = self._plan_from_parameters(overrides)
+        seed, evaluation, frames = self._plan_from_parameters(overrides)
         with RecordedRun(self, 'five_axis', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             result, report, _ = run_five_axis_calibration(
-                self.nominal, self.image_size, seed, evaluation, self._move, self._capture,
+                self.nominal, self.image_size, seed, evaluation, self._move,
+                self._capture_frame if frames else self._capture,
                 lambda image, phase: self._record(run, image, phase), self._progress)
             path, version, content = run.save('five_axis', {
                 'parameters': report['parameters'], 'std_devs': report['std_devs'],

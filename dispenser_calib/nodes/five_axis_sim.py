@@ -7,18 +7,25 @@ current pose and returns the dots found, with ``noise_px`` of detection noise an
 probability ``bad_fraction``, one dot mis-detected and one occluded. A part lies on the
 table: its CAD features ``part_cad`` (x y z per feature, m) placed at ``part_pose`` (x, y,
 z m, rotation vector rad); ``five_axis/capture_features`` (CaptureDots: i the feature's
-number) returns the features in view with the same noise.
+number) returns the features in view with the same noise. ``five_axis/capture_frame``
+(CaptureFrame) returns the camera's frame of the board instead, rendered (perspective,
+distortion, ``frame_noise`` grey levels; about 1 s a frame); with probability
+``bad_fraction`` one dot is hidden and another drawn 15-30 px off (dust).
 """
 import threading
 
 import numpy as np
-from alignment_msgs.srv import CaptureDots, MoveFiveAxis
+from alignment_msgs.srv import CaptureDots, CaptureFrame, MoveFiveAxis
 from rclpy.node import Node
+from std_msgs.msg import Header
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.nodes.images import image_as_message
 from calib_core.nodes.spin import run_node
 from dispenser_calib.core.model import project_rows, rotation_vector_matrix
 from dispenser_calib.core.procedure import PART_CAD, check_stroke
+from dispenser_calib.core.data import board_points
+from dispenser_calib.sim.images import render_board
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
 
 
@@ -29,6 +36,7 @@ class FiveAxisSimNode(Node):
         self.declare_parameter('seed', 0)
         self.declare_parameter('noise_px', 0.1)
         self.declare_parameter('bad_fraction', 0.0)
+        self.declare_parameter('frame_noise', 2.0)
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
         self.declare_parameter('part_pose', [1.5e-3, -1e-3, 0.0, 0.0, 0.0, 0.03])
         g = lambda n: self.get_parameter(n).value  # noqa: E731
@@ -37,8 +45,9 @@ class FiveAxisSimNode(Node):
         if cad.size % 3 or not np.all(np.isfinite(cad)) or placed.shape != (6,):
             raise ValueError('part_cad must be x y z triples (m) and part_pose six values')
         self.features = cad.reshape(-1, 3) @ rotation_vector_matrix(placed[3:]).T + placed[:3]
-        if g('noise_px') < 0 or not 0 <= g('bad_fraction') <= 1:
-            raise ValueError('noise_px must be >= 0 and bad_fraction in [0, 1]')
+        if g('noise_px') < 0 or not 0 <= g('bad_fraction') <= 1 or g('frame_noise') < 0:
+            raise ValueError('noise_px and frame_noise must be >= 0 and bad_fraction in [0, 1]')
+        self.frame_noise = float(g('frame_noise'))
         self.seed, self.noise, self.bad = int(g('seed')), float(g('noise_px')), float(g('bad_fraction'))
         self.truth = true_model(self.seed)
         self.pose = np.zeros(5)
@@ -48,6 +57,7 @@ class FiveAxisSimNode(Node):
         self.create_service(MoveFiveAxis, 'five_axis/move', self.on_move)
         self.create_service(CaptureDots, 'five_axis/capture_board', self.on_capture)
         self.create_service(CaptureDots, 'five_axis/capture_features', self.on_features)
+        self.create_service(CaptureFrame, 'five_axis/capture_frame', self.on_frame)
 
     def on_move(self, request, response):
         try:
@@ -78,6 +88,22 @@ class FiveAxisSimNode(Node):
         response.v = [float(v) for v in image.pixels[:, 1]]
         return response
 
+    def on_frame(self, request, response):
+        with self._lock:
+            pose, self.captures = self.pose.copy(), self.captures + 1
+            seed = self.seed * 100003 + self.captures
+            bad = self.rng.random() < self.bad
+            hidden, dust = self.rng.choice(len(board_points()[1]), 2, replace=False)
+            offset = self.rng.uniform(15, 30) * self.rng.choice([-1, 1], 2)
+        indices = board_points()[1]
+        occluded = (tuple(indices[hidden]),) if bad else ()
+        displaced = {tuple(indices[dust]): offset} if bad else None
+        frame = render_board(self.truth, pose, IMAGE_SIZE, self.frame_noise, seed, occluded,
+                             displaced)
+        response.success, response.message = True, 'ok'
+        response.image = image_as_message(
+            frame, Header(stamp=self.get_clock().now().to_msg(), frame_id='camera'))
+        return response
 
     def on_features(self, request, response):
         with self._lock:

@@ -5,6 +5,8 @@ distortion, blurred and sampled by the exact renderer of :mod:`calib_core.sim.re
 with sensor noise and 8-bit quantisation. Truth for tests and benches."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
@@ -62,11 +64,12 @@ def _coverage(mark: MarkShape, ideal: np.ndarray) -> np.ndarray:
 
 
 def render_board(model: DispenserModel, pose: np.ndarray, size, noise: float = 2.0,
-                 seed: int = 0, occluded: tuple = ()) -> np.ndarray:
+                 seed: int = 0, occluded: tuple = (), displaced: dict | None = None) -> np.ndarray:
     """The camera's 8-bit frame (height, width) of the board at ``pose`` (5,): every dot
     whose ellipse lies inside the frame, rendered through the distortion, except the board
-    indices in ``occluded``; Gaussian noise of ``noise`` grey levels. Poses outside the
-    strokes are refused."""
+    indices in ``occluded``; the dots in ``displaced`` (index (i, j) -> (du, dv) px) drawn
+    that far off (dust on the dot: a mis-detection); Gaussian noise of ``noise`` grey
+    levels. Poses outside the strokes are refused."""
     check_stroke(pose)
     width, height = (int(s) for s in size)
     frame = np.full((height, width), BACKGROUND)
@@ -78,6 +81,10 @@ def render_board(model: DispenserModel, pose: np.ndarray, size, noise: float = 2
         if tuple(index) in hidden or not np.isfinite(u):
             continue
         mark = dot_ellipse(model, pose, point)
+        shift = (displaced or {}).get(tuple(index))
+        if shift is not None:
+            mark = replace(mark, u=mark.u + shift[0], v=mark.v + shift[1])
+            u, v = u + shift[0], v + shift[1]
         # The box holds the ellipse, the blur and the distortion's shift across the box.
         reach = 1.2 * mark.size * np.sqrt(mark.aspect) + EDGE * BLUR_SIGMA + 3
         rows = np.arange(max(int(v - reach), 0), min(int(v + reach) + 2, height))
