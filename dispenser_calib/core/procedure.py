@@ -13,7 +13,7 @@ import numpy as np
 from calib_core.errors import InvalidInputError
 from dispenser_calib.core.calibration import calibrate, reprojection
 from dispenser_calib.core.data import Image
-from dispenser_calib.core.localisation import fit_part_pose, locate, place_path
+from dispenser_calib.core.localisation import fit_part_pose, locate, place_path, tool_centre
 from dispenser_calib.core.model import DispenserModel, place
 from dispenser_calib.errors import StrokeError
 
@@ -26,6 +26,8 @@ PART_PATH = np.array([[0.01 * np.cos(t), 0.01 * np.sin(t), 0.006]
                       for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)])
 NEEDLE_TIP = np.array([0.03, 0.0, 0.125])
 FEATURE_VIEWS = ((0.0, 0.0), (0.35, 0.0), (-0.35, 1.57), (0.26, 3.5))
+# Where the needle's test dots go (m, board frame).
+TEST_SPOTS = np.array([[-0.005, 0.0, 0.0], [0.005, 0.003, 0.0], [0.0, -0.004, 0.0]])
 STROKES = {'x': (-0.200, 0.200), 'y': (-0.150, 0.150), 'z': (-0.050, 0.050),
            'a': (-np.pi / 2, np.pi / 2), 'c': (-2 * np.pi, 2 * np.pi)}
 
@@ -167,3 +169,57 @@ def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, t
             'pose': {'translation_m': translation.tolist(),
                      'rotation_vector_rad': cv2.Rodrigues(rotation)[0].ravel().tolist()},
             'cad_misfit_rms_m': misfit, 'path_poses': path_poses.tolist()}
+
+
+def measure_needle(model: DispenserModel, tip_guess: np.ndarray, spots, views,
+                   move: Callable[[np.ndarray], np.ndarray], dispense: Callable[[], None],
+                   capture: Callable[[], tuple]) -> dict:
+    """The needle tip in the camera frame from test dots: the machine dispenses one dot at
+    each of ``spots`` (k, 3) (board frame, m; aimed with ``tip_guess``), then the camera
+    images each dot from ``views`` ((a, c) rad each) and it is located through the chain;
+    the tip is where the chain carried each located dot at the moment it was dispensed
+    (:func:`tool_centre`). ``capture()`` returns the dispensed dots in view: (numbers (n,),
+    in the order dispensed, pixels (n, 2)). Every pose is checked against the strokes first.
+
+    Returns the tip (m), each dot's located place (m), the tip each dot alone gives and
+    their spread (m), the reprojection RMS per dot (px).
+
+    Raises
+    ------
+    StrokeError
+        A pose outside a stroke (nothing moves).
+    InvalidInputError
+        A dot seen in fewer than two views."""
+    spots = np.atleast_2d(np.asarray(spots, float))
+    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+    dispensing = [place(model, spot, 0.0, 0.0, tip_guess) for spot in spots]
+    looking = [(k, place(model, spot, a, c, centre)) for k, spot in enumerate(spots)
+               for a, c in views]
+    for pose in dispensing + [pose for _, pose in looking]:
+        check_stroke(pose)
+    dispensed_at = []
+    for pose in dispensing:
+        dispensed_at.append(np.asarray(move(pose), dtype=float))
+        dispense()
+    seen = {k: ([], []) for k in range(len(spots))}
+    for k, pose in looking:
+        reached = np.asarray(move(pose), dtype=float)
+        numbers, pixels = capture()
+        for number, pixel in zip(numbers, np.atleast_2d(pixels)):
+            if int(number) == k:
+                seen[k][0].append(reached)
+                seen[k][1].append(pixel)
+    dots, rms = [], []
+    for k, (poses, pixels) in seen.items():
+        if len(poses) < 2:
+            raise InvalidInputError(f'dispensed dot {k} was seen in {len(poses)} view(s); it '
+                                    f'needs 2')
+        point, error = locate(model, np.array(poses), np.array(pixels), spots[k])
+        dots.append(point)
+        rms.append(error)
+    dots, dispensed_at = np.array(dots), np.array(dispensed_at)
+    each = np.array([tool_centre(model, q[None], d[None]) for q, d in zip(dispensed_at, dots)])
+    tip = tool_centre(model, dispensed_at, dots)
+    return {'tip_m': tip.tolist(), 'dots_m': dots.tolist(), 'tip_per_dot_m': each.tolist(),
+            'spread_m': float(np.max(np.linalg.norm(each - tip, axis=1))),
+            'reprojection_rms_px': rms, 'dispensed_at': dispensed_at.tolist()}
