@@ -5,6 +5,7 @@ parameters; a plan outside the strokes is refused before anything moves."""
 import json
 import os
 
+import numpy as np
 import pytest
 
 DOMAIN = str(1 + os.getpid() % 9)   # each DDS test module has its own band
@@ -90,3 +91,21 @@ def test_a_run_on_rendered_frames_finds_and_names_the_dots_itself(graph):
     assert report['held_out']['rms_px_calibrated'] < 0.1
     refused = call(node, client, RunCalibration.Request(plan_yaml='{frames: maybe}'))
     assert not refused.success and 'frames must be true or false' in refused.message
+
+
+def test_the_needle_is_measured_from_dispensed_dots(graph):
+    """The simulated needle's tip is 0.3, -0.2, 0.1 mm from the configured one: three dots
+    are dispensed, located through the calibration, and the tip taken from them (in the
+    calibrated camera frame, tens of um from the true frame, see test_dispenser_core)."""
+    _, node, out = graph
+    from alignment_msgs.srv import MeasureNeedle
+    from dispenser_calib.core.procedure import NEEDLE_TIP
+    client = node.create_client(MeasureNeedle, 'five_axis_calibrator/measure_needle')
+    response = call(node, client, MeasureNeedle.Request(), timeout=120.0)
+    assert response.success, response.message
+    assert response.spread < 20e-6
+    moved = np.linalg.norm(np.array(response.tip) - NEEDLE_TIP)
+    assert 0.25e-3 < moved < 0.5e-3, moved       # the true offset is 0.37 mm
+    assert read_calibration(out / 'calibration', 'needle')['tip_m'] == list(response.tip)
+    refused = call(node, client, MeasureNeedle.Request(plan_yaml='{spots: [[0.5, 0, 0]]}'))
+    assert not refused.success and 'stroke' in refused.message

@@ -18,16 +18,23 @@ from several views (``five_axis/capture_features``), triangulates them through t
 calibration in force, fits the part's pose and places the dispensing path (``part_path``,
 needle tip ``needle_tip`` in the camera frame); every pose is checked against the strokes
 first.
+
+Service ``five_axis_calibrator/measure_needle`` (MeasureNeedle; plan keys ``spots``, ``views``)
+dispenses a test dot at each spot (``five_axis/dispense``), images each from several views
+(``five_axis/capture_dispensed``), locates them through the calibration in force and takes
+the needle tip from where they were dispensed; the tip is used by ``locate`` from then on
+and written as the versioned ``needle`` file (read again at start).
 """
 import json
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, FiveAxisObservation, Progress
 from alignment_msgs.srv import (
-    CaptureDots, CaptureFrame, LocateWorkpiece, MoveFiveAxis, RunCalibration)
+    CaptureDots, CaptureFrame, LocateWorkpiece, MeasureNeedle, MoveFiveAxis, RunCalibration)
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
+from std_srvs.srv import Trigger
 
 from calib_core.checks import whole_number
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
@@ -38,10 +45,12 @@ from calib_core.nodes.images import image_from_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
+from calib_core.storage import read_calibration, write_calibration
 from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, parameter_unit
 from dispenser_calib.core.procedure import (
-    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, locate_workpiece, run_five_axis_calibration)
+    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, locate_workpiece, measure_needle,
+    run_five_axis_calibration)
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
 
 PLAN_KEYS = ('seed', 'evaluation', 'frames')
@@ -75,6 +84,9 @@ class FiveAxisCalibratorNode(Node):
         self.tip = np.asarray(self.get_parameter('needle_tip').value, dtype=float)
         if self.tip.shape != (3,) or not np.all(np.isfinite(self.tip)):
             raise ValueError('needle_tip must be x, y, z (m) in the camera frame')
+        measured = read_calibration(self.get_parameter('output_dir').value, 'needle')
+        if measured is not None:     # the last measured tip overrides the configured one
+            self.tip = np.asarray(measured['tip_m'], dtype=float).reshape(3)
         self.model = None
         size = [int(v) for v in self.get_parameter('image_size').value]
         if len(size) != 2 or min(size) <= 0:
@@ -91,6 +103,10 @@ class FiveAxisCalibratorNode(Node):
                                                   callback_group=group)
         self.frame_client = self.create_client(CaptureFrame, 'five_axis/capture_frame',
                                                callback_group=group)
+        self.dispense_client = self.create_client(Trigger, 'five_axis/dispense',
+                                                  callback_group=group)
+        self.dispensed_client = self.create_client(CaptureDots, 'five_axis/capture_dispensed',
+                                                   callback_group=group)
         self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
         self.observation_pub = self.create_publisher(FiveAxisObservation, OBSERVATIONS_TOPIC, 10)
         self.progress_pub = self.create_publisher(Progress, '/five_axis_calibrator/progress', 10)
@@ -99,6 +115,8 @@ class FiveAxisCalibratorNode(Node):
                             self.calibration_service, callback_group=group)
         self.create_service(LocateWorkpiece, 'five_axis_calibrator/locate', self.on_locate,
                             callback_group=group)
+        self.create_service(MeasureNeedle, 'five_axis_calibrator/measure_needle',
+                            self.on_measure_needle, callback_group=group)
         publish_calibration_in_force(self, 'five_axis', self.result_pub, self._in_force)
 
     def _triples(self, name: str) -> np.ndarray:
@@ -145,6 +163,14 @@ class FiveAxisCalibratorNode(Node):
                               self.model or self.nominal, f'frame at {self.pose.round(6).tolist()}')
         return image.indices, image.pixels
 
+    def _dispense(self):
+        call_service(self.dispense_client, Trigger.Request(), 'dispense', self.timeout)
+
+    def _capture_dispensed(self):
+        """(dot numbers (n,), pixels (n, 2)) of the dispensed dots in the current image."""
+        numbers, pixels = self._capture(self.dispensed_client, 'dispensed-dot image')
+        return numbers[:, 0], pixels
+
     def _capture_features(self):
         """(feature numbers (n,), pixels (n, 2)) in the current image."""
         numbers, pixels = self._capture(self.features_client, 'feature image')
@@ -185,7 +211,9 @@ class FiveAxisCalibratorNode(Node):
         return message
 
 
-    def on_locate(self, request, response):
+    def _with_calibration(self, request, response, what: str, known: tuple, work):
+        """Run ``work(options)`` on the request's plan with the calibration in force, one
+        job at a time; errors are logged and answered, the node keeps running."""
         if not self.calibration_service.busy.acquire(blocking=False):
             response.success, response.message = False, 'a calibration is running'
             return response
@@ -194,33 +222,61 @@ class FiveAxisCalibratorNode(Node):
                 raise CalibrationError('no five-axis calibration in force: call '
                                        'five_axis_calibrator/calibrate first')
             options = parse_plan(request.plan_yaml)
-            unknown = set(options) - {'views', 'path_angles'}
+            unknown = set(options) - set(known)
             if unknown:
-                raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: views, '
-                                        'path_angles')
-            views = np.asarray(options.get('views', FEATURE_VIEWS), dtype=float)
-            angles = np.asarray(options.get('path_angles', [0.17, 0.8]), dtype=float)
-            if views.ndim != 2 or views.shape[1] != 2 or len(views) < 2 or angles.shape != (2,):
-                raise InvalidInputError('views must be at least two [a, c] pairs (rad) and '
-                                        'path_angles one [a, c]')
-            result = locate_workpiece(
-                self.model, self.cad, self.path, self.tip, [tuple(v) for v in views],
-                tuple(angles), self._move, self._capture_features)
-            response.features = [float(v) for v in np.ravel(result['features_m'])]
-            response.pose = [float(v) for v in result['pose']['translation_m']
-                             + result['pose']['rotation_vector_rad']]
-            response.path_poses = [float(v) for v in np.ravel(result['path_poses'])]
-            response.report_json = json.dumps(result)
+                raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: '
+                                        f'{", ".join(known)}')
+            work(options)
             response.success, response.message = True, 'ok'
-            self.get_logger().info(f'part located: CAD misfit {result["cad_misfit_rms_m"] * 1e6:.2f} '
-                                   f'um RMS; {len(result["path_poses"])} path poses')
         except (MachineAlignmentError, TypeError, ValueError) as exc:
-            self.get_logger().error(f'localisation failed: {exc}')
+            self.get_logger().error(f'{what} failed: {exc}')
             response.success, response.message = False, str(exc)
         finally:
             self.calibration_service.busy.release()
         return response
 
+    @staticmethod
+    def _views(options) -> list:
+        views = np.asarray(options.get('views', FEATURE_VIEWS), dtype=float)
+        if views.ndim != 2 or views.shape[1] != 2 or len(views) < 2:
+            raise InvalidInputError('views must be at least two [a, c] pairs (rad)')
+        return [tuple(v) for v in views]
+
+    def on_locate(self, request, response):
+        def work(options):
+            angles = np.asarray(options.get('path_angles', [0.17, 0.8]), dtype=float)
+            if angles.shape != (2,):
+                raise InvalidInputError('path_angles must be one [a, c] pair (rad)')
+            result = locate_workpiece(self.model, self.cad, self.path, self.tip,
+                                      self._views(options), tuple(angles), self._move,
+                                      self._capture_features)
+            response.features = [float(v) for v in np.ravel(result['features_m'])]
+            response.pose = [float(v) for v in result['pose']['translation_m']
+                             + result['pose']['rotation_vector_rad']]
+            response.path_poses = [float(v) for v in np.ravel(result['path_poses'])]
+            response.report_json = json.dumps(result)
+            self.get_logger().info(f'part located: CAD misfit {result["cad_misfit_rms_m"] * 1e6:.2f} '
+                                   f'um RMS; {len(result["path_poses"])} path poses')
+        return self._with_calibration(request, response, 'localisation',
+                                      ('views', 'path_angles'), work)
+
+    def on_measure_needle(self, request, response):
+        def work(options):
+            spots = np.asarray(options.get('spots', TEST_SPOTS), dtype=float)
+            if spots.ndim != 2 or spots.shape[1] != 3 or not np.all(np.isfinite(spots)):
+                raise InvalidInputError('spots must be [x, y, z] triples (m, board frame)')
+            result = measure_needle(self.model, self.tip, spots, self._views(options),
+                                    self._move, self._dispense, self._capture_dispensed)
+            self.tip = np.array(result['tip_m'])
+            path, version = write_calibration(self.get_parameter('output_dir').value, 'needle',
+                                              {'tip_m': result['tip_m'], 'report': result})
+            response.tip = [float(v) for v in self.tip]
+            response.spread = result['spread_m']
+            response.report_json = json.dumps(dict(result, file=str(path), version=version))
+            self.get_logger().info(f'needle tip {np.round(self.tip * 1e3, 4).tolist()} mm '
+                                   f'(spread {result["spread_m"] * 1e6:.1f} um); wrote {path}')
+        return self._with_calibration(request, response, 'needle measurement',
+                                      ('spots', 'views'), work)
 
 def main(args=None):
     run_node(FiveAxisCalibratorNode, args, threads=4)

@@ -11,6 +11,10 @@ number) returns the features in view with the same noise. ``five_axis/capture_fr
 (CaptureFrame) returns the camera's frame of the board instead, rendered (perspective,
 distortion, ``frame_noise`` grey levels; about 1 s a frame); with probability
 ``bad_fraction`` one dot is hidden and another drawn 15-30 px off (dust).
+The needle (its true tip ``needle_tip``, m in the camera frame) dispenses a test dot where
+it touches the table (``five_axis/dispense``, std_srvs/Trigger);
+``five_axis/capture_dispensed`` (CaptureDots: i the dot's number, in the order dispensed)
+returns the dots in view with ``noise_px``.
 """
 import threading
 
@@ -18,12 +22,14 @@ import numpy as np
 from alignment_msgs.srv import CaptureDots, CaptureFrame, MoveFiveAxis
 from rclpy.node import Node
 from std_msgs.msg import Header
+from std_srvs.srv import Trigger
 
 from calib_core.errors import MachineAlignmentError
 from calib_core.nodes.images import image_as_message
 from calib_core.nodes.spin import run_node
+from dispenser_calib.core.localisation import reached
 from dispenser_calib.core.model import project_rows, rotation_vector_matrix
-from dispenser_calib.core.procedure import PART_CAD, check_stroke
+from dispenser_calib.core.procedure import NEEDLE_TIP, PART_CAD, check_stroke
 from dispenser_calib.core.data import board_points
 from dispenser_calib.sim.images import render_board
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
@@ -37,6 +43,8 @@ class FiveAxisSimNode(Node):
         self.declare_parameter('noise_px', 0.1)
         self.declare_parameter('bad_fraction', 0.0)
         self.declare_parameter('frame_noise', 2.0)
+        # The true tip: 0.3, -0.2, 0.1 mm from the calibrator's configured one.
+        self.declare_parameter('needle_tip', (NEEDLE_TIP + [0.3e-3, -0.2e-3, 0.1e-3]).tolist())
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
         self.declare_parameter('part_pose', [1.5e-3, -1e-3, 0.0, 0.0, 0.0, 0.03])
         g = lambda n: self.get_parameter(n).value  # noqa: E731
@@ -48,6 +56,10 @@ class FiveAxisSimNode(Node):
         if g('noise_px') < 0 or not 0 <= g('bad_fraction') <= 1 or g('frame_noise') < 0:
             raise ValueError('noise_px and frame_noise must be >= 0 and bad_fraction in [0, 1]')
         self.frame_noise = float(g('frame_noise'))
+        self.tip = np.asarray(g('needle_tip'), dtype=float)
+        if self.tip.shape != (3,) or not np.all(np.isfinite(self.tip)):
+            raise ValueError('needle_tip must be x, y, z (m) in the camera frame')
+        self.dispensed = []
         self.seed, self.noise, self.bad = int(g('seed')), float(g('noise_px')), float(g('bad_fraction'))
         self.truth = true_model(self.seed)
         self.pose = np.zeros(5)
@@ -58,6 +70,8 @@ class FiveAxisSimNode(Node):
         self.create_service(CaptureDots, 'five_axis/capture_board', self.on_capture)
         self.create_service(CaptureDots, 'five_axis/capture_features', self.on_features)
         self.create_service(CaptureFrame, 'five_axis/capture_frame', self.on_frame)
+        self.create_service(Trigger, 'five_axis/dispense', self.on_dispense)
+        self.create_service(CaptureDots, 'five_axis/capture_dispensed', self.on_dispensed)
 
     def on_move(self, request, response):
         try:
@@ -105,15 +119,32 @@ class FiveAxisSimNode(Node):
             frame, Header(stamp=self.get_clock().now().to_msg(), frame_id='camera'))
         return response
 
+    def on_dispense(self, request, response):
+        with self._lock:
+            self.dispensed.append(reached(self.truth, self.tip, self.pose[None])[0])
+            count = len(self.dispensed)
+        response.success, response.message = True, f'dot {count - 1} dispensed'
+        return response
+
+    def on_dispensed(self, request, response):
+        with self._lock:
+            dots = np.array(self.dispensed).reshape(-1, 3)
+        return self._points_in_view(dots, response, 'dispensed dots')
+
     def on_features(self, request, response):
+        return self._points_in_view(self.features, response, 'features')
+
+    def _points_in_view(self, points, response, what):
+        """The ``points`` (n, 3, board frame) in view at the current pose, numbered by
+        their row, with ``noise_px``."""
         with self._lock:
             pose = self.pose.copy()
-        pixels = project_rows(self.truth, self.features, np.repeat(pose[None], len(self.features), 0))
+        pixels = project_rows(self.truth, points, np.repeat(pose[None], len(points), 0))
         pixels = pixels + self.rng.normal(0.0, self.noise, pixels.shape)
         inside = (np.all(np.isfinite(pixels), axis=1) & np.all(pixels >= 0, axis=1)
                   & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
         numbers = np.flatnonzero(inside)
-        response.success, response.message = True, f'{len(numbers)} features'
+        response.success, response.message = True, f'{len(numbers)} {what}'
         response.i, response.j = [int(k) for k in numbers], [0] * len(numbers)
         response.u = [float(v) for v in pixels[numbers, 0]]
         response.v = [float(v) for v in pixels[numbers, 1]]

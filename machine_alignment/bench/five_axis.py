@@ -12,11 +12,13 @@ import numpy as np
 from calib_core.storage import write_atomic
 from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.calibration import calibrate, refine, stepwise
-from dispenser_calib.core.localisation import locate, place_path, reached, tool_centre
+from dispenser_calib.core.localisation import locate, place_path, reached
 from dispenser_calib.core.data import board_points
 from dispenser_calib.core.iso230 import iso230_7
 from dispenser_calib.core.model import NAMES, nominal_model, place, project, project_rows
-from dispenser_calib.core.procedure import WORKING_DISTANCE, plan_stops
+from dispenser_calib.core.procedure import (
+    FEATURE_VIEWS as VIEWS, NEEDLE_TIP as TIP, TEST_SPOTS, WORKING_DISTANCE, measure_needle,
+    plan_stops)
 from dispenser_calib.sim.images import render_board
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
 from machine_alignment.bench import main_with_out
@@ -24,8 +26,6 @@ from machine_alignment.bench import main_with_out
 NOMINAL = nominal_model()
 BOARD = board_points()[0]
 NOISE_PX = 0.1
-VIEWS = ((0.0, 0.0), (0.35, 0.0), (-0.35, 1.57), (0.26, 3.5))      # (a, c) rad per feature
-TIP = np.array([0.03, 0.0, 0.125])                                  # the needle, camera frame
 
 
 def _calibrated(seed, bad_fraction=0.0):
@@ -69,6 +69,25 @@ def convergence(seeds=10) -> dict:
             'noise_floor_px': float(NOISE_PX * np.sqrt(np.pi / 2))}
 
 
+def _needle_hardware(truth, rng):
+    """move, dispense and capture callables of the simulated machine whose needle tip is
+    TIP (camera frame): dispensed dots land where the tip touches the table."""
+    state = {'pose': np.zeros(5), 'dots': []}
+
+    def move(pose):
+        state['pose'] = np.asarray(pose, float)
+        return state['pose']
+
+    def dispense():
+        state['dots'].append(reached(truth, TIP, state['pose'][None])[0])
+
+    def capture():
+        dots = np.array(state['dots'])
+        pixels = project_rows(truth, dots, np.repeat(state['pose'][None], len(dots), 0))
+        return np.arange(len(dots)), pixels + rng.normal(0, NOISE_PX, pixels.shape)
+    return move, dispense, capture
+
+
 def localisation(parts=20) -> dict:
     distance, distance_nominal, path, path_nominal, seconds = [], [], [], [], []
     for seed in range(parts):
@@ -91,16 +110,8 @@ def localisation(parts=20) -> dict:
                     for i in range(4) for j in range(i + 1, 4)]
         # The needle's offset from three dispensed dots, located through the camera, then a
         # held-out path placed on the part.
-        at = np.array([place(truth, np.array([x, y, 0.0]), 0, 0, TIP)
-                       for x, y in ((-0.005, 0.0), (0.005, 0.003), (0.0, -0.004))])
-        dots = []
-        for dot in reached(truth, TIP, at):
-            poses = np.array([place(model, dot, a, c, np.array([0, 0, WORKING_DISTANCE]))
-                              for a, c in VIEWS])
-            pixels = project_rows(truth, np.repeat(dot[None], len(poses), 0), poses)
-            dots.append(locate(model, poses, pixels + rng.normal(0, NOISE_PX, pixels.shape),
-                               dot + 1e-3)[0])
-        tip = tool_centre(model, at, np.array(dots))
+        tip = np.array(measure_needle(model, TIP, TEST_SPOTS, VIEWS,
+                                      *_needle_hardware(truth, rng))['tip_m'])
         centre = np.r_[rng.uniform(-0.02, 0.02, 2), rng.uniform(0, 0.01)]
         target = centre + np.array([[0.01 * np.cos(t), 0.01 * np.sin(t), 0.0]
                                     for t in np.linspace(0, 2 * np.pi, 12)])

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import json
 
-from alignment_msgs.srv import Align, AnalyzeResiduals, RegisterScreen, RunCalibration
+from alignment_msgs.srv import (
+    Align, AnalyzeResiduals, LocateWorkpiece, MeasureNeedle, RegisterScreen, RunCalibration)
 from std_srvs.srv import Trigger
 
 from calib_core.errors import CalibrationError
@@ -23,6 +24,8 @@ SERVICES = {
     'platform_calibrator/calibrate': (RunCalibration, '/platform_calibrator/progress', 'plan'),
     'platform_calibrator/register': (RegisterScreen, None, 'method'),
     'five_axis_calibrator/calibrate': (RunCalibration, '/five_axis_calibrator/progress', 'plan'),
+    'five_axis_calibrator/measure_needle': (MeasureNeedle, None, 'plan'),
+    'five_axis_calibrator/locate': (LocateWorkpiece, None, 'plan'),
     # The operator's answer to a placement request: the plate lies as asked.
     'grid_calibrator/confirm_placement': (Trigger, None, 'nothing'),
     'vision_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
@@ -41,6 +44,8 @@ def _request(service_type, text: str, apply: bool):
         return Trigger.Request()
     if service_type is RegisterScreen:
         return RegisterScreen.Request(method=text.strip())
+    if service_type in (MeasureNeedle, LocateWorkpiece):
+        return service_type.Request(plan_yaml=text)
     return Align.Request(model=text.strip())
 
 
@@ -88,6 +93,15 @@ def cmd_call(args) -> int:
     elif service_type is Trigger:
         print(response.message)
         return 0
+    elif service_type is MeasureNeedle:
+        print(f'needle tip {", ".join(f"{v * 1e3:.4f}" for v in response.tip)} mm (calibrated '
+              f'camera frame); one dot alone within {response.spread * 1e6:.1f} um')
+        report = json.loads(response.report_json)
+    elif service_type is LocateWorkpiece:
+        print(f'part at {", ".join(f"{v * 1e3:.4f}" for v in response.pose[:3])} mm, rotation '
+              f'vector {", ".join(f"{v:.5f}" for v in response.pose[3:])} rad; '
+              f'{len(response.path_poses) // 5} path poses')
+        report = json.loads(response.report_json)
     elif service_type is RegisterScreen:
         print(f'registered: marks off by {response.measured_error * 1e6:.2f} um (composite, '
               f'measured after the move; the model predicted {response.predicted_error * 1e6:.3f} um)')
