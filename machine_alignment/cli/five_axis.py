@@ -19,6 +19,7 @@ from dispenser_calib.core.procedure import finish  # noqa: E402
 from dispenser_calib.core.records import (  # noqa: E402
     OBSERVATIONS_TOPIC, RESULT_TOPIC, image_from_message)
 from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
+from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E402
 from dispenser_calib.core.localisation import locate  # noqa: E402
 from dispenser_calib.core.model import (  # noqa: E402
     NAMES, nominal_model, parameter_unit, read_model, write_model)
@@ -43,7 +44,7 @@ def cmd_simulate(args) -> int:
 
 def _plot(path: Path, images, result) -> None:
     """Reprojection per image, convergence per iteration, residual vectors of all dots
-    (one scale, a key), and the rotary axes' directions as tilts."""
+    (one scale, a key), and the rotary axes' orientation errors (ISO 230-7 names)."""
     errors = reprojection(result.model, images)
     per_image = [float(np.sqrt(np.mean(e ** 2))) for e in errors]
     fig, axes = plt.subplots(2, 2, figsize=(13, 9.5))
@@ -68,14 +69,13 @@ def _plot(path: Path, images, result) -> None:
     axes[1, 0].set_ylabel('v (px)')
     axes[1, 0].set_title(f'residuals of the images used (longest {longest:.3g} px)', loc='left',
                          fontsize=10)
-    model = result.model
-    names = ['a_tilt_1', 'a_tilt_2', 'c_tilt_1', 'c_tilt_2']
-    values = [model[n] * 1e6 for n in names]
-    sigmas = [result.std_devs[NAMES.index(n)] * 1e6 for n in names]
-    axes[1, 1].errorbar(np.arange(4), values, yerr=sigmas, fmt='o', capsize=4)
-    axes[1, 1].set_xticks(np.arange(4), names)
+    iso = iso230_7_report(result.model, result.covariance)
+    values = [iso['values'][n] * 1e6 for n in ORIENTATION]
+    sigmas = [iso['std_devs'][n] * 1e6 for n in ORIENTATION]
+    axes[1, 1].errorbar(np.arange(len(ORIENTATION)), values, yerr=sigmas, fmt='o', capsize=4)
+    axes[1, 1].set_xticks(np.arange(len(ORIENTATION)), ORIENTATION)
     axes[1, 1].axhline(0, color='k', lw=0.8)
-    axes[1, 1].set_ylabel('rotary axis tilt from nominal (urad, 1 sigma bars)')
+    axes[1, 1].set_ylabel('rotary axis orientation error, machine frame (urad, 1 sigma bars)')
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     fig.savefig(path, dpi=80)
     plt.close(fig)
