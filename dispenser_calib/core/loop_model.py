@@ -42,6 +42,12 @@ class RotaryLoopModel(MachineModel):
 
     def __init__(self, poses: TargetPoses, lever: float = LEVER):
         self.poses, self.lever = poses, lever
+        if poses.covariance is not None:
+            # Residuals whitened by each pose's covariance: in standard deviations.
+            self.unit, self.min_effect = 'sigma', 0.1
+            self.base_model = self.base_model.replace(
+                'the lever arm times its orientation error (m)',
+                'its orientation error, weighted by each pose\'s covariance (sigma)')
         self.identified = identify_rotary_axes(poses, lever)   # every pose, base model only
         self.frame, self.camera_start = self.identified.frame, self.identified.camera_start
         angles = np.column_stack([poses.a, poses.c])

@@ -197,6 +197,13 @@ def _board_axes_rows(model: DispenserModel, poses: np.ndarray) -> np.ndarray:
     return turned[:, :, :2]
 
 
+def dot_centres(points: np.ndarray, axes: np.ndarray, radius: float) -> np.ndarray:
+    """Homogeneous normalised image coordinates (k, 3) of the centres of the images of
+    circles of ``radius`` (m) about ``points`` (k, 3, camera frame) in the planes spanned by
+    ``axes`` (k, 3, 2): p p_z - r^2 (a1 a1_z + a2 a2_z) (see :func:`project_rows`)."""
+    return points * points[:, 2:3] - radius ** 2 * np.einsum('kij,kj->ki', axes, axes[:, 2, :])
+
+
 def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray,
                  dot_radius: float = 0.0) -> np.ndarray:
     """Pixels (k, 2) of board points (k, 3), each seen at its own pose (k, 5): every dot of
@@ -213,8 +220,7 @@ def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray,
     p = _camera_rows(model, points, poses)
     depth = p[:, 2]
     if dot_radius:
-        axes = _board_axes_rows(model, poses)
-        p = p * depth[:, None] - dot_radius ** 2 * np.einsum('kij,kj->ki', axes, axes[:, 2, :])
+        p = dot_centres(p, _board_axes_rows(model, poses), dot_radius)
     with np.errstate(divide='ignore', invalid='ignore'):
         normalised = p[:, :2] / np.where(depth > 0, p[:, 2], np.nan)[:, None]
     return distort(model, normalised)

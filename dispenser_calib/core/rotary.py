@@ -20,14 +20,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
+from dispenser_calib.core.data import DOT_RADIUS, board_points
 from dispenser_calib.core.model import (
-    LOOKING_DOWN, NAMES, DispenserModel, _camera_rows, rodrigues)
+    LOOKING_DOWN, NAMES, DispenserModel, _camera_rows, distort, dot_centres, rodrigues)
 
 POSE_COLUMNS = ('x', 'y', 'z', 'qw', 'qx', 'qy', 'qz')
 AXIS_NAMES = ('a_tilt_1', 'a_tilt_2', 'a_offset_1', 'a_offset_2',
@@ -42,13 +44,16 @@ MIN_TURN = 0.05               # rad: a pair turned less than this says little ab
 class TargetPoses:
     """Measured target poses: table angles ``a``, ``c`` (n,) rad; the instrument-to-target
     rotation (n, 3, 3) and translation (n, 3) m (a target point p is at R p + t); other
-    numeric columns (time in s, temperature in K) as covariates."""
+    numeric columns (time in s, temperature in K) as covariates; optionally each pose's
+    measurement covariance (n, 6, 6) of (translation m, rotation error vector rad, in the
+    instrument frame: R = exp([w]) R_true), with which residuals are weighted."""
 
     a: np.ndarray
     c: np.ndarray
     rotation: np.ndarray
     translation: np.ndarray
     covariates: dict = field(default_factory=dict)
+    covariance: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.a)
@@ -56,7 +61,8 @@ class TargetPoses:
     def subset(self, rows) -> 'TargetPoses':
         return TargetPoses(self.a[rows], self.c[rows], self.rotation[rows],
                            self.translation[rows],
-                           {k: np.asarray(v)[rows] for k, v in self.covariates.items()})
+                           {k: np.asarray(v)[rows] for k, v in self.covariates.items()},
+                           None if self.covariance is None else self.covariance[rows])
 
 
 def read_target_poses(path, a_column: str = 'a', c_column: str = 'c') -> TargetPoses:
@@ -88,6 +94,67 @@ def read_target_poses(path, a_column: str = 'a', c_column: str = 'c') -> TargetP
     return TargetPoses(columns[a_column], columns[c_column],
                        Rotation.from_quat(quaternion / norm[:, None]).as_matrix(), translation,
                        {k: v for k, v in columns.items() if k not in used})
+
+
+def poses_from_images(model: DispenserModel, images: list, times: np.ndarray | None = None
+                      ) -> TargetPoses:
+    """The board's pose in each image (OpenCV's solvePnP with ``model``'s intrinsics and
+    distortion, then fitted to the dots' ellipse centres) with its covariance, as target
+    poses for the rotary axes: the dispenser's camera is the instrument, which stays put if
+    the linear axes do. ``times`` (s) per image, optional. The covariance matters: a small
+    board seen from close by fixes its turn about the optical axis far better than its
+    tilts, and only the weighted residuals show an angle error of C below the tilts' noise.
+
+    Raises
+    ------
+    CalibrationError
+        The linear axes moved between the images, or an image with fewer than 6 dots."""
+    linear = np.array([im.pose[:3] for im in images])
+    if np.ptp(linear, axis=0).max() > 1e-9:
+        raise CalibrationError('the linear axes moved between the images (by up to '
+                               f'{np.ptp(linear, axis=0).max() * 1e3:.4g} mm): the rotary axes '
+                               'from board poses need them held')
+    board, indices = board_points()
+    where = {tuple(i): k for k, i in enumerate(indices)}
+    distortion = np.r_[model.distortion, 0.0]
+    rotations, translations, covariances = [], [], []
+    for im in images:
+        if len(im.indices) < 6:
+            raise CalibrationError(f'{im.name}: {len(im.indices)} dots, a board pose needs 6')
+        points = board[[where[tuple(i)] for i in im.indices]]
+        # Ellipse centres, as the calibration projects them, are not the dots' images:
+        # start from PnP on the centres, then fit the pose to the ellipse centres.
+        _, rvec, tvec = cv2.solvePnP(points, im.pixels, model.camera_matrix, distortion,
+                                     flags=cv2.SOLVEPNP_ITERATIVE)
+        rotation, translation, covariance = _fit_board_pose(model, points, im.pixels,
+                                                            rvec.ravel(), tvec.ravel())
+        rotations.append(rotation)
+        translations.append(translation)
+        covariances.append(covariance)
+    poses = np.array([im.pose for im in images])
+    covariates = {'time': np.asarray(times, float)} if times is not None else {}
+    return TargetPoses(poses[:, 3], poses[:, 4], np.array(rotations), np.array(translations),
+                       covariates, np.array(covariances))
+
+
+def _fit_board_pose(model, points, pixels, rvec, tvec):
+    """The board pose whose dots' ellipse centres (radius DOT_RADIUS, through ``model``'s
+    lens) best match ``pixels``: rotation (3, 3), translation (3,) m, and the covariance
+    (6, 6) of (translation, rotation error vector in the camera frame) from the fit's
+    Jacobian and its residual variance."""
+    start = Rotation.from_rotvec(rvec).as_matrix()
+
+    def residual(x):
+        rotation = Rotation.from_rotvec(x[:3]).as_matrix() @ start
+        centre = dot_centres(points @ rotation.T + x[3:],
+                             np.repeat(rotation[None, :, :2], len(points), 0), DOT_RADIUS)
+        return (distort(model, centre[:, :2] / centre[:, 2:3]) - pixels).ravel()
+    solution = least_squares(residual, np.r_[np.zeros(3), tvec], x_scale='jac')
+    variance = float(solution.fun @ solution.fun) / max(solution.fun.size - 6, 1)
+    covariance = np.linalg.inv(solution.jac.T @ solution.jac) * variance
+    order = [3, 4, 5, 0, 1, 2]
+    return (Rotation.from_rotvec(solution.x[:3]).as_matrix() @ start, solution.x[3:],
+            covariance[np.ix_(order, order)])
 
 
 def write_target_poses(path, poses: TargetPoses) -> None:
@@ -146,10 +213,13 @@ def chain_rotation(model: DispenserModel, a: np.ndarray, c: np.ndarray) -> np.nd
 
 def pose_residuals(model: DispenserModel, frame: np.ndarray, poses: TargetPoses,
                    lever: float = LEVER, turn: np.ndarray | None = None,
-                   shift: np.ndarray | None = None) -> np.ndarray:
+                   shift: np.ndarray | None = None, weighted: bool = True) -> np.ndarray:
     """Measured minus modelled, (n, 6) m: the target origin's position and ``lever`` times
     the rotation vector of R_meas R_model^T. ``turn`` (n, 2) rad is added to a, c and
-    ``shift`` (n, 3) m to the modelled position (the closed loop's effects)."""
+    ``shift`` (n, 3) m to the modelled position (the closed loop's effects). With the
+    poses' covariance (and ``weighted``), the residuals are whitened instead: (position,
+    rotation vector) times the inverse of each pose's covariance's Cholesky factor, in
+    standard deviations."""
     angles = np.column_stack([poses.a, poses.c]) + (0 if turn is None else turn)
     stops = np.column_stack([np.zeros((len(poses), 3)), angles])
     position = _camera_rows(model, np.zeros((len(poses), 3)), stops)
@@ -157,6 +227,9 @@ def pose_residuals(model: DispenserModel, frame: np.ndarray, poses: TargetPoses,
         position = position + shift
     modelled = chain_rotation(model, angles[:, 0], angles[:, 1]) @ frame
     rotation = Rotation.from_matrix(poses.rotation @ np.transpose(modelled, (0, 2, 1)))
+    if weighted and poses.covariance is not None:
+        raw = np.column_stack([poses.translation - position, rotation.as_rotvec()])
+        return np.linalg.solve(np.linalg.cholesky(poses.covariance), raw[:, :, None])[:, :, 0]
     return np.column_stack([poses.translation - position, lever * rotation.as_rotvec()])
 
 
@@ -286,5 +359,6 @@ def identify_rotary_axes(poses: TargetPoses, lever: float = LEVER) -> RotaryFit:
     dof = max(solution.fun.size - len(FITTED_NAMES), 1)
     variance = float(solution.fun @ solution.fun) / dof
     covariance = np.linalg.pinv(solution.jac.T @ solution.jac) * variance
-    return RotaryFit(model_from(solution.x, camera), frame, solution.x, covariance, camera,
-                     lever, solution.fun.reshape(-1, 6))
+    model = model_from(solution.x, camera)
+    return RotaryFit(model, frame, solution.x, covariance, camera, lever,
+                     pose_residuals(model, frame, poses, lever, weighted=False))

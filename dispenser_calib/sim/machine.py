@@ -53,18 +53,22 @@ def true_model(seed: int = 0) -> DispenserModel:
 
 
 def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, seed: int = 0,
-            bad_fraction: float = 0.0) -> tuple[list[Image], list[str]]:
+            bad_fraction: float = 0.0, angular_error=None) -> tuple[list[Image], list[str]]:
     """The board imaged at each stop: the visible dots' ellipse centres (as a detector
     finds them) with ``noise_px`` of detection noise; a ``bad_fraction`` of the images has
-    one dot mis-detected by 15-30 px and one occluded. Stops outside the strokes are refused. Returns the images and the
-    names of the bad ones (truth)."""
+    one dot mis-detected by 15-30 px and one occluded. ``angular_error`` (a function of c,
+    rad) is what C turns beyond its reading (a worm gear's error). Stops outside the strokes
+    are refused. Returns the images and the names of the bad ones (truth)."""
     rng = np.random.default_rng(seed + 60)
     board, indices = board_points()
     images = []
     bad = set(rng.choice(len(stops), int(round(bad_fraction * len(stops))), replace=False))
     for k, pose in enumerate(stops):
         check_stroke(pose)
-        pixels = project(truth, board, pose[None], DOT_RADIUS)[0]
+        turned = pose.copy()
+        if angular_error is not None:
+            turned[4] += angular_error(pose[4])
+        pixels = project(truth, board, turned[None], DOT_RADIUS)[0]
         inside = (np.all(np.isfinite(pixels), axis=1) & (pixels[:, 0] >= 0)
                   & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] >= 0)
                   & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
