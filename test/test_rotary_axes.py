@@ -13,7 +13,7 @@ from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.calibration import refine, stepwise
 from dispenser_calib.core.model import nominal_model
-from dispenser_calib.core.procedure import plan_stops
+from dispenser_calib.core.procedure import plan_stops, rotary_sweep
 from dispenser_calib.core.rotary import (
     axis_lines_in_camera, identify_rotary_axes, poses_from_images, read_target_poses,
     squareness, write_target_poses)
@@ -199,10 +199,7 @@ def calibrated_dispenser():
     truth = true_model(0)
     images, _ = observe(truth, plan_stops(nominal_model(), 0), 0.1, 0)
     model = refine(stepwise(images, IMAGE_SIZE), images).model
-    a, c = np.meshgrid(np.linspace(-0.3, 0.3, 5), np.deg2rad(np.arange(0, 360, 22.5)),
-                       indexing='ij')
-    sweep = np.column_stack([np.zeros((a.size, 3)), a.ravel(), c.ravel()])
-    return truth, model, sweep
+    return truth, model, rotary_sweep()
 
 
 @pytest.mark.parametrize('worm', [False, True])
@@ -234,3 +231,18 @@ def test_board_poses_need_the_linear_axes_held(calibrated_dispenser):
     images, _ = observe(truth, moved, 0.1, 7)
     with pytest.raises(CalibrationError, match='linear axes moved'):
         poses_from_images(model, images)
+
+
+def test_cli_worm_gear_from_the_dispensers_own_images(tmp_path, capsys):
+    cal, sweep, model = tmp_path / 'cal.csv', tmp_path / 'sweep.csv', tmp_path / 'fa.yaml'
+    assert main(['simulate', 'five-axis', '--out', str(cal), '--bad-fraction', '0']) == 0
+    assert main(['calibrate', 'five-axis', '--data', str(cal), '--out', str(model)]) == 0
+    assert main(['simulate', 'five-axis', '--sweep', '--worm', '100e-6', '2', '--bad-fraction',
+                 '0', '--out', str(sweep)]) == 0
+    report_path = tmp_path / 'worm.json'
+    assert main(['analyze', 'rotary', '--data', str(sweep), '--calibration', str(model),
+                 '--json', str(report_path)]) == 0
+    report = json.loads(report_path.read_text())
+    harmonics = _effect(report, 'angular_harmonics')
+    assert abs(harmonics['parameters']['cos2_c'] - 100e-6) < 3 * harmonics['std_devs']['cos2_c']
+    capsys.readouterr()

@@ -11,7 +11,9 @@ from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_co
 from calib_core.closed_loop import LoopConfig, analyze, format_report
 from calib_core.errors import MachineAlignmentError
 from dispenser_calib.core.loop_model import RotaryLoopModel
-from dispenser_calib.core.rotary import LEVER, read_target_poses
+from dispenser_calib.core.data import read_observations
+from dispenser_calib.core.model import read_model
+from dispenser_calib.core.rotary import LEVER, poses_from_images, read_target_poses
 from grid_calib.core.data import read_marks
 from grid_calib.core.residual_loop import analyze_region
 from calib_core.iso230_2 import format_figures
@@ -62,6 +64,9 @@ def _loop_machine(args, dropped: dict):
     if args.machine == 'platform':
         nominal = read_platform(args.geometry) if args.geometry else nominal_platform()
         return PlatformLoopModel(PlatformPoseData.from_csv(args.data, dropped), nominal)
+    if args.machine == 'rotary' and args.calibration:
+        return RotaryLoopModel(poses_from_images(read_model(args.calibration),
+                                                 read_observations(args.data)))
     if args.machine == 'rotary':
         return RotaryLoopModel(read_target_poses(args.data, args.a_column, args.c_column),
                                args.lever)
@@ -181,6 +186,11 @@ def add_parser(sub) -> None:
         if name == 'rotary':
             machine.add_argument('--a-column', default='a', help='the tilt axis A\'s column')
             machine.add_argument('--c-column', default='c', help='the rotary table C\'s column')
+            machine.add_argument('--calibration',
+                                 help='five-axis calibration YAML: --data is then a five-axis '
+                                      'observations CSV of a sweep with the linear axes held '
+                                      '(simulate five-axis --sweep), the board\'s pose in '
+                                      'each image is the target pose')
             machine.add_argument('--lever', type=float, default=LEVER,
                                  help='m: orientation errors count as the displacement of a '
                                       'point this far from the target origin')

@@ -23,15 +23,19 @@ from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E4
 from dispenser_calib.core.localisation import locate  # noqa: E402
 from dispenser_calib.core.model import (  # noqa: E402
     NAMES, nominal_model, parameter_unit, read_model, write_model)
-from dispenser_calib.core.procedure import plan_stops  # noqa: E402
+from dispenser_calib.core.procedure import plan_stops, rotary_sweep  # noqa: E402
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model  # noqa: E402
 from machine_alignment.cli.common import parse_size, quantity, read_run, write_json  # noqa: E402
 
 
 def cmd_simulate(args) -> int:
     truth = true_model(args.seed)
-    images, bad = observe(truth, plan_stops(nominal_model(), args.seed), args.noise, args.seed,
-                          args.bad_fraction)
+    stops = rotary_sweep() if args.sweep else plan_stops(nominal_model(), args.seed)
+    worm = None
+    if args.worm:
+        amplitude, order = args.worm
+        worm = lambda c: amplitude * np.cos(order * c)  # noqa: E731
+    images, bad = observe(truth, stops, args.noise, args.seed, args.bad_fraction, worm)
     write_observations(args.out, images)
     print(f'wrote {args.out} ({len(images)} images of an 11 x 9 dot board, 2 mm pitch, '
           f'{IMAGE_SIZE[0]}x{IMAGE_SIZE[1]} px; {len(bad)} with a mis-detected dot: '
@@ -165,6 +169,11 @@ def add_simulate_parser(simulated) -> None:
     p.add_argument('--bad-fraction', type=float, default=0.05,
                    help='images with a mis-detected dot')
     p.add_argument('--truth', help='also write the true model (YAML)')
+    p.add_argument('--sweep', action='store_true',
+                   help='the rotary sweep with the linear axes held (for analyze rotary '
+                        '--calibration) instead of the calibration stops')
+    p.add_argument('--worm', type=float, nargs=2, metavar=('AMPLITUDE', 'ORDER'),
+                   help='C turns AMPLITUDE cos(ORDER c) rad beyond its reading')
     p.set_defaults(func=cmd_simulate)
 
 
