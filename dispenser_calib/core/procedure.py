@@ -61,12 +61,15 @@ def plan_stops(nominal: DispenserModel, seed: int = 0) -> np.ndarray:
     return np.array(stops)
 
 
-def rotary_sweep(tilts=np.linspace(-0.3, 0.3, 5), step: float = np.deg2rad(22.5)) -> np.ndarray:
+def rotary_sweep(tilts=np.linspace(-0.3, 0.3, 5), step: float = np.deg2rad(22.5),
+                 both_ways: bool = False) -> np.ndarray:
     """Stops (n, 5) with the linear axes held at zero: A at each of ``tilts`` (rad), C round
-    the turn in ``step`` (rad); the board stays in view (A's line lies 30 mm below it), so
-    the camera measures the board's pose at each (:func:`rotary.poses_from_images`)."""
-    a, c = np.meshgrid(np.asarray(tilts, float), np.arange(0, 2 * np.pi - 1e-9, step),
-                       indexing='ij')
+    the turn in ``step`` (rad), and with ``both_ways`` back again (every place approached
+    from both sides: lost motion shows); the board stays in view (A's line lies 30 mm below
+    it), so the camera measures the board's pose at each (:func:`rotary.poses_from_images`)."""
+    turn = np.arange(0, 2 * np.pi - 1e-9, step)
+    turn = np.r_[turn, turn[::-1]] if both_ways else turn
+    a, c = np.meshgrid(np.asarray(tilts, float), turn, indexing='ij')
     return np.column_stack([np.zeros((a.size, 3)), a.ravel(), c.ravel()])
 
 

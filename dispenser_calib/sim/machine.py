@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from calib_core.datasets import directions_from_order
 from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
 from dispenser_calib.core.model import NAMES, DispenserModel, _camera_rows, nominal_model, project
 from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
@@ -53,21 +54,26 @@ def true_model(seed: int = 0) -> DispenserModel:
 
 
 def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, seed: int = 0,
-            bad_fraction: float = 0.0, angular_error=None) -> tuple[list[Image], list[str]]:
+            bad_fraction: float = 0.0, angular_error=None,
+            c_backlash: float = 0.0) -> tuple[list[Image], list[str]]:
     """The board imaged at each stop: the visible dots' ellipse centres (as a detector
     finds them) with ``noise_px`` of detection noise; a ``bad_fraction`` of the images has
     one dot mis-detected by 15-30 px and one occluded. ``angular_error`` (a function of c,
-    rad) is what C turns beyond its reading (a worm gear's error). Stops outside the strokes
-    are refused. Returns the images and the names of the bad ones (truth)."""
+    rad) is what C turns beyond its reading (a worm gear's error); C lags its reading by
+    ``c_backlash`` / 2 (rad) against the direction it last moved in (lost motion). Stops
+    outside the strokes are refused. Returns the images and the names of the bad ones
+    (truth)."""
     rng = np.random.default_rng(seed + 60)
     board, indices = board_points()
     images = []
     bad = set(rng.choice(len(stops), int(round(bad_fraction * len(stops))), replace=False))
+    approach = directions_from_order(np.asarray(stops)[:, 4:5])[:, 0]
     for k, pose in enumerate(stops):
         check_stroke(pose)
         turned = pose.copy()
         if angular_error is not None:
             turned[4] += angular_error(pose[4])
+        turned[4] -= 0.5 * c_backlash * approach[k]
         pixels = project(truth, board, turned[None], DOT_RADIUS)[0]
         inside = (np.all(np.isfinite(pixels), axis=1) & (pixels[:, 0] >= 0)
                   & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] >= 0)
