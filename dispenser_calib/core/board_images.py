@@ -4,11 +4,13 @@ by its board index.
 
 Naming: the model in force (the nominal one before the first calibration) predicts every
 dot at the commanded pose; each detection takes the nearest prediction, a homography from
-the board to the image fitted to those pairs (RANSAC) predicts again, and a detection keeps
-its name only if it is within a quarter pitch of that prediction and no other detection
-claims it. A board without an orientation mark can be named only if the model predicts
-the dots to better than half a pitch; a pose that the model misplaces by more would name
-every dot one pitch off, consistently, and no check on this image alone could see it."""
+the board to the image fitted to those pairs (RANSAC) maps the detections back onto the
+board's lattice, and the lattice is shifted by whole pitches to where most detections fall
+on the board. With the whole board in view its edges fix the names when the prediction
+is off by up to two pitches (as a whole); with part of it in view a board without an
+orientation mark can be named only if the model predicts the dots to better than half a
+pitch, and a pose misplaced by more would name every dot a pitch off, consistently, which
+no check on that image alone could see."""
 from __future__ import annotations
 
 import cv2
@@ -17,14 +19,13 @@ from scipy.spatial import cKDTree
 
 from calib_core.errors import CalibrationError, DetectionError
 from calib_core.marks import DetectorConfig, detect_marks
-from dispenser_calib.core.data import PITCH, Image, board_points
+from dispenser_calib.core.data import Image, board_points
 from dispenser_calib.core.model import DispenserModel, project
 
 MATCH_SHARE = 0.25   # of the pitch: a detection this close to a lattice place is that dot
 
 
-def name_dots(detected: np.ndarray, predicted: np.ndarray, indices: np.ndarray,
-              pitch: float = PITCH) -> np.ndarray:
+def name_dots(detected: np.ndarray, predicted: np.ndarray, indices: np.ndarray) -> np.ndarray:
     """For each detection (k, 2) px, the row of its dot in ``indices`` (n, 2), or -1.
 
     The nearest of the ``predicted`` pixels (n, 2) names each detection first; a
@@ -39,8 +40,10 @@ def name_dots(detected: np.ndarray, predicted: np.ndarray, indices: np.ndarray,
     names = np.full(len(detected), -1)
     if len(np.unique(first)) < 4:
         return names
+    # A pair named a pitch off misses by a pitch; the lens bends the lattice by a few px.
+    pitch_px = float(np.median(tree.query(predicted[lookup], k=2)[0][:, 1]))
     homography, _ = cv2.findHomography(indices[first].astype(float), detected, cv2.RANSAC,
-                                       MATCH_SHARE * 4)
+                                       MATCH_SHARE * pitch_px)
     if homography is None:
         return names
     on_board = cv2.perspectiveTransform(detected[:, None], np.linalg.inv(homography))[:, 0]
