@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from grid_calib.core.model import Grid
+from grid_calib.core.procedure import camera_in_stage_frame
 from grid_calib.core.selfcal import Placement, self_calibrate
 from grid_calib.errors import PlacementError
 from grid_calib.sim.plate import GridTruth, default_truth, measure_placements
@@ -163,3 +164,13 @@ def test_compensation_subtracts_the_stage_error_and_does_not_extrapolate():
     assert _rms(literal) > 1.8 * size
     with pytest.raises(OutOfTravelError):
         stage_map.error_at([[1.0, 0.0]])
+
+
+def test_the_camera_angle_for_grid_readings_is_to_the_stage_axes():
+    """The vision calibration's camera angle is to its dot plate, and its gantry axis angle
+    is the X axis's in that plate's frame: the readings need their difference (a plate
+    turned by 0.57 mrad on the printer made every grid placement look turned by it)."""
+    camera = camera_in_stage_frame({'pixel_size': 12.3e-6, 'camera_angle': 2.0e-3,
+                                    'axis_angle': 0.57e-3, 'lead_x': 0.016})
+    assert camera == pytest.approx((12.3e-6, 1.43e-3), abs=1e-15)
+    assert camera_in_stage_frame({'pixel_size': 12.3e-6}) is None

@@ -118,3 +118,18 @@ def measure_grid(plan: GridPlan, place: Callable[[int, str, np.ndarray], None],
             readings[placement] = (marks, np.array(seen))
         regions[region] = region_from_readings(grid, readings, f'region {region}')
     return regions
+
+
+def camera_in_stage_frame(parameters: dict) -> tuple[float, float] | None:
+    """The camera's pixel size (m/px) and the angle (rad) of its pixel axes to the stage's
+    X axis, from a vision calibration's named parameters, or None if it lacks them.
+
+    The vision calibration gives the camera's angle to its dot plate (``camera_angle``)
+    and the gantry X axis's angle in that plate's frame (``axis_angle``); the grid readings
+    must be in the stage's own axes, whose errors G describes, so the angle used is their
+    difference. (With the plate's angle left in, every grid placement looks turned by it,
+    and a plate placed exactly square is refused as turned beyond the small-angle model.)"""
+    if 'pixel_size' not in parameters or 'camera_angle' not in parameters:
+        return None
+    return (float(parameters['pixel_size']),
+            float(parameters['camera_angle']) - float(parameters.get('axis_angle', 0.0)))

@@ -37,7 +37,7 @@ from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
-from grid_calib.core.procedure import GridPlan, measure_grid
+from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
 from grid_calib.core.records import PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC
 from grid_calib.core.stitching import METHODS
 from grid_calib.core.travel import calibrate_travel, grid_result_content
@@ -143,9 +143,9 @@ class GridCalibratorNode(Node):
         return plan, (float(certified) or None), stitch
 
     def on_vision_result(self, msg):
-        values = dict(zip(msg.names, msg.values))
-        if msg.success and 'pixel_size' in values and 'camera_angle' in values:
-            self._vision = (float(values['pixel_size']), float(values['camera_angle']))
+        camera = camera_in_stage_frame(dict(zip(msg.names, msg.values))) if msg.success else None
+        if camera is not None:
+            self._vision = camera
 
     def on_confirm_placement(self, request, response):
         self._placed.set()
