@@ -18,6 +18,13 @@ Hexapod:
    (``hexapod_calibrator/analyze_residuals``, applied).
 5. Re-run the identification offline from its bag, and compare the 42 identified
    parameters with the simulation's truth.
+The three machines after them:
+6. Grid plate: the printer's camera gantry self-calibrated with an imperfect grid plate
+   (``grid_calibrator/calibrate``; the simulated operator places the plate as asked).
+7. Platform: ``platform_calibrator/calibrate`` (20 poses by the laser tracker), then
+   ``platform_calibrator/register`` (exact compensation, marks measured after the move).
+8. Five-axis dispenser: ``five_axis_calibrator/calibrate`` on rendered camera frames,
+   ``measure_needle`` from dispensed dots, ``locate`` a part and place its path.
 """
 from __future__ import annotations
 
@@ -29,13 +36,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibration
+from alignment_msgs.srv import (
+    Align, AnalyzeResiduals, LocateWorkpiece, MeasureNeedle, MoveStage, RegisterScreen,
+    RunCalibration)
 
 from calib_core.errors import CalibrationError
 from calib_core.storage import write_atomic
 from hexapod_calib.sim.hexapod import HexapodTruth
 from machine_alignment.cli import calibrate
-from machine_alignment.launcher import Graph, hexapod_graph, printer_graph, stage_graph
+from machine_alignment.launcher import (
+    Graph, five_axis_graph, grid_graph, hexapod_graph, platform_graph, printer_graph, stage_graph)
 from machine_alignment.live import LiveClient
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.sim.camera import CameraSim
@@ -53,7 +63,7 @@ def _calibrate_offline(argv: list[str]) -> int:
 
 
 def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.0,
-                 analysis: str = ''):
+                 analysis: str = '', plan: str = ''):
     """Call a RunCalibration service on a running graph, printing its progress; then, if
     the calibration succeeded and ``analysis`` names an AnalyzeResiduals service, run the
     closed loop with ``apply``. Returns (calibration response, analysis response), None
@@ -66,8 +76,9 @@ def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.
             print(f'      {step}/{total} {message}')
     with LiveClient('demo_client') as client:
         try:
-            calibration = client.call(RunCalibration, service, RunCalibration.Request(),
-                                      progress_topic, show, timeout)
+            calibration = client.call(RunCalibration, service,
+                                      RunCalibration.Request(plan_yaml=plan), progress_topic,
+                                      show, timeout)
         except CalibrationError as exc:
             print(f'      {exc}; processes alive: {graph.alive()}')
             return None, None
@@ -191,7 +202,99 @@ def run_demo(out: Path) -> int:
         return 1
     if _stage(out, domain):
         return 1
-    return _hexapod(out, domain)
+    if _hexapod(out, domain):
+        return 1
+    for machine in (_grid, _platform, _five_axis):
+        if machine(out, domain):
+            return 1
+    return 0
+
+
+def _calibrated(graph, name: str, service: str, plan: str = ''):
+    """Call RunCalibration ``service`` on the running ``graph``: its report, or None after
+    printing why it failed."""
+    start = time.monotonic()
+    response, _ = _run_service(graph, service, f'/{service.split("/")[0]}/progress', plan=plan)
+    if response is None or not response.success:
+        print(f'      {name} calibration failed: {response.message if response else "timeout"}')
+        return None
+    print(f'      done in {time.monotonic() - start:.1f} s; file {response.result.file_path}')
+    return json.loads(response.result.report_json)
+
+
+def _graph(name: str, spec, out: Path, domain: str) -> Graph:
+    return Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / name))
+
+
+def _grid(out: Path, domain: str) -> int:
+    print('[6] grid-plate self-calibration of the camera gantry (3 x 2 regions, the simulated '
+          'operator places the plate)')
+    with _graph('grid', grid_graph(str(out / 'calibration'), str(out / 'runs')), out,
+                domain) as graph:
+        report = _calibrated(graph, 'grid', 'grid_calibrator/calibrate')
+    if report is None:
+        return 1
+    errors = np.array([[s['error_x'], s['error_y']] for s in report['sites']])
+    print(f'      {len(errors)} sites in {report["stitching"]["regions"]} regions stitched '
+          f'({report["stitching"]["method"]}); stage error up to '
+          f'{np.abs(errors).max() * 1e6:.2f} um; non-orthogonality '
+          f'{report["non_orthogonality_rad"] * 1e6:.1f} urad')
+    return 0
+
+
+def _platform(out: Path, domain: str) -> int:
+    print('[7] the screen-registration platform: identification by the laser tracker, then '
+          'registration of a screen')
+    with _graph('platform', platform_graph(str(out / 'calibration'), str(out / 'runs')), out,
+                domain) as graph:
+        report = _calibrated(graph, 'platform', 'platform_calibrator/calibrate', '{poses: 20}')
+        if report is None:
+            return 1
+        evaluation = report['evaluation']
+        print(f'      held-out poses, median error: nominal '
+              f'{evaluation["evaluate_nominal"]["median_m"] * 1e6:.1f} um, calibrated '
+              f'{evaluation["evaluate_calibrated"]["median_m"] * 1e6:.1f} um')
+        with LiveClient('demo_platform_client') as client:
+            answer = client.call(RegisterScreen, 'platform_calibrator/register',
+                                 RegisterScreen.Request(method='exact'), timeout=120.0)
+    if not answer.success:
+        print(f'      registration failed: {answer.message}')
+        return 1
+    print(f'      registered (exact compensation): marks off by {answer.measured_error * 1e6:.2f} '
+          f'um after the move')
+    return 0
+
+
+def _five_axis(out: Path, domain: str) -> int:
+    print('[8] the five-axis dispenser: calibration from rendered camera frames, the needle '
+          'measured from dispensed dots, a part located and its path placed')
+    with _graph('five_axis', five_axis_graph(str(out / 'calibration'), str(out / 'runs')), out,
+                domain) as graph:
+        report = _calibrated(graph, 'five-axis', 'five_axis_calibrator/calibrate',
+                             '{frames: true}')
+        if report is None:
+            return 1
+        held = report['held_out']
+        print(f'      reprojection {report["mean_reprojection_px"]:.4f} px mean; held out '
+              f'{held["rms_px_calibrated"]:.4f} px RMS calibrated, {held["rms_px_nominal"]:.1f} px '
+              f'nominal; set aside {sorted(report["bad_images"]) or "none"}')
+        with LiveClient('demo_five_axis_client') as client:
+            needle = client.call(MeasureNeedle, 'five_axis_calibrator/measure_needle',
+                                 MeasureNeedle.Request(), timeout=120.0)
+            if not needle.success:
+                print(f'      needle measurement failed: {needle.message}')
+                return 1
+            part = client.call(LocateWorkpiece, 'five_axis_calibrator/locate',
+                               LocateWorkpiece.Request(), timeout=120.0)
+    if not part.success:
+        print(f'      localisation failed: {part.message}')
+        return 1
+    print(f'      needle tip {", ".join(f"{v * 1e3:.4f}" for v in needle.tip)} mm (camera frame; '
+          f'one dot alone within {needle.spread * 1e6:.1f} um)')
+    print(f'      part found at {", ".join(f"{v * 1e3:.4f}" for v in part.pose[:3])} mm, '
+          f'{part.pose[5] * 1e3:.3f} mrad (placed at 1.5, -1, 0 mm, 30 mrad); '
+          f'{len(part.path_poses) // 5} path poses')
+    return 0
 
 
 def _stage(out: Path, domain: str) -> int:

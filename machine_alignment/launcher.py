@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from hexapod_calib.sim.hexapod import HexapodTruth
+from printer_alignment.sim.gantry import GantryErrors
 
 
 @dataclass(frozen=True)
@@ -77,9 +78,11 @@ def grid_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
     force: the camera's pixel size) and the grid calibrator."""
     return [
         NodeSpec('printer_alignment.nodes.gantry_sim'),
+        # The operator squares the plate to the simulated gantry's X axis.
         NodeSpec('printer_alignment.nodes.camera_sim',
                  {'scene': 'grid_plate', 'rate_hz': camera_rate_hz, 'grid_half': half,
-                  'grid_pitch': pitch}),
+                  'grid_pitch': pitch,
+                  'plate_square_to': float(GantryErrors().model.axis_angle)}),
         NodeSpec('printer_alignment.nodes.mark_detector', {'continuous': False}),
         NodeSpec('printer_alignment.nodes.vision_calibrator',
                  {'output_dir': output_dir, 'record_dir': record_dir}),

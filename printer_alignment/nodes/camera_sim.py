@@ -15,7 +15,9 @@ Scene ``grid_plate``: a (2 ``grid_half`` + 1)-square plate of ``grid_pitch`` (m)
 RMS mark errors, placed as the grid calibration asks on ``/grid_calibrator/placement``:
 the simulated operator puts its centre mark under the camera (turned 90 degrees
 counter-clockwise for ``rotated``, one pitch along +x for ``shifted``) to within 50 um and
-100 urad, then confirms with ``grid_calibrator/confirm_placement``.
+100 urad, squared to the stage's X axis at ``plate_square_to`` (rad, in the scene's frame;
+a real operator squares the plate by jogging X under the camera), then confirms with
+``grid_calibrator/confirm_placement``.
 """
 import threading
 
@@ -58,7 +60,11 @@ class CameraSimNode(Node):
         self.declare_parameter('stencil_marks', [0.0])
         self.declare_parameter('grid_half', 4)
         self.declare_parameter('grid_pitch', 7.5e-3)
+        self.declare_parameter('plate_square_to', 0.0)
         g = self.get_parameter
+        self.square_to = float(g('plate_square_to').value)
+        if not np.isfinite(self.square_to):
+            raise ValueError('plate_square_to must be a finite angle (rad)')
         rate = g('rate_hz').value
         if not rate > 0 or not g('pixel_size').value > 0 or g('blur_sigma').value < 0:
             raise ValueError('rate_hz and pixel_size must be positive, blur_sigma >= 0')
@@ -143,7 +149,7 @@ class CameraSimNode(Node):
         turn = np.pi / 2 if msg.placement == 'rotated' else 0.0
         with self._lock:
             x, y = self._position + shift + rng.uniform(-50e-6, 50e-6, 2)
-            self.camera.scene.place(x, y, turn + rng.uniform(-100e-6, 100e-6))
+            self.camera.scene.place(x, y, turn + self.square_to + rng.uniform(-100e-6, 100e-6))
         self.get_logger().info(f'grid plate placed: region {msg.region}, {msg.placement}')
         self.confirm_client.call_async(Trigger.Request())
 
