@@ -19,8 +19,9 @@ Hexapod:
 5. Re-run the identification offline from its bag, and compare the 42 identified
    parameters with the simulation's truth.
 The three machines after them:
-6. Grid plate: the printer's camera gantry self-calibrated with an imperfect grid plate
-   (``grid_calibrator/calibrate``; the simulated operator places the plate as asked).
+6. Grid plate: the printer's camera gantry self-calibrated with an imperfect 5 x 5 mark
+   grid plate over 2 regions (``grid_calibrator/calibrate``; the simulated operator places
+   the plate as asked).
 7. Platform: ``platform_calibrator/calibrate`` (20 poses by the laser tracker), then
    ``platform_calibrator/register`` (exact compensation, marks measured after the move).
 8. Five-axis dispenser: ``five_axis_calibrator/calibrate`` on rendered camera frames,
@@ -227,10 +228,10 @@ def _graph(name: str, spec, out: Path, domain: str) -> Graph:
 
 
 def _grid(out: Path, domain: str) -> int:
-    print('[6] grid-plate self-calibration of the camera gantry (3 x 2 regions, the simulated '
-          'operator places the plate)')
-    with _graph('grid', grid_graph(str(out / 'calibration'), str(out / 'runs')), out,
-                domain) as graph:
+    print('[6] grid-plate self-calibration of the camera gantry (a 5 x 5 mark plate over 2 '
+          'regions, the simulated operator places it)')
+    spec = grid_graph(str(out / 'calibration'), str(out / 'runs'), half=2, columns=2, rows=1)
+    with _graph('grid', spec, out, domain) as graph:
         report = _calibrated(graph, 'grid', 'grid_calibrator/calibrate')
     if report is None:
         return 1

@@ -82,6 +82,7 @@ class CameraSimNode(Node):
             scene = grid_plate(g('grid_half').value, g('grid_pitch').value, seed=self.seed)
         self.camera = CameraSim(scene, optics, seed=self.seed)
         self._position = None
+        self._pending = None          # a grid placement asked for, not yet made
         self._stamps = {}      # truth source -> stamp of its latest state
         self._lock = threading.Lock()
         self.image_pub = self.create_publisher(Image, 'camera/image_raw', qos_profile_sensor_data)
@@ -119,6 +120,7 @@ class CameraSimNode(Node):
         with self._lock:
             self._position = np.array([msg.point.x, msg.point.y])
             self._stamps['gantry'] = Time.from_msg(msg.header.stamp)
+        self._place_pending()
 
     def on_stage(self, msg):
         with self._lock:
@@ -138,11 +140,23 @@ class CameraSimNode(Node):
         return response
 
     def on_placement(self, msg):
-        """Place the plate as asked, as an operator would: centre mark under the camera,
-        off by up to 50 um and 100 urad (seeded per region and placement), then confirm."""
-        if self._position is None:
-            self.get_logger().error('placement requested before the gantry state is known')
-            return
+        """Place the plate as asked, as an operator would, once the camera's position
+        after the request is known (the request may arrive before the gantry's truth)."""
+        with self._lock:
+            self._pending = msg
+        self._place_pending()
+
+    def _place_pending(self):
+        """The pending placement, if the gantry's truth is newer than its request: centre
+        mark under the camera, off by up to 50 um and 100 urad (seeded per region and
+        placement), then confirm."""
+        with self._lock:
+            msg = self._pending
+            seen = self._stamps.get('gantry')
+            if msg is None or self._position is None or seen is None or \
+                    seen < Time.from_msg(msg.header.stamp):
+                return
+            self._pending = None
         rng = np.random.default_rng([self.seed, int(msg.region), len(msg.placement),
                                      ord(msg.placement[:1] or ' ')])
         shift = np.array([msg.pitch, 0.0]) if msg.placement == 'shifted' else np.zeros(2)
