@@ -135,6 +135,37 @@ def finish(nominal: DispenserModel, image_size, images: list, evaluation_images:
     return result, report, images
 
 
+def _view_plan(model: DispenserModel, points: np.ndarray, views) -> list:
+    """(point number, pose (5,)) per point and view ((a, c) rad): the camera aimed at where
+    the point would be."""
+    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+    return [(k, place(model, point, a, c, centre)) for k, point in enumerate(points)
+            for a, c in views]
+
+
+def _located(model: DispenserModel, points: np.ndarray, plan: list, move, capture,
+             what: str) -> tuple[np.ndarray, list]:
+    """Drive to each pose of ``plan`` (checked already), image, and locate each point
+    (expected near ``points`` (k, 3)) from the views it was seen in: (k, 3) m and the
+    reprojection RMS per point (px)."""
+    seen = {k: ([], []) for k in range(len(points))}
+    for k, pose in plan:
+        reached = np.asarray(move(pose), dtype=float)
+        numbers, pixels = capture()
+        for number, pixel in zip(numbers, np.atleast_2d(pixels)):
+            if int(number) == k:
+                seen[k][0].append(reached)
+                seen[k][1].append(pixel)
+    located, rms = [], []
+    for k, (poses, pixels) in seen.items():
+        if len(poses) < 2:
+            raise InvalidInputError(f'{what} {k} was seen in {len(poses)} view(s); it needs 2')
+        point, error = locate(model, np.array(poses), np.array(pixels), points[k])
+        located.append(point)
+        rms.append(error)
+    return np.array(located), rms
+
+
 def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, tip: np.ndarray,
                      views, path_angles, move: Callable[[np.ndarray], np.ndarray],
                      capture: Callable[[], tuple]) -> dict:
@@ -151,27 +182,11 @@ def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, t
         A view or a path pose outside a stroke.
     InvalidInputError
         A feature seen in fewer than 2 views, or too few features for a pose."""
-    cad, centre = np.atleast_2d(cad), np.array([0.0, 0.0, WORKING_DISTANCE])
-    plan = [(k, place(model, feature, a, c, centre)) for k, feature in enumerate(cad)
-            for a, c in views]
+    cad = np.atleast_2d(cad)
+    plan = _view_plan(model, cad, views)
     for _, pose in plan:
         check_stroke(pose)
-    seen = {k: ([], []) for k in range(len(cad))}
-    for k, pose in plan:
-        reached = np.asarray(move(pose), dtype=float)
-        numbers, pixels = capture()
-        for number, pixel in zip(numbers, np.atleast_2d(pixels)):
-            if int(number) == k:
-                seen[k][0].append(reached)
-                seen[k][1].append(pixel)
-    located, rms = [], []
-    for k, (poses, pixels) in seen.items():
-        if len(poses) < 2:
-            raise InvalidInputError(f'feature {k} was seen in {len(poses)} view(s); it needs 2')
-        point, error = locate(model, np.array(poses), np.array(pixels), cad[k])
-        located.append(point)
-        rms.append(error)
-    located = np.array(located)
+    located, rms = _located(model, cad, plan, move, capture, 'feature')
     rotation, translation, misfit = fit_part_pose(cad, located)
     on_table = np.atleast_2d(path) @ rotation.T + translation
     path_poses = place_path(model, tip, on_table, *path_angles)
@@ -203,33 +218,16 @@ def measure_needle(model: DispenserModel, tip_guess: np.ndarray, spots, views,
     InvalidInputError
         A dot seen in fewer than two views."""
     spots = np.atleast_2d(np.asarray(spots, float))
-    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
     dispensing = [place(model, spot, 0.0, 0.0, tip_guess) for spot in spots]
-    looking = [(k, place(model, spot, a, c, centre)) for k, spot in enumerate(spots)
-               for a, c in views]
+    looking = _view_plan(model, spots, views)
     for pose in dispensing + [pose for _, pose in looking]:
         check_stroke(pose)
     dispensed_at = []
     for pose in dispensing:
         dispensed_at.append(np.asarray(move(pose), dtype=float))
         dispense()
-    seen = {k: ([], []) for k in range(len(spots))}
-    for k, pose in looking:
-        reached = np.asarray(move(pose), dtype=float)
-        numbers, pixels = capture()
-        for number, pixel in zip(numbers, np.atleast_2d(pixels)):
-            if int(number) == k:
-                seen[k][0].append(reached)
-                seen[k][1].append(pixel)
-    dots, rms = [], []
-    for k, (poses, pixels) in seen.items():
-        if len(poses) < 2:
-            raise InvalidInputError(f'dispensed dot {k} was seen in {len(poses)} view(s); it '
-                                    f'needs 2')
-        point, error = locate(model, np.array(poses), np.array(pixels), spots[k])
-        dots.append(point)
-        rms.append(error)
-    dots, dispensed_at = np.array(dots), np.array(dispensed_at)
+    dots, rms = _located(model, spots, looking, move, capture, 'dispensed dot')
+    dispensed_at = np.array(dispensed_at)
     each = np.array([tool_centre(model, q[None], d[None]) for q, d in zip(dispensed_at, dots)])
     tip = tool_centre(model, dispensed_at, dots)
     return {'tip_m': tip.tolist(), 'dots_m': dots.tolist(), 'tip_per_dot_m': each.tolist(),
