@@ -51,7 +51,7 @@ from machine_alignment.live import LiveClient
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.sim.camera import CameraSim
 from printer_alignment.sim.evaluation import measure_errors, plot_errors, summarise
-from printer_alignment.sim.gantry import GantrySim
+from printer_alignment.sim.gantry import GantryErrors, GantrySim
 from printer_alignment.sim.scenes import make_scene
 
 
@@ -236,10 +236,14 @@ def _grid(out: Path, domain: str) -> int:
     if report is None:
         return 1
     errors = np.array([[s['error_x'], s['error_y']] for s in report['sites']])
+    # G's symmetric shear O is half the Y axis's turn from square (the turn of the whole
+    # is each placement's): the gantry model's non-orthogonality t = 2 O.
+    square = 2 * report['non_orthogonality_rad']
     print(f'      {len(errors)} sites in {report["stitching"]["regions"]} regions stitched '
           f'({report["stitching"]["method"]}); stage error up to '
-          f'{np.abs(errors).max() * 1e6:.2f} um; non-orthogonality '
-          f'{report["non_orthogonality_rad"] * 1e6:.1f} urad')
+          f'{np.abs(errors).max() * 1e6:.2f} um; non-orthogonality t = 2 O = '
+          f'{square * 1e6:.1f} urad (the simulated gantry: '
+          f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)')
     return 0
 
 
