@@ -14,9 +14,9 @@ from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.calibration import refine, stepwise
 from dispenser_calib.core.model import nominal_model
 from dispenser_calib.core.procedure import plan_stops, rotary_sweep
-from dispenser_calib.core.rotary import (
-    axis_lines_in_camera, identify_rotary_axes, poses_from_images, read_target_poses,
-    squareness, write_target_poses)
+from dispenser_calib.core.rotary import axis_lines_in_camera, identify_rotary_axes, squareness
+from dispenser_calib.core.target_poses import (
+    poses_from_images, read_target_poses, write_target_poses)
 from dispenser_calib.sim.machine import (
     IMAGE_SIZE, measure_target_poses, observe, positioner_schedule, true_model)
 from machine_alignment.cli import main

@@ -38,11 +38,11 @@ def resolvable_orders(angle: np.ndarray) -> tuple[int, str]:
     resolve, with what the data would need for more.
 
     Readings within :data:`SAME_PLACE` are one place. The places must go round: no gap
-    between neighbouring places (modulo one
-    turn) wider than twice their median spacing, else a harmonic of the turn is a smooth
-    function over the arc seen, which the axis's scale and line already describe. With m
-    distinct angles, orders up to (m - 1) // 2 are resolved (their Nyquist limit); a
-    higher order (a worm gear with z teeth is order z) aliases onto a lower one.
+    between neighbouring places (modulo one turn) wider than twice their median spacing,
+    else a harmonic of the turn is a smooth function over the arc seen, which the axis's
+    scale and line already describe. With m distinct places, orders up to (m - 1) // 2 are
+    resolved (their Nyquist limit); a higher order (a worm gear with z teeth is order z)
+    aliases onto a lower one.
 
     Returns
     -------

@@ -14,7 +14,8 @@ from calib_core.datasets import directions_from_order
 from calib_core.effects.rotary import commanded_places
 from calib_core.parameters import Parameter, ParameterSet
 from dispenser_calib.core.rotary import (
-    FITTED_NAMES, LEVER, TargetPoses, identify_rotary_axes, model_from, pose_residuals)
+    FITTED_NAMES, LEVER, identify_rotary_axes, model_from, pose_residuals)
+from dispenser_calib.core.target_poses import TargetPoses
 
 ANGLE_STEP = 1e-6   # rad: finite-difference step of the channel Jacobian
 

@@ -66,7 +66,7 @@ def rotary_sweep(tilts=np.linspace(-0.3, 0.3, 5), step: float = np.deg2rad(22.5)
     """Stops (n, 5) with the linear axes held at zero: A at each of ``tilts`` (rad), C round
     the turn in ``step`` (rad), and with ``both_ways`` back again (every place approached
     from both sides: lost motion shows); the board stays in view (A's line lies 30 mm below
-    it), so the camera measures the board's pose at each (:func:`rotary.poses_from_images`)."""
+    it), so the camera measures the board's pose at each (:func:`target_poses.poses_from_images`)."""
     turn = np.arange(0, 2 * np.pi - 1e-9, step)
     turn = np.r_[turn, turn[::-1]] if both_ways else turn
     a, c = np.meshgrid(np.asarray(tilts, float), turn, indexing='ij')

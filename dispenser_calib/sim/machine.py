@@ -10,7 +10,8 @@ from calib_core.datasets import directions_from_order
 from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
 from dispenser_calib.core.model import NAMES, DispenserModel, _camera_rows, nominal_model, project
 from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
-from dispenser_calib.core.rotary import TargetPoses, chain_rotation
+from dispenser_calib.core.rotary import chain_rotation
+from dispenser_calib.core.target_poses import TargetPoses
 
 IMAGE_SIZE = (2448, 2048)
 

@@ -13,7 +13,8 @@ from calib_core.errors import MachineAlignmentError
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.data import read_observations
 from dispenser_calib.core.model import read_model
-from dispenser_calib.core.rotary import LEVER, poses_from_images, read_target_poses
+from dispenser_calib.core.rotary import LEVER
+from dispenser_calib.core.target_poses import poses_from_images, read_target_poses
 from grid_calib.core.data import read_marks
 from grid_calib.core.residual_loop import analyze_region
 from calib_core.iso230_2 import format_figures
