@@ -23,7 +23,7 @@ from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
-from machine_alignment.cli.common import parse_size, progress, write_json
+from machine_alignment.cli.common import parse_size, progress, write_json, write_json_and_plot
 from platform_calib.core.geometry import nominal_geometry as nominal_platform
 from platform_calib.core.geometry import read_geometry as read_platform
 from platform_calib.core.identification import PoseData as PlatformPoseData
@@ -117,11 +117,7 @@ def cmd_analyze(args) -> int:
               f' deg apart (+- {np.degrees(identified["squareness_std_rad"]):.4f} deg); position '
               f'error RMS {identified["position_error_m"]["rms"] * 1e6:.0f} um, orientation '
               f'{identified["orientation_error_rad"]["rms"] * 1e6:.0f} urad')
-    if args.json:
-        write_json(args.json, report)
-        plot = Path(args.json).with_suffix('.png')
-        plot_loop(plot, machine, result)
-        print(f'wrote {plot}')
+    write_json_and_plot(args.json, report, lambda png: plot_loop(png, machine, result))
     return 0
 
 

@@ -29,6 +29,16 @@ def write_json(path, content) -> None:
         print(f'wrote {path}')
 
 
+def write_json_and_plot(path, content, plot) -> None:
+    """The report as JSON at ``path`` and ``plot(png_path)``'s figure beside it (same
+    name, .png); nothing without a path."""
+    if path:
+        write_json(path, content)
+        figure = Path(path).with_suffix('.png')
+        plot(figure)
+        print(f'wrote {figure}')
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """``WxH`` in px, both positive."""
     try:

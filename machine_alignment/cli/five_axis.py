@@ -25,7 +25,7 @@ from dispenser_calib.core.model import (  # noqa: E402
     NAMES, nominal_model, parameter_unit, read_model, write_model)
 from dispenser_calib.core.procedure import plan_stops, rotary_sweep  # noqa: E402
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model  # noqa: E402
-from machine_alignment.cli.common import parse_size, quantity, read_run, write_json  # noqa: E402
+from machine_alignment.cli.common import parse_size, quantity, read_run, write_json, write_json_and_plot  # noqa: E402
 
 
 def cmd_simulate(args) -> int:
@@ -128,11 +128,7 @@ def cmd_calibrate(args) -> int:
     if args.out:
         write_model(args.out, result.model, {'std_devs': report['std_devs']})
         print(f'wrote {args.out}')
-    if args.json:
-        write_json(args.json, report)
-        plot = Path(args.json).with_suffix('.png')
-        _plot(plot, images, result)
-        print(f'wrote {plot}')
+    write_json_and_plot(args.json, report, lambda png: _plot(png, images, result))
     return 0
 
 

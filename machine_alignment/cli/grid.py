@@ -19,7 +19,7 @@ from grid_calib.core.records import (  # noqa: E402
     PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
-from machine_alignment.cli.common import read_run, write_json  # noqa: E402
+from machine_alignment.cli.common import read_run, write_json_and_plot  # noqa: E402
 
 
 def _vectors(ax, where_mm, vectors_m, spacing_mm, title):
@@ -130,11 +130,7 @@ def cmd_calibrate_grid(args) -> int:
             report['max_difference_to_live_m'] = float(np.abs(live - stitched.stage_error).max())
             print(f'  same as the live run: max |G difference| '
                   f'{report["max_difference_to_live_m"]:.3g} m')
-    if args.json:
-        write_json(args.json, report)
-        plot = Path(args.json).with_suffix('.png')
-        _plot(plot, calibration)
-        print(f'wrote {plot}')
+    write_json_and_plot(args.json, report, lambda png: _plot(png, calibration))
     return 0
 
 

@@ -14,7 +14,7 @@ import numpy as np  # noqa: E402
 
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
-from machine_alignment.cli.common import quantity, read_run, write_json  # noqa: E402
+from machine_alignment.cli.common import quantity, read_run, write_json, write_json_and_plot  # noqa: E402
 from platform_calib.core.compensation import (  # noqa: E402
     METHODS, SCREEN, PSOSettings, compensate, composite_error)
 from platform_calib.core.geometry import (  # noqa: E402
@@ -148,11 +148,8 @@ def cmd_compensate_platform(args) -> int:
     report = {'method': args.method, 'screen_m': list(SCREEN), 'targets': rows,
               'pso': vars(settings) if args.method == 'pso' else None,
               'pso_order2_stable': settings.order2_stable() if args.method == 'pso' else None}
-    if args.json:
-        write_json(args.json, report)
-        plot = Path(args.json).with_suffix('.png')
-        _plot(plot, targets, before, after, args.method, [h for h in history if h])
-        print(f'wrote {plot}')
+    write_json_and_plot(args.json, report, lambda png: _plot(
+        png, targets, before, after, args.method, [h for h in history if h]))
     return 2 if unconverged else 0
 
 
