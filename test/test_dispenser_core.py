@@ -14,7 +14,7 @@ from dispenser_calib.core.model import (
 from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, TEST_SPOTS, measure_needle, plan_stops)
 from dispenser_calib.errors import StrokeError
-from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
+from dispenser_calib.sim.machine import IMAGE_SIZE, needle_hardware, observe, true_model
 
 NOMINAL = nominal_model()
 TOLERANCE = {'noise_free_relative': 1e-9, 'sigmas': 3.0, 'ransac_sigmas': 4.0,
@@ -164,22 +164,8 @@ def test_the_needle_is_measured_from_dispensed_dots():
     images, _ = observe(truth, plan_stops(nominal_model(), 2), 0.1, 2)
     model = refine(stepwise(images, IMAGE_SIZE), images).model
     tip_true = NEEDLE_TIP + np.array([0.3e-3, -0.2e-3, 0.1e-3])
-    state = {'pose': None, 'dots': []}
-    rng = np.random.default_rng(5)
-
-    def move(pose):
-        state['pose'] = np.asarray(pose, float)
-        return state['pose']
-
-    def dispense():
-        state['dots'].append(reached(truth, tip_true, state['pose'][None])[0])
-
-    def capture():
-        dots = np.array(state['dots'])
-        pixels = project_rows(truth, dots, np.repeat(state['pose'][None], len(dots), 0))
-        return np.arange(len(dots)), pixels + rng.normal(0, 0.1, pixels.shape)
-
-    found = measure_needle(model, NEEDLE_TIP, TEST_SPOTS, FEATURE_VIEWS, move, dispense, capture)
+    hardware = needle_hardware(truth, tip_true, 0.1, np.random.default_rng(5))
+    found = measure_needle(model, NEEDLE_TIP, TEST_SPOTS, FEATURE_VIEWS, *hardware)
     assert found['spread_m'] < 20e-6      # each dot alone gives the tip within 20 um (7 um here)
     target = np.array([[0.01 * np.cos(t), 0.01 * np.sin(t), 0.006]
                        for t in np.linspace(0, 2 * np.pi, 12)])
@@ -190,4 +176,4 @@ def test_the_needle_is_measured_from_dispensed_dots():
             assert low < error < high, (a, c, error)
     with pytest.raises(StrokeError):
         measure_needle(model, NEEDLE_TIP + np.array([0.5, 0, 0]), TEST_SPOTS, FEATURE_VIEWS,
-                       move, dispense, capture)
+                       *hardware)

@@ -190,11 +190,11 @@ def distort(model: DispenserModel, normalised: np.ndarray) -> np.ndarray:
     return np.stack([model['fx'] * xd + model['cx'], model['fy'] * yd + model['cy']], -1)
 
 
-def _board_axes_rows(model: DispenserModel, poses: np.ndarray) -> np.ndarray:
-    """The board's x and y axes in the camera frame at each pose (k, 5): (k, 3, 2)."""
+def chain_rotation(model: DispenserModel, a: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """R_M R_A(a) R_C(c), (n, 3, 3): the board-at-reset frame's orientation in the camera
+    frame with the table at a, c (n,) rad."""
     (va, _), (vc, _) = model.a_axis, model.c_axis
-    turned = model.rotation @ rodrigues(va, poses[:, 3]) @ rodrigues(vc, poses[:, 4])
-    return turned[:, :, :2]
+    return model.rotation @ rodrigues(va, a) @ rodrigues(vc, c)
 
 
 def dot_centres(points: np.ndarray, axes: np.ndarray, radius: float) -> np.ndarray:
@@ -220,7 +220,7 @@ def project_rows(model: DispenserModel, points: np.ndarray, poses: np.ndarray,
     p = _camera_rows(model, points, poses)
     depth = p[:, 2]
     if dot_radius:
-        p = dot_centres(p, _board_axes_rows(model, poses), dot_radius)
+        p = dot_centres(p, chain_rotation(model, poses[:, 3], poses[:, 4])[:, :, :2], dot_radius)
     with np.errstate(divide='ignore', invalid='ignore'):
         normalised = p[:, :2] / np.where(depth > 0, p[:, 2], np.nan)[:, None]
     return distort(model, normalised)

@@ -27,7 +27,8 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from calib_core.errors import CalibrationError
-from dispenser_calib.core.model import LOOKING_DOWN, NAMES, DispenserModel, _camera_rows, rodrigues
+from dispenser_calib.core.model import (
+    LOOKING_DOWN, NAMES, DispenserModel, _camera_rows, chain_rotation, rodrigues)
 from dispenser_calib.core.target_poses import TargetPoses
 
 AXIS_NAMES = ('a_tilt_1', 'a_tilt_2', 'a_offset_1', 'a_offset_2',
@@ -76,12 +77,6 @@ def table_frame(poses: TargetPoses) -> np.ndarray:
     x = x - z * (x @ z)
     x /= np.linalg.norm(x)
     return np.vstack([x, np.cross(z, x), z])
-
-
-def chain_rotation(model: DispenserModel, a: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """R_M R_A(a) R_C(c), (n, 3, 3): the table frame's orientation in the camera frame."""
-    (va, _), (vc, _) = model.a_axis, model.c_axis
-    return model.rotation @ rodrigues(va, a) @ rodrigues(vc, c)
 
 
 def pose_residuals(model: DispenserModel, frame: np.ndarray, poses: TargetPoses,

@@ -8,9 +8,10 @@ from scipy.spatial.transform import Rotation
 
 from calib_core.datasets import directions_from_order
 from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
-from dispenser_calib.core.model import NAMES, DispenserModel, _camera_rows, nominal_model, project
+from dispenser_calib.core.localisation import reached
+from dispenser_calib.core.model import (
+    NAMES, DispenserModel, _camera_rows, chain_rotation, nominal_model, project, project_rows)
 from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
-from dispenser_calib.core.rotary import chain_rotation
 from dispenser_calib.core.target_poses import TargetPoses
 
 IMAGE_SIZE = (2448, 2048)
@@ -118,3 +119,25 @@ def positioner_schedule(step_seconds: float = 36.0) -> tuple[np.ndarray, np.ndar
     a, c = np.meshgrid(np.deg2rad(np.arange(-30, 31, 5)), np.deg2rad(np.arange(0, 360, 22.5)),
                        indexing='ij')
     return a.ravel(), c.ravel(), step_seconds * np.arange(a.size)
+
+
+def needle_hardware(truth: DispenserModel, tip: np.ndarray, noise_px: float,
+                    rng: np.random.Generator) -> tuple:
+    """move, dispense and capture callables, as :func:`procedure.measure_needle` takes them,
+    of the simulated machine whose needle tip is ``tip`` (camera frame, m): a dispensed dot
+    lands where the tip touches the table, and the camera sees the dots dispensed so far
+    (numbered in order) with ``noise_px`` of noise."""
+    state = {'pose': np.zeros(5), 'dots': []}
+
+    def move(pose):
+        state['pose'] = np.asarray(pose, float)
+        return state['pose']
+
+    def dispense():
+        state['dots'].append(reached(truth, tip, state['pose'][None])[0])
+
+    def capture():
+        dots = np.array(state['dots'])
+        pixels = project_rows(truth, dots, np.repeat(state['pose'][None], len(dots), 0))
+        return np.arange(len(dots)), pixels + rng.normal(0, noise_px, pixels.shape)
+    return move, dispense, capture

@@ -20,7 +20,7 @@ from dispenser_calib.core.procedure import (
     FEATURE_VIEWS as VIEWS, NEEDLE_TIP as TIP, TEST_SPOTS, WORKING_DISTANCE, measure_needle,
     plan_stops)
 from dispenser_calib.sim.images import render_board
-from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
+from dispenser_calib.sim.machine import IMAGE_SIZE, needle_hardware, observe, true_model
 from machine_alignment.bench import main_with_out
 
 NOMINAL = nominal_model()
@@ -69,25 +69,6 @@ def convergence(seeds=10) -> dict:
             'noise_floor_px': float(NOISE_PX * np.sqrt(np.pi / 2))}
 
 
-def _needle_hardware(truth, rng):
-    """move, dispense and capture callables of the simulated machine whose needle tip is
-    TIP (camera frame): dispensed dots land where the tip touches the table."""
-    state = {'pose': np.zeros(5), 'dots': []}
-
-    def move(pose):
-        state['pose'] = np.asarray(pose, float)
-        return state['pose']
-
-    def dispense():
-        state['dots'].append(reached(truth, TIP, state['pose'][None])[0])
-
-    def capture():
-        dots = np.array(state['dots'])
-        pixels = project_rows(truth, dots, np.repeat(state['pose'][None], len(dots), 0))
-        return np.arange(len(dots)), pixels + rng.normal(0, NOISE_PX, pixels.shape)
-    return move, dispense, capture
-
-
 def localisation(parts=20) -> dict:
     distance, distance_nominal, path, path_nominal, seconds = [], [], [], [], []
     for seed in range(parts):
@@ -111,7 +92,7 @@ def localisation(parts=20) -> dict:
         # The needle's offset from three dispensed dots, located through the camera, then a
         # held-out path placed on the part.
         tip = np.array(measure_needle(model, TIP, TEST_SPOTS, VIEWS,
-                                      *_needle_hardware(truth, rng))['tip_m'])
+                                      *needle_hardware(truth, TIP, NOISE_PX, rng))['tip_m'])
         centre = np.r_[rng.uniform(-0.02, 0.02, 2), rng.uniform(0, 0.01)]
         target = centre + np.array([[0.01 * np.cos(t), 0.01 * np.sin(t), 0.0]
                                     for t in np.linspace(0, 2 * np.pi, 12)])
