@@ -104,3 +104,69 @@ def structure_tests(channels, residuals: np.ndarray, covariates: dict, alpha: fl
     found = [dict(t, p_value=min(1.0, t['p_value'] * count)) for t in tests
              if t['p_value'] * count < alpha]
     return sorted(found, key=lambda t: t['p_value'])
+
+
+def lack_of_fit(residuals: np.ndarray, groups: np.ndarray, parameter_count: int,
+                alpha: float) -> dict | None:
+    """The classic lack-of-fit test where settings were repeated (an ISO 230-2 target
+    approached from one direction, cycle after cycle).
+
+    ``residuals`` (n, k) of the fitted model on rows with replicate labels ``groups`` (n,).
+    The scatter within the cells is pure error; the cells' mean residuals are what the
+    model fails to describe. F = (SS_lack / (c k - p)) / (SS_pure / (n k - c k)), with c
+    cells and p the model's parameters. Where the model fits (its effects explain the
+    cell means), F is about 1, however sparse the targets.
+
+    Returns
+    -------
+    dict or None
+        When significant at ``alpha``: ``structure_rms`` (RMS of the cell means over the
+        rows), ``pure_error_sigma`` (residual unit), ``cells``, ``p_value``; None when it
+        is not, or the cells leave no degrees of freedom for the test.
+    """
+    r = np.asarray(residuals, float)
+    labels, inverse = np.unique(groups, return_inverse=True)
+    means = np.zeros((len(labels), r.shape[1]))
+    np.add.at(means, inverse, r)
+    counts = np.bincount(inverse, minlength=len(labels))[:, None]
+    means /= counts
+    pure = float(np.sum((r - means[inverse]) ** 2))
+    lack = float(np.sum(counts * means ** 2))
+    dof_pure = r.size - means.size
+    dof_lack = means.size - parameter_count
+    if dof_pure < 1 or dof_lack < 1 or pure <= 0:
+        return None
+    f_stat = (lack / dof_lack) / (pure / dof_pure)
+    p_value = float(stats.f.sf(f_stat, dof_lack, dof_pure))
+    if p_value >= alpha:
+        return None
+    return {'structure_rms': float(np.sqrt(lack / r.size)),
+            'pure_error_sigma': float(np.sqrt(pure / dof_pure)),
+            'cells': int(len(labels)), 'p_value': p_value}
+
+
+_CAUSES = {
+    'periodic': ('a cyclic error the library did not fit here (a lead screw\'s pitch error, '
+                 'an encoder\'s interpolation error, a gear\'s tooth error)'),
+    'trend': ('a smooth error the model lacks: against a position, a lead error, straightness '
+              'or a geometric parameter; against time or temperature, a thermal drift; '
+              'against a load, compliance or play'),
+    'step': 'a change between set-ups, blocks or runs (a remount, a re-homed axis, a new warm-up)',
+    'reversal changing with position': ('backlash or friction that changes along the travel '
+                                        '(screw wear, preload)'),
+    'lack of fit': ('errors at the settings measured that no effect in the library describes '
+                    'at this sampling: a lead error finer than the target spacing, a cyclic '
+                    'error aliased by the grid, a set-up change inside the run'),
+}
+
+
+def likely_causes(item: dict) -> str:
+    """What could cause an unexplained structure, by its kind and covariate (a hint for the
+    engineer, not a diagnosis: the data did not pick one)."""
+    if item['covariate'].startswith('angle') or item.get('covariate_unit') == 'rad':
+        return ('an error repeating with the rotary axis\'s angle that is not an angle error: '
+                'radial or tilt error motion (ISO 230-7), eccentricity of the target on the '
+                'table, or the camera\'s view-angle bias')
+    if item['covariate'] == 'image_radius':
+        return 'lens distortion of higher order than modelled'
+    return _CAUSES.get(item['kind'], 'not known')

@@ -150,13 +150,16 @@ def error_summary(machine, residuals: np.ndarray) -> dict:
     return {'rms': float(np.sqrt(np.mean(errors ** 2))), 'max': float(np.max(errors))}
 
 
-def heldout_sum_of_squares(machine, splits: list, effects: list, values: list, start: Fit) -> tuple:
-    """Sum of squared held-out residuals over ``splits`` of the model with ``effects``,
-    refitted on each split's fitting rows, and the number of residuals summed."""
-    total, count = 0.0, 0
+def heldout_errors(machine, splits: list, effects: list, values: list, start: Fit) -> dict:
+    """Held-out errors over ``splits`` of the model with ``effects``, refitted on each
+    split's fitting rows: ``sum_of_squares`` of the residuals, their ``count``, and per
+    split the sum of squares (``sums``) and the largest row error (``maxima``)."""
+    total, count, maxima, sums = 0.0, 0, [], []
     for split in splits:
         fit = fit_model(machine, start.base, effects, values, split.train)
         r = evaluate(machine, fit, np.flatnonzero(split.holdout))
-        total += float(np.sum(r ** 2))
+        sums.append(float(np.sum(r ** 2)))
+        total += sums[-1]
         count += r.size
-    return total, count
+        maxima.append(float(np.max(machine.row_errors(r))))
+    return {'sum_of_squares': total, 'count': count, 'maxima': maxima, 'sums': sums}

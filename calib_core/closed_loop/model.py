@@ -73,11 +73,12 @@ class MachineModel:
 
 
 def prepare_effect(effect: Effect, machine: MachineModel, context: dict,
-                   channel_residuals: np.ndarray):
+                   channel_residuals: np.ndarray, channels: tuple | None = None):
     """``effect`` prepared on the channels the machine lets it act on (its
-    ``effect_channels``, else every channel), its term widened back to every channel and
-    its units in the channels' own; or why it cannot be tested."""
-    allowed = machine.effect_channels.get(effect.name)
+    ``effect_channels``, else every channel) or on ``channels`` when given (those the data
+    determine it on), its term widened back to every channel and its units in the
+    channels' own; or why it cannot be tested."""
+    allowed = channels or machine.effect_channels.get(effect.name)
     if not allowed:
         prepared = effect.prepare(context, machine.channels, channel_residuals)
         return prepared if isinstance(prepared, str) else in_channel_units(prepared, machine)

@@ -7,10 +7,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.loop_structure import structure_tests
+from calib_core.loop_structure import lack_of_fit, likely_causes, structure_tests
 from calib_core.closed_loop.fitting import (
     Fit, error_summary, evaluate, fit_model, refit, residuals_by_channel)
 from calib_core.closed_loop.model import is_reference
+from calib_core.closed_loop.outliers import find_outliers
 
 
 @dataclass
@@ -43,32 +44,6 @@ def _covariate_columns(machine, context: dict) -> dict:
     return out
 
 
-OUTLIER_SIGMAS = 5.0
-
-
-def _outliers(machine, residuals: np.ndarray, covariates: dict, min_effect: float) -> dict:
-    """Rows whose error under the extended model lies more than :data:`OUTLIER_SIGMAS`
-    robust standard deviations (1.4826 x the median absolute deviation) from the median:
-    a transient, a gross error or an effect of a few rows, which no smooth effect
-    describes. They stay in every fit and figure; the report names them."""
-    errors = machine.row_errors(residuals)
-    centre = float(np.median(errors))
-    sigma = 1.4826 * float(np.median(np.abs(errors - centre)))
-    limit = max(centre + OUTLIER_SIGMAS * sigma, min_effect)
-    per_row = max(len(errors) // len(residuals), 1)   # a machine may report per leg
-    flagged = np.flatnonzero(errors > limit)
-    flagged = flagged[np.argsort(-errors[flagged])]
-    rows = list(dict.fromkeys(int(i) // per_row for i in flagged))
-    worst = {}
-    for i in flagged:
-        worst.setdefault(int(i) // per_row, float(errors[i]))
-    return {'limit': limit, 'robust_sigma': sigma,
-            'rows': [{'row': row, 'error': worst[row],
-                      'covariates': {k: float(v[row]) for k, v in covariates.items()}}
-                     for row in rows[:20]],
-            'count': len(rows)}
-
-
 def _merged(splits: list, attribute: str, keep: list) -> dict:
     """A per-split dict merged over the splits (first split first), less the ``keep`` names."""
     out = {}
@@ -97,6 +72,22 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
             item['unit'] = own[item['component'].removeprefix('residual_')]
             along = next((c for c in machine.channels if item['covariate'].endswith(f'_{c}')), None)
             item['covariate_unit'] = own.get(along, '')
+    outliers = find_outliers(machine, after_all, covariates, min_effect)
+    groups = machine.replicates()
+    if groups is not None:
+        # A gross row (the first approach's transient) is named under outliers; in a cell
+        # of five repeats it would pass for scatter and hide the structure between cells.
+        named = np.isin(train, [o['row'] for o in outliers['rows']])
+        lack = lack_of_fit(final.residuals[~named], groups[train][~named],
+                           final.parameter_count, config.alpha)
+        if lack:
+            unexplained.insert(0, dict(
+                lack, kind='lack of fit', component='residual',
+                covariate='replicate cells (one setting repeated, e.g. target and direction)',
+                remedy=('the data support a compensation table per cell (mean error per '
+                        'target and direction): a compensation table, not a physical model')))
+    for item in unexplained:
+        item['likely_causes'] = likely_causes(item)
     std = final.std_devs()
     nb = len(final.base.free_names)
     effects_added = []
@@ -115,7 +106,6 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
                          'rms_after': error_summary(machine, evaluate(machine, refit, rows))['rms']})
     held_before, held_after = error_summary(machine, before_all[holdout]), error_summary(machine, after_all[holdout])
     names = final.names()
-    outliers = _outliers(machine, after_all, covariates, min_effect)
     report = {
         'machine': machine.name,
         'base_model': machine.base_model,
@@ -189,6 +179,10 @@ def format_report(report: dict) -> str:
                      f'{evidence["selection_frequency"]:.0%} of splits, p = '
                      f'{evidence["p_value"]:.2g}, explains {evidence["explained_rms"] * factor:.3g} '
                      f'{unit} RMS): {values}')
+        for channel, why in effect.get('channels_not_determined', {}).items():
+            lines.append(f'    {effect["name"]} on {channel}: not determined, {why}; nothing added there')
+        for why in effect.get('channels_not_tested', []):
+            lines.append(f'    {effect["name"]} not tested on {why}')
     if not report['effects_added']:
         lines.append('  added nothing: no candidate effect is significant, identifiable and '
                      'chosen consistently')
@@ -214,7 +208,8 @@ def format_report(report: dict) -> str:
             f'row {o["row"]} ({", ".join(f"{k} {v:.4g}" for k, v in o["covariates"].items())}):'
             f' {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
         lines.append(f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
-                     f'{outliers["limit"] * factor:.3g} {unit} ({OUTLIER_SIGMAS:g} robust sigma) '
+                     f'{outliers["limit_sigmas"]:.3g} robust sigma ({outliers["limit"] * factor:.3g} {unit}; '
+                     f'robust sigma {outliers["robust_sigma"] * factor:.3g} {unit}) '
                      f'under the extended model, e.g. {described}')
     for item in report['unexplained']:
         period = ''
@@ -223,6 +218,13 @@ def format_report(report: dict) -> str:
                       if item.get('covariate_unit') == 'rad' else
                       f' (period {item["period"] * 1e3:.4g} mm)')
         size, label = _in_small_units(item['structure_rms'], item.get('unit', report['unit']))
+        scatter = ''
+        if 'pure_error_sigma' in item:
+            repeat, _ = _in_small_units(item['pure_error_sigma'], item.get('unit', report['unit']))
+            scatter = f' while the repeats scatter {repeat:.3g} {label}'
         lines.append(f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
-                     f'{item["covariate"]}: {size:.3g} {label} RMS (p = {item["p_value"]:.2g})')
+                     f'{item["covariate"]}: {size:.3g} {label} RMS{scatter} '
+                     f'(p = {item["p_value"]:.2g}); could be {item["likely_causes"]}')
+        if 'remedy' in item:
+            lines.append(f'    {item["remedy"]}')
     return '\n'.join(lines)

@@ -4,15 +4,17 @@ size) on several hold-out splits; effects chosen often enough are built into the
 model and pruned while the held-out error allows (:func:`analyze`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
 
 from calib_core.effects import LIBRARY
 from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.closed_loop.channels import (
+    channel_groups, channel_p_values, determined_channels)
 from calib_core.closed_loop.fitting import (
-    Fit, cross_validated_rms, fit_model, heldout_sum_of_squares, holdout_split, model_residuals,
+    Fit, cross_validated_rms, fit_model, heldout_errors, holdout_split, model_residuals,
     residuals_by_channel, without_effects)
 from calib_core.closed_loop.identifiability import (
     minimum_residuals, pure_error_variance, undetermined_reason)
@@ -54,12 +56,21 @@ def _make_split(machine, config: LoopConfig, seed: int):
     return holdout, train, folds, fit_model(machine, base, [], [], train)
 
 
-def _try_candidate(machine, current: Fit, name: str, train, context, channel_residuals):
+def _try_candidate(machine, current: Fit, name: str, train, context, channel_residuals,
+                   alpha: float, channels: tuple | None = None, undetermined: dict | None = None):
     """Prepare effect ``name`` on the current residuals and refit it jointly (replacing
-    any effect it supersedes). Returns a scored entry, or a string: why it was not tested."""
-    prepared = prepare_effect(LIBRARY[name], machine, context, channel_residuals)
+    any effect it supersedes). Returns a scored entry, or a string: why it was not tested.
+
+    Without ``channels``, the effect is fitted on every channel it may act on and then,
+    if the data determine it on some of them only (:mod:`.channels`), refitted and scored
+    on those; its p-value then also counts the choice among the channels. With
+    ``channels``, it is fitted there and ``undetermined`` (channel -> why) is reported."""
+    prepared = prepare_effect(LIBRARY[name], machine, context, channel_residuals, channels)
     if isinstance(prepared, str):
         return prepared
+    if undetermined:
+        prepared = replace(prepared, notes=dict(prepared.notes,
+                                                channels_not_determined=dict(undetermined)))
     effects, values = without_effects(current, prepared.effect.supersedes)
     extra = len(prepared.names) - (current.parameter_count - len(current.base.free_names)
                                    - sum(len(v) for v in values))
@@ -78,10 +89,30 @@ def _try_candidate(machine, current: Fit, name: str, train, context, channel_res
     rss0, rss1 = current.rss, extended.rss
     noise, dof = pure_error_variance(machine, extended, train, extra, residual_count - size)
     f_stat = max(rss0 - rss1, 0.0) / extra / max(noise, 1e-300)
-    return {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
-            'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
-            'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train))),
-            'extra': extra, 'noise': noise}
+    entry = {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
+             'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
+             'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train))),
+             'extra': extra, 'noise': noise,
+             'channels': (tuple(channel_groups(prepared.names, machine.channels) or ())
+                          if prepared.separable else None)}
+    if channels is not None:
+        return entry
+    k = len(extended.effects) - 1
+    columns = extended.effect_slice(k)
+    p_values = channel_p_values(prepared, extended.values[k],
+                                extended.covariance(noise)[columns, columns], dof,
+                                machine.channels)
+    decision = determined_channels(p_values, alpha)
+    if decision is None:
+        return entry
+    kept, dropped = decision
+    narrowed = _try_candidate(
+        machine, current, name, train, context, channel_residuals, alpha, kept,
+        {c: f'its term is not significant there (p = {p:.2g})' for c, p in dropped.items()})
+    if isinstance(narrowed, str):
+        return entry
+    narrowed['p_value_raw'] = min(1.0, narrowed['p_value_raw'] * len(p_values))
+    return narrowed
 
 
 def _judge(machine, current: Fit, entry: dict, train, min_effect: float, alpha: float,
@@ -113,7 +144,8 @@ def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=
         for i, name in enumerate(remaining):
             if progress:
                 progress(i, len(remaining), f'round {len(rounds) + 1}: {name}')
-            entry = _try_candidate(machine, current, name, train, context, channel_residuals)
+            entry = _try_candidate(machine, current, name, train, context, channel_residuals,
+                                   config.alpha)
             if isinstance(entry, str):
                 skipped[name] = entry
                 continue
@@ -135,7 +167,8 @@ def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=
         if not accepted:
             break
         best = min(accepted, key=lambda e: e['cv_rms'])
-        added.append({'prepared': best['prepared'], 'round': len(rounds), 'evidence': {
+        added.append({'prepared': best['prepared'], 'round': len(rounds),
+                      'channels': best['channels'], 'evidence': {
             'f_statistic': best['f_statistic'], 'p_value': best['p_value'],
             'periods_searched': best['prepared'].trials,
             'cv_rms_before': current_cv, 'cv_rms_after': best['cv_rms'],
@@ -149,15 +182,45 @@ def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=
                   too_small)
 
 
-def _build(machine, primary: _Split, chosen: list):
-    """The effects ``chosen`` added in order on the first split's fitting rows; those that
-    cannot be prepared or are not identifiable there are left out, with the reason."""
+def _consistent_channels(machine, splits: list, name: str, min_frequency: float):
+    """The channels effect ``name`` was chosen on in ``min_frequency`` of the splits and
+    the others with their counts: (kept, undetermined), or None when its parameters are
+    not per channel (on some split, channels shared them)."""
+    counts = {}
+    for split in splits:
+        for item in split.added:
+            if item['prepared'].effect.name == name:
+                if item['channels'] is None:
+                    return None
+                for channel in item['channels']:
+                    counts[channel] = counts.get(channel, 0) + 1
+    if not counts:
+        return None
+    allowed = machine.effect_channels.get(name) or machine.channels
+    kept = tuple(c for c in allowed if counts.get(c, 0) / len(splits) >= min_frequency)
+    undetermined = {c: f'chosen there in {counts.get(c, 0)} of {len(splits)} hold-out splits'
+                    for c in allowed if c not in kept}
+    return kept, undetermined
+
+
+def _build(machine, splits: list, chosen: list, config: LoopConfig):
+    """The effects ``chosen`` added in order on the first split's fitting rows, each on
+    the channels it was chosen on consistently; those that cannot be prepared or are not
+    identifiable there are left out, with the reason."""
+    primary = splits[0]
     current, evidence, not_identifiable, rejected = primary.base_fit, {}, {}, {}
     first = {item['prepared'].effect.name: item for item in primary.added}
     for name in chosen:
+        channels = _consistent_channels(machine, splits, name, config.min_frequency)
+        if channels is not None and not channels[0]:
+            rejected[name] = ('chosen consistently, but on no channel consistently: '
+                              + '; '.join(f'{c}: {why}' for c, why in channels[1].items()))
+            continue
+        kept, undetermined = channels or (None, None)
         context = machine.context(current.base, primary.train)
         entry = _try_candidate(machine, current, name, primary.train, context,
-                               residuals_by_channel(machine, current, primary.train))
+                               residuals_by_channel(machine, current, primary.train),
+                               config.alpha, kept, undetermined)
         if isinstance(entry, str):
             rejected[name] = f'chosen on other splits, but on the first: {entry}'
             continue
@@ -173,24 +236,51 @@ def _build(machine, primary: _Split, chosen: list):
     return current, evidence, not_identifiable, rejected
 
 
+MIN_HELDOUT_GAIN = 0.01
+"""An effect must lower the held-out RMS, pooled over the splits, by this share to stay:
+a gain of less than 1 % is no reason to change a machine's model. The held-out maximum
+may not grow by more than this share or by more than the RMS falls (a row it does not
+touch keeps its error to rounding, hence a share, not zero)."""
+
+
 def _prune(machine, splits: list, current: Fit, rejected: dict) -> Fit:
-    """Reject, one at a time, each effect whose removal lowers the held-out error summed
-    over every split; the reason goes into ``rejected``."""
+    """Reject, one at a time, each effect that does not earn its place on held-out rows:
+    removing it leaves the held-out RMS pooled over the splits within
+    :data:`MIN_HELDOUT_GAIN` (or lowers it), the held-out maximum grows with it by more
+    than the pooled RMS falls (and by more than that share) on most splits, or on the
+    reported split the held-out RMS is larger with it or its maximum grows that much. The effect that gains least goes first; the reason goes into
+    ``rejected``."""
     while current.effects:
-        with_all, count = heldout_sum_of_squares(machine, splits, current.effects, current.values, current)
-        worst = None
+        with_all = heldout_errors(machine, splits, current.effects, current.values, current)
+        failing = []
         for name in current.names():
             effects, values = without_effects(current, (name,))
-            without = heldout_sum_of_squares(machine, splits, effects, values, current)[0]
-            if without < with_all and (worst is None or without < worst[1]):
-                worst = (name, without)
-        if worst is None:
+            without = heldout_errors(machine, splits, effects, values, current)
+            gain = 1 - np.sqrt(with_all['sum_of_squares'] / without['sum_of_squares'])
+            max_ratios = np.array(with_all['maxima']) / np.array(without['maxima'])
+            # The maximum may grow by no more than the RMS falls: a few rows the effect
+            # does not describe (named under outliers) must not veto a real effect, and a
+            # small RMS gain must not buy a larger worst error.
+            allowed = max(1 + MIN_HELDOUT_GAIN, 1 / (1 - gain)) if gain > 0 else 1 + MIN_HELDOUT_GAIN
+            # The first split's held-out rows are the ones reported before and after.
+            reported_worse = (with_all['sums'][0] > without['sums'][0]
+                              or max_ratios[0] > allowed)
+            if gain < MIN_HELDOUT_GAIN or np.median(max_ratios) > allowed or reported_worse:
+                failing.append((gain, name, with_all, without, max_ratios, allowed))
+        if not failing:
             return current
-        rejected[worst[0]] = (f'it makes the held-out error worse: RMS over the splits '
-                              f'{np.sqrt(with_all / count):.3g} with it, '
-                              f'{np.sqrt(worst[1] / count):.3g} without')
-        effects, values = without_effects(current, (worst[0],))
-        current = fit_model(machine, current.base, effects, values, splits[0].train)
+        gain, name, with_all, without, max_ratios, allowed = min(failing, key=lambda f: f[0])
+        rms = [np.sqrt(e['sum_of_squares'] / e['count']) for e in (with_all, without)]
+        reported = np.sqrt(with_all['sums'][0] / without['sums'][0])
+        rejected[name] = (
+            f'it does not earn its place on held-out rows: RMS over the splits {rms[0]:.3g} '
+            f'with it, {rms[1]:.3g} without ({gain:+.1%}, {MIN_HELDOUT_GAIN:.0%} needed); '
+            f'held-out max with / without it {np.median(max_ratios):.3f} (median over the '
+            f'splits, at most {allowed:.3f} allowed); on the reported split RMS '
+            f'x {reported:.3f}, max x {max_ratios[0]:.3f}')
+        effects, values = without_effects(current, (name,))
+        current = (fit_model(machine, current.base, effects, values, splits[0].train)
+                   if effects else splits[0].base_fit)
     return current
 
 
@@ -226,7 +316,7 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     frequency = {name: len(v) / config.splits for name, v in positions.items()}
     chosen = sorted((n for n in positions if frequency[n] >= config.min_frequency),
                     key=lambda n: (-frequency[n], np.mean(positions[n])))
-    final, evidence, not_identifiable, rejected = _build(machine, splits[0], chosen)
+    final, evidence, not_identifiable, rejected = _build(machine, splits, chosen, config)
     final = _prune(machine, splits, final, rejected)
     for name in positions:
         if frequency[name] < config.min_frequency:

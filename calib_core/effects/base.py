@@ -28,6 +28,14 @@ class Prepared:
         Which parameters the rows of ``context`` can determine. A fit on other rows than
         those prepared on (another hold-out split) holds the others at their given values
         instead of letting them drift along a direction the data do not constrain.
+    channel_trials : dict
+        Alternatives searched per channel (channel name -> count) where the search is per
+        channel; ``trials`` is then their product. A channel not named here counts
+        ``trials``, the conservative choice.
+    separable : bool
+        Whether each channel's term depends on that channel's parameters alone, so the
+        effect can be decided channel by channel; False where channels share parameters
+        (legs without their own play taking the mean of the others').
     """
 
     effect: 'Effect'
@@ -38,6 +46,12 @@ class Prepared:
     trials: float = 1.0
     notes: dict = field(default_factory=dict)
     determined: Callable | None = None
+    channel_trials: dict = field(default_factory=dict)
+    separable: bool = True
+
+    def trials_of(self, channel: str) -> float:
+        """Alternatives searched for ``channel``'s terms (for its own significance)."""
+        return float(self.channel_trials.get(channel, self.trials))
 
     def describe(self, values: np.ndarray, std_devs: np.ndarray) -> dict:
         """Parameters (SI) and their 1-sigma standard deviations, as a report entry."""

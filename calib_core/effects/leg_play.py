@@ -100,4 +100,5 @@ class LegPlay(Effect):
             notes['legs_with_mean_play'] = [channels[i] for i in rare]
         return Prepared(self, tuple(f'play_{channels[i]}' for i in index),
                         ('m',) * len(index), np.zeros(len(index)), term,
-                        trials=float(len(thresholds)), notes=notes, determined=determined)
+                        trials=float(len(thresholds)), notes=notes, determined=determined,
+                        separable=not len(rare))

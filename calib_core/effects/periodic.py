@@ -97,7 +97,7 @@ class Periodic(Effect):
         if len(position) < self.min_samples:
             return (f'{len(position)} rows are too few to find a period '
                     f'(needs {self.min_samples})')
-        found, reasons, trials = [], [], 1.0
+        found, reasons, trials, searched_by_channel = [], [], 1.0, {}
         for c in range(position.shape[1]):
             result = self._channel(position[:, c], channel_residuals[:, c])
             if isinstance(result, str):
@@ -106,6 +106,7 @@ class Periodic(Effect):
             period, harmonics, searched = result
             found.append((c, period, harmonics))
             trials *= searched
+            searched_by_channel[channels[c]] = searched
         if not found:
             return '; '.join(reasons)
         width = len(channels)
@@ -140,7 +141,7 @@ class Periodic(Effect):
         if reasons:
             notes['channels_not_tested'] = reasons
         return Prepared(self, tuple(names), tuple(units), np.array(initial, float), term,
-                        trials=trials, notes=notes)
+                        trials=trials, notes=notes, channel_trials=searched_by_channel)
 
 
 def _harmonic_columns(x: np.ndarray, period: float, harmonics: int) -> list:

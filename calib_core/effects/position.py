@@ -39,7 +39,7 @@ class _LegendreInPosition(Effect):
 
     def _prepare(self, context, channels, channel_residuals):
         position, direction = context['position'], context.get('direction')
-        layout, names, reasons, trials = [], [], [], 1.0
+        layout, names, reasons, trials, searched_by_channel = [], [], [], 1.0, {}
         for c in range(position.shape[1]):
             x, r = position[:, c], channel_residuals[:, c]
             d = None if direction is None else direction[:, c]
@@ -56,6 +56,7 @@ class _LegendreInPosition(Effect):
             layout.append((c, degree, low, high))
             names += self.parameter_names(channels[c], degree)
             trials *= len(degrees)
+            searched_by_channel[channels[c]] = len(degrees)
         if not layout:
             return '; '.join(reasons)
         width = len(channels)
@@ -75,7 +76,7 @@ class _LegendreInPosition(Effect):
         if reasons:
             notes['channels_not_tested'] = reasons
         return Prepared(self, tuple(names), ('m',) * len(names), np.zeros(len(names)), term,
-                        trials=trials, notes=notes)
+                        trials=trials, notes=notes, channel_trials=searched_by_channel)
 
 
 class ReversalByPosition(_LegendreInPosition):

@@ -111,7 +111,7 @@ class RotaryHarmonics(Effect):
         angle = context['angle']
         if len(angle) < self.min_samples:
             return f'{len(angle)} rows are too few (needs {self.min_samples})'
-        layout, reasons, trials = [], [], 1.0
+        layout, reasons, trials, searched_by_channel = [], [], 1.0, {}
         for c in range(angle.shape[1]):
             if np.all(np.isnan(angle[:, c])):
                 continue
@@ -122,6 +122,7 @@ class RotaryHarmonics(Effect):
             orders, scanned = result
             layout.append((c, orders))
             trials *= scanned
+            searched_by_channel[channels[c]] = scanned
         if not layout:
             return '; '.join(reasons) or 'no channel is a rotary axis'
         names, initial = [], []
@@ -148,4 +149,4 @@ class RotaryHarmonics(Effect):
         if reasons:
             notes['channels_not_tested'] = reasons
         return Prepared(self, tuple(names), ('rad',) * len(names), np.array(initial, float),
-                        term, trials=trials, notes=notes)
+                        term, trials=trials, notes=notes, channel_trials=searched_by_channel)
