@@ -5,6 +5,7 @@ On real ISO 230-2 runs, structure between the targets that no effect explains is
 as a lack of fit against the cycles' own repeatability, and the held-out error after is
 never worse than before."""
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -24,8 +25,11 @@ MEASURED = Path(__file__).parent / 'data' / 'measured' / 'ecmc_iso230_2'
 
 def test_channel_groups_leave_periods_out_and_refuse_shared_parameters():
     names = ('cos_feed2', 'sin_feed2', 'period_feed2', 'cos_feed3', 'sin_feed3', 'period_feed3')
-    assert channel_groups(names, ('feed1', 'feed2', 'feed3')) == {'feed2': [0, 1], 'feed3': [3, 4]}
-    assert channel_groups(('gamma',), ('x', 'y')) is None
+    feeds = ('feed1', 'feed2', 'feed3')
+    periodic = SimpleNamespace(names=names, separable=True)
+    assert channel_groups(periodic, feeds) == {'feed2': [0, 1], 'feed3': [3, 4]}
+    assert channel_groups(SimpleNamespace(names=names, separable=False), feeds) is None
+    assert channel_groups(SimpleNamespace(names=('gamma',), separable=True), ('x', 'y')) is None
     assert determined_channels({'a': 1e-6, 'b': 0.2}, 1e-3) == (('a',), {'b': 0.2})
     assert determined_channels({'a': 1e-6, 'b': 1e-5}, 1e-3) is None   # every one passes
     assert determined_channels({'a': 0.3, 'b': 0.2}, 1e-3) is None     # none alone: judged whole

@@ -16,15 +16,18 @@ import numpy as np
 from scipy import stats
 
 
-def channel_groups(names: tuple, channels: tuple) -> dict | None:
-    """Channel -> indices of the parameters of ``names`` acting on it, or None when some
-    parameter belongs to no single channel (a squareness, a lens distortion).
+def channel_groups(prepared, channels: tuple) -> dict | None:
+    """Channel -> indices of ``prepared``'s parameters acting on it, or None when some
+    parameter belongs to no single channel (a squareness, a lens distortion) or channels
+    share parameters (``prepared.separable`` false).
 
     A channel's parameters end in ``_<channel>``; a period (``period_<channel>``) is left
     out, since a zero amplitude, not a period, is what says the term is absent.
     """
+    if not prepared.separable:
+        return None
     groups = {}
-    for i, name in enumerate(names):
+    for i, name in enumerate(prepared.names):
         channel = next((c for c in channels if name.endswith(f'_{c}')), None)
         if channel is None:
             return None
@@ -33,9 +36,10 @@ def channel_groups(names: tuple, channels: tuple) -> dict | None:
     return groups
 
 
-def channel_p_values(prepared, values: np.ndarray, covariance: np.ndarray, dof: int,
-                     channels: tuple) -> dict | None:
-    """Per channel of ``prepared``, the p-value of its term being zero.
+def channel_p_values(prepared, groups: dict | None, values: np.ndarray,
+                     covariance: np.ndarray, dof: int) -> dict | None:
+    """Per channel of ``prepared`` (its :func:`channel_groups`), the p-value of its term
+    being zero.
 
     Wald statistic of the channel's parameters with ``covariance`` (the effect's block of
     the joint fit's, at the F-test's noise), as an F with ``dof`` residual degrees of
@@ -43,7 +47,6 @@ def channel_p_values(prepared, values: np.ndarray, covariance: np.ndarray, dof: 
     the effect was fitted on (Bonferroni). None when the effect's parameters are not per
     channel (or channels share them) or it acts on one channel only.
     """
-    groups = channel_groups(prepared.names, channels) if prepared.separable else None
     if not groups or len(groups) < 2:
         return None
     out = {}

@@ -180,7 +180,8 @@ def format_report(report: dict) -> str:
                      f'{evidence["p_value"]:.2g}, explains {evidence["explained_rms"] * factor:.3g} '
                      f'{unit} RMS): {values}')
         for channel, why in effect.get('channels_not_determined', {}).items():
-            lines.append(f'    {effect["name"]} on {channel}: not determined, {why}; nothing added there')
+            lines.append(f'    {effect["name"]} on {channel}: not determined, {why}; '
+                         f'nothing added there')
         for why in effect.get('channels_not_tested', []):
             lines.append(f'    {effect["name"]} not tested on {why}')
     if not report['effects_added']:
@@ -208,7 +209,8 @@ def format_report(report: dict) -> str:
             f'row {o["row"]} ({", ".join(f"{k} {v:.4g}" for k, v in o["covariates"].items())}):'
             f' {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
         lines.append(f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
-                     f'{outliers["limit_sigmas"]:.3g} robust sigma ({outliers["limit"] * factor:.3g} {unit}; '
+                     f'{outliers["limit_sigmas"]:.3g} robust sigma '
+                     f'({outliers["limit"] * factor:.3g} {unit}; '
                      f'robust sigma {outliers["robust_sigma"] * factor:.3g} {unit}) '
                      f'under the extended model, e.g. {described}')
     for item in report['unexplained']:

@@ -89,19 +89,18 @@ def _try_candidate(machine, current: Fit, name: str, train, context, channel_res
     rss0, rss1 = current.rss, extended.rss
     noise, dof = pure_error_variance(machine, extended, train, extra, residual_count - size)
     f_stat = max(rss0 - rss1, 0.0) / extra / max(noise, 1e-300)
+    groups = channel_groups(prepared, machine.channels)
     entry = {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
              'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
              'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train))),
              'extra': extra, 'noise': noise,
-             'channels': (tuple(channel_groups(prepared.names, machine.channels) or ())
-                          if prepared.separable else None)}
+             'channels': tuple(groups or ()) if prepared.separable else None}
     if channels is not None:
         return entry
     k = len(extended.effects) - 1
     columns = extended.effect_slice(k)
-    p_values = channel_p_values(prepared, extended.values[k],
-                                extended.covariance(noise)[columns, columns], dof,
-                                machine.channels)
+    p_values = channel_p_values(prepared, groups, extended.values[k],
+                                extended.covariance(noise)[columns, columns], dof)
     decision = determined_channels(p_values, alpha)
     if decision is None:
         return entry
@@ -248,8 +247,8 @@ def _prune(machine, splits: list, current: Fit, rejected: dict) -> Fit:
     removing it leaves the held-out RMS pooled over the splits within
     :data:`MIN_HELDOUT_GAIN` (or lowers it), the held-out maximum grows with it by more
     than the pooled RMS falls (and by more than that share) on most splits, or on the
-    reported split the held-out RMS is larger with it or its maximum grows that much. The effect that gains least goes first; the reason goes into
-    ``rejected``."""
+    reported split the held-out RMS is larger with it or its maximum grows that much. The
+    effect that gains least goes first; the reason goes into ``rejected``."""
     while current.effects:
         with_all = heldout_errors(machine, splits, current.effects, current.values, current)
         failing = []
@@ -261,7 +260,8 @@ def _prune(machine, splits: list, current: Fit, rejected: dict) -> Fit:
             # The maximum may grow by no more than the RMS falls: a few rows the effect
             # does not describe (named under outliers) must not veto a real effect, and a
             # small RMS gain must not buy a larger worst error.
-            allowed = max(1 + MIN_HELDOUT_GAIN, 1 / (1 - gain)) if gain > 0 else 1 + MIN_HELDOUT_GAIN
+            allowed = 1 + MIN_HELDOUT_GAIN if gain <= 0 else max(1 + MIN_HELDOUT_GAIN,
+                                                                 1 / (1 - gain))
             # The first split's held-out rows are the ones reported before and after.
             reported_worse = (with_all['sums'][0] > without['sums'][0]
                               or max_ratios[0] > allowed)

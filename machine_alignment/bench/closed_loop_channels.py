@@ -89,7 +89,8 @@ def run(out: Path) -> dict:
         largest = ('' if r['largest_period_error_sigmas'] is None
                    else f'{r["largest_period_error_sigmas"]:.2f}')
         lines.append(f'| {case} | {found} | {r["wrong_claims"]} | {r["feeds_missed"]} | '
-                     f'{largest} | {r["median_after_over_floor"]:.3f} | {r["median_cpu_s"]:.1f} s |')
+                     f'{largest} | {r["median_after_over_floor"]:.3f} | '
+                     f'{r["median_cpu_s"]:.1f} s |')
     write_atomic(out / 'closed_loop_channels.md', '\n'.join(lines) + '\n')
     return results
 
