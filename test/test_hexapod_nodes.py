@@ -125,7 +125,7 @@ def test_analyze_residuals_after_the_run(graph):
     assert analysis.machine == 'hexapod' and report['rows']['total'] == 2 * 20 + 2 * 10
     assert 'leg_play' in report['candidates'] and 'leg_play' not in report['skipped']
     # The simulated joint play (8.3-9.9 um per leg) is what the 42 parameters lack.
-    assert 'leg_play' in analysis.effects_added
+    assert 'leg_play' in analysis.effects_added, (report['rejected'], report['not_identifiable'])
     assert analysis.rms_after < analysis.rms_before
     assert any(p.suffix == '.png' for p in (out / 'calibration' / 'analysis').iterdir())
     assert analysis.applied

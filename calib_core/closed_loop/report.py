@@ -187,6 +187,11 @@ def format_report(report: dict) -> str:
     if not report['effects_added']:
         lines.append('  added nothing: no candidate effect is significant, identifiable and '
                      'chosen consistently')
+    elif report['max_after'] > report['max_before']:
+        lines.append(f'  NOTE: on these held-out rows the max grew (x '
+                     f'{report["max_after"] / report["max_before"]:.3g}) though over the '
+                     f'splits it grew by less than the RMS fell: a few rows the effects do not '
+                     f'describe (see outliers)')
     spread = report.get('held_out_by_split', [])
     lines.append(f'  held out: RMS {report["rms_before"] * factor:.3g} -> '
                  f'{report["rms_after"] * factor:.3g} {unit}, max '
