@@ -103,14 +103,27 @@ def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: 
             offset += s
         return base.with_free_vector(full[:nb]), parts
 
+    # A linearised machine's context does not depend on the base, and its Jacobian is a
+    # product of stored matrices: no finite differences over the machine.
+    analytic = hasattr(machine, 'jacobian')
+    fixed_context = machine.context(base, rows) if analytic else None
+
     def fun(x):
         b, parts = unpack(x)
-        return model_residuals(machine, b, effects, parts, rows).ravel()
+        if not analytic:
+            return model_residuals(machine, b, effects, parts, rows).ravel()
+        delta = _delta(machine, effects, parts, fixed_context, len(rows))
+        return machine.residuals(b, delta, rows, fixed_context).ravel()
+
+    def jac(x):
+        _, parts = unpack(x)
+        return machine.jacobian(effects, parts, rows, fixed_context)[:, free]
 
     r0 = fun(x0)
     if not np.all(np.isfinite(r0)):
         raise InvalidInputError('residuals are not finite (NaN or infinite values in the data?)')
-    solution = least_squares(fun, x0, method='trf', x_scale='jac')
+    solution = least_squares(fun, x0, jac=jac if analytic else '2-point', method='trf',
+                             x_scale='jac')
     b, parts = unpack(solution.x)
     # Held parameters get zero columns: the rows say nothing about them.
     jacobian = np.zeros((solution.jac.shape[0], len(start)))

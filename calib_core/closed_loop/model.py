@@ -28,6 +28,9 @@ class MachineModel:
     effect_channels: dict = {}  # candidate name -> the channels it may act on (default all)
     candidates: tuple = ()
     min_effect = 50e-9   # smallest effect worth adding, RMS in the residuals' unit
+    # Fit the loop's models to first order about the base solution (see
+    # calib_core.closed_loop.linearised): for machines whose prediction is costly.
+    linearise = False
 
     def __len__(self) -> int:
         raise NotImplementedError
@@ -168,6 +171,9 @@ class LoopConfig:
     min_effect : float or None
         Smallest effect worth adding, as the RMS of the structure it explains, in the
         residuals' unit (m or px); None takes the machine's ``min_effect``.
+    linearise : bool
+        Fit a machine that asks for it (``MachineModel.linearise``) to first order about
+        its base solution; False fits the full model every time (minutes on the stage).
     """
 
     holdout_fraction: float = 0.3
@@ -178,6 +184,7 @@ class LoopConfig:
     splits: int = 5
     min_frequency: float = 0.6
     min_effect: float | None = None
+    linearise: bool = True
 
     def __post_init__(self):
         if not 0.05 <= self.holdout_fraction <= 0.6:

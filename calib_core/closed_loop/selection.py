@@ -18,6 +18,7 @@ from calib_core.closed_loop.fitting import (
     residuals_by_channel, without_effects)
 from calib_core.closed_loop.identifiability import (
     minimum_residuals, pure_error_variance, undetermined_reason)
+from calib_core.closed_loop.linearised import LinearisedModel
 from calib_core.closed_loop.model import LoopConfig, MachineModel, prepare_effect
 from calib_core.closed_loop.report import LoopResult, loop_result
 
@@ -305,6 +306,10 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     if unknown:
         raise InvalidInputError(f'unknown effect(s) {", ".join(unknown)}')
     min_effect = machine.min_effect if config.min_effect is None else config.min_effect
+    if config.linearise and machine.linearise:
+        every = np.arange(len(machine))
+        machine = LinearisedModel(machine, fit_model(machine, machine.initial(), [], [],
+                                                     every).base)
     splits = []
     for k in range(config.splits):
         report = (lambda done, total, label, k=k: progress(

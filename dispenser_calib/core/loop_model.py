@@ -28,6 +28,7 @@ class RotaryLoopModel(MachineModel):
     """Measured target poses on the tilting-rotary table for the closed loop."""
 
     name = 'rotary axes'
+    linearise = True
     base_model = ('A and C as lines (two tilts and two offsets each), the camera\'s '
                   'orientation and the target\'s place: 14 parameters; residual: the target '
                   'origin\'s position and the lever arm times its orientation error (m)')

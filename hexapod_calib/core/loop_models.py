@@ -36,6 +36,7 @@ class HexapodLoopModel(MachineModel):
     """The closed loop's view of a 6-SPS hexapod; channels are the legs."""
 
     name = 'hexapod'
+    linearise = True
     base_model = ('6-SPS, 42 parameters: per leg the actuator offset and the base and '
                   'platform joint centres; residual in leg length (m)')
     channels = tuple(f'leg{i + 1}' for i in range(LEGS))

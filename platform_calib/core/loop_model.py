@@ -19,6 +19,7 @@ class PlatformLoopModel(MachineModel):
     """A platform's pose data for the closed loop."""
 
     name = 'platform'
+    linearise = True
     base_model = ('3-PRR, 18 parameters (per chain the feed zero, its direction, the link '
                   'and the platform joint); residual: loop closure |C_i - B_i| - L_i (m)')
     channels = ('feed1', 'feed2', 'feed3')

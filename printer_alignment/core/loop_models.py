@@ -248,6 +248,7 @@ class StageLoopModel(MachineModel):
     """The stage for the closed loop; residuals are the two Marks' (x, y) in m."""
 
     name = 'stage'
+    linearise = True
     base_model = ('3-PRP error model without backlash: lead ratios R1..R3, d3, beta1, beta3, '
                   'alpha1, alpha2, stage mounting and the Marks\' platform positions; '
                   'Marks predicted in the plate frame (m)')
