@@ -10,7 +10,7 @@ import pytest
 DOMAIN = str(90 + os.getpid() % 10)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-from alignment_msgs.srv import RegisterScreen, RunCalibration  # noqa: E402
+from alignment_msgs.srv import AnalyzeResiduals, RegisterScreen, RunCalibration  # noqa: E402
 
 from calib_core.storage import read_calibration  # noqa: E402
 from machine_alignment.launcher import platform_graph  # noqa: E402
@@ -60,3 +60,23 @@ def test_registration_exact_and_the_unconverged_swarm_refused(graph):
     done = machine_align(DOMAIN, 'call', 'platform_calibrator/register', 'lm')
     assert done.returncode == 0, done.stderr
     assert 'registered: marks off by' in done.stdout
+
+
+def test_the_last_run_is_analysed_and_never_put_in_force(graph):
+    """The closed loop on the live run's identification poses: its report is published,
+    and a request to put the result in force is refused before anything runs (the
+    compensation has no place for feed effects), the calibration in force unchanged."""
+    running_graph, node, out = graph
+    client = node.create_client(AnalyzeResiduals, 'platform_calibrator/analyze_residuals')
+    version = read_calibration(out / 'calibration', 'platform')['version']
+    refused = call(node, client, AnalyzeResiduals.Request(apply=True), timeout=120.0)
+    assert not refused.success and 'apply refused' in refused.message
+    assert read_calibration(out / 'calibration', 'platform')['version'] == version
+    # 15 poses less 30 % held out cannot determine 18 parameters: said, not attempted
+    too_few = machine_align(DOMAIN, 'call', 'platform_calibrator/analyze_residuals')
+    assert too_few.returncode == 2 and '15 rows are too few' in too_few.stderr
+    done = machine_align(DOMAIN, 'call', 'platform_calibrator/analyze_residuals',
+                         '{holdout_fraction: 0.1}')
+    assert done.returncode == 0, done.stderr
+    assert 'closed loop on the platform' in done.stdout
+    assert all(running_graph.alive())

@@ -12,7 +12,7 @@ import yaml
 from alignment_msgs.msg import ResidualAnalysis
 
 from calib_core.closed_loop import LoopConfig, LoopResult, MachineModel, analyze
-from calib_core.errors import MachineAlignmentError
+from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.loop_plots import plot_loop
 from calib_core.nodes.calibrator import parse_plan
 from calib_core.nodes.qos import LATCHED
@@ -59,8 +59,10 @@ class AnalysisService:
         Shared with the calibration service: one calibration or analysis at a time.
     collect : callable (options: dict) -> MachineModel
         The data to analyse; ``options`` are the plan's keys other than the loop's own.
-    apply : callable (LoopResult) -> str
-        Writes the extended model as the calibration in force; returns the file path.
+    apply : callable (LoopResult) -> str, or str
+        Writes the extended model as the calibration in force and returns the file path;
+        or why this machine cannot put one in force (a request to apply is refused before
+        anything runs).
     topic : str
         Latched topic of the reports.
     header : callable () -> std_msgs/Header
@@ -68,7 +70,8 @@ class AnalysisService:
     """
 
     def __init__(self, node, kind: str, lock: threading.Lock,
-                 collect: Callable[[dict], MachineModel], apply: Callable[[LoopResult], str],
+                 collect: Callable[[dict], MachineModel],
+                 apply: Callable[[LoopResult], str] | str,
                  topic: str, header: Callable, progress: Callable | None = None):
         self.node, self.kind, self.lock, self.header = node, kind, lock, header
         self.collect, self.apply, self.topic, self.progress = collect, apply, topic, progress
@@ -80,6 +83,9 @@ class AnalysisService:
             return response
         logger = self.node.get_logger()
         try:
+            if request.apply and isinstance(self.apply, str):
+                raise InvalidInputError(f'apply refused: {self.apply}; call again without '
+                                        'apply for the report')
             options = parse_plan(request.plan_yaml)
             config = LoopConfig(**{k: options.pop(k) for k in LOOP_OPTIONS if k in options})
             machine = self.collect(options)

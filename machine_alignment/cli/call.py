@@ -31,6 +31,7 @@ SERVICES = {
     'vision_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
     'stage_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
     'hexapod_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
+    'platform_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
     'aligner/align': (Align, None, 'model'),
 }
 

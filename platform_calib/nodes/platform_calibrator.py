@@ -16,17 +16,24 @@ Service ``platform_calibrator/register`` (RegisterScreen) measures the screen's 
 (``platform/measure_marks``), computes the pose that puts them on target (the marks of the
 screen at the platform's zero) and the feeds by ``method`` (exact, lm, pso: the source's
 swarm, refused when it has not converged), moves, and measures again.
+
+Service ``platform_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop
+on the last run's identification poses (feed effects: screw error, backlash, drift); the
+report is written and published, never put in force (the compensation has no place for
+feed effects: ``apply`` is refused).
 """
 import json
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, PlatformMeasurement, Progress
-from alignment_msgs.srv import MeasureMarks, MeasurePose, MovePlatform, RegisterScreen, RunCalibration
+from alignment_msgs.srv import (
+    AnalyzeResiduals, MeasureMarks, MeasurePose, MovePlatform, RegisterScreen, RunCalibration)
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
 
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
@@ -36,12 +43,14 @@ from calib_core.nodes.spin import run_node
 from platform_calib.core.compensation import METHODS, composite_error, mark_positions
 from platform_calib.core.geometry import nominal_geometry, read_geometry
 from platform_calib.core.kinematics import inverse
-from platform_calib.core.procedure import PlatformPlan, run_platform_calibration
+from platform_calib.core.loop_model import PlatformLoopModel
+from platform_calib.core.procedure import PlatformPlan, data_of, run_platform_calibration
 from platform_calib.core.records import MEASUREMENTS_TOPIC, RESULT_TOPIC
 from platform_calib.core.registration import pose_of_marks, register
 from platform_calib.nodes.conversions import planar_pose_from_message
 
 PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed')
+ANALYSIS_TOPIC = '/platform_calibrator/analysis'
 
 
 def platform_result_message(content: dict, header, file_path='', version=0):
@@ -87,6 +96,13 @@ class PlatformCalibratorNode(Node):
         self.create_service(RegisterScreen, 'platform_calibrator/register', self.on_register,
                             callback_group=group)
         publish_calibration_in_force(self, 'platform', self.result_pub, self._in_force)
+        self._identified = []     # the identification stops of the last completed run
+        self.create_service(AnalyzeResiduals, 'platform_calibrator/analyze_residuals',
+                            AnalysisService(
+                                self, 'platform', self.calibration_service.busy,
+                                self._loop_model, 'the platform\'s compensation has no place '
+                                'for feed effects', ANALYSIS_TOPIC, self._header),
+                            callback_group=group)
 
     def _in_force(self, content, path):
         self.model = read_geometry(path)
@@ -135,7 +151,7 @@ class PlatformCalibratorNode(Node):
         with RecordedRun(self, 'platform', {
                 MEASUREMENTS_TOPIC: 'alignment_msgs/msg/PlatformMeasurement',
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
-            result, evaluation, _ = run_platform_calibration(
+            result, evaluation, stops = run_platform_calibration(
                 plan, self.nominal, self._move, self._track,
                 lambda stop: self._record(run, stop), self._progress)
             report = {**result.report(), 'evaluation': evaluation}
@@ -146,12 +162,21 @@ class PlatformCalibratorNode(Node):
             message = platform_result_message(content, self._header(), str(path), version)
             run.record(RESULT_TOPIC, message, self.result_pub)
         self.model = geometry
+        self._identified = [s for s in stops if s.phase == 'identify']
         e = evaluation
         self._progress(1, 1, f'done: composite mark error (tracker) median '
                              f'{e["evaluate_nominal"]["median_m"] * 1e6:.1f} um nominal, '
                              f'{e["evaluate_calibrated"]["median_m"] * 1e6:.1f} um calibrated; '
                              f'wrote {path}')
         return message
+
+    def _loop_model(self, options: dict) -> PlatformLoopModel:
+        if options:
+            raise InvalidInputError(f'unknown analysis options {sorted(options)}')
+        if not self._identified:
+            raise CalibrationError('no platform calibration run to analyse yet: call '
+                                   'platform_calibrator/calibrate first')
+        return PlatformLoopModel(data_of(self._identified), self.nominal)
 
     def on_register(self, request, response):
         if not self.calibration_service.busy.acquire(blocking=False):
