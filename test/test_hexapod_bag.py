@@ -54,3 +54,19 @@ def test_cli_replays_the_bag(tmp_path):
     report = json.loads((tmp_path / 'replay.json').read_text())
     assert report['max_difference_to_live_m'] < 1e-12
     assert len(read_geometry(out).parameters().names) == 42
+
+
+def test_the_run_exports_to_the_csv_the_loop_reads(tmp_path):
+    """Every stop of the run, as analyze hexapod reads it: commanded and measured poses and
+    leg lengths as recorded, and the time since the first stop."""
+    from hexapod_calib.core.calibration import PoseData
+    records, result = _read()
+    csv = tmp_path / 'hexapod.csv'
+    assert cli_main(['export', 'hexapod', '--bag', str(BAG), '--out', str(csv)]) == 0
+    nominal = HexapodGeometry.from_dict(json.loads(result.report_json)['nominal_geometry'],
+                                        'recorded nominal')
+    data = PoseData.from_csv(csv, nominal)
+    assert len(data) == len(records)
+    np.testing.assert_allclose(data.leg_lengths, [r[2] for r in records], atol=1e-12)
+    np.testing.assert_allclose(data.measured, [r[3] for r in records], atol=1e-12)
+    assert np.all(np.diff(data.covariates['time']) >= 0)

@@ -52,3 +52,33 @@ def test_stage_bags_decode_with_mcap_ros2_support():
     reports = [m.ros_msg for m in read_ros2_messages(str(ALIGNMENT / 'stage_alignment_run_0.mcap'))
                if m.channel.topic == '/aligner/report']
     assert len(reports) == 1 and json.loads(reports[0].data)['model'] == 'parametric'
+
+
+def test_a_recorded_run_exports_to_the_csv_the_loop_reads(tmp_path, capsys):
+    """The calibration bag as the analyze command's CSV: the same stops as the bag, a time
+    column from the stops' stamps, and the loop on it finds the chains' backlash (the
+    demo's stage has 3 / 4 / 2.5 um; each found positive and within 4 sigma). A bag of
+    another machine is refused with what it holds."""
+    from printer_alignment.core.records import stage_data_from_records, stage_record
+    from printer_alignment.core.stage_calibration import StageData
+    csv = tmp_path / 'stage.csv'
+    assert cli_main(['export', 'stage', '--bag', str(CALIBRATION), '--out', str(csv)]) == 0
+    exported = StageData.from_csv(csv)
+    recorded = stage_data_from_records([stage_record(m) for t, _, m in decode_bag(CALIBRATION)
+                                        if t == '/stage_calibrator/observations'])
+    np.testing.assert_allclose(exported.marks, recorded.marks, atol=1e-12)
+    np.testing.assert_array_equal(exported.directions, recorded.directions)
+    time = exported.covariates['time']
+    assert time[0] == 0 and np.all(np.diff(time) >= 0) and time[-1] > 0
+    report_path = tmp_path / 'loop.json'
+    assert cli_main(['analyze', 'stage', '--data', str(csv), '--json', str(report_path)]) == 0
+    effects = json.loads(report_path.read_text())['effects_added']
+    assert [e['name'] for e in effects] == ['reversal']
+    for chain, true in zip(('chain1', 'chain2', 'chain3'), (3e-6, 4e-6, 2.5e-6)):
+        value = effects[0]['parameters'][f'backlash_{chain}']
+        assert value > 0 and abs(value - true) < 4 * effects[0]['std_devs'][f'backlash_{chain}']
+    capsys.readouterr()
+    assert cli_main(['export', 'platform', '--bag', str(CALIBRATION),
+                     '--out', str(tmp_path / 'p.csv')]) == 2
+    assert 'holds no platform measurements' in capsys.readouterr().err
+    assert not (tmp_path / 'p.csv').exists()

@@ -1,0 +1,89 @@
+"""``machine-align export stage|platform|hexapod``: a calibrator's recorded run (MCAP bag)
+as the CSV that ``machine-align analyze`` (and ``calibrate --data``) reads, so the closed
+loop can be run, repeated and shared offline on any live run. A cut run gives the stops it
+recorded. Each row gets a ``time`` column (s since the run's first stop, from the stops'
+header stamps), so a drift during the run can be tested."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from calib_core.errors import MachineAlignmentError
+from hexapod_calib.core.calibration import PoseData as HexapodPoseData
+from hexapod_calib.core.records import (
+    HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC as HEXAPOD_TOPIC, measurement_record)
+from machine_alignment.cli.common import read_run
+from platform_calib.core.procedure import data_of
+from platform_calib.core.records import (
+    MEASUREMENTS_TOPIC as PLATFORM_TOPIC, RESULT_TOPIC as PLATFORM_RESULT_TOPIC,
+    stop_from_message)
+from printer_alignment.core.records import (
+    STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, stage_data_from_records, stage_record)
+
+
+def _stamped(convert):
+    """``convert`` of a stop message, with the stop's header stamp (s)."""
+    return lambda msg: (convert(msg), msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+
+
+def _elapsed(stamps) -> np.ndarray:
+    stamps = np.asarray(stamps, float)
+    return stamps - stamps[0]
+
+
+def _stage(bag):
+    stamped, _ = read_run(bag, STAGE_OBSERVATIONS_TOPIC, 'alignment_msgs/msg/StageObservation',
+                          _stamped(stage_record), 'stage calibration observations',
+                          STAGE_RESULT_TOPIC)
+    records, stamps = zip(*stamped)
+    data = stage_data_from_records(records)
+    return dataclasses.replace(data, covariates={'time': _elapsed(stamps)}), 'every stop'
+
+
+def _platform(bag):
+    stamped, _ = read_run(bag, PLATFORM_TOPIC, 'alignment_msgs/msg/PlatformMeasurement',
+                          _stamped(stop_from_message), 'platform measurements',
+                          PLATFORM_RESULT_TOPIC)
+    identified = [(s, t) for s, t in stamped if s.phase == 'identify']
+    if not identified:
+        raise MachineAlignmentError(f'{bag} holds no identification poses')
+    stops, stamps = zip(*identified)
+    data = data_of(list(stops))
+    covariates = dict(data.covariates, time=_elapsed(stamps))
+    return dataclasses.replace(data, covariates=covariates), 'the identification poses'
+
+
+def _hexapod(bag):
+    stamped, _ = read_run(bag, HEXAPOD_TOPIC, 'alignment_msgs/msg/HexapodMeasurement',
+                          _stamped(measurement_record), 'hexapod calibration measurements',
+                          HEXAPOD_RESULT_TOPIC)
+    records, stamps = zip(*stamped)
+    # (phase, target, leg lengths, measured): every stop, as the calibrator's own analysis
+    columns = [np.array([r[k] for r in records]) for k in (1, 3, 2)]
+    return (HexapodPoseData(*columns, {'time': _elapsed(stamps)}),
+            'every stop (all rounds and the evaluation)')
+
+
+READERS = {'stage': _stage, 'platform': _platform, 'hexapod': _hexapod}
+
+
+def cmd_export(args) -> int:
+    data, which = READERS[args.machine](args.bag)
+    data.to_csv(args.out)
+    print(f'wrote {args.out}: {len(data)} rows, {which} of {args.bag}; run the closed loop '
+          f'with: machine-align analyze {args.machine} --data {args.out}'
+          + (' --geometry NOMINAL.yaml' if args.machine == 'hexapod' else ''))
+    return 0
+
+
+def add_parser(sub) -> None:
+    parser = sub.add_parser('export', help='a recorded calibration run as the CSV that '
+                                           'analyze and calibrate --data read')
+    machines = parser.add_subparsers(dest='machine', required=True)
+    for name, recorder in (('stage', 'stage_calibrator'), ('platform', 'platform_calibrator'),
+                           ('hexapod', 'hexapod_calibrator')):
+        machine = machines.add_parser(name, help=f'a run recorded by {recorder}')
+        machine.add_argument('--bag', required=True, help=f'a run recorded by {recorder}')
+        machine.add_argument('--out', required=True, help='CSV to write (SI units)')
+        machine.set_defaults(func=cmd_export)
