@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 from scipy.optimize import least_squares
 
 from calib_core.errors import InvalidInputError
@@ -122,12 +123,19 @@ def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: 
     r0 = fun(x0)
     if not np.all(np.isfinite(r0)):
         raise InvalidInputError('residuals are not finite (NaN or infinite values in the data?)')
+    options = {}
+    sparsity = None if analytic else machine.base_sparsity(base, rows)
+    if sparsity is not None:
+        # Effects may touch every residual; the base's pattern groups its differences.
+        dense = np.ones((sparsity.shape[0], len(start) - nb), bool)
+        options = {'jac_sparsity': np.hstack([sparsity, dense])[:, free],
+                   'tr_solver': 'lsmr'}
     solution = least_squares(fun, x0, jac=jac if analytic else '2-point', method='trf',
-                             x_scale='jac')
+                             x_scale='jac', **options)
     b, parts = unpack(solution.x)
     # Held parameters get zero columns: the rows say nothing about them.
     jacobian = np.zeros((solution.jac.shape[0], len(start)))
-    jacobian[:, free] = solution.jac
+    jacobian[:, free] = solution.jac.toarray() if sparse.issparse(solution.jac) else solution.jac
     return Fit(b, list(effects), parts, solution.fun.reshape(len(rows), -1), jacobian)
 
 

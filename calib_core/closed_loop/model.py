@@ -50,6 +50,12 @@ class MachineModel:
         the loop has computed already."""
         raise NotImplementedError
 
+    def base_sparsity(self, base: ParameterSet, rows: np.ndarray) -> np.ndarray | None:
+        """Which residuals (n k, row-major) each free base parameter can change, bool
+        (n k, P), or None when any may change any. A camera's view pose moves only its
+        view's points: finite differences then step many parameters at once."""
+        return None
+
     def channel_residuals(self, base: ParameterSet, delta: np.ndarray, rows: np.ndarray,
                           context: dict) -> np.ndarray:
         """Residuals expressed in the channels (what ``delta`` lacks), shape (n, C)."""

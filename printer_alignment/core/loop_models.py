@@ -211,6 +211,18 @@ class CameraLoopModel(MachineModel):
             parameters += [Parameter(f'view{i}_t{a}', float(v), 'm') for a, v in zip('xyz', t.ravel())]
         return ParameterSet(parameters)
 
+    def base_sparsity(self, base, rows):
+        """Intrinsics move every point, a view's pose only its own view's points."""
+        free = base.free_names
+        view = self.view_index[rows]
+        pattern = np.zeros((len(rows), 2, len(free)), bool)
+        for j, name in enumerate(free):
+            if name.startswith('view'):
+                pattern[view == int(name[4:].split('_')[0]), :, j] = True
+            else:
+                pattern[:, :, j] = True
+        return pattern.reshape(-1, len(free))
+
     def _poses(self, base: ParameterSet):
         poses = np.array(list(base.as_dict().values())[4:]).reshape(len(self.views), 6)
         return _rodrigues(poses[:, :3]), poses[:, 3:]
