@@ -11,6 +11,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calib_core.errors import CalibrationError
+from calib_core.sanity import SanityGate
 from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
 from dispenser_calib.core.iso230 import iso230_7_report
 from dispenser_calib.core.model import (
@@ -211,3 +212,35 @@ def calibrate(images: list[Image], image_size, threshold_px: float | None = None
     result.outliers = {images[k].name: float(final[k]) for k in range(len(images))
                        if k not in set(inliers)}
     return start, result
+
+
+# The gate before a calibration is written or put in force. Dots detected to subpixel give
+# a few tenths of a pixel (the simulated dispenser: 0.1 px); an RMS of 3 px is a model that
+# does not describe the images.
+MAX_REPROJECTION_RMS_PX = 3.0
+# M maps the linear axes (m) into the camera frame: a rotation times scale errors of at
+# most a few parts per thousand on any real axis. Its singular values far from 1 mean axes
+# read in another unit (mm: 0.001).
+MAX_AXIS_SCALE_ERROR = 0.05
+
+
+def check_calibration(result: Refinement, images: list[Image]) -> None:
+    """Refuse a calibration that cannot be the machine: reprojection RMS above
+    :data:`MAX_REPROJECTION_RMS_PX`, a linear-axis scale beyond
+    :data:`MAX_AXIS_SCALE_ERROR` (singular values of M's 3 x 3 part), a standard deviation
+    that is not finite.
+
+    Raises
+    ------
+    CalibrationError
+        Every failure named; nothing may be written."""
+    gate = SanityGate('the five-axis calibration')
+    report = result.report(images)
+    gate.residual(report['rms_reprojection_px'], MAX_REPROJECTION_RMS_PX, 'px',
+                  'dots detected to subpixel reproject within a few tenths of a pixel')
+    for k, value in enumerate(np.linalg.svd(result.model.affine[:, :3], compute_uv=False)):
+        gate.within(f'linear-axis scale {k + 1} (singular value of M)', value,
+                    1 - MAX_AXIS_SCALE_ERROR, 1 + MAX_AXIS_SCALE_ERROR, '',
+                    'axes read in m; 0.001 means mm')
+    gate.finite_std_devs(report['std_devs'])
+    gate.enforce()

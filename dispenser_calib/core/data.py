@@ -13,12 +13,34 @@ import numpy as np
 
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_csv_rows
+from calib_core.schema import Column, Schema
 from calib_core.storage import write_atomic
 
 COLUMNS = ('image', 'x', 'y', 'z', 'a', 'c', 'i', 'j', 'u', 'v')
 BOARD = (11, 9)          # dots along x and y
 PITCH = 2e-3             # m
 DOT_RADIUS = 0.4e-3      # m: the board's dots are 0.8 mm circles
+
+# What a dispenser's commanded axes can read, whatever its strokes: linear axes well under
+# 2 m, the tilt A within a half turn, the table C within two turns either way.
+POSE_SCHEMA = Schema('five-axis commanded pose', (
+    Column('x', 'm', -2.0, 2.0, 'commanded X axis'),
+    Column('y', 'm', -2.0, 2.0, 'commanded Y axis'),
+    Column('z', 'm', -2.0, 2.0, 'commanded Z axis'),
+    Column('a', 'rad', -np.pi, np.pi, 'commanded tilt A'),
+    Column('c', 'rad', -4 * np.pi, 4 * np.pi, 'commanded table C')))
+POSE_NAMES = ('x', 'y', 'z', 'a', 'c')
+
+
+def check_poses(poses: np.ndarray, source: str) -> None:
+    """Refuse commanded poses (n, 5) (x, y, z m; a, c rad) no dispenser produces, naming
+    the column and the likely unit mistake.
+
+    Raises
+    ------
+    InvalidInputError"""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    POSE_SCHEMA.check(dict(zip(POSE_NAMES, poses.T)), source)
 
 
 @dataclass(frozen=True)
@@ -77,5 +99,6 @@ def read_observations(path) -> list[Image]:
             raise InvalidInputError(f'{path}, line {number}: image {row["image"]!r} has dot '
                                     f'{index} twice (inconsistent correspondences)')
         entry['dots'][index] = pixel
+    check_poses([e['pose'] for e in by_image.values()], str(path))
     return [Image(name, np.array(e['pose']), np.array(list(e['dots'])),
                   np.array(list(e['dots'].values()))) for name, e in by_image.items()]

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from calib_core.errors import InvalidInputError
-from dispenser_calib.core.calibration import calibrate, reprojection
+from dispenser_calib.core.calibration import calibrate, check_calibration, reprojection
 from dispenser_calib.core.data import Image
 from dispenser_calib.core.localisation import fit_part_pose, locate, place_path, tool_centre
 from dispenser_calib.core.model import DispenserModel, place
@@ -120,6 +120,7 @@ def finish(nominal: DispenserModel, image_size, images: list, evaluation_images:
     images that are not bad themselves (RANSAC's rule: over 5 x the median image's RMS and
     0.5 px; those are named)."""
     _, result = calibrate(images, image_size)
+    check_calibration(result, images)
     report = result.report(images)
     if evaluation_images:
         per_image = [np.sqrt(np.mean(e ** 2)) for e in reprojection(result.model, evaluation_images)]

@@ -23,7 +23,8 @@ from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
-from machine_alignment.cli.common import parse_size, progress, write_json, write_json_and_plot
+from machine_alignment.cli.common import (
+    parse_size, progress, ranged, write_json, write_json_and_plot)
 from platform_calib.core.geometry import nominal_geometry as nominal_platform
 from platform_calib.core.geometry import read_geometry as read_platform
 from platform_calib.core.identification import PoseData as PlatformPoseData
@@ -166,14 +167,14 @@ def add_parser(sub) -> None:
         machine = machines.add_parser(name, help=help_text)
         machine.add_argument('--data', required=True, help=help_text)
         machine.add_argument('--json', help='report to write; the plot goes beside it (.png)')
-        machine.add_argument('--holdout', type=float, default=0.3,
+        machine.add_argument('--holdout', type=ranged(float, 0.05, 0.6), default=0.3,
                              help='fraction of rows kept out of every fit')
-        machine.add_argument('--alpha', type=float, default=1e-3, help='significance level')
-        machine.add_argument('--max-effects', type=int, default=4, help='most effects the loop may add')
-        machine.add_argument('--seed', type=int, default=0, help='of the first hold-out split')
-        machine.add_argument('--splits', type=int, default=5,
+        machine.add_argument('--alpha', type=ranged(float, 1e-12, 0.5), default=1e-3, help='significance level')
+        machine.add_argument('--max-effects', type=ranged(int, 0, 20), default=4, help='most effects the loop may add')
+        machine.add_argument('--seed', type=ranged(int, 0), default=0, help='of the first hold-out split')
+        machine.add_argument('--splits', type=ranged(int, 1, 50), default=5,
                              help='hold-out splits the selection is repeated over')
-        machine.add_argument('--min-effect', type=float, default=None,
+        machine.add_argument('--min-effect', type=ranged(float, 0), default=None,
                              help='smallest effect worth adding, RMS in the residual unit '
                                   '(m; px for the camera); default: the machine\'s')
         if name == 'camera':
@@ -188,7 +189,7 @@ def add_parser(sub) -> None:
                                       'observations CSV of a sweep with the linear axes held '
                                       '(simulate five-axis --sweep), the board\'s pose in '
                                       'each image is the target pose')
-            machine.add_argument('--lever', type=float, default=LEVER,
+            machine.add_argument('--lever', type=ranged(float, 1e-3, 10.0, 'm'), default=LEVER,
                                  help='m: orientation errors count as the displacement of a '
                                       'point this far from the target origin')
         if name == 'hexapod':
@@ -202,9 +203,9 @@ def add_parser(sub) -> None:
                                             '(marks CSV, optional time and temperature)')
     grid.add_argument('--data', required=True, help='marks CSV of calibrate grid, with time '
                                                     '(s) and temperature (K) if logged')
-    grid.add_argument('--pitch', type=float, required=True, help='nominal plate pitch, m')
-    grid.add_argument('--region', type=int, help='one region (default: each)')
-    grid.add_argument('--min-effect', type=float, default=5e-9,
+    grid.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), required=True, help='nominal plate pitch, m')
+    grid.add_argument('--region', type=ranged(int, 0), help='one region (default: each)')
+    grid.add_argument('--min-effect', type=ranged(float, 0), default=5e-9,
                       help='smallest effect worth adding, RMS over the readings, m')
     grid.add_argument('--json', help='report to write')
     grid.set_defaults(func=cmd_analyze_grid)

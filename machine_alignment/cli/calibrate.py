@@ -11,7 +11,7 @@ from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
 from machine_alignment.cli import camera, five_axis, grid, platform
-from machine_alignment.cli.common import print_pose_summary, quantity, read_run, write_json
+from machine_alignment.cli.common import print_pose_summary, quantity, ranged, read_run, write_json
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
     stage_data_from_records, stage_record)
@@ -146,7 +146,7 @@ def add_parser(sub) -> None:
     five_axis.add_calibrate_parser(what)
     vision = what.add_parser('vision', help='pixel size and gantry model from a recorded run')
     vision.add_argument('--bag', required=True, help='a run recorded by vision_calibrator/calibrate')
-    vision.add_argument('--pitch', type=float, default=0.5e-3, help='dot pitch, m')
+    vision.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), default=0.5e-3, help='dot pitch, m')
     vision.add_argument('--json', help='report to write (JSON, SI units)')
     vision.set_defaults(func=cmd_calibrate_vision)
 

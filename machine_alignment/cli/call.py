@@ -10,7 +10,7 @@ from alignment_msgs.srv import (
 from std_srvs.srv import Trigger
 
 from calib_core.errors import CalibrationError
-from machine_alignment.cli.common import progress, quantity, write_json
+from machine_alignment.cli.common import progress, quantity, ranged, write_json
 from machine_alignment.live import LiveClient
 
 # service -> (type, progress topic, what the YAML argument is)
@@ -128,9 +128,9 @@ def add_parser(sub) -> None:
                            'the method (exact, lm, pso)')
     call.add_argument('--apply', action='store_true',
                       help='analyze_residuals: make the extended model the calibration in force')
-    call.add_argument('--domain', type=int, default=None,
+    call.add_argument('--domain', type=ranged(int, 0, 232), default=None,
                       help='ROS domain of the graph (default: ROS_DOMAIN_ID, else 0)')
-    call.add_argument('--timeout', type=float, default=900.0, help='s')
+    call.add_argument('--timeout', type=ranged(float, 0.1, 86400.0, 's'), default=900.0, help='s')
     call.add_argument('--quiet', action='store_true', help='no progress lines')
     call.add_argument('--json', help='the full report to write')
     call.set_defaults(func=cmd_call)

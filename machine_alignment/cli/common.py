@@ -2,7 +2,9 @@
 option and reading a calibrator's recorded run from its bag."""
 from __future__ import annotations
 
+import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -115,3 +117,25 @@ def quantity(value: float, sigma: float, unit: str) -> str:
     if unit == 'rad' and abs(value) > 0.1:
         text += f' ({value * 180 / 3.141592653589793:.4f} deg)'
     return text
+
+
+def ranged(kind, low: float | None = None, high: float | None = None, unit: str = '',
+           why: str = ''):
+    """An argparse ``type`` that parses ``kind`` (int or float) and refuses values outside
+    [low, high] (or not finite) at parse time, naming the range, its unit and ``why``."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f'{text!r} is not {"a whole number" if kind is int else "a number"}') from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f'{text!r} is not a finite number')
+        if (low is not None and value < low) or (high is not None and value > high):
+            span = (f'at least {low:g}' if high is None else f'at most {high:g}' if low is None
+                    else f'in {low:g}..{high:g}')
+            raise argparse.ArgumentTypeError(
+                f'{value:g} must be {span}{" " + unit if unit else ""}{": " + why if why else ""}')
+        return value
+    parse.__name__ = kind.__name__    # argparse names the type in its own messages
+    return parse

@@ -14,18 +14,19 @@ import numpy as np  # noqa: E402
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
-from dispenser_calib.core.calibration import calibrate, reprojection  # noqa: E402
+from dispenser_calib.core.calibration import calibrate, check_calibration, reprojection  # noqa: E402
 from dispenser_calib.core.procedure import finish  # noqa: E402
 from dispenser_calib.core.records import (  # noqa: E402
     OBSERVATIONS_TOPIC, RESULT_TOPIC, image_from_message)
-from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
+from dispenser_calib.core.data import check_poses, read_observations, write_observations  # noqa: E402
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E402
 from dispenser_calib.core.localisation import locate  # noqa: E402
 from dispenser_calib.core.model import (  # noqa: E402
     NAMES, nominal_model, parameter_unit, read_model, write_model)
 from dispenser_calib.core.procedure import plan_stops, rotary_sweep  # noqa: E402
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model  # noqa: E402
-from machine_alignment.cli.common import parse_size, quantity, read_run, write_json, write_json_and_plot  # noqa: E402
+from machine_alignment.cli.common import (  # noqa: E402
+    parse_size, quantity, ranged, read_run, write_json, write_json_and_plot)
 
 
 def cmd_simulate(args) -> int:
@@ -98,6 +99,7 @@ def cmd_calibrate(args) -> int:
     else:
         images = read_observations(args.data)
         _, result = calibrate(images, size)
+        check_calibration(result, images)
         report = result.report(images)
     print(f'{len(images)} images, {report["images_used"]} used; mean reprojection '
           f'{report["mean_reprojection_px"]:.3f} px (RMS {report["rms_reprojection_px"]:.3f} '
@@ -144,6 +146,7 @@ def cmd_locate(args) -> int:
                 [float(row[k]) for k in ('x', 'y', 'z', 'a', 'c', 'u', 'v')])
     except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInputError(f'{args.data} needs feature, x, y, z, a, c, u, v ({exc!r})') from None
+    check_poses(np.vstack([np.array(table)[:, :5] for table in views.values()]), str(args.data))
     located = {}
     for name, table in views.items():
         table = np.array(table)
@@ -160,9 +163,9 @@ def add_simulate_parser(simulated) -> None:
     p = simulated.add_parser('five-axis', help='board images of the simulated five-axis '
                                                'dispenser (observations CSV)')
     p.add_argument('--out', required=True)
-    p.add_argument('--seed', type=int, default=0)
-    p.add_argument('--noise', type=float, default=0.1, help='dot-centre noise, px')
-    p.add_argument('--bad-fraction', type=float, default=0.05,
+    p.add_argument('--seed', type=ranged(int, 0), default=0)
+    p.add_argument('--noise', type=ranged(float, 0.0, 50.0, 'px'), default=0.1, help='dot-centre noise, px')
+    p.add_argument('--bad-fraction', type=ranged(float, 0.0, 0.5, '', 'RANSAC needs most images good'), default=0.05,
                    help='images with a mis-detected dot')
     p.add_argument('--truth', help='also write the true model (YAML)')
     p.add_argument('--sweep', action='store_true',

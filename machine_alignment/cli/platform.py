@@ -14,12 +14,13 @@ import numpy as np  # noqa: E402
 
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
-from machine_alignment.cli.common import quantity, read_run, write_json, write_json_and_plot  # noqa: E402
+from machine_alignment.cli.common import (  # noqa: E402
+    quantity, ranged, read_run, write_json, write_json_and_plot)
 from platform_calib.core.compensation import (  # noqa: E402
     METHODS, SCREEN, PSOSettings, compensate, composite_error)
 from platform_calib.core.geometry import (  # noqa: E402
     nominal_geometry, read_geometry, write_geometry)
-from platform_calib.core.identification import PoseData, identify  # noqa: E402
+from platform_calib.core.identification import PoseData, check_identification, identify  # noqa: E402
 from platform_calib.core.kinematics import forward, inverse  # noqa: E402
 from platform_calib.core.procedure import data_of, evaluate  # noqa: E402
 from platform_calib.core.records import (  # noqa: E402
@@ -69,6 +70,7 @@ def cmd_calibrate_platform(args) -> int:
           + ', '.join(f'{c:.3g}' for c in result.condition))
     for name, value in report['parameters'].items():
         print(f'  {name:>7} = {quantity(value, report["std_devs"][name], report["units"][name])}')
+    check_identification(result, nominal)
     if args.out:
         write_geometry(args.out, result.geometry, {'std_devs': report['std_devs']})
         print(f'wrote {args.out}')
@@ -157,15 +159,15 @@ def add_simulate_parser(simulated) -> None:
     platform = simulated.add_parser('platform', help='poses of the simulated screen-'
                                                      'registration platform (tracker, feeds)')
     platform.add_argument('--out', required=True, help='poses CSV to write')
-    platform.add_argument('--poses', type=int, default=20)
-    platform.add_argument('--seed', type=int, default=0)
-    platform.add_argument('--scale', type=float, default=0.15,
+    platform.add_argument('--poses', type=ranged(int, 1, 100000), default=20)
+    platform.add_argument('--seed', type=ranged(int, 0), default=0)
+    platform.add_argument('--scale', type=ranged(float, 0.0, 10.0, '', 'of the simulated geometry errors (1: up to 1 mm, 0.5 deg)'), default=0.15,
                           help='size of the true parameter errors (1: 0.2-1 mm, 0.5 deg)')
     platform.add_argument('--truth', help='also write the true geometry (YAML)')
-    platform.add_argument('--screw', type=float, default=0.0,
+    platform.add_argument('--screw', type=ranged(float, 0.0, 1e-3, 'm'), default=0.0,
                           help='ball-screw periodic error of every feed, m (5 mm lead; an '
                                'effect the model lacks, e.g. 10e-6)')
-    platform.add_argument('--backlash', type=float, default=0.0,
+    platform.add_argument('--backlash', type=ranged(float, 0.0, 1e-3, 'm'), default=0.0,
                           help='backlash of every feed, m (e.g. 8e-6)')
     platform.set_defaults(func=cmd_simulate_platform)
 
@@ -192,10 +194,10 @@ def add_compensate_parser(sub) -> None:
     platform.add_argument('--method', choices=METHODS, default='exact')
     platform.add_argument('--targets', help='CSV: x, y (m), theta (rad); default: random '
                                             'targets over the workspace')
-    platform.add_argument('--count', type=int, default=50, help='random targets')
+    platform.add_argument('--count', type=ranged(int, 1, 100000), default=50, help='random targets')
     platform.add_argument('--swarm', choices=('source', 'stable'), default='source',
                           help='source: 40 particles, c1 = c2 = 2, w = 0.8; stable: Clerc')
-    platform.add_argument('--iterations', type=int, help='swarm iterations (source 4, stable 200)')
-    platform.add_argument('--seed', type=int, default=0)
+    platform.add_argument('--iterations', type=ranged(int, 1, 100000), help='swarm iterations (source 4, stable 200)')
+    platform.add_argument('--seed', type=ranged(int, 0), default=0)
     platform.add_argument('--json', help='report to write; the plot goes beside it')
     platform.set_defaults(func=cmd_compensate_platform)

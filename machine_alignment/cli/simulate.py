@@ -16,7 +16,7 @@ from machine_alignment.cli import five_axis, platform
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
 from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
-from machine_alignment.cli.common import progress
+from machine_alignment.cli.common import progress, ranged
 from printer_alignment.core.camera_calibration import write_correspondences
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
@@ -106,9 +106,9 @@ def add_parser(sub) -> None:
     five_axis.add_simulate_parser(simulated)
     hexapod_sim = simulated.add_parser('hexapod', help='pose files from the simulated hexapod')
     hexapod_sim.add_argument('--out', required=True, help='directory')
-    hexapod_sim.add_argument('--poses', type=int, default=30, help='calibration poses to measure')
-    hexapod_sim.add_argument('--evaluation', type=int, default=30, help='separate poses measured for the evaluation only')
-    hexapod_sim.add_argument('--seed', type=int, default=2, help='random seed: the same seed gives the same data')
+    hexapod_sim.add_argument('--poses', type=ranged(int, 1, 100000), default=30, help='calibration poses to measure')
+    hexapod_sim.add_argument('--evaluation', type=ranged(int, 0, 100000), default=30, help='separate poses measured for the evaluation only')
+    hexapod_sim.add_argument('--seed', type=ranged(int, 0), default=2, help='random seed: the same seed gives the same data')
     hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
 
     stage_sim = simulated.add_parser('stage', help='a calibration run of the simulated '
@@ -116,38 +116,38 @@ def add_parser(sub) -> None:
     stage_sim.add_argument('--out', required=True, help='CSV to write')
     stage_sim.add_argument('--no-backlash', action='store_true',
                            help='a stage without backlash (clean data for the closed loop)')
-    stage_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
+    stage_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     stage_sim.set_defaults(func=cmd_simulate_stage)
 
     gantry_sim = simulated.add_parser('gantry', help='camera gantry positions measured by the '
                                                       'calibrated camera (gantry CSV)')
     gantry_sim.add_argument('--out', required=True, help='CSV to write')
-    gantry_sim.add_argument('--count', type=int, default=200, help='random positions')
+    gantry_sim.add_argument('--count', type=ranged(int, 1, 100000), default=200, help='random positions')
     gantry_sim.add_argument('--ideal', action='store_true',
                             help='a gantry without errors (clean data for the closed loop)')
-    gantry_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
+    gantry_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     gantry_sim.set_defaults(func=cmd_simulate_gantry)
 
     camera_sim = simulated.add_parser('camera', help='a tilted grid target seen by a camera '
                                                       '(correspondence CSV)')
     camera_sim.add_argument('--out', required=True, help='CSV to write')
-    camera_sim.add_argument('--focal', type=float, default=800.0, help='px')
+    camera_sim.add_argument('--focal', type=ranged(float, 1.0, 1e6, 'px'), default=800.0, help='px')
     for name, default in (('k1', -0.25), ('k2', 0.08), ('p1', 0.0), ('p2', 0.0)):
         camera_sim.add_argument(f'--{name}', type=float, default=default,
                                 help='OpenCV distortion coefficient (1)')
-    camera_sim.add_argument('--views', type=int, default=12, help='views of the target')
-    camera_sim.add_argument('--noise', type=float, default=0.05, help='px, 1 sigma')
-    camera_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
+    camera_sim.add_argument('--views', type=ranged(int, 2, 1000), default=12, help='views of the target')
+    camera_sim.add_argument('--noise', type=ranged(float, 0.0), default=0.05, help='px, 1 sigma')
+    camera_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     camera_sim.set_defaults(func=cmd_simulate_camera)
 
     grid_sim = simulated.add_parser('grid', help='an imperfect grid plate measured at three '
                                                   'placements on a stage (marks CSV)')
     grid_sim.add_argument('--out', required=True, help='CSV to write')
-    grid_sim.add_argument('--half', type=int, default=5, help='K: the plate has 2K+1 marks a side')
-    grid_sim.add_argument('--pitch', type=float, default=0.01, help='m')
-    grid_sim.add_argument('--plate-error', type=float, default=1e-6, help='m RMS')
-    grid_sim.add_argument('--noise', type=float, default=20e-9, help='m, 1 sigma')
-    grid_sim.add_argument('--regions', type=int, nargs=2, default=(1, 1),
+    grid_sim.add_argument('--half', type=ranged(int, 1, 50, 'sites', 'a (2 x 50 + 1)-site square plate is the largest simulated (memory and time)'), default=5, help='K: the plate has 2K+1 marks a side')
+    grid_sim.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), default=0.01, help='m')
+    grid_sim.add_argument('--plate-error', type=ranged(float, 0.0, 1e-3, 'm'), default=1e-6, help='m RMS')
+    grid_sim.add_argument('--noise', type=ranged(float, 0.0), default=20e-9, help='m, 1 sigma')
+    grid_sim.add_argument('--regions', type=ranged(int, 1, 10), nargs=2, default=(1, 1),
                           metavar=('COLUMNS', 'ROWS'), help='regions over the travel')
     grid_sim.add_argument('--isotropic-scale', type=float, default=0.0,
                           help="the stage's isotropic scale error (1, e.g. 5e-6)")
@@ -157,20 +157,20 @@ def add_parser(sub) -> None:
     grid_sim.add_argument('--expansion', type=float, default=0.0,
                           help='thermal expansion of the stage\'s scale, 1/K (an effect the '
                                'self-calibration lacks; e.g. 10e-6)')
-    grid_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed '
+    grid_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed '
                                                              'gives the same data')
     grid_sim.set_defaults(func=cmd_simulate_grid)
 
     axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
                                                   'a simulated axis')
     axis_sim.add_argument('--out', required=True, help='CSV to write')
-    axis_sim.add_argument('--backlash', type=float, default=0.0, help='m')
-    axis_sim.add_argument('--periodic', type=float, default=0.0, help='amplitude, m')
-    axis_sim.add_argument('--pitch', type=float, default=0.016, help='period, m')
+    axis_sim.add_argument('--backlash', type=ranged(float, 0.0, 1e-3, 'm'), default=0.0, help='m')
+    axis_sim.add_argument('--periodic', type=ranged(float, 0.0, 1e-3, 'm'), default=0.0, help='amplitude, m')
+    axis_sim.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), default=0.016, help='period, m')
     axis_sim.add_argument('--expansion', type=float, default=0.0, help='1/K')
     axis_sim.add_argument('--temperature-rise', type=float, default=0.0, help='K over the test')
-    axis_sim.add_argument('--travel', type=float, default=0.2, help='m')
-    axis_sim.add_argument('--targets', type=int, default=41, help='target positions along the travel')
-    axis_sim.add_argument('--cycles', type=int, default=5, help='bidirectional measurement cycles')
-    axis_sim.add_argument('--seed', type=int, default=0, help='random seed: the same seed gives the same data')
+    axis_sim.add_argument('--travel', type=ranged(float, 1e-3, 10.0, 'm'), default=0.2, help='m')
+    axis_sim.add_argument('--targets', type=ranged(int, 2, 10000), default=41, help='target positions along the travel')
+    axis_sim.add_argument('--cycles', type=ranged(int, 1, 1000), default=5, help='bidirectional measurement cycles')
+    axis_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     axis_sim.set_defaults(func=cmd_simulate_axis)

@@ -10,9 +10,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from calib_core.checks import MAX_POSITION_M, check_metres
+from calib_core.checks import check_metres
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.datasets import read_columns, write_columns
+from calib_core.sanity import SanityGate
+from calib_core.schema import Column, Schema
 from platform_calib.core.geometry import CHAIN_PARAMETERS, UNITS, PlatformGeometry, parameter_names
 from platform_calib.core.kinematics import joint_positions, pose_jacobians, slide_positions
 
@@ -20,6 +22,15 @@ MIN_POSES = 6
 COLUMNS = ('feed1', 'feed2', 'feed3', 'x', 'y', 'theta')
 DIRECTION_COLUMNS = ('direction1', 'direction2', 'direction3')
 COVARIATE_COLUMNS = ('time', 'temperature')
+# What a screen-registration platform's tracker reports: positions within half a metre of
+# its zero, turns of a few degrees (a 3-PRR platform of this kind turns well under 45 deg).
+POSE_SCHEMA = Schema('platform pose', (
+    Column('x', 'm', -0.5, 0.5, 'measured platform x'),
+    Column('y', 'm', -0.5, 0.5, 'measured platform y'),
+    Column('theta', 'rad', -np.pi / 4, np.pi / 4, 'measured platform angle')))
+# A feed may read a little outside its stroke (a sensor's zero); by this share of the
+# stroke's length at most.
+STROKE_MARGIN = 0.25
 # Below this singular value (of the chain's Jacobian with unit columns, relative to the
 # largest) a parameter combination is taken as not determined by the poses.
 RANK_TOLERANCE = 1e-6
@@ -45,8 +56,7 @@ class PoseData:
             object.__setattr__(self, name, value)
         if len(self.poses) != len(self.feeds):
             raise InvalidInputError('one feed triple per pose is needed')
-        check_metres(self.poses[:, :2], 'the pose positions x, y', 'the pose data',
-                     MAX_POSITION_M)
+        POSE_SCHEMA.check(dict(zip(('x', 'y', 'theta'), self.poses.T)), 'the pose data')
         check_metres(self.feeds, 'the feeds', 'the pose data', 1.0)
 
     def __len__(self) -> int:
@@ -134,6 +144,23 @@ def undetermined(jacobian: np.ndarray, chain: int) -> list[str]:
     return sorted(names)
 
 
+def check_within_stroke(data: PoseData, geometry: PlatformGeometry) -> None:
+    """Refuse feed readings outside ``geometry``'s stroke (by more than
+    :data:`STROKE_MARGIN` of its length): the platform cannot have been there, so the feeds
+    are in another unit or from another zero.
+
+    Raises
+    ------
+    InvalidInputError"""
+    low, high = geometry.stroke
+    margin = STROKE_MARGIN * (high - low)
+    feeds = Schema('platform feeds', tuple(
+        Column(f'feed{i + 1}', 'm', low - margin, high + margin,
+               f'feed {i + 1} reading, stroke {low * 1e3:g}..{high * 1e3:g} mm')
+        for i in range(3)))
+    feeds.check({f'feed{i + 1}': data.feeds[:, i] for i in range(3)}, 'the pose data')
+
+
 def identify(data: PoseData, start: PlatformGeometry) -> Identification:
     """The 18 parameters by least squares, chain by chain, from ``start`` (the nominal).
 
@@ -141,6 +168,7 @@ def identify(data: PoseData, start: PlatformGeometry) -> Identification:
     ------
     CalibrationError
         Fewer than 6 poses, or poses that do not determine a chain's parameters (named)."""
+    check_within_stroke(data, start)
     if len(data) < MIN_POSES:
         raise CalibrationError(f'the 18 parameters need at least {MIN_POSES} poses (6 per '
                                f'chain, one equation each per pose); got {len(data)}')
@@ -173,3 +201,46 @@ def identify(data: PoseData, start: PlatformGeometry) -> Identification:
             std[6 * chain:6 * chain + 6] = np.sqrt(np.clip(np.diag(cov), 0, None))
         residuals.append(solution.fun)
     return Identification(geometry, std, np.column_stack(residuals), np.array(condition))
+
+
+# The gate before a geometry is written or put in force. A laser tracker and the feed
+# sensors close the loop to about 10 um RMS (the simulated platform: 9.9 um at 20 poses);
+# ten times that is a fit to data in another unit or of another machine.
+MAX_CLOSURE_RMS_M = 100e-6
+# How far an identified platform may lie from its nominal and still be that platform.
+MAX_POSITION_SHIFT_M = 10e-3      # base and joint positions
+MAX_DIRECTION_CHANGE_RAD = 0.2    # feed directions
+MAX_LENGTH_CHANGE = 0.2           # links, relative
+
+
+def check_identification(result: Identification, nominal: PlatformGeometry) -> None:
+    """Refuse an identification that cannot be the platform: closure residual RMS over
+    :data:`MAX_CLOSURE_RMS_M`, a parameter beyond its bound from the nominal, or a standard
+    deviation that is not finite (poses that leave no redundancy).
+
+    Raises
+    ------
+    CalibrationError
+        Every failure named; nothing may be written."""
+    gate = SanityGate('the platform identification')
+    report = result.report()
+    gate.residual(report['residual_rms_m'] * 1e6, MAX_CLOSURE_RMS_M * 1e6, 'um',
+                  'a laser tracker and feed sensors close the loop to about 10 um')
+    identified, start = result.geometry, nominal
+    for i in range(3):
+        k = i + 1
+        for name, value, ref in ((f'x_A{k}', identified.base[i, 0], start.base[i, 0]),
+                                 (f'y_A{k}', identified.base[i, 1], start.base[i, 1]),
+                                 (f'x_C{k}', identified.joints[i, 0], start.joints[i, 0]),
+                                 (f'y_C{k}', identified.joints[i, 1], start.joints[i, 1])):
+            gate.within(name, value, ref - MAX_POSITION_SHIFT_M, ref + MAX_POSITION_SHIFT_M,
+                        'm', f'within {MAX_POSITION_SHIFT_M * 1e3:g} mm of the nominal')
+        turned = start.alpha[i] + np.angle(np.exp(1j * (identified.alpha[i] - start.alpha[i])))
+        gate.within(f'alpha{k}', turned, start.alpha[i] - MAX_DIRECTION_CHANGE_RAD,
+                    start.alpha[i] + MAX_DIRECTION_CHANGE_RAD, 'rad',
+                    f'within {MAX_DIRECTION_CHANGE_RAD:g} rad of the nominal feed direction')
+        gate.within(f'L{k}', identified.length[i], start.length[i] * (1 - MAX_LENGTH_CHANGE),
+                    start.length[i] * (1 + MAX_LENGTH_CHANGE), 'm',
+                    f'within {MAX_LENGTH_CHANGE:.0%} of the nominal link')
+    gate.finite_std_devs(report['std_devs'])
+    gate.enforce()

@@ -42,6 +42,7 @@ from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from platform_calib.core.compensation import METHODS, composite_error, mark_positions
 from platform_calib.core.geometry import nominal_geometry, read_geometry
+from platform_calib.core.identification import check_identification
 from platform_calib.core.kinematics import inverse
 from platform_calib.core.loop_model import PlatformLoopModel
 from platform_calib.core.procedure import PlatformPlan, data_of, run_platform_calibration
@@ -154,6 +155,7 @@ class PlatformCalibratorNode(Node):
             result, evaluation, stops = run_platform_calibration(
                 plan, self.nominal, self._move, self._track,
                 lambda stop: self._record(run, stop), self._progress)
+            check_identification(result, self.nominal)   # else nothing is put in force
             report = {**result.report(), 'evaluation': evaluation}
             geometry = result.geometry
             path, version, content = run.save('platform', {

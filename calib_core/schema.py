@@ -1,0 +1,93 @@
+"""Declared columns of the suite's data files: each column's unit and the range a real
+machine can produce, so every reader (and every node's plan check) refuses the same value
+with the same words, naming the column, the value, the unit expected and the likely
+mistake (mm for m, degrees for rad)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+
+DEGREES_PER_RAD = 180 / np.pi
+MM_PER_M = 1000.0
+
+
+@dataclass(frozen=True)
+class Column:
+    """One numeric column.
+
+    Attributes
+    ----------
+    name : str
+    unit : str
+        'm', 'rad', 'px', 's', 'K' or '1'.
+    low, high : float
+        The range a real machine produces, in ``unit`` (a stroke, a turn).
+    meaning : str
+        What the column is, for the message ("commanded X axis").
+    """
+
+    name: str
+    unit: str
+    low: float
+    high: float
+    meaning: str
+
+    def likely_mistake(self, value: float) -> str:
+        """What the column's largest value outside the range most likely means: mm for m
+        when it is many times the range and would fit it in mm, degrees for rad likewise;
+        else another zero or column."""
+        ratio = abs(value) / max(abs(self.low), abs(self.high))
+        if self.unit == 'm' and ratio >= 20 and self.low <= value / MM_PER_M <= self.high:
+            return 'the values look like mm; the format is SI metres'
+        if self.unit == 'rad' and ratio >= 2 and \
+                self.low <= value / DEGREES_PER_RAD <= self.high:
+            return 'the values look like degrees; the format is radians'
+        return 'no such machine reads this (another zero, unit or column?)'
+
+    def check(self, values, source: str) -> None:
+        """Refuse the first value outside [low, high] (and any NaN).
+
+        Raises
+        ------
+        InvalidInputError"""
+        values = np.asarray(values, dtype=float).ravel()
+        if not np.all(np.isfinite(values)):
+            raise InvalidInputError(f'{source}: column {self.name} ({self.meaning}) holds NaN '
+                                    'or infinite values')
+        outside = np.flatnonzero((values < self.low) | (values > self.high))
+        if outside.size:
+            worst = outside[np.argmax(np.abs(values[outside]))]
+            value = float(values[worst])
+            raise InvalidInputError(
+                f'{source}: column {self.name} ({self.meaning}) is {value:.6g} {self.unit} in '
+                f'row {worst + 1}, outside {self.low:.6g}..{self.high:.6g} {self.unit}: '
+                f'{self.likely_mistake(value)}')
+
+
+@dataclass(frozen=True)
+class Schema:
+    """The numeric columns of one file kind."""
+
+    kind: str
+    columns: tuple
+
+    def column(self, name: str) -> Column:
+        return next(c for c in self.columns if c.name == name)
+
+    def check(self, values: dict, source: str) -> None:
+        """Check every declared column present in ``values`` (name -> array).
+
+        Raises
+        ------
+        InvalidInputError"""
+        for column in self.columns:
+            if column.name in values:
+                column.check(values[column.name], source)
+
+    def describe(self) -> str:
+        """One line per column for docs and --help."""
+        return '\n'.join(f'{c.name}: {c.meaning}, {c.unit}, {c.low:g}..{c.high:g}'
+                         for c in self.columns)

@@ -1,0 +1,130 @@
+"""Nothing wrong goes into force (issue 31): the declared column ranges refuse data in the
+wrong unit with the column, the value and the likely mistake; the sanity gate refuses a fit
+that cannot be the machine (nothing written); numeric options are range-checked when
+parsed."""
+import csv
+
+import numpy as np
+import pytest
+
+from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.schema import Column
+from dispenser_calib.core.calibration import calibrate, check_calibration
+from dispenser_calib.core.data import Image, read_observations
+from machine_alignment.cli import main
+
+
+def _rewrite(source, target, change):
+    rows = list(csv.DictReader(open(source)))
+    for row in rows:
+        change(row)
+    with open(target, 'w', newline='') as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+@pytest.fixture(scope='module')
+def platform_poses(tmp_path_factory):
+    folder = tmp_path_factory.mktemp('platform')
+    assert main(['simulate', 'platform', '--out', str(folder / 'poses.csv'), '--poses', '20']) == 0
+    return folder / 'poses.csv'
+
+
+def test_column_names_the_likely_mistake():
+    feed = Column('feed1', 'm', -0.01, 0.05, 'feed 1 reading')
+    with pytest.raises(InvalidInputError, match='look like mm'):
+        feed.check([0.01, 40.0], 'f.csv')                 # 40 mm written as 40
+    with pytest.raises(InvalidInputError, match='another zero'):
+        feed.check([0.01, -0.6], 'f.csv')                 # in m, from another zero
+    angle = Column('theta', 'rad', -0.785, 0.785, 'platform angle')
+    with pytest.raises(InvalidInputError, match=r'theta .* -5 rad in row 2.*degrees'):
+        angle.check([0.01, -5.0], 'f.csv')
+    angle.check([0.5, -0.5], 'f.csv')                     # inside: nothing said
+
+
+@pytest.mark.parametrize('change, expected', [
+    (lambda r: r.update(theta=str(np.degrees(float(r['theta'])))), 'look like degrees'),
+    (lambda r: r.update(feed1=str(float(r['feed1']) - 0.6)), 'column feed1'),
+])
+def test_platform_data_in_the_wrong_unit_are_refused(platform_poses, tmp_path, capsys,
+                                                     change, expected):
+    bad = tmp_path / 'bad.csv'
+    _rewrite(platform_poses, bad, change)
+    out = tmp_path / 'geometry.yaml'
+    for command in (['calibrate', 'platform', '--data', str(bad), '--out', str(out)],
+                    ['analyze', 'platform', '--data', str(bad)]):
+        assert main(command) == 2
+        assert expected in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_an_exactly_determined_platform_is_not_written(tmp_path, capsys):
+    """6 poses for 18 parameters: every chain exactly determined, no standard deviation;
+    the identification is printed but not written (it was put in force before)."""
+    data = tmp_path / 'six.csv'
+    assert main(['simulate', 'platform', '--out', str(data), '--poses', '6']) == 0
+    out = tmp_path / 'six.yaml'
+    assert main(['calibrate', 'platform', '--data', str(data), '--out', str(out)]) == 2
+    err = capsys.readouterr().err
+    assert 'failed its sanity checks' in err and 'no finite standard deviation' in err
+    assert not out.exists()
+
+
+def test_a_sound_platform_identification_passes(platform_poses, tmp_path):
+    out = tmp_path / 'geometry.yaml'
+    assert main(['calibrate', 'platform', '--data', str(platform_poses), '--out', str(out)]) == 0
+    assert out.exists()
+
+
+@pytest.fixture(scope='module')
+def five_axis_images(tmp_path_factory):
+    path = tmp_path_factory.mktemp('five_axis') / 'obs.csv'
+    assert main(['simulate', 'five-axis', '--out', str(path)]) == 0
+    return path
+
+
+def test_five_axis_angles_in_degrees_are_refused(five_axis_images, tmp_path, capsys):
+    bad = tmp_path / 'degrees.csv'
+    _rewrite(five_axis_images, bad, lambda r: r.update(a=str(np.degrees(float(r['a']))),
+                                                       c=str(np.degrees(float(r['c'])))))
+    out = tmp_path / 'model.yaml'
+    assert main(['calibrate', 'five-axis', '--data', str(bad), '--out', str(out)]) == 2
+    assert 'look like degrees' in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_five_axis_in_mm_is_caught_by_the_gate_where_the_range_cannot(five_axis_images):
+    """Linear moves of a few mm written in mm stay inside any plausible range, and the
+    model absorbs the factor 1000 into M at 0.1 px: only M's scale shows it."""
+    images = read_observations(five_axis_images)
+    in_mm = [Image(im.name, np.concatenate([im.pose[:3] * 1000, im.pose[3:]]), im.indices,
+                   im.pixels) for im in images]
+    _, result = calibrate(in_mm, (2448, 2048))
+    with pytest.raises(CalibrationError, match=r'linear-axis scale .* 0\.001'):
+        check_calibration(result, in_mm)
+    _, sound = calibrate(images, (2448, 2048))
+    check_calibration(sound, images)
+
+
+@pytest.mark.parametrize('command', [
+    ['simulate', 'gantry', '--out', 'x.csv', '--count', '0'],
+    ['compensate', 'platform', '--count', '-3'],
+    ['compensate', 'platform', '--iterations', '-1'],
+    ['simulate', 'platform', '--out', 'x.csv', '--poses', '-5'],
+    ['simulate', 'five-axis', '--out', 'x.csv', '--bad-fraction', '2'],
+    ['simulate', 'five-axis', '--out', 'x.csv', '--noise', '-1'],
+    ['simulate', 'platform', '--out', 'x.csv', '--scale', '-1'],
+    ['simulate', 'grid', '--out', 'x.csv', '--half', '150'],
+    ['analyze', 'rotary', '--data', 'x.csv', '--lever', '-0.1'],
+    ['analyze', 'axis', '--data', 'x.csv', '--holdout', 'nan'],
+])
+def test_numeric_options_out_of_range_are_refused_when_parsed(command, tmp_path, capsys,
+                                                               monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(command)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert 'must be' in err or 'not a finite number' in err
+    assert 'Traceback' not in err and not list(tmp_path.iterdir())
