@@ -118,6 +118,7 @@ def test_five_axis_in_mm_is_caught_by_the_gate_where_the_range_cannot(five_axis_
     ['simulate', 'grid', '--out', 'x.csv', '--half', '150'],
     ['analyze', 'rotary', '--data', 'x.csv', '--lever', '-0.1'],
     ['analyze', 'axis', '--data', 'x.csv', '--holdout', 'nan'],
+    ['calibrate', 'grid', '--data', 'x.csv', '--pitch', '10'],
 ])
 def test_numeric_options_out_of_range_are_refused_when_parsed(command, tmp_path, capsys,
                                                                monkeypatch):

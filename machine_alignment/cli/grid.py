@@ -19,7 +19,7 @@ from grid_calib.core.records import (  # noqa: E402
     PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
-from machine_alignment.cli.common import read_run, write_json_and_plot  # noqa: E402
+from machine_alignment.cli.common import ranged, read_run, write_json_and_plot  # noqa: E402
 
 
 def _vectors(ax, where_mm, vectors_m, spacing_mm, title):
@@ -142,10 +142,12 @@ def add_parser(what) -> None:
                                        'i, j (centred mark indices), x, y (stage reading, m)')
     source.add_argument('--bag', help='a run recorded by grid_calibrator (plate and pitch '
                                       'from the run)')
-    grid.add_argument('--pitch', type=float, help='nominal plate pitch, m (with --data)')
+    grid.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'),
+                      help='nominal plate pitch, m (with --data)')
     grid.add_argument('--stitch', choices=METHODS, default='joint',
                       help='regions in one fit (joint) or pairwise along a chain')
-    grid.add_argument('--certified-pitch', type=float,
+    grid.add_argument('--certified-pitch',
+                      type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'),
                       help="the plate's certified mean pitch, m: fixes the stage's "
                            'isotropic scale, otherwise undetermined')
     grid.add_argument('--json', help='report to write (JSON, SI units); the plot goes beside it')
