@@ -80,3 +80,16 @@ def test_the_last_run_is_analysed_and_never_put_in_force(graph):
     assert done.returncode == 0, done.stderr
     assert 'closed loop on the platform' in done.stdout
     assert all(running_graph.alive())
+
+
+def test_a_plan_outside_the_workspace_is_refused_and_leaves_no_bag(graph):
+    running_graph, node, out = graph
+    def bags():
+        return set((out / 'runs').iterdir()) if (out / 'runs').exists() else set()
+    before = bags()
+    client = node.create_client(RunCalibration, 'platform_calibrator/calibrate')
+    response = call(node, client, RunCalibration.Request(
+        plan_yaml='{poses: 15, span: [0.09, 0.09, 0.5]}'), timeout=60.0)
+    assert not response.success and 'cannot reach' in response.message, response.message
+    assert bags() == before
+    assert all(running_graph.alive())

@@ -1,9 +1,11 @@
 """The recorded run, the same for every node that measures or calibrates: one MCAP bag
 ``<record_dir>/<kind>_<stamp>`` holding every message of the run as it was published, and
 (for a calibration) the versioned calibration file that names the bag. The bag is opened
-before the first stop, so a run that fails or is killed still replays what it measured."""
+before the first stop, so a run that fails or is killed still replays what it measured; a
+run refused before it recorded anything (a plan outside the stroke) leaves no bag."""
 from __future__ import annotations
 
+import shutil
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -35,6 +37,7 @@ class RecordedRun:
         self.stamp = run_stamp()
         self.bag_path = Path(node.get_parameter('record_dir').value) / f'{kind}_{self.stamp}'
         self._bag = None
+        self._recorded = 0
 
     def __enter__(self) -> 'RecordedRun':
         self._bag = BagWriter(self.bag_path).__enter__()
@@ -42,14 +45,19 @@ class RecordedRun:
             self._bag.add_topic(topic, msgtype)
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, *exc) -> None:
         self._bag.close()
+        if kind is not None and self._recorded == 0:
+            # Refused before the first message (a plan outside the stroke): an empty bag
+            # would only be a run that never happened.
+            shutil.rmtree(self.bag_path, ignore_errors=True)
 
     def record(self, topic: str, msg, publisher=None) -> None:
         """Publish ``msg`` (if a publisher is given) and write it to the bag, stamped now."""
         if publisher is not None:
             publisher.publish(msg)
         self._bag.write(topic, self.node.get_clock().now().nanoseconds, serialize_message(msg))
+        self._recorded += 1
 
     def save(self, name: str, content: dict) -> tuple[Path, int, dict]:
         """Write ``content`` (with this run's kind, stamp and bag added) as the next version
