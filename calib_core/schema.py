@@ -48,7 +48,8 @@ class Column:
         return 'no such machine reads this (another zero, unit or column?)'
 
     def check(self, values, source: str) -> None:
-        """Refuse the first value outside [low, high] (and any NaN).
+        """Refuse the column if any value is NaN or outside [low, high], naming the one
+        furthest out.
 
         Raises
         ------
@@ -71,11 +72,7 @@ class Column:
 class Schema:
     """The numeric columns of one file kind."""
 
-    kind: str
     columns: tuple
-
-    def column(self, name: str) -> Column:
-        return next(c for c in self.columns if c.name == name)
 
     def check(self, values: dict, source: str) -> None:
         """Check every declared column present in ``values`` (name -> array).
@@ -86,8 +83,3 @@ class Schema:
         for column in self.columns:
             if column.name in values:
                 column.check(values[column.name], source)
-
-    def describe(self) -> str:
-        """One line per column for docs and --help."""
-        return '\n'.join(f'{c.name}: {c.meaning}, {c.unit}, {c.low:g}..{c.high:g}'
-                         for c in self.columns)

@@ -102,9 +102,9 @@ def test_five_axis_in_mm_is_caught_by_the_gate_where_the_range_cannot(five_axis_
                    im.pixels) for im in images]
     _, result = calibrate(in_mm, (2448, 2048))
     with pytest.raises(CalibrationError, match=r'linear-axis scale .* 0\.001'):
-        check_calibration(result, in_mm)
+        check_calibration(result.model, result.report(in_mm))
     _, sound = calibrate(images, (2448, 2048))
-    check_calibration(sound, images)
+    check_calibration(sound.model, sound.report(images))
 
 
 @pytest.mark.parametrize('command', [

@@ -224,21 +224,20 @@ MAX_REPROJECTION_RMS_PX = 3.0
 MAX_AXIS_SCALE_ERROR = 0.05
 
 
-def check_calibration(result: Refinement, images: list[Image]) -> None:
+def check_calibration(model: DispenserModel, report: dict) -> None:
     """Refuse a calibration that cannot be the machine: reprojection RMS above
     :data:`MAX_REPROJECTION_RMS_PX`, a linear-axis scale beyond
     :data:`MAX_AXIS_SCALE_ERROR` (singular values of M's 3 x 3 part), a standard deviation
-    that is not finite.
+    that is not finite. ``report`` is the refinement's :meth:`Refinement.report`.
 
     Raises
     ------
     CalibrationError
         Every failure named; nothing may be written."""
     gate = SanityGate('the five-axis calibration')
-    report = result.report(images)
     gate.residual(report['rms_reprojection_px'], MAX_REPROJECTION_RMS_PX, 'px',
                   'dots detected to subpixel reproject within a few tenths of a pixel')
-    for k, value in enumerate(np.linalg.svd(result.model.affine[:, :3], compute_uv=False)):
+    for k, value in enumerate(np.linalg.svd(model.affine[:, :3], compute_uv=False)):
         gate.within(f'linear-axis scale {k + 1} (singular value of M)', value,
                     1 - MAX_AXIS_SCALE_ERROR, 1 + MAX_AXIS_SCALE_ERROR, '',
                     'axes read in m; 0.001 means mm')

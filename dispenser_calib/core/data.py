@@ -23,7 +23,7 @@ DOT_RADIUS = 0.4e-3      # m: the board's dots are 0.8 mm circles
 
 # What a dispenser's commanded axes can read, whatever its strokes: linear axes well under
 # 2 m, the tilt A within a half turn, the table C within two turns either way.
-POSE_SCHEMA = Schema('five-axis commanded pose', (
+POSE_SCHEMA = Schema((
     Column('x', 'm', -2.0, 2.0, 'commanded X axis'),
     Column('y', 'm', -2.0, 2.0, 'commanded Y axis'),
     Column('z', 'm', -2.0, 2.0, 'commanded Z axis'),

@@ -120,8 +120,8 @@ def finish(nominal: DispenserModel, image_size, images: list, evaluation_images:
     images that are not bad themselves (RANSAC's rule: over 5 x the median image's RMS and
     0.5 px; those are named)."""
     _, result = calibrate(images, image_size)
-    check_calibration(result, images)
     report = result.report(images)
+    check_calibration(result.model, report)
     if evaluation_images:
         per_image = [np.sqrt(np.mean(e ** 2)) for e in reprojection(result.model, evaluation_images)]
         limit = max(0.5, 5 * float(np.median(per_image)))

@@ -99,8 +99,8 @@ def cmd_calibrate(args) -> int:
     else:
         images = read_observations(args.data)
         _, result = calibrate(images, size)
-        check_calibration(result, images)
         report = result.report(images)
+        check_calibration(result.model, report)
     print(f'{len(images)} images, {report["images_used"]} used; mean reprojection '
           f'{report["mean_reprojection_px"]:.3f} px (RMS {report["rms_reprojection_px"]:.3f} '
           f'px); per iteration from the stepwise start: '

@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from calib_core.checks import check_metres
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.datasets import read_columns, write_columns
 from calib_core.sanity import SanityGate
@@ -23,11 +22,14 @@ COLUMNS = ('feed1', 'feed2', 'feed3', 'x', 'y', 'theta')
 DIRECTION_COLUMNS = ('direction1', 'direction2', 'direction3')
 COVARIATE_COLUMNS = ('time', 'temperature')
 # What a screen-registration platform's tracker reports: positions within half a metre of
-# its zero, turns of a few degrees (a 3-PRR platform of this kind turns well under 45 deg).
-POSE_SCHEMA = Schema('platform pose', (
+# its zero, turns of a few degrees (a 3-PRR platform of this kind turns well under 45 deg);
+# feed sensors within a metre whatever the stroke (the stroke is checked against the
+# geometry: check_within_stroke).
+POSE_SCHEMA = Schema((
     Column('x', 'm', -0.5, 0.5, 'measured platform x'),
     Column('y', 'm', -0.5, 0.5, 'measured platform y'),
-    Column('theta', 'rad', -np.pi / 4, np.pi / 4, 'measured platform angle')))
+    Column('theta', 'rad', -np.pi / 4, np.pi / 4, 'measured platform angle'),
+    *(Column(f'feed{i}', 'm', -1.0, 1.0, f'feed {i} reading') for i in (1, 2, 3))))
 # A feed may read a little outside its stroke (a sensor's zero); by this share of the
 # stroke's length at most.
 STROKE_MARGIN = 0.25
@@ -56,8 +58,8 @@ class PoseData:
             object.__setattr__(self, name, value)
         if len(self.poses) != len(self.feeds):
             raise InvalidInputError('one feed triple per pose is needed')
-        POSE_SCHEMA.check(dict(zip(('x', 'y', 'theta'), self.poses.T)), 'the pose data')
-        check_metres(self.feeds, 'the feeds', 'the pose data', 1.0)
+        POSE_SCHEMA.check(dict(zip(('x', 'y', 'theta', 'feed1', 'feed2', 'feed3'),
+                                   np.hstack([self.poses, self.feeds]).T)), 'the pose data')
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -154,7 +156,7 @@ def check_within_stroke(data: PoseData, geometry: PlatformGeometry) -> None:
     InvalidInputError"""
     low, high = geometry.stroke
     margin = STROKE_MARGIN * (high - low)
-    feeds = Schema('platform feeds', tuple(
+    feeds = Schema(tuple(
         Column(f'feed{i + 1}', 'm', low - margin, high + margin,
                f'feed {i + 1} reading, stroke {low * 1e3:g}..{high * 1e3:g} mm')
         for i in range(3)))
