@@ -118,8 +118,7 @@ def five_axis_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
 def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment') -> list[dict]:
     """Keyword arguments of one ``launch_ros.actions.Node`` per node of a graph: the
     executable is the module's console script (named after the module, see setup.py)."""
-    return [{'package': package, 'executable': spec.module.rsplit('.', 1)[-1],
-             'name': spec.module.rsplit('.', 1)[-1],
+    return [{'package': package, 'executable': node_name(spec), 'name': node_name(spec),
              **({'parameters': [dict(spec.parameters)]} if spec.parameters else {})}
             for spec in nodes]
 
@@ -141,15 +140,34 @@ def stop_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, interrupt)
 
 
+def node_name(spec: NodeSpec) -> str:
+    """The node's name in the graph: its module's last part (as in the launch files)."""
+    return spec.module.rsplit('.', 1)[-1]
+
+
+def describe_exit(code: int) -> str:
+    """A process's return code in words: ``exit code 1`` or ``killed by SIGKILL``."""
+    if code < 0:
+        try:
+            return f'killed by {signal.Signals(-code).name}'
+        except ValueError:
+            return f'killed by signal {-code}'
+    return f'exit code {code}'
+
+
 class Graph:
-    """Running node processes; a context manager that stops them on exit (SIGINT to every
-    node, then SIGKILL after ``timeout``), also when the block is left by an exception."""
+    """Running node processes; a context manager that stops them on exit, also when the
+    block is left by an exception: SIGINT to every node, SIGTERM to those still running
+    after ``sigint_grace``, SIGKILL after ``sigterm_grace`` more (as ``ros2 launch``
+    escalates)."""
 
     def __init__(self, nodes: list[NodeSpec], env: dict | None = None, log_dir: str | None = None,
                  prefix: Callable[[NodeSpec], list[str]] | None = None):
         """``prefix(spec)`` is put before a node's command, e.g. ``ip netns exec <name>`` to
         run each node in the network namespace of the computer it stands for."""
+        self.names = [node_name(spec) for spec in nodes]
         self.processes = []
+        self.escalations: list[str] = []
         environment = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **(env or {})}
         for spec in nodes:
             args = (prefix(spec) if prefix else []) + [sys.executable, '-m', spec.module]
@@ -159,7 +177,7 @@ class Graph:
             out = None
             if log_dir:
                 os.makedirs(log_dir, exist_ok=True)
-                out = open(os.path.join(log_dir, spec.module.rsplit('.', 1)[-1] + '.log'), 'w')
+                out = open(os.path.join(log_dir, node_name(spec) + '.log'), 'w')
             self.processes.append(subprocess.Popen(args, env=environment, stdout=out,
                                                    stderr=subprocess.STDOUT if out else None))
 
@@ -172,14 +190,28 @@ class Graph:
     def alive(self) -> list[bool]:
         return [p.poll() is None for p in self.processes]
 
-    def stop(self, timeout: float = 10.0) -> None:
-        for p in self.processes:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + timeout
-        for p in self.processes:
-            try:
-                p.wait(max(deadline - time.monotonic(), 0.1))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+    def exited(self) -> list[tuple[str, int]]:
+        """The nodes that have ended: (name, return code) each, in the graph's order."""
+        return [(name, p.returncode) for name, p in zip(self.names, self.processes)
+                if p.poll() is not None]
+
+    def stop(self, sigint_grace: float = 5.0, sigterm_grace: float = 5.0) -> None:
+        """Stop every node still running, escalating SIGINT -> SIGTERM -> SIGKILL; each
+        escalation is noted in :attr:`escalations` (name and signal) for the caller to
+        report."""
+        for sig, grace in ((signal.SIGINT, sigint_grace), (signal.SIGTERM, sigterm_grace),
+                           (signal.SIGKILL, None)):
+            running = [(name, p) for name, p in zip(self.names, self.processes)
+                       if p.poll() is None]
+            if not running:
+                return
+            for name, p in running:
+                if sig != signal.SIGINT:
+                    self.escalations.append(f'{name} still running: sent {sig.name}')
+                p.send_signal(sig)
+            deadline = time.monotonic() + (grace if grace is not None else 5.0)
+            for _, p in running:
+                try:
+                    p.wait(max(deadline - time.monotonic(), 0.05))
+                except subprocess.TimeoutExpired:
+                    pass

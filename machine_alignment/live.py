@@ -4,6 +4,7 @@ a callback while the call runs. Used by ``machine-align call`` and the demo."""
 from __future__ import annotations
 
 import os
+import time
 from typing import Callable
 
 import rclpy
@@ -17,6 +18,8 @@ class LiveClient:
     """A client node on ROS domain ``domain`` (default: ``ROS_DOMAIN_ID``, else 0), in a
     context of its own so it can live beside other rclpy users in one process. Discovery
     defaults to localhost, as the launcher's graphs use."""
+
+    WATCH_PERIOD = 1.0   # s between checks that the server is still in the graph
 
     def __init__(self, name: str = 'machine_align_client', domain: int | None = None):
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -42,11 +45,15 @@ class LiveClient:
         """The response of ``service`` to ``request``; ``on_progress(step, total, message)``
         for every Progress message on ``progress_topic`` meanwhile.
 
+        The server is watched while the call runs: a node that is stopped leaves the graph
+        at once, one that is killed when DDS's liveliness lease runs out (20 s with Fast
+        DDS's default), and the call then ends instead of waiting out ``timeout``.
+
         Raises
         ------
         CalibrationError
-            The service does not come up within ``wait`` s or does not answer within
-            ``timeout`` s."""
+            The service does not come up within ``wait`` s, goes away before answering, or
+            does not answer within ``timeout`` s."""
         subscription = None
         if progress_topic and on_progress:
             subscription = self.node.create_subscription(
@@ -58,9 +65,21 @@ class LiveClient:
                 raise CalibrationError(f'service {service} is not available (is its graph '
                                        f'running on ROS domain {self.context.get_domain_id()}?)')
             future = client.call_async(request)
-            self.executor.spin_until_future_complete(future, timeout_sec=timeout)
-            if not future.done():
-                raise CalibrationError(f'{service} did not answer within {timeout:g} s')
+            start = time.monotonic()
+            missed = 0
+            while not future.done():
+                left = timeout - (time.monotonic() - start)
+                if left <= 0:
+                    raise CalibrationError(f'{service} did not answer within {timeout:g} s')
+                self.executor.spin_until_future_complete(
+                    future, timeout_sec=min(self.WATCH_PERIOD, left))
+                # Two misses in a row: one can be a discovery update in flight.
+                missed = 0 if future.done() or client.service_is_ready() else missed + 1
+                if missed >= 2:
+                    raise CalibrationError(
+                        f'{service} went away {time.monotonic() - start:.0f} s into the call '
+                        'without answering: its node died or was stopped (see the launcher\'s '
+                        'output or the node\'s log); nothing was received from it')
             return future.result()
         finally:
             self.node.destroy_client(client)

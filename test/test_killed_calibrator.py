@@ -1,8 +1,11 @@
 """A calibrator SIGKILLed in the middle of a run (issue 19): the run's bag still replays
-every stop it measured before the kill, the calibration in force is unchanged, and the
-restarted calibrator publishes it; its folder parameters are read-only."""
+every stop it measured before the kill, the calibration in force is unchanged, the
+``machine-align call`` waiting on it ends with a clear error within 30 s (issue 31), and
+the restarted calibrator publishes it; its folder parameters are read-only."""
 import os
 import signal
+import subprocess
+import sys
 import time
 
 DOMAIN = str(190 + os.getpid() % 20)   # each DDS test module has its own band
@@ -10,7 +13,6 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
 from alignment_msgs.msg import CalibrationResult, HexapodMeasurement  # noqa: E402
-from alignment_msgs.srv import RunCalibration  # noqa: E402
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 
@@ -27,7 +29,7 @@ from machine_alignment.launcher import hexapod_graph  # noqa: E402
 CALIBRATOR = 2   # position of hexapod_calibrator in hexapod_graph()
 
 
-def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(tmp_path):
+def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(tmp_path, capsys):
     calibration = tmp_path / 'calibration'
     in_force, _ = write_calibration(calibration, 'hexapod_geometry',
                                     {**nominal_geometry().as_dict(), 'kind': 'hexapod'})
@@ -36,17 +38,26 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
     with running(spec, DOMAIN, tmp_path, 'kill_test_client') as (graph, node):
         seen = []
         node.create_subscription(HexapodMeasurement, MEASUREMENTS_TOPIC, seen.append, 100)
-        client = node.create_client(RunCalibration, 'hexapod_calibrator/calibrate')
-        assert client.wait_for_service(timeout_sec=30.0)
-        future = client.call_async(RunCalibration.Request())
+        caller = subprocess.Popen(
+            [sys.executable, '-m', 'machine_alignment.cli', 'call', '--quiet',
+             'hexapod_calibrator/calibrate'], env={**os.environ, 'ROS_DOMAIN_ID': DOMAIN},
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 120
         while len(seen) < 10 and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
         assert len(seen) >= 10, 'the run did not start measuring'
         graph.processes[CALIBRATOR].send_signal(signal.SIGKILL)
         graph.processes[CALIBRATOR].wait(10)
+        killed_at = time.monotonic()
         seen_at_kill = len(seen)
-        assert not future.done()
+        try:
+            _, stderr = caller.communicate(timeout=45)
+        finally:
+            caller.kill()
+        waited = time.monotonic() - killed_at
+        assert caller.returncode == 2, stderr
+        assert 'hexapod_calibrator/calibrate went away' in stderr and 'died' in stderr, stderr
+        assert waited < 30, f'call noticed the dead calibrator after {waited:.0f} s'
 
     bag = next((tmp_path / 'runs').iterdir())
     recovered = [measurement_record(m) for t, _, m in decode_bag(bag) if t == MEASUREMENTS_TOPIC]
@@ -56,9 +67,13 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
     assert read_calibration(calibration, 'hexapod_geometry')['kind'] == 'hexapod'
     assert sorted(p.name for p in calibration.glob('hexapod_geometry*.yaml')) \
         == ['hexapod_geometry.v1.yaml', 'hexapod_geometry.yaml']
-    # Too few stops for the 42 parameters: the replay says so, as one line.
+    # The replay solves from the stops recovered and says the bag was cut.
+    capsys.readouterr()
     assert cli_main(['calibrate', 'hexapod', '--bag', str(bag), '--geometry',
-                     str(in_force)]) in (0, 2)
+                     str(in_force)]) == 0
+    replay = capsys.readouterr().out
+    assert 'is a cut run' in replay and f'{len(recovered)} stops recovered' in replay, replay
+    assert f'{len(recovered)} recorded stops, {len(recovered)} used' in replay, replay
 
     # Restarted, the calibrator publishes the calibration in force (latched), and its
     # folders cannot be redirected by a peer on the domain.

@@ -2,13 +2,15 @@
 separate processes, and the end-to-end demo on them."""
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
+from calib_core.errors import CalibrationError
 from machine_alignment.demo import run_demo
 from machine_alignment.launcher import (
-    Graph, five_axis_graph, grid_graph, hexapod_graph, platform_graph, printer_graph, stage_graph,
-    stop_on_sigterm)
+    Graph, describe_exit, five_axis_graph, grid_graph, hexapod_graph, platform_graph,
+    printer_graph, stage_graph, stop_on_sigterm)
 
 
 def cmd_launch(args) -> int:
@@ -19,13 +21,25 @@ def cmd_launch(args) -> int:
             'platform': lambda: platform_graph(args.output_dir, args.record_dir),
             'five-axis': lambda: five_axis_graph(args.output_dir, args.record_dir)}[args.graph]()
     stop_on_sigterm()
-    with Graph(spec) as graph:
-        print(f'{args.graph} graph running (Ctrl-C or SIGTERM to stop)', flush=True)
-        try:
-            while all(graph.alive()):
-                time.sleep(0.5)
-        except KeyboardInterrupt:
-            pass
+    graph = Graph(spec)
+    dead = []
+    try:
+        print(f'{args.graph} graph running: {", ".join(graph.names)} (Ctrl-C or SIGTERM to '
+              'stop)', flush=True)
+        while not (dead := graph.exited()):
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        graph.stop()
+    for line in graph.escalations:
+        print(f'machine-align launch: {line}', file=sys.stderr)
+    if dead:
+        # A graph with a node missing cannot calibrate: stop all of it and say which died.
+        raise CalibrationError(
+            'the ' + args.graph + ' graph stopped because '
+            + '; '.join(f'{name} ended ({describe_exit(code)})' for name, code in dead)
+            + '; the other nodes were stopped. See that node\'s output above.')
     return 0
 
 
