@@ -41,8 +41,12 @@ $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg
 demo: setup
 	$(BIN)/machine-align demo --out out/demo
 
+# Two workers, one test module each (a module's DDS graph stays on its own ROS domain);
+# one BLAS thread per worker: two workers already fill the two cores, and OpenBLAS's
+# threads spinning against each other made the camera fits 2-10x slower.
 test: setup
-	$(BIN)/python -m pytest -q -rs test
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \
+	  $(BIN)/python -m pytest -q -rs -n 2 --dist loadfile --durations=15 test
 
 bench: setup
 	$(BIN)/python -m machine_alignment.bench.vision --out bench_results

@@ -37,6 +37,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
+    package_data={'machine_alignment': ['fastdds_services.xml']},
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='machine_alignment maintainers',

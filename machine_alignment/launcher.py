@@ -19,6 +19,11 @@ from hexapod_calib.sim.hexapod import HexapodTruth
 from printer_alignment.sim.gantry import GantryErrors
 
 
+# Fast DDS: services wait up to 5 s for a new client to match before sending a response.
+SERVICE_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                               'fastdds_services.xml')
+
+
 @dataclass(frozen=True)
 class NodeSpec:
     module: str
@@ -169,6 +174,7 @@ class Graph:
         self.processes = []
         self.escalations: list[str] = []
         environment = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **(env or {})}
+        environment.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', SERVICE_PROFILE)
         for spec in nodes:
             args = (prefix(spec) if prefix else []) + [sys.executable, '-m', spec.module]
             if spec.parameters:

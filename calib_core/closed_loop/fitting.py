@@ -80,6 +80,41 @@ def residuals_by_channel(machine, fit: Fit, rows) -> np.ndarray:
     return model_residuals(machine, fit.base, fit.effects, fit.values, rows, in_channels=True)
 
 
+def grouped_differences(fun, sparsity: np.ndarray):
+    """A Jacobian callable for ``fun`` by forward differences, stepping together the
+    columns whose nonzero rows (``sparsity``, (m, n) bool) do not overlap (Curtis, Powell and
+    Reid's grouping, greedy), returned dense: least_squares then solves each step exactly
+    (SVD), which converges in far fewer iterations than its iterative sparse solver (LSMR)
+    on the camera's few hundred parameters."""
+    sparsity = np.asarray(sparsity, bool)
+    groups: list[list[int]] = []
+    covered: list[np.ndarray] = []
+    for column in range(sparsity.shape[1]):
+        for group, rows in zip(groups, covered):
+            if not np.any(rows & sparsity[:, column]):
+                group.append(column)
+                rows |= sparsity[:, column]
+                break
+        else:
+            groups.append([column])
+            covered.append(sparsity[:, column].copy())
+
+    def jacobian(x):
+        f0 = fun(x)
+        # The step scipy's '2-point' takes: sqrt(machine epsilon) relative, at least absolute.
+        step = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
+        out = np.zeros((len(f0), len(x)))
+        for group in groups:
+            moved = x.copy()
+            moved[group] += step[group]
+            change = fun(moved) - f0
+            for column in group:
+                rows = sparsity[:, column]
+                out[rows, column] = change[rows] / (moved[column] - x[column])
+        return out
+    return jacobian
+
+
 def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: list,
          rows: np.ndarray) -> Fit:
     """Joint least squares of the base model and ``effects`` on ``rows``."""
@@ -123,15 +158,13 @@ def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: 
     r0 = fun(x0)
     if not np.all(np.isfinite(r0)):
         raise InvalidInputError('residuals are not finite (NaN or infinite values in the data?)')
-    options = {}
     sparsity = None if analytic else machine.base_sparsity(base, rows)
     if sparsity is not None:
         # Effects may touch every residual; the base's pattern groups its differences.
         dense = np.ones((sparsity.shape[0], len(start) - nb), bool)
-        options = {'jac_sparsity': np.hstack([sparsity, dense])[:, free],
-                   'tr_solver': 'lsmr'}
-    solution = least_squares(fun, x0, jac=jac if analytic else '2-point', method='trf',
-                             x_scale='jac', **options)
+        jac = grouped_differences(fun, np.hstack([sparsity, dense])[:, free])
+    solution = least_squares(fun, x0, jac=jac if analytic or sparsity is not None else '2-point',
+                             method='trf', x_scale='jac')
     b, parts = unpack(solution.x)
     # Held parameters get zero columns: the rows say nothing about them.
     jacobian = np.zeros((solution.jac.shape[0], len(start)))

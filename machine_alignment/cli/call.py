@@ -104,9 +104,10 @@ def cmd_call(args) -> int:
               f'{len(response.path_poses) // 5} path poses')
         report = json.loads(response.report_json)
     elif service_type is RegisterScreen:
-        print(f'registered: marks off by {response.measured_error * 1e6:.2f} um (composite, '
-              f'measured after the move; the model predicted {response.predicted_error * 1e6:.3f} um)')
         report = json.loads(response.report_json)
+        print(f'registered: marks off by {report["error_before_m"] * 1e6:.2f} um before, '
+              f'{response.measured_error * 1e6:.2f} um after the move (composite, measured; '
+              f'the model predicted {response.predicted_error * 1e6:.3f} um: its own view)')
     else:
         print(f'aligned: {response.position_error * 1e6:.2f} um, '
               f'{response.orientation_error * 180 / 3.141592653589793 * 3600:.2f} arcsec left '

@@ -60,6 +60,7 @@ def add_parser(sub) -> None:
     launch.add_argument('--record-dir', default='runs', help='where runs are recorded (MCAP bags)')
     launch.set_defaults(func=cmd_launch)
 
-    demo = sub.add_parser('demo', help='calibrate the simulated printer end to end')
+    demo = sub.add_parser('demo', help='calibrate every simulated machine end to end (printer, stage, hexapod, '
+                                       'grid plate, platform, five-axis dispenser)')
     demo.add_argument('--out', default='out/demo', help="folder for the demo's calibrations, bags, logs and figures")
     demo.set_defaults(func=cmd_demo)

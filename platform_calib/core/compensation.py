@@ -1,7 +1,8 @@
 """Feed compensation: the feeds that put the screen's two marks on target, by the model's
 exact inverse kinematics, by Levenberg-Marquardt on the full model, or by the source's
-particle swarm (pyswarms' GlobalBestPSO, the source's update (23)-(24), with reflective
-bound handling and a seeded generator).
+particle swarm (pymoo's PSO with fixed coefficients: the source's global-best update
+(23)-(24); a particle leaving the bounds draws its velocity again, up to 20 times, then
+restarts at random inside them; seeded).
 
 The composite error is the source's eq. (18), lost and rebuilt: the displacement of the
 two marks A = (b/2, c/2) and B = (-b/2, -c/2) (screen frame = platform frame) between the
@@ -12,7 +13,10 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import pyswarms
+from pymoo.algorithms.soo.nonconvex.pso import PSO
+from pymoo.core.callback import Callback
+from pymoo.core.problem import Problem
+from pymoo.optimize import minimize
 from scipy.optimize import least_squares
 
 from calib_core.errors import InvalidInputError
@@ -161,19 +165,18 @@ def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compe
     low, high = model.stroke
     lower = np.maximum(-settings.bound, low - nominal_feeds)
     upper = np.minimum(settings.bound, high - nominal_feeds)
-    # pyswarms draws from numpy's global generator: seed it for this run and put the
-    # caller's state back.
-    state = np.random.get_state()
-    np.random.seed(settings.seed)
-    try:
-        optimizer = pyswarms.single.GlobalBestPSO(
-            settings.particles, 3, {'c1': settings.c1, 'c2': settings.c2,
-                                    'w': settings.inertia},
-            bounds=(lower, upper), bh_strategy='reflective')
-        best, correction = optimizer.optimize(cost, iters=settings.iterations, verbose=False)
-    finally:
-        np.random.set_state(state)
-    history = list(map(float, optimizer.cost_history))
+    problem = _CostProblem(cost, lower, upper)
+    swarm = PSO(pop_size=settings.particles, w=settings.inertia, c1=settings.c1,
+                c2=settings.c2, adaptive=False, pertube_best=False,
+                # The source's update with no velocity clamp inside the bounds.
+                max_velocity_rate=1.0)
+    best_costs = _BestCost()
+    # An iteration evaluates the swarm and records its best (the initial swarm is the
+    # first), as the source counts them.
+    result = minimize(problem, swarm, ('n_gen', settings.iterations), seed=settings.seed,
+                      callback=best_costs, verbose=False)
+    best, correction = float(result.F[0]), np.asarray(result.X, dtype=float)
+    history = best_costs.history
     window = max(len(history) // 4, 10)
     if len(history) <= window:
         converged = False
@@ -187,3 +190,25 @@ def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compe
                    + ('' if converged else ': not converged'))
     return Compensation('pso', nominal_feeds + correction, float(best), 0.0, history,
                         converged, message)
+
+
+class _CostProblem(Problem):
+    """A cost over the swarm's (n, 3) corrections, vectorised, within box bounds (m)."""
+
+    def __init__(self, cost, lower, upper):
+        super().__init__(n_var=len(lower), n_obj=1, xl=lower, xu=upper)
+        self.cost = cost
+
+    def _evaluate(self, x, out, *args, **kwargs):
+        out['F'] = self.cost(x)
+
+
+class _BestCost(Callback):
+    """The swarm's best cost after each generation (m)."""
+
+    def __init__(self):
+        super().__init__()
+        self.history = []
+
+    def notify(self, algorithm):
+        self.history.append(float(algorithm.opt[0].F[0]))

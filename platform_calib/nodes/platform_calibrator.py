@@ -192,21 +192,30 @@ class PlatformCalibratorNode(Node):
             if self.feeds is None:               # home first: the feeds are not known yet
                 self._move(inverse(self.nominal, np.zeros((1, 3)))[0])
             targets = mark_positions(np.zeros((1, 3)))[0]
-            pose, result = register(self.model, self.nominal, self.feeds, self._marks,
+            seen = []
+
+            def measure():
+                seen.append(self._marks())
+                return seen[-1]
+            pose, result = register(self.model, self.nominal, self.feeds, measure,
                                     self._move, targets, method)
             after = self._marks()
-            measured = float(composite_error(pose_of_marks(after)[None],
-                                             pose_of_marks(targets)[None])[0])
+            before, measured = (float(composite_error(pose_of_marks(marks)[None],
+                                                      pose_of_marks(targets)[None])[0])
+                                for marks in (seen[0], after))
             response.pose = [float(v) for v in pose]
             response.feeds = [float(v) for v in result.feeds]
             response.predicted_error = float(result.predicted_error)
             response.measured_error = measured
             response.report_json = json.dumps({'method': method, 'message': result.message,
                                                'seconds': result.seconds,
+                                               'error_before_m': before,
+                                               'marks_before_m': seen[0].tolist(),
                                                'marks_after_m': after.tolist()})
             response.success, response.message = True, 'ok'
-            self.get_logger().info(f'registered ({method}): marks off by {measured * 1e6:.1f} um '
-                                   '(composite, measured)')
+            self.get_logger().info(f'registered ({method}): marks off by {before * 1e6:.1f} um '
+                                   f'before, {measured * 1e6:.1f} um after (composite, '
+                                   'measured)')
         except MachineAlignmentError as exc:
             self.get_logger().error(f'registration failed: {exc}')
             response.success, response.message = False, str(exc)
