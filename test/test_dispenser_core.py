@@ -12,7 +12,8 @@ from dispenser_calib.core.localisation import locate, place_path, reached, tool_
 from dispenser_calib.core.model import (
     NAMES, nominal_model, place, project_rows, table_points)
 from dispenser_calib.core.procedure import (
-    FEATURE_VIEWS, NEEDLE_TIP, TEST_SPOTS, measure_needle, plan_stops)
+    FEATURE_VIEWS, NEEDLE_TIP, TEST_SPOTS, measure_needle, plan_stops,
+    run_five_axis_calibration)
 from dispenser_calib.errors import StrokeError
 from dispenser_calib.sim.machine import IMAGE_SIZE, needle_hardware, observe, true_model
 
@@ -177,3 +178,20 @@ def test_the_needle_is_measured_from_dispensed_dots():
     with pytest.raises(StrokeError):
         measure_needle(model, NEEDLE_TIP + np.array([0.5, 0, 0]), TEST_SPOTS, FEATURE_VIEWS,
                        *hardware)
+
+
+def test_a_plan_without_held_out_stops_calibrates_and_says_so():
+    """``evaluation: 0`` failed in numpy's concatenate (issue 31)."""
+    truth, at = true_model(3), {}
+
+    def move(pose):
+        at['pose'] = np.asarray(pose, float)
+        return at['pose']
+
+    def capture():
+        image = observe(truth, at['pose'][None], seed=len(at))[0][0]
+        return image.indices, image.pixels
+    result, report, images = run_five_axis_calibration(
+        nominal_model(), IMAGE_SIZE, 0, 0, move, capture)
+    assert len(images) == len(plan_stops(nominal_model(), 0)) and 'held_out' not in report
+    assert report['mean_reprojection_px'] < 0.2

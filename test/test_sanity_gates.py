@@ -59,6 +59,17 @@ def test_platform_data_in_the_wrong_unit_are_refused(platform_poses, tmp_path, c
     assert not out.exists()
 
 
+def test_analyze_refuses_the_poses_calibrate_refuses(platform_poses, tmp_path, capsys):
+    """Every row the same pose: calibrate refused it; analyze fitted it to 1e-4 um and
+    reported 'added nothing' with exit 0."""
+    first = next(csv.DictReader(open(platform_poses)))
+    same = tmp_path / 'same.csv'
+    _rewrite(platform_poses, same, lambda row: row.update(first))
+    for command in ('calibrate', 'analyze'):
+        assert main([command, 'platform', '--data', str(same)]) == 2
+        assert 'the poses do not determine chain 1' in capsys.readouterr().err
+
+
 def test_an_exactly_determined_platform_is_not_written(tmp_path, capsys):
     """6 poses for 18 parameters: every chain exactly determined, no standard deviation;
     the identification is printed but not written (it was put in force before)."""

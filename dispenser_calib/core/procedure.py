@@ -74,11 +74,12 @@ def rotary_sweep(tilts=np.linspace(-0.3, 0.3, 5), step: float = np.deg2rad(22.5)
 
 
 def evaluation_stops(nominal: DispenserModel, count: int, seed: int = 0) -> np.ndarray:
-    """``count`` held-out stops with A and C both turned (a within +-45 degrees)."""
+    """``count`` held-out stops (count, 5) with A and C both turned (a within +-45
+    degrees); none for 0."""
     rng = np.random.default_rng(seed + 70)
     centre = np.array([0.0, 0.0, WORKING_DISTANCE])
     return np.array([place(nominal, np.zeros(3), rng.uniform(-0.8, 0.8), rng.uniform(0, 2 * np.pi),
-                           centre) for _ in range(count)])
+                           centre) for _ in range(count)]).reshape(count, 5)
 
 
 def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, evaluation: int,

@@ -163,18 +163,18 @@ def check_within_stroke(data: PoseData, geometry: PlatformGeometry) -> None:
     feeds.check({f'feed{i + 1}': data.feeds[:, i] for i in range(3)}, 'the pose data')
 
 
-def identify(data: PoseData, start: PlatformGeometry) -> Identification:
-    """The 18 parameters by least squares, chain by chain, from ``start`` (the nominal).
+def check_determined(data: PoseData, start: PlatformGeometry) -> None:
+    """Refuse pose data that cannot determine the 18 parameters about ``start``: readings
+    outside the stroke, fewer than 6 poses, or a chain's parameters left undetermined
+    (named) by poses too alike.
 
     Raises
     ------
-    CalibrationError
-        Fewer than 6 poses, or poses that do not determine a chain's parameters (named)."""
+    CalibrationError, InvalidInputError"""
     check_within_stroke(data, start)
     if len(data) < MIN_POSES:
         raise CalibrationError(f'the 18 parameters need at least {MIN_POSES} poses (6 per '
                                f'chain, one equation each per pose); got {len(data)}')
-    geometry, std, residuals, condition = start, np.full(18, np.nan), [], []
     for chain in range(3):
         x0 = start.vector()[6 * chain:6 * chain + 6]
         lacking = undetermined(_chain_jacobian(start, chain, x0, data), chain)
@@ -182,6 +182,19 @@ def identify(data: PoseData, start: PlatformGeometry) -> Identification:
             raise CalibrationError(f'the poses do not determine chain {chain + 1}: '
                                    f'{", ".join(lacking)} (move the platform in x, y and '
                                    'theta, with every feed over its stroke)')
+
+
+def identify(data: PoseData, start: PlatformGeometry) -> Identification:
+    """The 18 parameters by least squares, chain by chain, from ``start`` (the nominal).
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than 6 poses, or poses that do not determine a chain's parameters (named)."""
+    check_determined(data, start)
+    geometry, std, residuals, condition = start, np.full(18, np.nan), [], []
+    for chain in range(3):
+        x0 = start.vector()[6 * chain:6 * chain + 6]
         # The link length stays positive (a geometry needs it); nothing else is bounded.
         lower = np.full(6, -np.inf)
         lower[3] = 1e-6
