@@ -1,7 +1,9 @@
 """Fuzz the readers of user files (CSV datasets, YAML geometry, marker descriptions,
 intrinsics): random bytes, truncations, random column subsets and shuffled or damaged
 cells of valid files. Every outcome is either a dataset or a MachineAlignmentError with a
-message; nothing else may escape (bounded: 120 variants per reader, seeded)."""
+message free of numpy reprs; nothing else may escape (bounded: 120 variants per reader,
+seeded)."""
+import re
 import zlib
 from pathlib import Path
 
@@ -11,19 +13,30 @@ import pytest
 from calib_core.axis import AxisData
 from calib_core.errors import MachineAlignmentError
 from calib_core.sim.axis import AxisTruth, simulate_axis_test
+from dispenser_calib.core.data import read_observations, write_observations
+from dispenser_calib.core.model import nominal_model
+from dispenser_calib.core.procedure import plan_stops
+from dispenser_calib.core.target_poses import read_target_poses
+from dispenser_calib.sim.machine import observe, true_model
 from grid_calib.core.data import Region, read_marks, write_marks
 from grid_calib.core.model import Grid
 from grid_calib.core.travel import calibrate_travel
 from grid_calib.sim.plate import default_travel, measure_travel
 from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry, write_geometry
+from platform_calib.core.geometry import nominal_geometry as platform_nominal
+from platform_calib.core.identification import PoseData as PlatformPoses
+from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
 from printer_alignment.core.camera_calibration import read_boofcv_intrinsics, read_correspondences
 from printer_alignment.core.dot_markers import load_uchiya_markers
 from printer_alignment.core.stage_calibration import StageData
 from printer_alignment.sim.stage import simulate_calibration_run
 
 REAL = Path(__file__).resolve().parent / 'data' / 'real'
+MEASURED = Path(__file__).resolve().parent / 'data' / 'measured'
 VARIANTS = 120
+# A message shows values as the user wrote them, not numpy's reprs.
+NUMPY_REPR = re.compile(r'np\.\w+\(|array\(')
 
 
 def _valid_files(folder: Path) -> dict:
@@ -47,7 +60,16 @@ def _valid_files(folder: Path) -> dict:
     truth = default_travel(grid, 2, 1, seed=1)
     write_marks(marks, grid, {r: Region(truth.origins[r], p)
                               for r, p in measure_travel(grid, truth, 20e-9, 1).items()})
+    platform = folder / 'platform.csv'
+    measure_poses(PlatformSim(true_geometry(1)), plan_poses(20, 1),
+                  platform_nominal()).to_csv(platform)
+    five_axis = folder / 'five_axis.csv'
+    write_observations(five_axis, observe(true_model(1), plan_stops(nominal_model(), 0))[0])
     return {
+        'platform poses': (platform, lambda p: PlatformPoses.from_csv(p)),
+        'five-axis observations': (five_axis, read_observations),
+        'target poses': (MEASURED / 'ric_two_axis_positioner' / 'positioner_poses.csv',
+                         lambda p: read_target_poses(p, 'j1', 'j2')),
         'axis': (axis, AxisData.from_csv),
         'grid marks': (marks, lambda p: calibrate_travel(*read_marks(p, grid.pitch))),
         'stage': (stage, StageData.from_csv),
@@ -95,7 +117,8 @@ def valid(tmp_path_factory):
 
 
 @pytest.mark.parametrize('reader', ['axis', 'stage', 'poses', 'camera', 'geometry', 'markers',
-                                    'intrinsics', 'grid marks'])
+                                    'intrinsics', 'grid marks', 'platform poses',
+                                    'five-axis observations', 'target poses'])
 def test_damaged_files_give_a_dataset_or_a_clear_error(reader, valid, tmp_path):
     source, read = valid[reader]
     read(source)                                      # the undamaged file reads
@@ -110,5 +133,6 @@ def test_damaged_files_give_a_dataset_or_a_clear_error(reader, valid, tmp_path):
             outcomes['read'] += 1
         except MachineAlignmentError as exc:
             assert str(exc), 'an error without a message'
+            assert not NUMPY_REPR.search(str(exc)), str(exc)
             outcomes['refused'] += 1
     assert outcomes['refused'] > VARIANTS // 4, outcomes

@@ -145,9 +145,10 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict]:
                 raise PlacementError(f'{path}: {name} is NaN or infinite')
     check_metres(reading, 'the readings x, y', path, MAX_POSITION_M)
     names = np.array([r['placement'].strip() for r in rows])
-    unknown = sorted(set(names) - set(PLACEMENTS))
+    unknown = sorted(set(names.tolist()) - set(PLACEMENTS))
     if unknown:
-        raise PlacementError(f'{path}: unknown placement(s) {unknown}; use {PLACEMENTS}')
+        raise PlacementError(f'{path}: unknown placement(s) {", ".join(unknown)}; use '
+                             f'{", ".join(PLACEMENTS)}')
     half = int(np.abs(marks).max())
     if marks.min() != -half:
         raise PlacementError(f'{path}: mark indices must be centred, -K..K, for an odd N '
