@@ -140,3 +140,24 @@ def test_numeric_options_out_of_range_are_refused_when_parsed(command, tmp_path,
     err = capsys.readouterr().err
     assert 'must be' in err or 'not a finite number' in err
     assert 'Traceback' not in err and not list(tmp_path.iterdir())
+
+
+def test_hexapod_gate_refuses_a_geometry_far_from_the_machine(tmp_path, capsys):
+    """The identification is fine; checked against another hexapod's drawing (every base
+    joint 20 mm out) it is refused, and nothing is written."""
+    import yaml
+    folder = tmp_path / 'hx'
+    assert main(['simulate', 'hexapod', '--out', str(folder), '--poses', '20']) == 0
+    out = tmp_path / 'geometry.yaml'
+    command = ['calibrate', 'hexapod', '--data', str(folder / 'calibration.csv'),
+               '--geometry', str(folder / 'nominal.yaml'), '--out', str(out)]
+    assert main(command) == 0 and out.exists()
+    out.unlink()
+    other = yaml.safe_load((folder / 'nominal.yaml').read_text())
+    other['base_joints'] = (np.array(other['base_joints']) * 1.1).tolist()
+    (folder / 'other.yaml').write_text(yaml.safe_dump(other))
+    capsys.readouterr()
+    assert main(command[:-3] + [str(folder / 'other.yaml'), '--out', str(out)]) == 2
+    err = capsys.readouterr().err
+    assert 'the hexapod identification failed its sanity checks' in err
+    assert 'within 10 mm of the nominal' in err and not out.exists()

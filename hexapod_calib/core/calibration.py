@@ -17,6 +17,7 @@ from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import FitResult, check_identifiability, fit
 from calib_core.parameters import ParameterSet
+from calib_core.sanity import SanityGate
 from hexapod_calib.core.geometry import (
     LEGS, POSE_NAMES, HexapodGeometry, as_poses, rotation_matrices)
 from hexapod_calib.core.kinematics import inverse_kinematics, leg_vectors
@@ -24,6 +25,10 @@ from hexapod_calib.core.kinematics import inverse_kinematics, leg_vectors
 MEASURED_NAMES = tuple(f'meas_{n}' for n in POSE_NAMES)
 LEG_NAMES = tuple(f'l{i + 1}' for i in range(LEGS))
 PARAMETERS_PER_LEG = 7
+# The sanity gate's bounds: a pose sensor (CMM, laser tracker) closes the legs to a few um,
+# and no built hexapod has a joint centre or an actuator zero 10 mm from its drawing.
+MAX_LEG_RESIDUAL_RMS_M = 100e-6
+MAX_PARAMETER_CHANGE_M = 10e-3
 
 
 @dataclass(frozen=True)
@@ -261,3 +266,24 @@ def summarise_pose_errors(target, actual) -> dict:
             'rms_displacement_m': float(np.sqrt(np.mean(displacement ** 2))),
             'max_angle_rad': float(angle.max()),
             'rms_angle_rad': float(np.sqrt(np.mean(angle ** 2)))}
+
+
+def check_identification(report: dict, nominal: HexapodGeometry) -> None:
+    """Refuse an identification (``Identification.report()``) that cannot be the hexapod:
+    leg-length residual RMS over :data:`MAX_LEG_RESIDUAL_RMS_M`, a joint centre or leg
+    offset more than :data:`MAX_PARAMETER_CHANGE_M` from ``nominal``, or a standard
+    deviation that is not finite.
+
+    Raises
+    ------
+    CalibrationError
+        Every failure named; nothing may be written or put in force."""
+    gate = SanityGate('the hexapod identification')
+    gate.residual(report['residual_rms_m'] * 1e6, MAX_LEG_RESIDUAL_RMS_M * 1e6, 'um',
+                  'a pose sensor closes the leg lengths to a few um')
+    for name, value in nominal.parameters().as_dict().items():
+        gate.within(name, report['parameters'][name], value - MAX_PARAMETER_CHANGE_M,
+                    value + MAX_PARAMETER_CHANGE_M, 'm',
+                    f'within {MAX_PARAMETER_CHANGE_M * 1e3:g} mm of the nominal')
+    gate.finite_std_devs(report['std_devs'])
+    gate.enforce()

@@ -28,7 +28,7 @@ from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from calib_core.parameters import ParameterSet
 from calib_core.storage import write_calibration
-from hexapod_calib.core.calibration import PoseData
+from hexapod_calib.core.calibration import PoseData, check_identification
 from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
@@ -149,6 +149,8 @@ class HexapodCalibratorNode(Node):
             calibration = run_hexapod_calibration(
                 plan, self.nominal, self._move_legs, self._measure, self._progress,
                 lambda *stop: self._record(run, stops, *stop), poses)
+            # else nothing is put in force
+            check_identification(calibration.report['identification'], self.nominal)
             path, version, _ = run.save(CALIBRATION_NAME, {
                 **calibration.geometry.as_dict(), 'nominal': self.nominal.as_dict(),
                 'report': calibration.report})

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
-from hexapod_calib.core.calibration import PoseData, identify, summarise_pose_errors
+from hexapod_calib.core.calibration import (
+    PoseData, check_identification, identify, summarise_pose_errors)
 from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_geometry
 from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
@@ -99,11 +100,12 @@ def cmd_calibrate_hexapod(args) -> int:
     for name in sorted(changes, key=lambda n: -abs(changes[n]))[:6]:
         print(f'  {name:>12} changed {changes[name] * 1e6:+9.1f} um '
               f'(+- {report["std_devs"].get(name, 0.0) * 1e6:.1f} um)')
-    _write_hexapod_outputs(args, identification.geometry, report)
+    _write_hexapod_outputs(args, identification.geometry, report, nominal)
     return 0
 
 
-def _write_hexapod_outputs(args, geometry, report) -> None:
+def _write_hexapod_outputs(args, geometry, report, nominal) -> None:
+    check_identification(report, nominal)
     if args.out:
         write_geometry(args.out, geometry, {'std_devs': report['std_devs'],
                                             'residual_rms_m': report['residual_rms_m']})
@@ -133,7 +135,7 @@ def _calibrate_hexapod_from_bag(args) -> int:
         report['max_difference_to_live_m'] = max(abs(live[n] - v)
                                                   for n, v in report['parameters'].items())
         print(f'same as the live run: max |difference| {report["max_difference_to_live_m"]:.3g} m')
-    _write_hexapod_outputs(args, identification.geometry, report)
+    _write_hexapod_outputs(args, identification.geometry, report, nominal)
     return 0
 
 
