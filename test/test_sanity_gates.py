@@ -161,3 +161,20 @@ def test_hexapod_gate_refuses_a_geometry_far_from_the_machine(tmp_path, capsys):
     err = capsys.readouterr().err
     assert 'the hexapod identification failed its sanity checks' in err
     assert 'within 10 mm of the nominal' in err and not out.exists()
+
+
+def test_stage_gate_refuses_marks_measured_with_a_wrong_pixel_size(tmp_path, capsys):
+    """Marks 25 % too large (a camera calibration from another lens): the leads come out
+    25 % long and the calibration is refused; the true data pass."""
+    data = tmp_path / 'stage.csv'
+    assert main(['simulate', 'stage', '--out', str(data)]) == 0
+    assert main(['calibrate', 'stage', '--data', str(data)]) == 0
+    scaled = tmp_path / 'scaled.csv'
+    _rewrite(data, scaled, lambda row: row.update(
+        {k: str(1.25 * float(v)) for k, v in row.items() if k.startswith('mark')}))
+    capsys.readouterr()
+    assert main(['calibrate', 'stage', '--data', str(scaled), '--json',
+                 str(tmp_path / 'r.json')]) == 2
+    err = capsys.readouterr().err
+    assert 'the stage calibration failed its sanity checks' in err and 'stepwise R1' in err
+    assert not (tmp_path / 'r.json').exists()

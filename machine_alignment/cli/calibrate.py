@@ -16,7 +16,8 @@ from machine_alignment.cli.common import print_pose_summary, quantity, ranged, r
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
     stage_data_from_records, stage_record)
-from printer_alignment.core.stage_calibration import StageData, calibrate_stage, models_as_dict
+from printer_alignment.core.stage_calibration import (
+    StageData, calibrate_stage, check_stage_calibration, models_as_dict)
 from printer_alignment.core.vision_procedure import (
     calibrate_from_observations, observation_from_message)
 
@@ -66,6 +67,7 @@ def cmd_calibrate_stage(args) -> int:
                   f'{quantity(p["parameters"][name], p["std_devs"][name], p["units"][name])}')
     for name, why in p['weakly_determined'].items():
         print(f'  weakly determined: {name}: {why}')
+    check_stage_calibration(report)
     report['models'] = models_as_dict(models)
     if recorded is not None:
         live = recorded['parametric']['parameters']

@@ -33,7 +33,8 @@ from calib_core.nodes.spin import run_node
 from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC)
-from printer_alignment.core.stage_calibration import StagePlan, models_as_dict, models_from_dict
+from printer_alignment.core.stage_calibration import (
+    StagePlan, check_stage_calibration, models_as_dict, models_from_dict)
 from printer_alignment.core.stage_procedure import run_stage_calibration
 from printer_alignment.nodes.mark_locator import MarkLocator
 
@@ -120,6 +121,7 @@ class StageCalibratorNode(Node):
                 plan, self.home_marks, self._move,
                 lambda expected: self.locator.measure(expected, 'circle'), self._progress,
                 lambda *stop: self._record_stop(run, *stop))
+            check_stage_calibration(report)   # else nothing is put in force
             path, version, content = run.save('stage', {'models': models_as_dict(models),
                                                         'report': report})
             result = stage_result_message(report, models, self._header(), str(path), version)

@@ -23,7 +23,7 @@ Both return a model with ``forward(q)`` (plate-frame platform pose) and ``invers
 Modules: ``data`` (measurements and plan), ``models`` (what the aligner uses),
 ``stepwise``, ``parametric``, ``both`` (:func:`calibrate_stage`).
 """
-from printer_alignment.core.stage_calibration.both import calibrate_stage
+from printer_alignment.core.stage_calibration.both import calibrate_stage, check_stage_calibration
 from printer_alignment.core.stage_calibration.data import STAGE_COLUMNS, STAGE_DIRECTIONS, StageData, StagePlan, relative_motions
 from printer_alignment.core.stage_calibration.models import (
     ParametricModel, StageModel, StepwiseModel, models_as_dict, models_from_dict)
@@ -31,6 +31,7 @@ from printer_alignment.core.stage_calibration.parametric import PARAMETRIC_GAUGE
 from printer_alignment.core.stage_calibration.stepwise import stepwise_calibration
 
 __all__ = ['PARAMETRIC_GAUGE', 'STAGE_COLUMNS', 'STAGE_DIRECTIONS', 'ParametricModel', 'StageData',
-           'StageModel', 'StagePlan', 'StepwiseModel', 'calibrate_stage', 'mark_names',
+           'StageModel', 'StagePlan', 'StepwiseModel', 'calibrate_stage',
+           'check_stage_calibration', 'mark_names',
            'models_as_dict', 'models_from_dict', 'parametric_calibration', 'predict_marks',
            'relative_motions', 'stepwise_calibration']

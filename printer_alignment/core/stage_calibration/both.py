@@ -3,11 +3,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib_core.sanity import SanityGate
 from printer_alignment.core.geometry import rotate_points
+from printer_alignment.core.stage import NOMINAL_LEAD
 from printer_alignment.core.stage_calibration.data import StageData, relative_motions
 from printer_alignment.core.stage_calibration.models import StageModel
 from printer_alignment.core.stage_calibration.parametric import parametric_calibration
 from printer_alignment.core.stage_calibration.stepwise import stepwise_calibration
+
+# The sanity gate's bounds: a camera measures the Marks to a few um; ball screws are within
+# a fraction of a percent of their lead; the X-Y skew of a built stage is a fraction of a
+# degree.
+MAX_MARK_RESIDUAL_RMS_M = 50e-6
+MAX_LEAD_CHANGE = 0.10
+MAX_SKEW_RAD = 0.1
 
 
 def _fit_error(model: StageModel, data: StageData, home) -> dict:
@@ -43,3 +52,28 @@ def calibrate_stage(data: StageData) -> tuple[dict, dict]:
                       'whose downward sweeps carry backlash; accuracy on unseen poses is '
                       'the alignment evaluation'}
     return {'stepwise': stepwise, 'parametric': parametric}, report
+
+
+def check_stage_calibration(report: dict) -> None:
+    """Refuse a stage calibration (``calibrate_stage``'s report) that cannot be the stage:
+    Mark residual RMS over :data:`MAX_MARK_RESIDUAL_RMS_M`, a lead more than
+    :data:`MAX_LEAD_CHANGE` from the nominal 2 mm/rev, chain 1 more than
+    :data:`MAX_SKEW_RAD` from square, or a free parameter without a finite std dev.
+
+    Raises
+    ------
+    CalibrationError
+        Every failure named; nothing may be written or put in force."""
+    gate = SanityGate('the stage calibration')
+    stepwise, parametric = report['stepwise'], report['parametric']
+    gate.residual(parametric['residual_rms_m'] * 1e6, MAX_MARK_RESIDUAL_RMS_M * 1e6, 'um',
+                  'the camera measures the Marks to a few um')
+    for name in ('R1', 'R2', 'R3'):
+        gate.within(f'stepwise {name}', stepwise[name], NOMINAL_LEAD * (1 - MAX_LEAD_CHANGE),
+                    NOMINAL_LEAD * (1 + MAX_LEAD_CHANGE), 'm/rev',
+                    f'within {MAX_LEAD_CHANGE:.0%} of the nominal lead')
+    gate.within('stepwise alpha1', stepwise['alpha1'], np.pi / 2 - MAX_SKEW_RAD,
+                np.pi / 2 + MAX_SKEW_RAD, 'rad', f'within {MAX_SKEW_RAD:g} rad of square')
+    gate.finite_std_devs({name: sigma for name, sigma in parametric['std_devs'].items()
+                          if name not in parametric['fixed']})
+    gate.enforce()
