@@ -8,24 +8,26 @@ Printer vision system:
 3. Evaluate against the simulation's truth over the whole travel: camera-measured dot
    positions before (nominal model) and after calibration, as JSON and PNG.
 XY-Theta stage (the dot plate removed, the vision calibration in force):
-3b. Start the stage graph, trigger ``stage_calibrator/calibrate`` (stepwise and
+4. Start the stage graph, trigger ``stage_calibrator/calibrate`` (stepwise and
    parametric), align a substrate fixed 0.3 mm off with the nominal, stepwise and
    parametric models (stage sent home before each), then the closed loop on the run.
 Hexapod:
-4. Start hexapod_sim, pose_sensor_sim and hexapod_calibrator and trigger
+5. Start hexapod_sim, pose_sensor_sim and hexapod_calibrator and trigger
    ``hexapod_calibrator/calibrate`` (plans poses, drives, measures, identifies, iterates,
    evaluates on separate poses), then the closed loop on its stops
    (``hexapod_calibrator/analyze_residuals``, applied).
-5. Re-run the identification offline from its bag, and compare the 42 identified
+6. Re-run the identification offline from its bag, and compare the 42 identified
    parameters with the simulation's truth.
 The three machines after them:
-6. Grid plate: the printer's camera gantry self-calibrated with an imperfect 5 x 5 mark
+7. Grid plate: the printer's camera gantry self-calibrated with an imperfect 5 x 5 mark
    grid plate over 2 regions (``grid_calibrator/calibrate``; the simulated operator places
    the plate as asked).
-7. Platform: ``platform_calibrator/calibrate`` (20 poses by the laser tracker), then
+8. Platform: ``platform_calibrator/calibrate`` (20 poses by the laser tracker), then
    ``platform_calibrator/register`` (exact compensation, marks measured after the move).
-8. Five-axis dispenser: ``five_axis_calibrator/calibrate`` on rendered camera frames,
+9. Five-axis dispenser: ``five_axis_calibrator/calibrate`` on rendered camera frames,
    ``measure_needle`` from dispensed dots, ``locate`` a part and place its path.
+Last, one summary table (machine, before, after, the paper's figure, the figure file),
+printed and written as ``summary.md`` and ``summary.json``.
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ import json
 import os
 import shutil
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +56,32 @@ from printer_alignment.sim.camera import CameraSim
 from printer_alignment.sim.evaluation import measure_errors, plot_errors, summarise
 from printer_alignment.sim.gantry import GantryErrors, GantrySim
 from printer_alignment.sim.scenes import make_scene
+
+
+@dataclass
+class DemoRun:
+    """The demo's folder and ROS domain, its numbered steps and its summary rows."""
+
+    out: Path
+    domain: str
+    total_steps: int = 9
+    steps_done: int = 0
+    rows: list = field(default_factory=list)
+
+    def step(self, text: str) -> None:
+        self.steps_done += 1
+        print(f'[{self.steps_done}/{self.total_steps}] {text}', flush=True)
+
+    def row(self, machine: str, before: str, after: str, paper: str, figure: str) -> None:
+        """One line of the closing summary; ``figure`` relative to the demo folder."""
+        self.rows.append({'machine': machine, 'before': before, 'after': after,
+                          'paper': paper, 'figure': figure})
+
+    def summary(self) -> str:
+        header = ['machine', 'before', 'after', 'paper', 'figure']
+        lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+        lines += ['| ' + ' | '.join(row[k] or '-' for k in header) + ' |' for row in self.rows]
+        return '\n'.join(lines) + '\n'
 
 
 def _calibrate_offline(argv: list[str]) -> int:
@@ -94,6 +123,15 @@ def _run_service(graph, service: str, progress_topic: str, timeout: float = 600.
             return calibration, None
 
 
+def _loop_figure(response, out: Path) -> str:
+    """The closed loop's figure (beside its report), relative to the demo folder; '' if
+    the loop did not run."""
+    if response is None or not response.success:
+        return ''
+    figure = Path(response.analysis.report_path).with_suffix('.png')
+    return str(figure.relative_to(out)) if figure.is_file() else ''
+
+
 def _print_analysis(response) -> None:
     if response is None or not response.success:
         print(f'      closed loop failed: {response.message if response else "timeout"}')
@@ -104,8 +142,9 @@ def _print_analysis(response) -> None:
           f'-> {a.max_after * 1e6:.2f} um; report {a.report_path}')
 
 
-def _printer(out: Path, domain: str) -> int:
-    print(f'[1/5] starting the simulated printer (ROS_DOMAIN_ID={domain}); logs in {out}/logs/<phase>')
+def _printer(run: DemoRun) -> int:
+    out, domain = run.out, run.domain
+    run.step(f'starting the simulated printer (ROS_DOMAIN_ID={domain}); logs in {out}/logs/<phase>')
     graph_spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
     with Graph(graph_spec, env={'ROS_DOMAIN_ID': domain},
@@ -121,11 +160,11 @@ def _printer(out: Path, domain: str) -> int:
           f'(version {result.version})')
     _print_analysis(analysis)
 
-    print('[2/5] re-running the calibration offline from the recorded bag')
+    run.step('re-running the calibration offline from the recorded bag')
     bag = next(b for b in (out / 'runs').glob('vision_*') if 'analysis' not in b.name)
     _calibrate_offline(['vision', '--bag', str(bag), '--json', str(out / 'replay.json')])
 
-    print('[3/5] evaluating against the simulation truth over the whole travel')
+    run.step('evaluating against the simulation truth over the whole travel')
     values = dict(zip(result.names, result.values))
     camera2plate = CameraToPlate(values['pixel_size'], values['camera_angle'])
     gantry_model = GantryModel(**{k: values[k] for k in GantryModel().as_dict()})
@@ -148,11 +187,19 @@ def _printer(out: Path, domain: str) -> int:
     print(f'      before: max {report["before"]["max_um"]:.1f} um, RMS {report["before"]["rms_um"]:.1f} um')
     print(f'      after:  max {report["after"]["max_um"]:.2f} um, RMS {report["after"]["rms_um"]:.2f} um')
     print(f'      wrote {out}/vision_evaluation.json and .png')
+    loop = (f'; closed loop, held-out RMS {analysis.analysis.rms_after * 1e6:.2f} um'
+            if analysis is not None and analysis.success else '')
+    run.row('printer vision system (60 held-out positions, camera against truth)',
+            f'max {report["before"]["max_um"]:.1f} um, RMS {report["before"]["rms_um"]:.1f} um',
+            f'max {report["after"]["max_um"]:.2f} um, RMS {report["after"]["rms_um"]:.2f} um'
+            + loop, '', ', '.join(filter(None, ['vision_evaluation.png',
+                                                  _loop_figure(analysis, out)])))
     return 0
 
 
-def _hexapod(out: Path, domain: str) -> int:
-    print('[4/5] starting the simulated hexapod cell and calibrating it')
+def _hexapod(run: DemoRun) -> int:
+    out, domain = run.out, run.domain
+    run.step('starting the simulated hexapod cell and calibrating it')
     spec = hexapod_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
     start = time.monotonic()
     with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / 'hexapod')) as graph:
@@ -172,7 +219,7 @@ def _hexapod(out: Path, domain: str) -> int:
           f'/ {after["max_angle_rad"] * 1e6:.1f} urad (paper: 12.1 um / 1100 urad)')
     _print_analysis(analysis)
 
-    print('[5/5] re-running the identification offline from the bag; 42 parameters against truth')
+    run.step('re-running the identification offline from the bag; 42 parameters against truth')
     bag = next(b for b in (out / 'runs').glob('hexapod_*') if 'analysis' not in b.name)
     _calibrate_offline(['hexapod', '--bag', str(bag), '--out', str(out / 'hexapod_replay.yaml'),
                         '--json', str(out / 'hexapod_replay.json')])
@@ -188,6 +235,13 @@ def _hexapod(out: Path, domain: str) -> int:
     write_atomic(out / 'hexapod_evaluation.json', json.dumps(evaluation, indent=2) + '\n')
     print(f'      {inside * 100:.0f} % of the 42 true parameters inside 3 sigma; '
           f'wrote {out}/hexapod_evaluation.json')
+    run.row(f'hexapod ({before["num_poses"]} held-out poses, sensor-measured)',
+            f'max {before["max_displacement_m"] * 1e6:.0f} um / '
+            f'{before["max_angle_rad"] * 1e6:.0f} urad',
+            f'max {after["max_displacement_m"] * 1e6:.1f} um / '
+            f'{after["max_angle_rad"] * 1e6:.0f} urad; {inside * 100:.0f} % of the 42 '
+            'parameters within 3 sigma of truth', '12.1 um / 1100 urad',
+            _loop_figure(analysis, out))
     return 0
 
 
@@ -196,18 +250,18 @@ def run_demo(out: Path) -> int:
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
-    domain = str(100 + os.getpid() % 100)
-    os.environ['ROS_DOMAIN_ID'] = domain
+    run = DemoRun(out, str(100 + os.getpid() % 100))
+    os.environ['ROS_DOMAIN_ID'] = run.domain
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    if _printer(out, domain):
-        return 1
-    if _stage(out, domain):
-        return 1
-    if _hexapod(out, domain):
-        return 1
-    for machine in (_grid, _platform, _five_axis):
-        if machine(out, domain):
+    started = time.monotonic()
+    for machine in (_printer, _stage, _hexapod, _grid, _platform, _five_axis):
+        if machine(run):
             return 1
+    table = run.summary()
+    write_atomic(out / 'summary.md', table)
+    write_atomic(out / 'summary.json', json.dumps(run.rows, indent=2) + '\n')
+    print(f'\nSummary ({time.monotonic() - started:.0f} s; figures and files in {out}):\n')
+    print(table)
     return 0
 
 
@@ -227,8 +281,9 @@ def _graph(name: str, spec, out: Path, domain: str) -> Graph:
     return Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / name))
 
 
-def _grid(out: Path, domain: str) -> int:
-    print('[6] grid-plate self-calibration of the camera gantry (a 5 x 5 mark plate over 2 '
+def _grid(run: DemoRun) -> int:
+    out, domain = run.out, run.domain
+    run.step('grid-plate self-calibration of the camera gantry (a 5 x 5 mark plate over 2 '
           'regions, the simulated operator places it)')
     spec = grid_graph(str(out / 'calibration'), str(out / 'runs'), half=2, columns=2, rows=1)
     with _graph('grid', spec, out, domain) as graph:
@@ -244,11 +299,16 @@ def _grid(out: Path, domain: str) -> int:
           f'{np.abs(errors).max() * 1e6:.2f} um; non-orthogonality t = 2 O = '
           f'{square * 1e6:.1f} urad (the simulated gantry: '
           f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)')
+    run.row(f'grid plate ({len(errors)} sites, {report["stitching"]["regions"]} regions)',
+            f'stage error up to {np.abs(errors).max() * 1e6:.2f} um at the sites',
+            f'mapped; non-orthogonality {square * 1e6:.1f} urad (simulated '
+            f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)', '', '')
     return 0
 
 
-def _platform(out: Path, domain: str) -> int:
-    print('[7] the screen-registration platform: identification by the laser tracker, then '
+def _platform(run: DemoRun) -> int:
+    out, domain = run.out, run.domain
+    run.step('the screen-registration platform: identification by the laser tracker, then '
           'registration of a screen')
     with _graph('platform', platform_graph(str(out / 'calibration'), str(out / 'runs')), out,
                 domain) as graph:
@@ -265,13 +325,22 @@ def _platform(out: Path, domain: str) -> int:
     if not answer.success:
         print(f'      registration failed: {answer.message}')
         return 1
-    print(f'      registered (exact compensation): marks off by {answer.measured_error * 1e6:.2f} '
-          f'um after the move')
+    before = json.loads(answer.report_json)['error_before_m']
+    print(f'      registered (exact compensation): marks off by {before * 1e3:.3f} mm before, '
+          f'{answer.measured_error * 1e6:.2f} um after the move')
+    run.row(f'screen-registration platform ({evaluation["evaluate_calibrated"]["poses"]} '
+            'held-out poses, tracker-measured; one registration)',
+            f'median {evaluation["evaluate_nominal"]["median_m"] * 1e6:.1f} um (nominal model); '
+            f'screen placed {before * 1e3:.2f} mm off',
+            f'median {evaluation["evaluate_calibrated"]["median_m"] * 1e6:.1f} um; marks '
+            f'{answer.measured_error * 1e6:.1f} um off after the move',
+            '0.21-1.96 mm -> about 0.10 mm', '')
     return 0
 
 
-def _five_axis(out: Path, domain: str) -> int:
-    print('[8] the five-axis dispenser: calibration from rendered camera frames, the needle '
+def _five_axis(run: DemoRun) -> int:
+    out, domain = run.out, run.domain
+    run.step('the five-axis dispenser: calibration from rendered camera frames, the needle '
           'measured from dispensed dots, a part located and its path placed')
     with _graph('five_axis', five_axis_graph(str(out / 'calibration'), str(out / 'runs')), out,
                 domain) as graph:
@@ -299,11 +368,15 @@ def _five_axis(out: Path, domain: str) -> int:
     print(f'      part found at {", ".join(f"{v * 1e3:.4f}" for v in part.pose[:3])} mm, '
           f'{part.pose[5] * 1e3:.3f} mrad (placed at 1.5, -1, 0 mm, 30 mrad); '
           f'{len(part.path_poses) // 5} path poses')
+    run.row(f'five-axis dispenser ({report["held_out"]["images"]} held-out images)',
+            f'{report["held_out"]["rms_px_nominal"]:.1f} px RMS (nominal model)',
+            f'{report["held_out"]["rms_px_calibrated"]:.4f} px RMS', '0.17 px', '')
     return 0
 
 
-def _stage(out: Path, domain: str) -> int:
-    print('[3b] the XY-Theta stage: self-calibration with the camera, then alignment')
+def _stage(run: DemoRun) -> int:
+    out, domain = run.out, run.domain
+    run.step('the XY-Theta stage: self-calibration with the camera, then alignment')
     spec = stage_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
                        substrate_shift=(0.25e-3, -0.15e-3, float(np.deg2rad(0.04))))
     start = time.monotonic()
@@ -339,4 +412,10 @@ def _stage(out: Path, domain: str) -> int:
                       f'{np.rad2deg(answer.orientation_error) * 3600:5.2f} arcsec left (camera)')
     write_atomic(out / 'stage_alignment.json', json.dumps(results, indent=2) + '\n')
     print(f'      wrote {out}/stage_alignment.json')
+    left = {model: results[model]['verification']['position_error_m'] * 1e6
+            for model in results}
+    run.row('XY-Theta stage (one alignment of a substrate 0.3 mm off, camera-measured)',
+            f'{left["nominal"]:.2f} um left (nominal model)',
+            f'{left["parametric"]:.2f} um (parametric), {left["stepwise"]:.2f} um (stepwise)',
+            'max 12.3 um', _loop_figure(analysis, out))
     return 0

@@ -105,7 +105,7 @@ def cmd_call(args) -> int:
         report = json.loads(response.report_json)
     elif service_type is RegisterScreen:
         report = json.loads(response.report_json)
-        print(f'registered: marks off by {report["error_before_m"] * 1e6:.2f} um before, '
+        print(f'registered: marks off by {report["error_before_m"] * 1e3:.3f} mm before, '
               f'{response.measured_error * 1e6:.2f} um after the move (composite, measured; '
               f'the model predicted {response.predicted_error * 1e6:.3f} um: its own view)')
     else:
