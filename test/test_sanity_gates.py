@@ -178,3 +178,26 @@ def test_stage_gate_refuses_marks_measured_with_a_wrong_pixel_size(tmp_path, cap
     err = capsys.readouterr().err
     assert 'the stage calibration failed its sanity checks' in err and 'stepwise R1' in err
     assert not (tmp_path / 'r.json').exists()
+
+
+def test_vision_gate_checks_the_result_against_the_stated_camera_and_gantry():
+    """The committed vision run passes; stated against a lens with 1.5x the pixel size or
+    screws of twice the lead, the same result is refused with the parameter named."""
+    from pathlib import Path
+
+    from calib_core.bags import decode_bag
+    from printer_alignment.core.geometry import CameraToPlate, GantryModel
+    from printer_alignment.core.records import VISION_OBSERVATIONS_TOPIC
+    from printer_alignment.core.vision_procedure import (
+        calibrate_from_observations, check_vision_calibration, observation_from_message)
+    bag = Path(__file__).resolve().parents[1] / 'bags' / 'vision_calibration_run'
+    observations = [observation_from_message(m) for topic, _, m in decode_bag(bag)
+                    if topic == VISION_OBSERVATIONS_TOPIC]
+    report = calibrate_from_observations(observations, 0.5e-3).report
+    camera, gantry = CameraToPlate(), GantryModel()
+    check_vision_calibration(report, camera, gantry)
+    with pytest.raises(CalibrationError, match=r'pixel_size = .*\(within 20% of the nominal\)'):
+        check_vision_calibration(report, CameraToPlate(1.5 * camera.pixel_size), gantry)
+    with pytest.raises(CalibrationError, match='lead_x = .*lead_y = '):
+        check_vision_calibration(report, camera, GantryModel(2 * gantry.lead_x,
+                                                             2 * gantry.lead_y))

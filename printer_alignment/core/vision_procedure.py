@@ -11,6 +11,7 @@ import numpy as np
 from calib_core.checks import (
     MAX_POSITION_M, check_metres, positive_length, whole_number)
 from calib_core.errors import InvalidInputError
+from calib_core.sanity import SanityGate
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.core.vision_calibration import (
     GantryObservation, calibrate_gantry, calibrate_pixel_size)
@@ -107,7 +108,47 @@ def calibrate_from_observations(observations: list, pitch: float,
     pixel = calibrate_pixel_size([o.uv for o in observations], pitch, nominal_camera)
     gantry = calibrate_gantry(observations, pixel.camera2plate, pitch, nominal_gantry)
     report = {'pixel_size': pixel.report(), 'gantry': gantry.report(), 'pitch_m': pitch}
+    check_vision_calibration(report, nominal_camera, nominal_gantry)
     return VisionCalibration(pixel.camera2plate, gantry.model, report)
+
+
+# The sanity gate's bounds: a lens within 20 % of its stated magnification; ball screws
+# within 10 % of their lead; axes within 0.1 rad of the plate's and of square; the camera
+# positions fitted to a few um (the paper's model leaves backlash and screw error, < 20 um).
+MAX_PIXEL_SIZE_CHANGE = 0.20
+MAX_LEAD_CHANGE = 0.10
+MAX_ANGLE_RAD = 0.1
+MAX_POSITION_RESIDUAL_RMS_M = 50e-6
+
+
+def check_vision_calibration(report: dict, nominal_camera: CameraToPlate,
+                             nominal_gantry: GantryModel) -> None:
+    """Refuse a vision calibration (``calibrate_from_observations``'s report) that cannot
+    be the machine, before it is written or put in force.
+
+    Raises
+    ------
+    CalibrationError
+        Every failure named."""
+    gate = SanityGate('the vision calibration')
+    gantry = report['gantry']
+    gate.residual(gantry['residual_rms_m'] * 1e6, MAX_POSITION_RESIDUAL_RMS_M * 1e6, 'um',
+                  'the paper\'s model fits the camera positions to a few um')
+    size = nominal_camera.pixel_size
+    gate.within('pixel_size', report['pixel_size']['pixel_size_m'],
+                size * (1 - MAX_PIXEL_SIZE_CHANGE), size * (1 + MAX_PIXEL_SIZE_CHANGE), 'm/px',
+                f'within {MAX_PIXEL_SIZE_CHANGE:.0%} of the nominal')
+    for name in ('lead_x', 'lead_y'):
+        lead = getattr(nominal_gantry, name)
+        gate.within(name, gantry['parameters'][name], lead * (1 - MAX_LEAD_CHANGE),
+                    lead * (1 + MAX_LEAD_CHANGE), 'm/rev',
+                    f'within {MAX_LEAD_CHANGE:.0%} of the nominal lead')
+    for name in ('axis_angle', 'non_orthogonality'):
+        gate.within(name, gantry['parameters'][name], -MAX_ANGLE_RAD, MAX_ANGLE_RAD, 'rad',
+                    'a built gantry is square to a fraction of a degree')
+    gate.finite_std_devs({**gantry['std_devs'],
+                          'pixel_size': report['pixel_size']['pixel_size_std_m']})
+    gate.enforce()
 
 
 def observation_from_message(msg) -> GantryObservation:
