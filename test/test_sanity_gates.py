@@ -201,3 +201,21 @@ def test_vision_gate_checks_the_result_against_the_stated_camera_and_gantry():
     with pytest.raises(CalibrationError, match='lead_x = .*lead_y = '):
         check_vision_calibration(report, camera, GantryModel(2 * gantry.lead_x,
                                                              2 * gantry.lead_y))
+
+
+def test_grid_gate_refuses_readings_no_rigid_plate_gives(tmp_path, capsys):
+    """One placement's x readings stretched by 0.1 % (the plate slid while it was read):
+    the fit leaves um residuals where the camera reads to tens of nm; refused, no report."""
+    data = tmp_path / 'grid.csv'
+    assert main(['simulate', 'grid', '--out', str(data), '--half', '2']) == 0
+    assert main(['calibrate', 'grid', '--data', str(data), '--pitch', '0.01']) == 0
+    stretched = tmp_path / 'stretched.csv'
+    _rewrite(data, stretched, lambda row: row.update(
+        x=str(float(row['x']) * 1.001)) if row['placement'] == 'rotated' else None)
+    capsys.readouterr()
+    report = tmp_path / 'report.json'
+    assert main(['calibrate', 'grid', '--data', str(stretched), '--pitch', '0.01',
+                 '--json', str(report)]) == 2
+    err = capsys.readouterr().err
+    assert 'the grid calibration failed its sanity checks' in err and 'rotated' in err
+    assert not report.exists()

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib_core.sanity import SanityGate
 from grid_calib.core.model import Grid, linear_parts
 from grid_calib.core.selfcal import self_calibrate
 from grid_calib.core.stitching import StitchedMap, stitch
@@ -114,7 +115,45 @@ def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
             estimates.append(seen - plate_scale - here)
         scale = float(np.mean(estimates))
         stitched.stage_error = stitched.stage_error + scale * stitched.site_positions
-    return TravelCalibration(grid, origins, results, stitched, scale)
+    calibration = TravelCalibration(grid, origins, results, stitched, scale)
+    check_travel_calibration(calibration)
+    return calibration
+
+
+# The sanity gate's bounds: a camera reads a mark to a few tenths of a um, a stage errs
+# by tens of um over its travel (1 mm is a wrong pitch, unit or plate); stitched regions
+# agree at their shared sites to about the readings' noise.
+MAX_READING_RESIDUAL_RMS_M = 2e-6
+MAX_STAGE_ERROR_M = 1e-3
+MAX_OVERLAP_RMS_M = 20e-6
+
+
+def check_travel_calibration(calibration: TravelCalibration) -> None:
+    """Refuse a grid calibration that cannot be the stage before it is written or put in
+    force: a placement's readings fitted worse than :data:`MAX_READING_RESIDUAL_RMS_M`
+    RMS, a stage error beyond :data:`MAX_STAGE_ERROR_M`, regions disagreeing at shared
+    sites by more than :data:`MAX_OVERLAP_RMS_M`, or anything not finite.
+
+    Raises
+    ------
+    CalibrationError
+        Every failure named."""
+    gate = SanityGate('the grid calibration')
+    for r, result in calibration.results.items():
+        for placement, residual in result.residuals.items():
+            gate.residual(float(np.sqrt(np.mean(np.square(residual)))) * 1e6,
+                          MAX_READING_RESIDUAL_RMS_M * 1e6, 'um',
+                          f'region {r}, {placement}: a camera reads the marks to a few tenths '
+                          'of a um')
+    error = calibration.stitched.stage_error
+    largest = float(np.abs(error).max()) if np.all(np.isfinite(error)) else float('nan')
+    gate.within('largest stage error', largest, 0.0, MAX_STAGE_ERROR_M, 'm',
+                'a stage errs by tens of um over its travel')
+    overlap = calibration.stitched.overlap_rms
+    if overlap is not None:
+        gate.within('regions\' disagreement at shared sites (RMS)', overlap, 0.0,
+                    MAX_OVERLAP_RMS_M, 'm', 'stitched regions agree to the readings\' noise')
+    gate.enforce()
 
 
 def grid_result_content(calibration: TravelCalibration) -> dict:
