@@ -56,6 +56,8 @@ def _files(tmp_path: Path, rng) -> dict:
     assert main(['simulate', 'platform', '--out', str(platform), '--poses', '20']) == 0
     assert main(['simulate', 'five-axis', '--out', str(five_axis)]) == 0
     _changed(grid, mm / 'grid_turned.csv', {'placement': lambda v, k: 'turned' if k == 0 else v})
+    _changed(grid, mm / 'grid_301.csv',
+             {'i': lambda v, k: {0: '150', 1: '-150'}.get(k, v)})
     _changed(platform, mm / 'platform_degrees.csv',
              {'theta': lambda v, k: str(float(np.degrees(float(v))))})
     _changed(platform, mm / 'platform_same.csv', {})
@@ -138,6 +140,8 @@ CASES = {
     'camera points in mm': (['calibrate', 'camera', '--data', '{camera_mm}'], 'look like mm'),
     'grid placement misspelt': (['calibrate', 'grid', '--data', '{mm}/grid_turned.csv',
                                  '--pitch', '0.01'], 'unknown placement(s) turned'),
+    'grid plate of 301 x 301 marks': (['calibrate', 'grid', '--data', '{mm}/grid_301.csv',
+                                       '--pitch', '0.01'], 'beyond the 101 x 101'),
     'grid --pitch in mm': (['calibrate', 'grid', '--data', '{grid}', '--pitch', '10'],
                            'the format is SI metres'),
     'platform theta in degrees': (['calibrate', 'platform', '--data',

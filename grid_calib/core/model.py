@@ -32,6 +32,10 @@ from grid_calib.errors import PlacementError
 PLACEMENTS = ('initial', 'rotated', 'shifted')
 
 
+# The largest plate solved in one piece: 101 x 101 sites (8 s, 0.6 GiB, bench_results/grid.md).
+MAX_HALF = 50
+
+
 @dataclass(frozen=True)
 class Grid:
     """An N x N plate (N = 2 half + 1) of pitch ``pitch`` (m)."""
@@ -41,9 +45,16 @@ class Grid:
 
     def __post_init__(self):
         if int(self.half) != self.half or self.half < 1:
-            raise PlacementError(f'the grid needs an odd N >= 3 marks per side (half {self.half!r})')
+            raise PlacementError(f'the grid needs an odd N >= 3 marks per side (half '
+                                 f'{float(self.half):g})')
+        if self.half > MAX_HALF:
+            raise PlacementError(f'a {2 * int(self.half) + 1} x {2 * int(self.half) + 1} plate is '
+                                 f'beyond the {2 * MAX_HALF + 1} x {2 * MAX_HALF + 1} this '
+                                 'solver is sized for (memory and time grow with N^2); '
+                                 'calibrate it in regions')
         if not (np.isfinite(self.pitch) and self.pitch > 0):
-            raise PlacementError(f'pitch must be a positive length (m), not {self.pitch!r}')
+            raise PlacementError(f'pitch must be a positive length (m), not '
+                                 f'{float(self.pitch):g}')
 
     @property
     def marks(self) -> np.ndarray:
