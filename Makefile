@@ -59,6 +59,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.grid --out bench_results
 	$(BIN)/python -m machine_alignment.bench.grid_gantry --out bench_results
 	$(BIN)/python -m machine_alignment.bench.platform --out bench_results
+	$(BIN)/python -m machine_alignment.bench.plan_platform --out bench_results
 	$(BIN)/python -m machine_alignment.bench.five_axis --out bench_results
 
 clean:

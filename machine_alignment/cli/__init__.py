@@ -10,14 +10,15 @@ import cv2
 
 from calib_core.errors import MachineAlignmentError
 from machine_alignment.cli import (
-    analyze, calibrate, call, detect, evaluate, export, five_axis, graphs, platform, simulate)
+    analyze, calibrate, call, detect, evaluate, export, five_axis, graphs, plan, platform,
+    simulate)
 from machine_alignment.cli.common import check_writable
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='machine-align', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True)
-    for group in (detect, calibrate, evaluate, simulate, analyze, export, call, graphs):
+    for group in (detect, calibrate, evaluate, simulate, analyze, plan, export, call, graphs):
         group.add_parser(sub)
     platform.add_compensate_parser(sub)
     five_axis.add_locate_parser(sub)

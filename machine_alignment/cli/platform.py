@@ -34,9 +34,11 @@ def cmd_simulate_platform(args) -> int:
     truth = true_geometry(args.seed, args.scale)
     sim = PlatformSim(truth, args.seed, screw_amplitude=(args.screw,) * 3,
                       backlash=(args.backlash,) * 3)
-    measure_poses(sim, plan_poses(args.poses, args.seed), nominal).to_csv(args.out)
-    print(f'wrote {args.out} ({args.poses} poses within +-5 mm, +-5 deg: feeds from the '
-          f'sensors, poses from the tracker)')
+    targets = read_targets(args.plan) if args.plan else plan_poses(args.poses, args.seed)
+    measure_poses(sim, targets, nominal).to_csv(args.out)
+    print(f'wrote {args.out} ({len(targets)} poses '
+          + (f'planned in {args.plan}' if args.plan else 'within +-5 mm, +-5 deg')
+          + ': feeds from the sensors, poses from the tracker)')
     if args.truth:
         write_geometry(args.truth, truth)
         print(f'wrote {args.truth} (the simulation\'s true geometry)')
@@ -78,7 +80,7 @@ def cmd_calibrate_platform(args) -> int:
     return 0
 
 
-def _targets(path) -> np.ndarray:
+def read_targets(path) -> np.ndarray:
     """x, y (m), theta (rad) per row."""
     rows = read_csv_rows(path, 'a targets CSV', ('x', 'y', 'theta'))
     try:
@@ -120,7 +122,7 @@ def _plot(path: Path, targets, before, after, method, history) -> None:
 def cmd_compensate_platform(args) -> int:
     nominal = read_geometry(args.nominal) if args.nominal else nominal_geometry()
     model = read_geometry(args.geometry)
-    targets = _targets(args.targets) if args.targets else plan_poses(args.count, args.seed)
+    targets = read_targets(args.targets) if args.targets else plan_poses(args.count, args.seed)
     settings = (PSOSettings.stable(args.seed, args.iterations or 200) if args.swarm == 'stable'
                 else PSOSettings(seed=args.seed, iterations=args.iterations or 4))
     rows, history = [], []
@@ -159,7 +161,10 @@ def add_simulate_parser(simulated) -> None:
     platform = simulated.add_parser('platform', help='poses of the simulated screen-'
                                                      'registration platform (tracker, feeds)')
     platform.add_argument('--out', required=True, help='poses CSV to write')
-    platform.add_argument('--poses', type=ranged(int, 1, 100000), default=20)
+    platform.add_argument('--poses', type=ranged(int, 1, 100000), default=20,
+                          help='random poses within +-5 mm, +-5 deg')
+    platform.add_argument('--plan', help='measure these targets instead (CSV x, y, theta: '
+                                         'machine-align plan platform writes one)')
     platform.add_argument('--seed', type=ranged(int, 0), default=0)
     platform.add_argument('--scale', type=ranged(float, 0.0, 10.0, '', 'of the simulated geometry errors (1: up to 1 mm, 0.5 deg)'), default=0.15,
                           help='size of the true parameter errors (1: 0.2-1 mm, 0.5 deg)')

@@ -1,0 +1,149 @@
+"""Planning a measurement, shared by every machine: from candidate measurements inside the
+machine's limits, choose the few that determine what the user needs, and state before
+anything moves what they will give.
+
+A machine supplies, per candidate, its rows of the identification Jacobian whitened by the
+measurement noise (``(M, r, p)``: r rows per candidate, p parameters), and optionally the
+sensitivity of the error at the poses it will work at to the parameters (``(W, q, p)``).
+The design criteria, on the information matrix ``A = sum J_k^T J_k`` of the chosen set:
+
+- ``I`` (test-pose or I-optimal, Klimchik and Pashkevich's approach): minimise the mean
+  predicted squared error at the working poses, ``trace(K A^-1)`` with ``K`` the mean of
+  the working sensitivities' ``G^T G``; what an engineer at the machine cares about.
+- ``D`` (D-optimal, Borm and Menq's observability product): maximise ``log det A``.
+
+The search is Fedorov's exchange: a greedy start, then sweeps that swap a chosen
+candidate for the one that most improves the criterion, until no swap helps. Every step
+scores all candidates at once by rank-r updates (Woodbury), never refitting anything.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+
+CRITERIA = ('I', 'D')
+# A relative ridge keeps a design with fewer rows than parameters invertible while the
+# greedy start builds it up (per parameter, relative to the mean candidate's information).
+RIDGE = 1e-9
+
+
+@dataclass(frozen=True)
+class Design:
+    """The chosen candidates and the criterion's value (for ``I`` the mean predicted
+    squared error at the working poses, in the working error's unit squared; for ``D``
+    ``-log det A``, smaller is better for both)."""
+
+    chosen: np.ndarray
+    criterion: str
+    value: float
+    sweeps: int
+
+
+def information(jacobians: np.ndarray, chosen) -> np.ndarray:
+    """``A = sum_k J_k^T J_k`` over the chosen candidates, (p, p)."""
+    rows = np.asarray(jacobians)[np.asarray(chosen, int)]
+    return np.einsum('krp,krq->pq', rows, rows)
+
+
+def _scores(jacobians: np.ndarray, inverse: np.ndarray, criterion: str,
+            weight: np.ndarray | None) -> np.ndarray:
+    """Per candidate, how much adding it improves the criterion given ``inverse`` = A^-1:
+    for D the gain in log det A, for I the fall in trace(K A^-1)."""
+    b = jacobians @ inverse                                           # (M, r, p)
+    s = np.eye(jacobians.shape[1]) + b @ np.swapaxes(jacobians, 1, 2)  # (M, r, r)
+    if criterion == 'D':
+        return np.linalg.slogdet(s)[1]
+    q = b @ weight @ np.swapaxes(b, 1, 2)                             # J A^-1 K A^-1 J^T
+    return np.einsum('mii->m', np.linalg.solve(s, q))
+
+
+def _value(a: np.ndarray, criterion: str, weight: np.ndarray | None) -> float:
+    if criterion == 'D':
+        sign, logdet = np.linalg.slogdet(a)
+        return -logdet if sign > 0 else np.inf
+    return float(np.trace(weight @ np.linalg.inv(a)))
+
+
+def exchange(jacobians, count: int, criterion: str = 'I', working=None,
+             max_sweeps: int = 20) -> Design:
+    """Choose ``count`` distinct candidates by the criterion.
+
+    Parameters
+    ----------
+    jacobians : (M, r, p) array
+        Each candidate's identification rows, whitened (divided by the noise's 1-sigma).
+    count : int
+        Measurements to choose (at least enough rows for p parameters).
+    criterion : 'I' or 'D'
+    working : (W, q, p) array, optional
+        The working poses' error sensitivities (needed for ``I``).
+
+    Raises
+    ------
+    InvalidInputError
+        An unknown criterion, too few candidates or rows, ``I`` without working poses."""
+    jacobians = np.asarray(jacobians, dtype=float)
+    if criterion not in CRITERIA:
+        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
+                                f'{criterion}')
+    m, r, p = jacobians.shape
+    if not count * r >= p:
+        raise InvalidInputError(f'{count} measurements give {count * r} equations for {p} '
+                                'parameters: plan more')
+    if count > m:
+        raise InvalidInputError(f'{count} measurements asked from {m} candidates')
+    if not np.all(np.isfinite(jacobians)):
+        raise InvalidInputError('the candidates\' Jacobians are not finite')
+    weight = None
+    if criterion == 'I':
+        if working is None:
+            raise InvalidInputError('the I criterion needs the working poses')
+        working = np.asarray(working, dtype=float)
+        weight = np.einsum('wqp,wqs->ps', working, working) / len(working)
+    ridge = np.diag(RIDGE * np.maximum(np.einsum('mrp,mrp->p', jacobians, jacobians) / m,
+                                       1e-300))
+    chosen: list[int] = []
+    a = ridge.copy()
+    for _ in range(count):                                # greedy start
+        scores = _scores(jacobians, np.linalg.inv(a), criterion, weight)
+        scores[chosen] = -np.inf
+        best = int(np.argmax(scores))
+        chosen.append(best)
+        a += jacobians[best].T @ jacobians[best]
+    value = _value(a, criterion, weight)
+    sweeps = 0
+    for sweeps in range(1, max_sweeps + 1):
+        swapped = False
+        for slot in range(count):
+            out = chosen[slot]
+            without = a - jacobians[out].T @ jacobians[out]
+            scores = _scores(jacobians, np.linalg.inv(without), criterion, weight)
+            scores[[c for c in chosen if c != out]] = -np.inf
+            best = int(np.argmax(scores))
+            if best == out:
+                continue
+            trial = without + jacobians[best].T @ jacobians[best]
+            trial_value = _value(trial, criterion, weight)
+            if trial_value < value - 1e-9 * abs(value):
+                chosen[slot], a, value, swapped = best, trial, trial_value, True
+        if not swapped:
+            break
+    return Design(np.array(chosen), criterion, float(value), sweeps)
+
+
+def sandwich_covariance(jacobian: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """Covariance (p, p) of the ordinary least-squares estimate from unweighted rows
+    ``jacobian`` (m, p) whose residual noise has covariance ``noise`` (m, m):
+    ``(J^T J)^-1 J^T N J (J^T J)^-1``. What the identification actually does when the
+    noise of its rows is correlated or unequal."""
+    inverse = np.linalg.pinv(jacobian.T @ jacobian)
+    return inverse @ jacobian.T @ noise @ jacobian @ inverse
+
+
+def predicted_errors(covariance: np.ndarray, working: np.ndarray) -> np.ndarray:
+    """1-sigma error per working pose and output row (W, q) from the parameter
+    ``covariance`` (p, p) and the working sensitivities (W, q, p)."""
+    return np.sqrt(np.einsum('wqp,ps,wqs->wq', working, covariance, working))

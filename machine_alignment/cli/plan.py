@@ -1,0 +1,60 @@
+"""``machine-align plan platform``: the poses to measure for an identification, chosen
+before anything moves, with what they are predicted to give."""
+from __future__ import annotations
+
+from machine_alignment.cli.common import check_writable, ranged, write_json
+from machine_alignment.cli.platform import read_targets
+from platform_calib.core.geometry import nominal_geometry, read_geometry
+from platform_calib.core.planning import plan_platform
+
+
+def cmd_plan_platform(args) -> int:
+    check_writable(args.out, '--out')
+    nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
+    working = read_targets(args.working) if args.working else None
+    plan = plan_platform(nominal, args.poses, working, args.criterion, args.candidates,
+                         margin=args.margin, seed=args.seed)
+    report = plan.report()
+    errors = report['predicted_mark_error_m']
+    sigmas = report['predicted_parameter_sigmas']
+    worst = max(sigmas, key=sigmas.get)
+    print(f'{args.poses} poses chosen ({"test-pose (I)" if args.criterion == "I" else "D"}-'
+          f'optimal) from {plan.candidates} candidates with the feeds {args.margin * 1e3:g} mm '
+          'inside the stroke')
+    print(f'predicted before anything moves (tracker 10 um / 20 urad, feeds 1 um, first '
+          f'order): mark error at the {"given" if working is not None else "200 random"} '
+          f'working poses RMS {errors["rms"] * 1e6:.2f} um, median {errors["median"] * 1e6:.2f} '
+          f'um, max {errors["max"] * 1e6:.2f} um (1 sigma); least determined parameter '
+          f'{worst} +- {sigmas[worst] * 1e6:.0f} {"urad" if worst.startswith("alpha") else "um"}')
+    with open(args.out, 'w') as f:
+        f.write('x,y,theta\n')
+        f.writelines(f'{x:.12g},{y:.12g},{t:.12g}\n' for x, y, t in plan.poses)
+    print(f'wrote {args.out} (x, y m, theta rad: the targets simulate platform --plan and the '
+          'calibrator measure)')
+    write_json(args.json, {**report, 'poses': plan.poses.tolist()})
+    return 0
+
+
+def add_parser(sub) -> None:
+    plan = sub.add_parser('plan', help='choose the measurements for a calibration and '
+                                       'predict their result before anything moves')
+    what = plan.add_subparsers(dest='what', required=True)
+    platform = what.add_parser('platform', help='poses for the platform\'s identification')
+    platform.add_argument('--poses', type=ranged(int, 6, 10000), required=True,
+                          help='how many poses to measure (at least 6 for 18 parameters)')
+    platform.add_argument('--geometry', help='nominal geometry YAML (default: the built-in)')
+    platform.add_argument('--working', help='CSV x, y (m), theta (rad): the poses the '
+                                            'platform will work at (default: 200 random '
+                                            'within +-5 mm, +-5 deg)')
+    platform.add_argument('--criterion', choices=('I', 'D'), default='I',
+                          help='I: least predicted error at the working poses (default); '
+                               'D: largest determinant of the information')
+    platform.add_argument('--candidates', type=ranged(int, 10, 100000), default=3000,
+                          help='random candidate poses to choose from')
+    platform.add_argument('--margin', type=ranged(float, 0.0, 0.1, 'm'), default=2e-3,
+                          help='keep the feeds this far inside the stroke (the true platform '
+                               'is not the nominal one), m')
+    platform.add_argument('--seed', type=ranged(int, 0), default=0)
+    platform.add_argument('--out', required=True, help='plan CSV to write (x, y, theta)')
+    platform.add_argument('--json', help='the prediction to write')
+    platform.set_defaults(func=cmd_plan_platform)
