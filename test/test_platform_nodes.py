@@ -14,6 +14,8 @@ from alignment_msgs.srv import AnalyzeResiduals, RegisterScreen, RunCalibration 
 
 from calib_core.storage import read_calibration  # noqa: E402
 from machine_alignment.launcher import platform_graph  # noqa: E402
+from platform_calib.core.geometry import nominal_geometry  # noqa: E402
+from platform_calib.core.planning import plan_platform  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
 
 
@@ -92,4 +94,27 @@ def test_a_plan_outside_the_workspace_is_refused_and_leaves_no_bag(graph):
         plan_yaml='{poses: 15, span: [0.09, 0.09, 0.5]}'), timeout=60.0)
     assert not response.success and 'cannot reach' in response.message, response.message
     assert bags() == before
+    assert all(running_graph.alive())
+
+
+def test_the_calibrator_plans_its_own_poses_and_takes_a_planned_set(graph):
+    running_graph, node, out = graph
+    client = node.create_client(RunCalibration, 'platform_calibrator/calibrate')
+    planned = call(node, client, RunCalibration.Request(
+        plan_yaml='{poses: 12, design: I, evaluation_poses: 8}'), timeout=120.0)
+    assert planned.success, planned.message
+    report = json.loads(planned.result.report_json)
+    predicted = report['plan']['predicted_mark_error_m']['rms']
+    assert report['plan']['poses'] == 12 and 2e-6 < predicted < 30e-6
+    assert report['evaluation']['evaluate_calibrated']['median_m'] < \
+        0.3 * report['evaluation']['evaluate_nominal']['median_m']
+    # The set machine-align plan platform writes, handed over as the plan's targets.
+    given = plan_platform(nominal_geometry(), 10, criterion='D', seed=3).poses.tolist()
+    taken = call(node, client, RunCalibration.Request(
+        plan_yaml=f'{{targets: {given}, evaluation_poses: 4}}'), timeout=120.0)
+    assert taken.success, taken.message
+    assert json.loads(taken.result.report_json)['poses'] == len(given)
+    refused = call(node, client, RunCalibration.Request(
+        plan_yaml='{targets: [[0.004, 0.0, 30.0]], evaluation_poses: 4}'))
+    assert not refused.success and 'look like degrees' in refused.message
     assert all(running_graph.alive())

@@ -39,7 +39,7 @@ STROKE_MARGIN = 2e-3
 
 
 @dataclass(frozen=True)
-class PlatformPlan:
+class PoseDesign:
     """The chosen poses (n, 3) (x m, y m, theta rad) and what they are predicted to give:
     each parameter's 1-sigma (18,) and, at each working pose, each mark's 1-sigma position
     error (W, 2) m."""
@@ -116,7 +116,7 @@ def working_sensitivity(geometry: PlatformGeometry, targets, screen=SCREEN) -> n
 def plan_platform(nominal: PlatformGeometry, count: int, working=None,
                   criterion: str = 'I', candidates: int = 3000, span=WORKING_SPAN,
                   margin: float = STROKE_MARGIN, seed: int = 0,
-                  tracker_noise=TRACKER_NOISE, feed_noise: float = FEED_NOISE) -> PlatformPlan:
+                  tracker_noise=TRACKER_NOISE, feed_noise: float = FEED_NOISE) -> PoseDesign:
     """The ``count`` poses to measure, chosen from ``candidates`` random ones inside the
     stroke, and their predicted result. ``working`` (W, 3): the poses the platform will
     work at (default: 200 random ones in the same span).
@@ -145,5 +145,5 @@ def plan_platform(nominal: PlatformGeometry, count: int, working=None,
     jacobian = rows[chosen].reshape(-1, 18)
     covariance = sandwich_covariance(jacobian, scipy.linalg.block_diag(*noise[chosen]))
     per_row = predicted_errors(covariance, sensitivity).reshape(len(sensitivity), 2, 2)
-    return PlatformPlan(pool[chosen], criterion, np.sqrt(np.diag(covariance)),
+    return PoseDesign(pool[chosen], criterion, np.sqrt(np.diag(covariance)),
                         np.sqrt(np.sum(per_row ** 2, -1)), len(pool))

@@ -13,19 +13,29 @@ from calib_core.checks import whole_number
 from calib_core.errors import InvalidInputError
 from platform_calib.core.compensation import composite_error
 from platform_calib.core.geometry import PlatformGeometry
-from platform_calib.core.identification import MIN_POSES, Identification, PoseData, identify
+from platform_calib.core.identification import (
+    MIN_POSES, POSE_SCHEMA, Identification, PoseData, identify)
 from platform_calib.core.kinematics import inverse
+from platform_calib.core.planning import plan_platform
+
+
+DESIGNS = ('random', 'I', 'D')
 
 
 @dataclass(frozen=True)
 class PlatformPlan:
-    """``poses`` random poses within +-``span`` (x m, y m, theta rad) to identify from, and
-    ``evaluation_poses`` others to evaluate on, drawn with ``seed``."""
+    """The poses to identify from and ``evaluation_poses`` others to evaluate on (random
+    within +-``span``, x m, y m, theta rad, drawn with ``seed``). The identification poses:
+    ``targets`` when given (a planned set, e.g. from ``machine-align plan platform``), else
+    ``poses`` of them, random (``design`` 'random') or planned here for the least error at
+    the evaluation span ('I') or the largest information ('D')."""
 
     poses: int = 20
     evaluation_poses: int = 10
     span: tuple = (5e-3, 5e-3, np.deg2rad(5.0))
     seed: int = 0
+    design: str = 'random'
+    targets: tuple = ()
 
     def __post_init__(self):
         object.__setattr__(self, 'poses', whole_number(self.poses, 'poses', MIN_POSES))
@@ -38,11 +48,36 @@ class PlatformPlan:
             raise InvalidInputError(f'span must be three positive values (x m, y m, theta '
                                     f'rad; up to 0.1 m and pi/4), not {self.span!r}')
         object.__setattr__(self, 'span', tuple(float(v) for v in span))
+        if self.design not in DESIGNS:
+            raise InvalidInputError(f'design must be one of {", ".join(DESIGNS)}, not '
+                                    f'{self.design!r}')
+        if len(self.targets):
+            try:
+                targets = np.array(self.targets, dtype=float).reshape(-1, 3)
+            except (TypeError, ValueError):
+                raise InvalidInputError('targets must be rows of x (m), y (m), theta (rad)') \
+                    from None
+            POSE_SCHEMA.check({'x': targets[:, 0], 'y': targets[:, 1],
+                               'theta': targets[:, 2]}, 'the plan\'s targets')
+            if len(targets) < MIN_POSES:
+                raise InvalidInputError(f'{len(targets)} targets for 18 parameters: at least '
+                                        f'{MIN_POSES}')
+            object.__setattr__(self, 'targets', tuple(map(tuple, targets.tolist())))
+            object.__setattr__(self, 'poses', len(targets))
 
-    def targets(self) -> tuple[np.ndarray, np.ndarray]:
+    def targets_for(self, nominal: PlatformGeometry) -> tuple[np.ndarray, np.ndarray, dict]:
+        """The identification poses (n, 3), the evaluation poses (m, 3) and, for a design
+        planned here, its prediction (else an empty dict)."""
         rng = np.random.default_rng(self.seed)
         draw = rng.uniform(-1, 1, (self.poses + self.evaluation_poses, 3)) * np.asarray(self.span)
-        return draw[:self.poses], draw[self.poses:]
+        identify_at, evaluate_at = draw[:self.poses], draw[self.poses:]
+        if len(self.targets):
+            return np.array(self.targets), evaluate_at, {}
+        if self.design == 'random':
+            return identify_at, evaluate_at, {}
+        design = plan_platform(nominal, self.poses, criterion=self.design, span=self.span,
+                               seed=self.seed)
+        return design.poses, evaluate_at, design.report()
 
 
 @dataclass(frozen=True)
@@ -79,9 +114,10 @@ def run_platform_calibration(plan: PlatformPlan, nominal: PlatformGeometry,
                              measure: Callable[[], np.ndarray],
                              record: Callable[[Stop], None] = lambda stop: None,
                              progress: Callable[[int, int, str], None] = lambda *a: None
-                             ) -> tuple[Identification, dict, list]:
-    """Identify and evaluate. ``move(feeds)`` returns (feeds read, directions);
-    ``measure()`` the tracker's pose (3,).
+                             ) -> tuple[Identification, dict, list, dict]:
+    """Identify and evaluate: (identification, evaluation per phase, stops, the plan's
+    prediction when it was planned here, else empty). ``move(feeds)`` returns (feeds read,
+    directions); ``measure()`` the tracker's pose (3,).
 
     Raises
     ------
@@ -89,10 +125,15 @@ def run_platform_calibration(plan: PlatformPlan, nominal: PlatformGeometry,
         A planned pose the nominal platform cannot reach (refused before anything moves).
     CalibrationError
         Poses that do not determine the parameters."""
-    identify_at, evaluate_at = plan.targets()
+    identify_at, evaluate_at, prediction = plan.targets_for(nominal)
     nominal_feeds = inverse(nominal, np.vstack([identify_at, evaluate_at]))   # checked first
     total = len(identify_at) + 2 * len(evaluate_at)
     stops = []
+    if prediction:
+        errors = prediction['predicted_mark_error_m']
+        progress(0, total, f'{plan.design}-optimal plan of {len(identify_at)} poses: mark '
+                           f'error predicted {errors["rms"] * 1e6:.2f} um RMS, '
+                           f'{errors["max"] * 1e6:.2f} um max (1 sigma) before anything moves')
 
     def stop(phase, target, feeds):
         reading, direction = move(feeds)
@@ -109,4 +150,4 @@ def run_platform_calibration(plan: PlatformPlan, nominal: PlatformGeometry,
         stop('evaluate_nominal', target, feeds)
     for target, feeds in zip(evaluate_at, calibrated):
         stop('evaluate_calibrated', target, feeds)
-    return result, evaluate(stops), stops
+    return result, evaluate(stops), stops, prediction

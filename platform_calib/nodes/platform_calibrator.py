@@ -2,7 +2,9 @@
 on the live graph.
 
 Service ``platform_calibrator/calibrate`` (RunCalibration; plan keys ``poses``,
-``evaluation_poses``, ``span`` (x m, y m, theta rad), ``seed``) plans random poses (all
+``evaluation_poses``, ``span`` (x m, y m, theta rad), ``seed``, ``design`` (random, or I /
+D: planned here, the prediction in the report), ``targets`` (a planned set of x, y, theta
+rows)) plans random poses (all
 checked against the stroke before anything moves), commands each through the nominal
 inverse kinematics (``platform/move``), reads the feed sensors and the laser tracker
 (``laser_tracker/measure``), identifies the 18 parameters, then evaluates on separate poses
@@ -50,7 +52,7 @@ from platform_calib.core.records import MEASUREMENTS_TOPIC, RESULT_TOPIC
 from platform_calib.core.registration import pose_of_marks, register
 from platform_calib.nodes.conversions import planar_pose_from_message
 
-PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed')
+PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed', 'design', 'targets')
 ANALYSIS_TOPIC = '/platform_calibrator/analysis'
 
 
@@ -72,6 +74,7 @@ class PlatformCalibratorNode(Node):
         self.declare_parameter('evaluation_poses', 10)
         self.declare_parameter('span', [5e-3, 5e-3, float(np.deg2rad(5.0))])
         self.declare_parameter('seed', 0)
+        self.declare_parameter('design', 'random')
         self.declare_parameter('method', 'exact')
         self.declare_parameter('nominal_geometry', '')     # YAML; empty: the built-in
         self.declare_parameter('call_timeout_s', 10.0)
@@ -117,7 +120,8 @@ class PlatformCalibratorNode(Node):
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
-        return PlatformPlan(g('poses'), g('evaluation_poses'), tuple(g('span')), g('seed'))
+        return PlatformPlan(g('poses'), g('evaluation_poses'), tuple(g('span')), g('seed'),
+                            g('design'), tuple(overrides.get('targets', ())))
 
     def _move(self, feeds):
         self._moved_at = self.get_clock().now()
@@ -152,11 +156,12 @@ class PlatformCalibratorNode(Node):
         with RecordedRun(self, 'platform', {
                 MEASUREMENTS_TOPIC: 'alignment_msgs/msg/PlatformMeasurement',
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
-            result, evaluation, stops = run_platform_calibration(
+            result, evaluation, stops, prediction = run_platform_calibration(
                 plan, self.nominal, self._move, self._track,
                 lambda stop: self._record(run, stop), self._progress)
             check_identification(result, self.nominal)   # else nothing is put in force
-            report = {**result.report(), 'evaluation': evaluation}
+            report = {**result.report(), 'evaluation': evaluation,
+                      **({'plan': prediction} if prediction else {})}
             geometry = result.geometry
             path, version, content = run.save('platform', {
                 'parameters': geometry.as_dict(), 'branch': [int(b) for b in geometry.branch],
