@@ -57,7 +57,7 @@ class PSOSettings:
     """The swarm: the source's are 40 particles, c1 = c2 = 2, inertia 0.8, 4 iterations,
     which lie outside the region where standard PSO converges (c1 + c2 < 24 (1 - w^2) /
     (7 - 5 w) = 2.88 at w = 0.8: Poli 2009's order-2 condition as SEEDS_CDE.md quotes it,
-    not checked against the paper; the bench agrees: 39 % of the source's swarms settle in
+    not checked against the paper; the bench agrees: 31 % of the source's swarms settle in
     50 iterations, all of Clerc's). ``stable`` is Clerc's constriction values."""
 
     particles: int = 40
