@@ -106,7 +106,7 @@ def run(out: Path) -> dict:
             same = f'{same} (full fits: {", ".join(r["added_full_fits"]) or "nothing"})'
         difference = ('effects differ' if r['largest_difference_sigma'] is None
                       else f'{r["largest_difference_sigma"]:.3f} sigma')
-        how = ('first order' if r['linearised'] else 'sparse differences'
+        how = ('first order' if r['linearised'] else 'grouped differences'
                if r['sparse_jacobian'] else 'as before')
         lines.append(f'| {r["machine"]} | {r["data"]} | {r["rows"]} | {how} | {r["cpu_s"]:.1f} | '
                      f'{r["cpu_s_full_fits"]:.1f} | {r["speed_up"]:.1f} | {same} | {difference} | '
