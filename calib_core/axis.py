@@ -11,13 +11,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib_core import iso230_2
-from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M, check_metres
+from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M
 from calib_core.closed_loop import (MachineModel, evaluate, refit, scalar_covariates,
                                     select_rows)
 from calib_core.datasets import read_columns, write_columns
 from calib_core.effects import CATEGORICAL_COVARIATES
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
+from calib_core.schema import Column, Schema
+
+# The axis CSV (DESIGN.md section 6), declared: what an axis of any machine here reads.
+AXIS_SCHEMA = Schema((
+    Column('command', 'm', -MAX_POSITION_M, MAX_POSITION_M, 'commanded axis position'),
+    Column('measured - command', 'm', -MAX_ERROR_M, MAX_ERROR_M,
+           'axis error, measured minus commanded')))
 
 AXIS_COLUMNS = ('command', 'measured', 'direction')
 # Covariates the effect library knows; other extra columns are kept but not used.
@@ -62,9 +69,9 @@ class AxisData:
     def from_csv(cls, path, dropped: dict | None = None) -> 'AxisData':
         """Read the axis CSV of DESIGN.md section 6 (command, measured in m; direction)."""
         columns = read_columns(path, list(AXIS_COLUMNS), dropped)
-        check_metres(columns['command'], 'command', path, MAX_POSITION_M)
-        check_metres(columns['measured'] - columns['command'], 'measured - command', path,
-                     MAX_ERROR_M)
+        AXIS_SCHEMA.check({'command': columns['command'],
+                           'measured - command': columns['measured'] - columns['command']},
+                          path)
         return cls(columns['command'], columns['measured'], columns['direction'],
                    {k: v for k, v in columns.items() if k not in AXIS_COLUMNS})
 

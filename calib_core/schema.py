@@ -37,10 +37,14 @@ class Column:
 
     def likely_mistake(self, value: float) -> str:
         """What the column's largest value outside the range most likely means: mm for m
-        when it is many times the range and would fit it in mm, degrees for rad likewise;
-        else another zero or column."""
+        when it is many times the range or a metre and more, and would fit it in mm;
+        degrees for rad when over twice the range and fitting it in degrees; else another
+        zero or column."""
         ratio = abs(value) / max(abs(self.low), abs(self.high))
-        if self.unit == 'm' and ratio >= 20 and self.low <= value / MM_PER_M <= self.high:
+        # A metre or more outside a machine's range, or many times the range: mm, when the
+        # value read in mm fits.
+        if self.unit == 'm' and (ratio >= 20 or abs(value) >= 1.0) \
+                and self.low <= value / MM_PER_M <= self.high:
             return 'the values look like mm; the format is SI metres'
         if self.unit == 'rad' and ratio >= 2 and \
                 self.low <= value / DEGREES_PER_RAD <= self.high:

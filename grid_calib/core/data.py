@@ -9,8 +9,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_core.checks import MAX_POSITION_M, check_metres
+from calib_core.checks import MAX_POSITION_M
 from calib_core.files import read_csv_rows
+from calib_core.schema import Column, Schema
 from calib_core.storage import write_atomic
 from grid_calib.core.model import PLACEMENTS, Grid, site_of
 from grid_calib.core.selfcal import Placement
@@ -115,6 +116,13 @@ def region_from_readings(grid: Grid, readings: dict, label: str = 'region',
     return Region((int(origin[0]), int(origin[1])), placements)
 
 
+# The grid marks CSV, declared: readings anywhere on a machine, temperatures in kelvin.
+MARKS_SCHEMA = Schema((
+    Column('x', 'm', -MAX_POSITION_M, MAX_POSITION_M, 'mark reading x'),
+    Column('y', 'm', -MAX_POSITION_M, MAX_POSITION_M, 'mark reading y'),
+    Column('temperature', 'K', 200.0, 400.0, 'temperature (kelvin)')))
+
+
 def read_marks(path, pitch: float) -> tuple[Grid, dict]:
     """The grid (its size from the indices) and, per region, a ``Region``.
 
@@ -143,7 +151,7 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict]:
                 raise PlacementError(f'{path}: {name} must be a number in every row ({exc})') from None
             if not np.all(np.isfinite(logged[name])):
                 raise PlacementError(f'{path}: {name} is NaN or infinite')
-    check_metres(reading, 'the readings x, y', path, MAX_POSITION_M)
+    MARKS_SCHEMA.check({'x': reading[:, 0], 'y': reading[:, 1], **logged}, path)
     names = np.array([r['placement'].strip() for r in rows])
     unknown = sorted(set(names.tolist()) - set(PLACEMENTS))
     if unknown:

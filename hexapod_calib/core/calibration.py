@@ -12,12 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.checks import MAX_POSITION_M, check_metres
+from calib_core.checks import MAX_POSITION_M
 from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.least_squares import FitResult, check_identifiability, fit
 from calib_core.parameters import ParameterSet
 from calib_core.sanity import SanityGate
+from calib_core.schema import Column, Schema
 from hexapod_calib.core.geometry import (
     LEGS, POSE_NAMES, HexapodGeometry, as_poses, rotation_matrices)
 from hexapod_calib.core.kinematics import inverse_kinematics, leg_vectors
@@ -25,6 +26,12 @@ from hexapod_calib.core.kinematics import inverse_kinematics, leg_vectors
 MEASURED_NAMES = tuple(f'meas_{n}' for n in POSE_NAMES)
 LEG_NAMES = tuple(f'l{i + 1}' for i in range(LEGS))
 PARAMETERS_PER_LEG = 7
+# The pose CSV (DESIGN.md section 6), declared: positions and leg lengths of any hexapod.
+POSE_SCHEMA = Schema((
+    *(Column(n, 'm', -MAX_POSITION_M, MAX_POSITION_M, f'{kind} {n[-1]}')
+      for kind, names in (('commanded', POSE_NAMES[:3]), ('measured', MEASURED_NAMES[:3]))
+      for n in names),
+    *(Column(n, 'm', 0.0, MAX_POSITION_M, f'leg {n[1]} length') for n in LEG_NAMES)))
 # The sanity gate's bounds: a pose sensor (CMM, laser tracker) closes the legs to a few um,
 # and no built hexapod has a joint centre or an actuator zero 10 mm from its drawing.
 MAX_LEG_RESIDUAL_RMS_M = 100e-6
@@ -89,15 +96,16 @@ class PoseData:
         columns = read_columns(path, list(POSE_NAMES) + list(MEASURED_NAMES), dropped)
         commanded = np.column_stack([columns[n] for n in POSE_NAMES])
         measured = np.column_stack([columns[n] for n in MEASURED_NAMES])
-        check_metres(commanded[:, :3], 'the commanded positions x, y, z', path, MAX_POSITION_M)
-        check_metres(measured[:, :3], 'the measured positions', path, MAX_POSITION_M)
+        POSE_SCHEMA.check({**{n: commanded[:, k] for k, n in enumerate(POSE_NAMES[:3])},
+                           **{n: measured[:, k] for k, n in enumerate(MEASURED_NAMES[:3])}},
+                          path)
         present = [n for n in LEG_NAMES if n in columns]
         if present and len(present) != LEGS:
             raise InvalidInputError(f'{path} has leg length columns {", ".join(present)} but '
                                     'needs all of l1..l6 (or none)')
         legs = (np.column_stack([columns[n] for n in LEG_NAMES]) if present
                 else inverse_kinematics(nominal, commanded))
-        check_metres(legs, 'the leg lengths', path, MAX_POSITION_M)
+        POSE_SCHEMA.check({n: legs[:, k] for k, n in enumerate(LEG_NAMES)}, path)
         used = set(POSE_NAMES) | set(MEASURED_NAMES) | set(LEG_NAMES)
         return cls(commanded, measured, legs, {k: v for k, v in columns.items() if k not in used})
 

@@ -7,11 +7,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calib_core.checks import MAX_POSITION_M, check_metres
+from calib_core.checks import MAX_POSITION_M
 from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
 from calib_core.files import read_yaml
 from calib_core.marks import detect_marks
+from calib_core.schema import Column, Schema
 
 INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3')
 
@@ -24,11 +25,16 @@ class View:
     pixels: np.ndarray
 
 
+# The correspondences CSV, declared: target points on a plate of any size here.
+CORRESPONDENCE_SCHEMA = Schema(tuple(
+    Column(n, 'm', -MAX_POSITION_M, MAX_POSITION_M, f'target point {n[-1]}')
+    for n in ('model_x', 'model_y')))
+
+
 def read_correspondences(path) -> list[View]:
     """Views from a CSV with columns view, model_x, model_y (m), u, v (px)."""
     c = read_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'])
-    check_metres(np.column_stack([c['model_x'], c['model_y']]), 'the target points', path,
-                 MAX_POSITION_M)
+    CORRESPONDENCE_SCHEMA.check(c, path)
     views = []
     for view_id in np.unique(c['view']):
         k = c['view'] == view_id

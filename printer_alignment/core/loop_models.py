@@ -30,17 +30,24 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M, check_metres
+from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M
 from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
 from calib_core.datasets import directions_from_order, read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
+from calib_core.schema import Column, Schema
 from printer_alignment.core.camera_calibration import View, infer_image_size
 from printer_alignment.core.geometry import rotate_points, rotation
 from printer_alignment.core.stage import StageGeometry
 from printer_alignment.core.stage_calibration import (
     PARAMETRIC_GAUGE, StageData, mark_names, predict_marks, stepwise_calibration)
 
+# The gantry CSV, declared: camera positions anywhere on a machine, errors up to 10 cm.
+GANTRY_SCHEMA = Schema((
+    *(Column(f'command_{a}', 'm', -MAX_POSITION_M, MAX_POSITION_M, f'commanded {a}')
+      for a in 'xy'),
+    *(Column(f'measured - command ({a})', 'm', -10 * MAX_ERROR_M, 10 * MAX_ERROR_M,
+             f'gantry error in {a}') for a in 'xy')))
 GANTRY_COLUMNS = ('command_x', 'command_y', 'measured_x', 'measured_y')
 DIRECTION_COLUMNS = ('direction_x', 'direction_y')
 
@@ -89,8 +96,10 @@ class GantryData:
         columns = read_columns(path, list(GANTRY_COLUMNS), dropped)
         command = np.column_stack([columns['command_x'], columns['command_y']])
         measured = np.column_stack([columns['measured_x'], columns['measured_y']])
-        check_metres(command, 'command', path, MAX_POSITION_M)
-        check_metres(measured - command, 'measured - command', path, 10 * MAX_ERROR_M)
+        error = measured - command
+        GANTRY_SCHEMA.check({'command_x': command[:, 0], 'command_y': command[:, 1],
+                             'measured - command (x)': error[:, 0],
+                             'measured - command (y)': error[:, 1]}, path)
         present = [c for c in DIRECTION_COLUMNS if c in columns]
         if len(present) == 1:
             raise InvalidInputError(f'{path} has {present[0]} but not the other direction column')

@@ -6,14 +6,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.checks import MAX_POSITION_M, check_metres, whole_number
+from calib_core.checks import MAX_POSITION_M, whole_number
 from calib_core.datasets import directions_from_order, read_columns, write_columns
 from calib_core.errors import InvalidInputError
+from calib_core.schema import Column, Schema
 from printer_alignment.core.alignment import rigid_fit
 from printer_alignment.core.stage import STROKE, check_stroke
 
 
 STAGE_COLUMNS = ('q1', 'q2', 'q3', 'mark1_x', 'mark1_y', 'mark2_x', 'mark2_y')
+# The stage CSV, declared: chain inputs within 10x the stroke, Marks anywhere on a machine.
+STAGE_SCHEMA = Schema((
+    *(Column(f'q{i}', 'm', -10 * STROKE, 10 * STROKE, f'chain {i} input') for i in (1, 2, 3)),
+    *(Column(n, 'm', -MAX_POSITION_M, MAX_POSITION_M, f'Mark {n[4]} {n[-1]}')
+      for n in STAGE_COLUMNS[3:])))
 STAGE_DIRECTIONS = ('direction1', 'direction2', 'direction3')
 
 
@@ -74,8 +80,7 @@ class StageData:
         directions = (np.column_stack([columns[c] for c in STAGE_DIRECTIONS]) if present
                       else directions_from_order(np.vstack([np.zeros(3), q]))[1:])
         marks = np.column_stack([columns[c] for c in STAGE_COLUMNS[3:]]).reshape(-1, 2, 2)
-        check_metres(marks, 'the Mark positions', path, MAX_POSITION_M)
-        check_metres(q, 'the chain inputs', path, STROKE * 10)
+        STAGE_SCHEMA.check(columns, path)
         used = set(STAGE_COLUMNS) | set(STAGE_DIRECTIONS)
         return cls(q, directions, marks, {k: v for k, v in columns.items() if k not in used})
 
