@@ -2,6 +2,8 @@
 and for the platform the plan's prediction, made before anything moves, matches what the
 calibration then achieves on simulated platforms; a planned dozen poses beats a random
 dozen."""
+import json
+
 import numpy as np
 import pytest
 
@@ -76,7 +78,17 @@ def test_plan_then_simulate_then_calibrate_from_the_command_line(tmp_path, capsy
                  str(tmp_path / 'plan.json')]) == 0
     assert 'predicted before anything moves' in capsys.readouterr().out
     assert len(plan.read_text().splitlines()) == 11
-    assert main(['simulate', 'platform', '--plan', str(plan), '--out', str(data)]) == 0
-    assert main(['calibrate', 'platform', '--data', str(data)]) == 0
+    truth, identified, report = (tmp_path / 'truth.yaml', tmp_path / 'identified.yaml',
+                                 tmp_path / 'evaluation.json')
+    assert main(['simulate', 'platform', '--plan', str(plan), '--out', str(data),
+                 '--truth', str(truth)]) == 0
+    assert main(['calibrate', 'platform', '--data', str(data), '--out', str(identified)]) == 0
+    # Checked against the simulation's truth, not the model's own prediction.
+    assert main(['evaluate', 'platform', '--geometry', str(identified), '--truth', str(truth),
+                 '--json', str(report)]) == 0
+    evaluation = json.loads(report.read_text())
+    assert evaluation['identified']['rms_m'] < 0.2 * evaluation['nominal']['rms_m']
+    assert evaluation['identified']['rms_m'] < 3 * json.loads(
+        (tmp_path / 'plan.json').read_text())['predicted_mark_error_m']['rms']
     with pytest.raises(SystemExit):
         main(['plan', 'platform', '--poses', '5', '--out', str(plan)])

@@ -1,5 +1,6 @@
-"""``machine-align evaluate hexapod|alignment``: check a calibration on data not used to
-fit it, or plan recorded alignments again from their bag."""
+"""``machine-align evaluate hexapod|platform|alignment``: check a calibration on data not
+used to fit it (a pose file, or the truth a simulation wrote), or plan recorded alignments
+again from their bag."""
 from __future__ import annotations
 
 import json
@@ -11,7 +12,13 @@ from calib_core.errors import MachineAlignmentError
 from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.kinematics import forward_kinematics
-from machine_alignment.cli.common import print_pose_summary, write_json
+from machine_alignment.cli.common import print_pose_summary, ranged, write_json
+from machine_alignment.cli.platform import read_targets
+from platform_calib.core.compensation import mark_errors
+from platform_calib.core.geometry import nominal_geometry as platform_nominal
+from platform_calib.core.geometry import read_geometry as read_platform_geometry
+from platform_calib.core.kinematics import forward, inverse
+from platform_calib.core.planning import WORKING_SPAN
 from printer_alignment.core.alignment import replay_alignment
 from printer_alignment.core.records import ALIGNER_REPORT_TOPIC, STAGE_RESULT_TOPIC
 from printer_alignment.core.stage import NOMINAL_STAGE
@@ -33,6 +40,36 @@ def cmd_evaluate_hexapod(args) -> int:
     print(f'{len(data)} poses')
     print_pose_summary('commanded vs measured:', report['commanded_vs_measured'])
     print_pose_summary('model vs measured:', report['model_vs_measured'])
+    write_json(args.json, report)
+    return 0
+
+
+def _mark_summary(errors: np.ndarray) -> dict:
+    """Each mark's position error (n, 2) m: RMS, median and max over marks and poses."""
+    return {'rms_m': float(np.sqrt(np.mean(errors ** 2))),
+            'median_m': float(np.median(errors)), 'max_m': float(errors.max())}
+
+
+def cmd_evaluate_platform(args) -> int:
+    """Register at working poses with the nominal and with the identified geometry, on the
+    true platform (a simulation's truth file), and measure where the marks land."""
+    identified = read_platform_geometry(args.geometry)
+    truth = read_platform_geometry(args.truth)
+    nominal = read_platform_geometry(args.nominal) if args.nominal else platform_nominal()
+    working = (read_targets(args.working) if args.working else
+               np.random.default_rng(args.seed).uniform(-1, 1, (args.count, 3))
+               * np.asarray(WORKING_SPAN))
+    report = {'geometry': str(args.geometry), 'truth': str(args.truth), 'poses': len(working),
+              'note': 'each mark\'s position error at the working poses when the feeds come '
+                      'from the geometry\'s inverse kinematics and the platform is the truth '
+                      '(m); measured against the truth, not the model\'s own prediction'}
+    for name, model in (('nominal', nominal), ('identified', identified)):
+        reached = forward(truth, inverse(model, working), working)
+        report[name] = _mark_summary(mark_errors(reached, working))
+    n, c = report['nominal'], report['identified']
+    print(f'{len(working)} working poses on the true platform, each mark\'s error: nominal '
+          f'geometry RMS {n["rms_m"] * 1e6:.1f} um (max {n["max_m"] * 1e6:.1f} um); identified '
+          f'RMS {c["rms_m"] * 1e6:.2f} um (max {c["max_m"] * 1e6:.2f} um)')
     write_json(args.json, report)
     return 0
 
@@ -75,6 +112,19 @@ def add_parser(sub) -> None:
                                                 'no l1..l6 columns')
     hexapod_eval.add_argument('--json', help='report to write (JSON, SI units)')
     hexapod_eval.set_defaults(func=cmd_evaluate_hexapod)
+    platform_eval = evaluated.add_parser(
+        'platform', help='mark errors of an identified platform against a true geometry '
+                         '(what simulate platform --truth writes)')
+    platform_eval.add_argument('--geometry', required=True, help='identified geometry YAML')
+    platform_eval.add_argument('--truth', required=True, help='the true geometry YAML')
+    platform_eval.add_argument('--nominal', help='nominal geometry YAML (default: the built-in)')
+    platform_eval.add_argument('--working', help='CSV x, y (m), theta (rad) of the working '
+                                                 'poses (default: random within +-5 mm, +-5 deg)')
+    platform_eval.add_argument('--count', type=ranged(int, 1, 100000), default=200,
+                               help='random working poses')
+    platform_eval.add_argument('--seed', type=ranged(int, 0), default=0)
+    platform_eval.add_argument('--json', help='report to write (JSON, SI units)')
+    platform_eval.set_defaults(func=cmd_evaluate_platform)
     alignment_eval = evaluated.add_parser(
         'alignment', help='plan recorded alignments again from their bag (aligner runs)')
     alignment_eval.add_argument('--bag', required=True, help='an alignment_<stamp> bag')
