@@ -67,7 +67,15 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     needed = {kind for e in report['effects_added'] for kind in LIBRARY[e['name']].requires}
     covariates = sorted(((name, z) for name, z in result.covariates.items() if np.ptp(z) > 0),
                         key=lambda item: item[0].split('_')[0] not in needed)
-    covariates = covariates[:_MAX_COVARIATE_PANELS]
+    # One panel per covariate that looks different (a rotary axis's reading and its
+    # position differ by microradians: the same panel twice).
+    distinct = []
+    for name, z in covariates:
+        if not any(np.shape(z) == np.shape(w)
+                   and np.max(np.abs(np.subtract(z, w))) < 1e-3 * np.ptp(z)
+                   for _, w in distinct):
+            distinct.append((name, z))
+    covariates = distinct[:_MAX_COVARIATE_PANELS]
     workspace = machine.workspace()
     panels = len(covariates) + 1 + (workspace is not None and result.residuals_after.shape[1] == 2)
     cols = min(3, panels)
@@ -85,6 +93,8 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
             zz = np.broadcast_to(z[:, None], r.shape) if r.ndim == 2 else z
             if kind == 'direction':   # a category: side by side at -1 and +1, not an axis
                 zz = zz + shift
+            elif kind == 'time':      # clock times (epoch s) read best from the first row
+                zz = (zz - np.min(z)) * scale
             else:
                 zz = zz * scale
             ax.plot(zz.ravel(), r.ravel(), '.', ms=2, color=colour, alpha=0.5, label=label)
@@ -92,8 +102,10 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
             ax.set_xticks([-1, 1], ['-1: from above', '+1: from below'])
             ax.set_xlim(-1.6, 1.6)
             ax.set_xlabel(name)
-        else:
-            ax.set_xlabel(f'{name} ({covariate_unit})')
+        elif kind == 'time':
+            ax.set_xlabel(f'{name} since the first row ({covariate_unit})')
+        else:   # a count (sequence, cycle) has no unit to show
+            ax.set_xlabel(f'{name} ({covariate_unit})' if covariate_unit else name)
         ax.set_ylabel(f'residual ({unit})')
         ax.grid(alpha=0.3)
     axes[0].legend(loc='best', fontsize=8)
