@@ -13,7 +13,7 @@ from calib_core.effects import LIBRARY  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
 
 _SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px')}
-_MAX_COVARIATE_PANELS = 12
+_MAX_COVARIATE_PANELS = 8
 _COVARIATE_UNITS = {'position': 'm', 'direction': '+1 / -1', 'time': 's', 'temperature': 'K',
                     'load': 'N', 'image': 'normalised'}
 
@@ -63,10 +63,17 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     """Write the figure for ``result`` to ``path`` (PNG)."""
     report = result.report
     factor, unit = _SCALES.get(machine.unit, (1.0, machine.unit))
-    # The covariates the added effects act on come first, so they are never cut off.
     needed = {kind for e in report['effects_added'] for kind in LIBRARY[e['name']].requires}
+    def change(name):
+        """How much the loop changed the residuals this covariate's panel shows."""
+        moved = (_component(machine, name, result.residuals_before)
+                 - _component(machine, name, result.residuals_after))
+        return float(np.sqrt(np.mean(np.square(moved))))
+    # The covariates the added effects act on come first, those where the loop changed
+    # the residuals most first among them.
     covariates = sorted(((name, z) for name, z in result.covariates.items() if np.ptp(z) > 0),
-                        key=lambda item: item[0].split('_')[0] not in needed)
+                        key=lambda item: (item[0].split('_')[0] not in needed,
+                                          -change(item[0])))
     # One panel per covariate that looks different (a rotary axis's reading and its
     # position differ by microradians: the same panel twice).
     distinct = []
@@ -97,7 +104,7 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
                 zz = (zz - np.min(z)) * scale
             else:
                 zz = zz * scale
-            ax.plot(zz.ravel(), r.ravel(), '.', ms=2, color=colour, alpha=0.5, label=label)
+            ax.plot(zz.ravel(), r.ravel(), '.', ms=3, color=colour, alpha=0.6, label=label)
         if kind == 'direction':
             ax.set_xticks([-1, 1], ['-1: from above', '+1: from below'])
             ax.set_xlim(-1.6, 1.6)
