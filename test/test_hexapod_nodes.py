@@ -97,6 +97,9 @@ def test_calibration_service_writes_geometry_records_and_replays(graph):
     after = report['evaluation']['after']
     assert report['evaluation']['before']['max_displacement_m'] > 0.2e-3
     assert after['max_displacement_m'] < 12.1e-6 and after['max_angle_rad'] < 1.1e-3
+    # Predicted before anything moved (noise alone; the simulated leg play comes on top).
+    predicted = report['plan']['predicted_displacement_m']
+    assert 0.2e-6 < predicted['rms'] < after['max_displacement_m']
     geometry = read_geometry(out / 'calibration' / 'hexapod_geometry.yaml')
     assert geometry.parameters().as_dict() == dict(zip(result.names, result.values))
 

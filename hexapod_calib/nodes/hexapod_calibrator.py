@@ -31,6 +31,7 @@ from calib_core.storage import write_calibration
 from hexapod_calib.core.calibration import PoseData, check_identification
 from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
+from hexapod_calib.core.planning import predict
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC as RESULT_TOPIC, MEASUREMENTS_TOPIC, leg_lengths_from_message,
@@ -142,6 +143,11 @@ class HexapodCalibratorNode(Node):
     def _run(self, plan: HexapodPlan) -> CalibrationResult:
         self._settled = self.get_clock().now().to_msg()
         poses = plan.poses(self.nominal)  # a plan that cannot work fails here, before a bag exists
+        prediction = predict(self.nominal, *poses)
+        moved = prediction['predicted_displacement_m']
+        self.get_logger().info(f'plan of {len(poses[0])} poses: displacement error predicted '
+                               f'{moved["rms"] * 1e6:.2f} um RMS, {moved["max"] * 1e6:.2f} um '
+                               'max (1 sigma) on the evaluation poses, before anything moves')
         stops = []
         with RecordedRun(self, 'hexapod', {
                 MEASUREMENTS_TOPIC: 'alignment_msgs/msg/HexapodMeasurement',
@@ -151,6 +157,7 @@ class HexapodCalibratorNode(Node):
                 lambda *stop: self._record(run, stops, *stop), poses)
             # else nothing is put in force
             check_identification(calibration.report['identification'], self.nominal)
+            calibration.report['plan'] = prediction
             path, version, _ = run.save(CALIBRATION_NAME, {
                 **calibration.geometry.as_dict(), 'nominal': self.nominal.as_dict(),
                 'report': calibration.report})

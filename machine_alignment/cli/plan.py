@@ -1,7 +1,11 @@
-"""``machine-align plan platform``: the poses to measure for an identification, chosen
-before anything moves, with what they are predicted to give."""
+"""``machine-align plan platform|hexapod``: the poses to measure for an identification,
+chosen before anything moves, with what they are predicted to give."""
 from __future__ import annotations
 
+from hexapod_calib.core.geometry import POSE_NAMES, nominal_geometry as hexapod_nominal
+from hexapod_calib.core.geometry import read_geometry as read_hexapod_geometry
+from hexapod_calib.core.planning import predict as predict_hexapod
+from hexapod_calib.core.procedure import HexapodPlan
 from machine_alignment.cli.common import check_writable, ranged, write_json
 from machine_alignment.cli.platform import read_targets
 from platform_calib.core.geometry import nominal_geometry, read_geometry
@@ -35,6 +39,29 @@ def cmd_plan_platform(args) -> int:
     return 0
 
 
+def cmd_plan_hexapod(args) -> int:
+    check_writable(args.out, '--out')
+    nominal = read_hexapod_geometry(args.geometry) if args.geometry else hexapod_nominal()
+    plan = HexapodPlan(num_poses=args.poses, num_candidates=args.candidates, seed=args.seed)
+    poses, working = plan.poses(nominal)
+    prediction = predict_hexapod(nominal, poses, working, args.position_noise,
+                                 args.angle_noise, args.actuator_noise)
+    moved, turned = prediction['predicted_displacement_m'], prediction['predicted_rotation_rad']
+    print(f'{args.poses} poses chosen (D-optimal, greedy) from {args.candidates} candidates '
+          'inside the strokes')
+    print(f'predicted before anything moves (pose sensor {args.position_noise * 1e6:g} um / '
+          f'{args.angle_noise * 1e6:g} urad, actuators {args.actuator_noise * 1e6:g} um, first '
+          f'order) at {len(working)} other poses: displacement RMS {moved["rms"] * 1e6:.2f} um, '
+          f'max {moved["max"] * 1e6:.2f} um; rotation RMS {turned["rms"] * 1e6:.1f} urad, max '
+          f'{turned["max"] * 1e6:.1f} urad (1 sigma)')
+    with open(args.out, 'w') as f:
+        f.write(','.join(POSE_NAMES) + '\n')
+        f.writelines(','.join(f'{v:.12g}' for v in pose) + '\n' for pose in poses)
+    print(f'wrote {args.out} ({", ".join(POSE_NAMES)}: m, rad)')
+    write_json(args.json, {**prediction, 'poses_m_rad': poses.tolist()})
+    return 0
+
+
 def add_parser(sub) -> None:
     plan = sub.add_parser('plan', help='choose the measurements for a calibration and '
                                        'predict their result before anything moves')
@@ -58,3 +85,20 @@ def add_parser(sub) -> None:
     platform.add_argument('--out', required=True, help='plan CSV to write (x, y, theta)')
     platform.add_argument('--json', help='the prediction to write')
     platform.set_defaults(func=cmd_plan_platform)
+
+    hexapod = what.add_parser('hexapod', help='poses for the hexapod\'s identification')
+    hexapod.add_argument('--poses', type=ranged(int, 7, 10000), required=True,
+                         help='how many poses to measure (at least 7; 13 or more)')
+    hexapod.add_argument('--geometry', help='nominal geometry YAML (default: the built-in)')
+    hexapod.add_argument('--candidates', type=ranged(int, 20, 100000), default=400,
+                         help='random candidate poses inside the strokes to choose from')
+    hexapod.add_argument('--position-noise', type=ranged(float, 0.0, 1e-3, 'm'), default=0.6e-6,
+                         help='pose sensor, m per axis (1 sigma)')
+    hexapod.add_argument('--angle-noise', type=ranged(float, 0.0, 0.01, 'rad'), default=6e-6,
+                         help='pose sensor, rad per axis (1 sigma)')
+    hexapod.add_argument('--actuator-noise', type=ranged(float, 0.0, 1e-3, 'm'), default=0.5e-6,
+                         help='how far a leg stops from where it is sent, m (1 sigma)')
+    hexapod.add_argument('--seed', type=ranged(int, 0), default=0)
+    hexapod.add_argument('--out', required=True, help='plan CSV to write (x..yaw)')
+    hexapod.add_argument('--json', help='the prediction to write')
+    hexapod.set_defaults(func=cmd_plan_hexapod)

@@ -1,0 +1,68 @@
+"""What a hexapod calibration plan will give, predicted before anything moves, with the
+shared planner's tools (``calib_core.planning``).
+
+The identification's rows are the leg lengths the geometry predicts at the measured poses
+against the commanded ones (m). Their noise is the pose sensor's (position and angle per
+axis) carried through the leg-length Jacobian, so the six rows of one pose are
+correlated. The prediction uses the covariance of the fit the suite runs (ordinary least
+squares: the sandwich). At a working pose the legs come from the identified geometry's
+inverse kinematics and the platform sits where the true legs put it: to first order the
+pose error is ``J^-1 dL/de (e_hat - e)`` with J the leg-length Jacobian.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+from calib_core.planning import predicted_errors, sandwich_covariance
+from hexapod_calib.core.calibration import PoseData, identification_jacobian
+from hexapod_calib.core.geometry import HexapodGeometry
+from hexapod_calib.core.kinematics import inverse_kinematics, jacobian
+
+# The simulated pose sensor's and actuators' 1-sigma (hexapod_calib.sim.hexapod).
+POSITION_NOISE = 0.6e-6     # m per axis
+ANGLE_NOISE = 6e-6          # rad per axis
+ACTUATOR_NOISE = 0.5e-6     # m per leg: where a leg stops against where it was sent
+
+
+def _rows(geometry: HexapodGeometry, poses) -> np.ndarray:
+    """d(modelled leg length)/d(parameter) at ``poses``, (n, 6, 42)."""
+    poses = np.atleast_2d(poses)
+    data = PoseData(poses, poses, inverse_kinematics(geometry, poses))
+    return -identification_jacobian(geometry, data).reshape(len(poses), 6, -1)
+
+
+def predict(geometry: HexapodGeometry, poses, working, position_noise: float = POSITION_NOISE,
+            angle_noise: float = ANGLE_NOISE, actuator_noise: float = ACTUATOR_NOISE) -> dict:
+    """Predicted 1-sigma result of identifying from ``poses`` (n, 6) measured by a pose
+    sensor of the given noise, with legs that stop within ``actuator_noise`` of where they
+    are sent: each parameter's sigma (m) and, at the ``working`` poses (W, 6), the
+    platform's displacement (m) and rotation (rad) error, RMS and max (the calibration's
+    share and the actuators' repeatability together)."""
+    rows = _rows(geometry, poses)
+    legs_by_pose = jacobian(geometry, poses)                                   # (n, 6, 6)
+    pose_noise = np.diag([position_noise ** 2] * 3 + [angle_noise ** 2] * 3)
+    noise = legs_by_pose @ pose_noise @ np.swapaxes(legs_by_pose, 1, 2) \
+        + actuator_noise ** 2 * np.eye(6)                                       # (n, 6, 6)
+    covariance = sandwich_covariance(rows.reshape(-1, rows.shape[-1]),
+                                     scipy.linalg.block_diag(*noise))
+    at_work = jacobian(geometry, working)
+    sensitivity = np.linalg.solve(at_work, _rows(geometry, working))
+    # The actuators' repeatability moves the platform at a working pose too.
+    repeat = np.linalg.inv(at_work)
+    per_axis = np.sqrt(predicted_errors(covariance, sensitivity) ** 2
+                       + actuator_noise ** 2 * np.sum(repeat ** 2, axis=2))   # (W, 6)
+    displacement = np.sqrt(np.sum(per_axis[:, :3] ** 2, 1))
+    rotation = np.sqrt(np.sum(per_axis[:, 3:] ** 2, 1))
+    names = geometry.parameters().names
+    return {'poses': len(rows), 'working_poses': len(sensitivity),
+            'position_noise_m': position_noise, 'angle_noise_rad': angle_noise,
+            'actuator_noise_m': actuator_noise,
+            'predicted_parameter_sigmas_m': dict(zip(names, map(float, np.sqrt(np.diag(
+                covariance))))),
+            'predicted_displacement_m': {'rms': float(np.sqrt(np.mean(displacement ** 2))),
+                                         'max': float(displacement.max())},
+            'predicted_rotation_rad': {'rms': float(np.sqrt(np.mean(rotation ** 2))),
+                                       'max': float(rotation.max())},
+            'note': '1-sigma, first order, from the pose sensor noise and the actuators\' '
+                    'repeatability (effects the 42 parameters lack come on top)'}
