@@ -128,6 +128,26 @@ def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment') 
             for spec in nodes]
 
 
+# The folders a graph writes to, as launch arguments of every launch file.
+FOLDER_ARGUMENTS = {'output_dir': ('calibration', 'where the calibrators write calibration files'),
+                    'record_dir': ('runs', 'where runs are recorded (MCAP bags)')}
+
+
+def launch_description(graph: Callable[..., list[NodeSpec]]):
+    """The ``ros2 launch`` description of ``graph`` (one of this module's graph functions):
+    its nodes, with ``output_dir`` and ``record_dir`` declared as launch arguments
+    (``ros2 launch machine_alignment platform_sim.launch.py output_dir:=/data/cal``)."""
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument
+    from launch.substitutions import LaunchConfiguration
+    from launch_ros.actions import Node
+    declared = [DeclareLaunchArgument(name, default_value=default, description=meaning)
+                for name, (default, meaning) in FOLDER_ARGUMENTS.items()]
+    nodes = graph(**{name: LaunchConfiguration(name) for name in FOLDER_ARGUMENTS})
+    return LaunchDescription(declared + [Node(**arguments)
+                                         for arguments in launch_arguments(nodes)])
+
+
 def _format(value) -> str:
     if isinstance(value, bool):
         return 'true' if value else 'false'

@@ -7,6 +7,7 @@ import importlib
 import importlib.util
 import sys
 import types
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -34,13 +35,25 @@ def test_every_node_entry_point_has_a_main():
         assert callable(getattr(importlib.import_module(module), 'main', None)), name
 
 
+@dataclass(frozen=True)
+class Configuration:
+    """Stand-in for launch.substitutions.LaunchConfiguration."""
+    name: str
+
+
 @pytest.fixture
 def launch_stand_ins(monkeypatch):
     launch = types.ModuleType('launch')
     launch.LaunchDescription = lambda actions: list(actions)
+    launch_actions = types.ModuleType('launch.actions')
+    launch_actions.DeclareLaunchArgument = lambda name, **kwargs: {'argument': name, **kwargs}
+    substitutions = types.ModuleType('launch.substitutions')
+    substitutions.LaunchConfiguration = Configuration
     actions = types.ModuleType('launch_ros.actions')
     actions.Node = lambda **kwargs: kwargs
     monkeypatch.setitem(sys.modules, 'launch', launch)
+    monkeypatch.setitem(sys.modules, 'launch.actions', launch_actions)
+    monkeypatch.setitem(sys.modules, 'launch.substitutions', substitutions)
     monkeypatch.setitem(sys.modules, 'launch_ros', types.ModuleType('launch_ros'))
     monkeypatch.setitem(sys.modules, 'launch_ros.actions', actions)
 
@@ -59,8 +72,16 @@ def test_every_graph_has_a_launch_file_and_no_launch_file_is_extra():
 
 @pytest.mark.parametrize('name', sorted(GRAPHS))
 def test_launch_file_matches_the_launcher_graph(name, launch_stand_ins):
-    nodes, scripts = _described(name), _nodes()
-    graph = GRAPHS[name]()
+    described, scripts = _described(name), _nodes()
+    arguments = [a for a in described if 'argument' in a]
+    nodes = [n for n in described if 'argument' not in n]
+    # The folders are launch arguments with the launcher's defaults.
+    assert {a['argument']: a['default_value'] for a in arguments} == \
+        {'output_dir': 'calibration', 'record_dir': 'runs'}
+    folders = {name: Configuration(name) for name in ('output_dir', 'record_dir')}
+    graph = GRAPHS[name](**folders)
     assert [scripts[n['executable']] for n in nodes] == [spec.module for spec in graph]
     assert [n.get('parameters', [{}])[0] for n in nodes] == [spec.parameters for spec in graph]
+    assert any(Configuration('output_dir') in n.get('parameters', [{}])[0].values()
+               for n in nodes)
     assert all(n['package'] == 'machine_alignment' for n in nodes)
