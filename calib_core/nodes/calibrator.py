@@ -18,13 +18,16 @@ from calib_core.storage import read_calibration
 READ_ONLY = ParameterDescriptor(read_only=True)
 
 
+# The folder parameters and their defaults: calibration files, bags.
+PATH_DEFAULTS = {'output_dir': 'calibration', 'record_dir': 'runs'}
+
+
 def declare_paths(node, *names: str) -> None:
     """Declare the folder parameters ``names`` (``output_dir``: calibration files,
     ``record_dir``: bags) read-only, so a peer on the ROS domain cannot redirect where the
     calibration in force and the recordings are written."""
-    defaults = {'output_dir': 'calibration', 'record_dir': 'runs'}
     for name in names:
-        node.declare_parameter(name, defaults[name], READ_ONLY)
+        node.declare_parameter(name, PATH_DEFAULTS[name], READ_ONLY)
 
 
 def publish_calibration_in_force(node, name: str, publisher, as_message: Callable) -> None:
