@@ -113,3 +113,18 @@ def test_simulate_gantry_and_camera_give_data_the_other_commands_read(tmp_path):
     assert cli_main(['analyze', 'gantry', '--data', str(gantry), '--json',
                      str(tmp_path / 'gantry.json')]) == 0
     assert json.loads((tmp_path / 'gantry.json').read_text())['effects_added'] == []
+
+
+def test_analyze_axis_writes_the_iso_230_2_plot_and_the_compensation_table(tmp_path):
+    """An axis with 4 um backlash: the ISO 230-2 figures before and after go into the
+    report, the table and the mean +- 2 s plot beside the JSON."""
+    axis, report = tmp_path / 'axis.csv', tmp_path / 'axis.json'
+    assert cli_main(['simulate', 'axis', '--out', str(axis), '--backlash', '4e-6']) == 0
+    assert cli_main(['analyze', 'axis', '--data', str(axis), '--json', str(report)]) == 0
+    content = json.loads(report.read_text())
+    iso = content['iso230_2']
+    assert iso['before']['bidirectional']['B'] == pytest.approx(4e-6, abs=1e-6)
+    assert iso['after']['bidirectional']['B'] < 1e-6
+    figure = tmp_path / 'axis_iso230_2.png'
+    assert content['iso230_2_figure'] == str(figure) and figure.stat().st_size > 10_000
+    assert (tmp_path / 'axis_compensation.csv').is_file()

@@ -9,6 +9,7 @@ import numpy as np
 
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
 from calib_core.closed_loop import LoopConfig, analyze, format_report
+from calib_core.iso230_2_plot import plot_iso230_2
 from calib_core.errors import MachineAlignmentError
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.data import read_observations
@@ -97,6 +98,12 @@ def _axis_figures(machine, result, report: dict, json_path) -> None:
         report['compensation_table'] = str(path)
         print(f'wrote {path} (position, correction_up, correction_down in m; '
               f'{len(table)} rows, reference state: mean time and temperature, first block)')
+        figure = Path(json_path).with_name(Path(json_path).stem + '_iso230_2.png')
+        held = iso['method'].startswith('leave one cycle out')
+        plot_iso230_2(figure, iso['before'], iso['after'], 'after the extended model, '
+                      + ('each cycle held out' if held else 'in-sample'))
+        report['iso230_2_figure'] = str(figure)
+        print(f'wrote {figure} (mean +- 2 s per direction against target, before and after)')
 
 
 def cmd_analyze(args) -> int:
