@@ -1,4 +1,4 @@
-"""``machine-align evaluate hexapod|platform|alignment``: check a calibration on data not
+"""``machine-align evaluate hexapod|platform|five-axis|alignment``: check a calibration on data not
 used to fit it (a pose file, or the truth a simulation wrote), or plan recorded alignments
 again from their bag."""
 from __future__ import annotations
@@ -9,6 +9,11 @@ import numpy as np
 
 from calib_core.bags import decode_bag
 from calib_core.errors import MachineAlignmentError
+from dispenser_calib.core.calibration import reprojection
+from dispenser_calib.core.model import nominal_model as dispenser_nominal
+from dispenser_calib.core.model import read_model as read_dispenser_model
+from dispenser_calib.core.procedure import evaluation_stops
+from dispenser_calib.sim.machine import observe
 from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.kinematics import forward_kinematics
@@ -74,6 +79,30 @@ def cmd_evaluate_platform(args) -> int:
     return 0
 
 
+def cmd_evaluate_five_axis(args) -> int:
+    """The board imaged by the true machine (noise-free) at stops with A and C both turned,
+    none of them a calibration stop, against what the nominal and the calibrated model
+    predict there."""
+    calibrated = read_dispenser_model(args.calibration)
+    truth = read_dispenser_model(args.truth)
+    stops = evaluation_stops(dispenser_nominal(), args.count, args.seed + 1000)
+    images, _ = observe(truth, stops, noise_px=0.0, seed=args.seed)
+    report = {'calibration': str(args.calibration), 'truth': str(args.truth),
+              'images': len(images),
+              'note': 'reprojection of the dots imaged by the true machine, without noise, '
+                      'at stops with A and C turned (not calibration stops), px'}
+    for name, model in (('nominal', dispenser_nominal()), ('calibrated', calibrated)):
+        errors = np.linalg.norm(np.concatenate(reprojection(model, images)), axis=1)
+        report[name] = {'rms_px': float(np.sqrt(np.mean(errors ** 2))),
+                        'max_px': float(errors.max())}
+    n, c = report['nominal'], report['calibrated']
+    print(f'{len(images)} stops imaged by the true machine: nominal model RMS {n["rms_px"]:.1f} '
+          f'px (max {n["max_px"]:.1f}); calibrated RMS {c["rms_px"]:.4f} px (max '
+          f'{c["max_px"]:.4f})')
+    write_json(args.json, report)
+    return 0
+
+
 def cmd_evaluate_alignment(args) -> int:
     """Plan each alignment recorded by the aligner again, from its recorded Mark
     measurements and the stage calibration it used, and compare the chain inputs."""
@@ -125,6 +154,16 @@ def add_parser(sub) -> None:
     platform_eval.add_argument('--seed', type=ranged(int, 0), default=0)
     platform_eval.add_argument('--json', help='report to write (JSON, SI units)')
     platform_eval.set_defaults(func=cmd_evaluate_platform)
+    five_axis_eval = evaluated.add_parser(
+        'five-axis', help='reprojection of a five-axis calibration against a true model '
+                          '(what simulate five-axis --truth writes)')
+    five_axis_eval.add_argument('--calibration', required=True, help='calibrated model YAML')
+    five_axis_eval.add_argument('--truth', required=True, help='the true model YAML')
+    five_axis_eval.add_argument('--count', type=ranged(int, 1, 10000), default=50,
+                                help='stops with A and C turned')
+    five_axis_eval.add_argument('--seed', type=ranged(int, 0), default=0)
+    five_axis_eval.add_argument('--json', help='report to write (JSON)')
+    five_axis_eval.set_defaults(func=cmd_evaluate_five_axis)
     alignment_eval = evaluated.add_parser(
         'alignment', help='plan recorded alignments again from their bag (aligner runs)')
     alignment_eval.add_argument('--bag', required=True, help='an alignment_<stamp> bag')
