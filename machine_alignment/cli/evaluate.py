@@ -49,10 +49,10 @@ def cmd_evaluate_hexapod(args) -> int:
     return 0
 
 
-def _mark_summary(errors: np.ndarray) -> dict:
-    """Each mark's position error (n, 2) m: RMS, median and max over marks and poses."""
-    return {'rms_m': float(np.sqrt(np.mean(errors ** 2))),
-            'median_m': float(np.median(errors)), 'max_m': float(errors.max())}
+def _summary(errors: np.ndarray, unit: str) -> dict:
+    """RMS, median and max of ``errors`` (any shape), keys suffixed with ``unit``."""
+    return {f'rms_{unit}': float(np.sqrt(np.mean(np.square(errors)))),
+            f'median_{unit}': float(np.median(errors)), f'max_{unit}': float(np.max(errors))}
 
 
 def cmd_evaluate_platform(args) -> int:
@@ -70,7 +70,7 @@ def cmd_evaluate_platform(args) -> int:
                       '(m); measured against the truth, not the model\'s own prediction'}
     for name, model in (('nominal', nominal), ('identified', identified)):
         reached = forward(truth, inverse(model, working), working)
-        report[name] = _mark_summary(mark_errors(reached, working))
+        report[name] = _summary(mark_errors(reached, working), 'm')
     n, c = report['nominal'], report['identified']
     print(f'{len(working)} working poses on the true platform, each mark\'s error: nominal '
           f'geometry RMS {n["rms_m"] * 1e6:.1f} um (max {n["max_m"] * 1e6:.1f} um); identified '
@@ -92,9 +92,8 @@ def cmd_evaluate_five_axis(args) -> int:
               'note': 'reprojection of the dots imaged by the true machine, without noise, '
                       'at stops with A and C turned (not calibration stops), px'}
     for name, model in (('nominal', dispenser_nominal()), ('calibrated', calibrated)):
-        errors = np.linalg.norm(np.concatenate(reprojection(model, images)), axis=1)
-        report[name] = {'rms_px': float(np.sqrt(np.mean(errors ** 2))),
-                        'max_px': float(errors.max())}
+        report[name] = _summary(np.linalg.norm(np.concatenate(reprojection(model, images)),
+                                               axis=1), 'px')
     n, c = report['nominal'], report['calibrated']
     print(f'{len(images)} stops imaged by the true machine: nominal model RMS {n["rms_px"]:.1f} '
           f'px (max {n["max_px"]:.1f}); calibrated RMS {c["rms_px"]:.4f} px (max '
