@@ -39,23 +39,32 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 from alignment_msgs.srv import (
     Align, AnalyzeResiduals, LocateWorkpiece, MeasureNeedle, MoveStage, RegisterScreen,
     RunCalibration)
 
+from calib_core.bags import decode_bag
 from calib_core.errors import CalibrationError
+from calib_core.figures import arrow_key
 from calib_core.storage import write_atomic
 from hexapod_calib.sim.hexapod import HexapodTruth
 from machine_alignment.cli import calibrate
 from machine_alignment.launcher import (
     Graph, five_axis_graph, grid_graph, hexapod_graph, platform_graph, printer_graph, stage_graph)
 from machine_alignment.live import LiveClient
+from platform_calib.core.compensation import composite_error
+from platform_calib.core.records import MEASUREMENTS_TOPIC as PLATFORM_MEASUREMENTS
+from platform_calib.core.records import stop_from_message
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.sim.camera import CameraSim
 from printer_alignment.sim.evaluation import measure_errors, plot_errors, summarise
 from printer_alignment.sim.gantry import GantryErrors, GantrySim
 from printer_alignment.sim.scenes import make_scene
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402  (after the backend is chosen)
 
 
 @dataclass
@@ -299,10 +308,13 @@ def _grid(run: DemoRun) -> int:
           f'{np.abs(errors).max() * 1e6:.2f} um; non-orthogonality t = 2 O = '
           f'{square * 1e6:.1f} urad (the simulated gantry: '
           f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)')
+    sites = np.array([[s['x'], s['y']] for s in report['sites']])
+    _plot_grid_map(out / 'grid_map.png', sites, errors)
+    print(f'      wrote {out}/grid_map.png')
     run.row(f'grid plate ({len(errors)} sites, {report["stitching"]["regions"]} regions)',
             f'stage error up to {np.abs(errors).max() * 1e6:.2f} um at the sites',
             f'mapped; non-orthogonality {square * 1e6:.1f} urad (simulated '
-            f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)', '', '')
+            f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)', '', 'grid_map.png')
     return 0
 
 
@@ -328,14 +340,56 @@ def _platform(run: DemoRun) -> int:
     before = json.loads(answer.report_json)['error_before_m']
     print(f'      registered (exact compensation): marks off by {before * 1e3:.3f} mm before, '
           f'{answer.measured_error * 1e6:.2f} um after the move')
+    _plot_platform_evaluation(out / 'platform_evaluation.png', out / 'runs')
+    print(f'      wrote {out}/platform_evaluation.png')
     run.row(f'screen-registration platform ({evaluation["evaluate_calibrated"]["poses"]} '
             'held-out poses, tracker-measured; one registration)',
             f'median {evaluation["evaluate_nominal"]["median_m"] * 1e6:.1f} um (nominal model); '
             f'screen placed {before * 1e3:.2f} mm off',
             f'median {evaluation["evaluate_calibrated"]["median_m"] * 1e6:.1f} um; marks '
             f'{answer.measured_error * 1e6:.1f} um off after the move',
-            '0.21-1.96 mm -> about 0.10 mm', '')
+            '0.21-1.96 mm -> about 0.10 mm', 'platform_evaluation.png')
     return 0
+
+
+def _plot_grid_map(path: Path, sites: np.ndarray, errors: np.ndarray) -> None:
+    """The stage error map the grid calibration found: an arrow per site, scale bar in um."""
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    arrows = ax.quiver(sites[:, 0] * 1e3, sites[:, 1] * 1e3, errors[:, 0] * 1e6,
+                       errors[:, 1] * 1e6, angles='xy', color='tab:blue')
+    arrow_key(ax, arrows, float(np.abs(errors).max() * 1e6 / 2), 'um')
+    ax.set_xlabel('x (mm)')
+    ax.set_ylabel('y (mm)')
+    ax.set_aspect('equal')
+    ax.margins(0.1, 0.3)                   # room for the arrows at the edges
+    ax.set_title('stage error map from the grid plate (self-calibrated, 2 regions)', fontsize=10)
+    fig.subplots_adjust(bottom=0.24)       # the arrow key sits below the axes
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _plot_platform_evaluation(path: Path, runs: Path) -> None:
+    """Each held-out pose's composite mark error, measured by the tracker, with the nominal
+    and the calibrated commands (from the run's bag), on one scale."""
+    bag = next(b for b in sorted(runs.glob('platform_*')) if 'analysis' not in b.name)
+    stops = [stop_from_message(msg) for topic, _, msg in decode_bag(bag)
+             if topic == PLATFORM_MEASUREMENTS]
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for phase, colour, label in (('evaluate_nominal', 'tab:red', 'nominal geometry'),
+                                 ('evaluate_calibrated', 'tab:blue', 'identified geometry')):
+        rows = [s for s in stops if s.phase == phase]
+        errors = composite_error(np.array([s.measured for s in rows]),
+                                 np.array([s.target for s in rows])) * 1e6
+        ax.semilogy(np.arange(1, len(errors) + 1), errors, 'o', color=colour,
+                    label=f'{label}: median {np.median(errors):.1f} um')
+    ax.set_xlabel('held-out pose')
+    ax.set_ylabel("composite mark error |AA'| + |BB'| (um, log)")
+    ax.set_title('platform: held-out poses measured by the laser tracker', fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, which='both')
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def _five_axis(run: DemoRun) -> int:
