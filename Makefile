@@ -61,6 +61,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.platform --out bench_results
 	$(BIN)/python -m machine_alignment.bench.plan_platform --out bench_results
 	$(BIN)/python -m machine_alignment.bench.five_axis --out bench_results
+	$(BIN)/python -m machine_alignment.bench.performance --out bench_results
 
 clean:
 	rm -rf build out .pytest_cache
