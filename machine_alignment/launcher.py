@@ -194,7 +194,9 @@ class Graph:
         self.processes = []
         self.escalations: list[str] = []
         environment = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **(env or {})}
-        environment.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', SERVICE_PROFILE)
+        if not ({'FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'}
+                & environment.keys()):       # the user's own profile wins
+            environment['FASTRTPS_DEFAULT_PROFILES_FILE'] = SERVICE_PROFILE
         for spec in nodes:
             args = (prefix(spec) if prefix else []) + [sys.executable, '-m', spec.module]
             if spec.parameters:
