@@ -193,6 +193,7 @@ class Graph:
         self.names = [node_name(spec) for spec in nodes]
         self.processes = []
         self.escalations: list[str] = []
+        self._logs = []
         environment = {**os.environ, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', **(env or {})}
         if not ({'FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'}
                 & environment.keys()):       # the user's own profile wins
@@ -206,6 +207,7 @@ class Graph:
             if log_dir:
                 os.makedirs(log_dir, exist_ok=True)
                 out = open(os.path.join(log_dir, node_name(spec) + '.log'), 'w')
+                self._logs.append(out)
             self.processes.append(subprocess.Popen(args, env=environment, stdout=out,
                                                    stderr=subprocess.STDOUT if out else None))
 
@@ -232,7 +234,7 @@ class Graph:
             running = [(name, p) for name, p in zip(self.names, self.processes)
                        if p.poll() is None]
             if not running:
-                return
+                break
             for name, p in running:
                 if sig != signal.SIGINT:
                     self.escalations.append(f'{name} still running: sent {sig.name}')
@@ -243,3 +245,5 @@ class Graph:
                     p.wait(max(deadline - time.monotonic(), 0.05))
                 except subprocess.TimeoutExpired:
                     pass
+        for log in self._logs:                   # the nodes have ended: nothing more to write
+            log.close()
