@@ -67,14 +67,19 @@ class AnalysisService:
         Latched topic of the reports.
     header : callable () -> std_msgs/Header
     progress : callable (step, total, message), optional
+    options : tuple of str
+        The plan keys ``collect`` takes besides the loop's; any other key is refused before
+        anything runs.
     """
 
     def __init__(self, node, kind: str, lock: threading.Lock,
                  collect: Callable[[dict], MachineModel],
                  apply: Callable[[LoopResult], str] | str,
-                 topic: str, header: Callable, progress: Callable | None = None):
+                 topic: str, header: Callable, progress: Callable | None = None,
+                 options: tuple = ()):
         self.node, self.kind, self.lock, self.header = node, kind, lock, header
         self.collect, self.apply, self.topic, self.progress = collect, apply, topic, progress
+        self.options = tuple(options)
         self.publisher = node.create_publisher(ResidualAnalysis, topic, LATCHED)
 
     def __call__(self, request, response):
@@ -88,6 +93,10 @@ class AnalysisService:
                                         'apply for the report')
             options = parse_plan(request.plan_yaml)
             config = LoopConfig(**{k: options.pop(k) for k in LOOP_OPTIONS if k in options})
+            unknown = set(options) - set(self.options)
+            if unknown:
+                raise InvalidInputError(f'unknown analysis options {sorted(unknown)}; known: '
+                                        f'{list(self.options) + list(LOOP_OPTIONS)}')
             machine = self.collect(options)
             result = analyze(machine, config, progress=self.progress)
             response.analysis = self._publish(machine, result, request.apply)

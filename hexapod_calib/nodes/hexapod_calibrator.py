@@ -171,8 +171,6 @@ class HexapodCalibratorNode(Node):
         return result
 
     def _loop_model(self, options: dict) -> HexapodLoopModel:
-        if options:
-            raise InvalidInputError(f'unknown analysis options {sorted(options)}')
         if not self._last_run:
             raise CalibrationError('no calibration run to analyse yet: call '
                                    'hexapod_calibrator/calibrate first')

@@ -178,8 +178,6 @@ class PlatformCalibratorNode(Node):
         return message
 
     def _loop_model(self, options: dict) -> PlatformLoopModel:
-        if options:
-            raise InvalidInputError(f'unknown analysis options {sorted(options)}')
         if not self._identified:
             raise CalibrationError('no platform calibration run to analyse yet: call '
                                    'platform_calibrator/calibrate first')

@@ -135,8 +135,6 @@ class StageCalibratorNode(Node):
         return result
 
     def _loop_model(self, options: dict):
-        if options:
-            raise InvalidInputError(f'unknown analysis options {sorted(options)}')
         if self._data is None:
             raise CalibrationError('no stage calibration run to analyse yet: call '
                                    'stage_calibrator/calibrate first')

@@ -124,7 +124,8 @@ class VisionCalibratorNode(Node):
         self.create_service(AnalyzeResiduals, 'vision_calibrator/analyze_residuals',
                             AnalysisService(self, 'vision', self.calibration_service.busy,
                                             self._measure_for_analysis, self._apply_extended,
-                                            ANALYSIS_TOPIC, self._header),
+                                            ANALYSIS_TOPIC, self._header,
+                                            options=ANALYSIS_OPTIONS),
                             callback_group=group)
 
     def _publish_calibration_in_force(self):
@@ -256,10 +257,6 @@ class VisionCalibratorNode(Node):
     def _measure_for_analysis(self, options: dict) -> GantryLoopModel:
         """Visit random positions over the travel with the calibrated vision system and
         return the gantry data for the closed loop."""
-        unknown = set(options) - set(ANALYSIS_OPTIONS)
-        if unknown:
-            raise InvalidInputError(f'unknown analysis options {sorted(unknown)}; known: '
-                                    f'{list(ANALYSIS_OPTIONS)} and the loop\'s')
         if self._calibration is None:
             raise CalibrationError('no vision calibration to analyse yet: call '
                                    'vision_calibrator/calibrate first')
