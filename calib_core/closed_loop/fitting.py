@@ -98,6 +98,7 @@ def grouped_differences(fun, sparsity: np.ndarray):
         else:
             groups.append([column])
             covered.append(sparsity[:, column].copy())
+    rows_of = [np.flatnonzero(sparsity[:, column]) for column in range(sparsity.shape[1])]
 
     def jacobian(x):
         f0 = fun(x)
@@ -109,7 +110,7 @@ def grouped_differences(fun, sparsity: np.ndarray):
             moved[group] += step[group]
             change = fun(moved) - f0
             for column in group:
-                rows = sparsity[:, column]
+                rows = rows_of[column]
                 out[rows, column] = change[rows] / (moved[column] - x[column])
         return out
     return jacobian
