@@ -21,7 +21,7 @@ from dispenser_calib.core.procedure import (
     plan_stops)
 from dispenser_calib.sim.images import render_board
 from dispenser_calib.sim.machine import IMAGE_SIZE, needle_hardware, observe, true_model
-from machine_alignment.bench import main_with_out
+from machine_alignment.bench import main_with_out, write_table
 
 NOMINAL = nominal_model()
 BOARD = board_points()[0]
@@ -227,8 +227,7 @@ def run(out: Path) -> None:
              f'per frame.', '',
              '| images | identification time |', '|---|---|']
     lines += [f'| {row["images"]} | {row["seconds"]:.2f} s |' for row in result['timing']]
-    write_atomic(out / 'five_axis.md', '\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_table(out, 'five_axis', lines)
 
 
 def main(argv=None) -> int:

@@ -25,7 +25,7 @@ from grid_calib.core.selfcal import self_calibrate  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from grid_calib.sim.plate import (  # noqa: E402
     default_travel, default_truth, measure_placements, measure_travel)
-from machine_alignment.bench import main_with_out  # noqa: E402
+from machine_alignment.bench import main_with_out, write_table  # noqa: E402
 
 GRID = Grid(5, 0.01)
 SIGMA = 20e-9
@@ -203,8 +203,7 @@ def run(out: Path) -> None:
               + ', '.join(f'N = {n}: {by[(n, "COLAMD")] / by[(n, "MMD_AT_PLUS_A")]:.1f}'
                           for n in (11, 41))
               + ' (at N = 11 both take milliseconds). The default is not run at N = 101.']
-    write_atomic(out / 'grid.md', '\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_table(out, 'grid', lines)
 
 
 def main(argv=None) -> int:

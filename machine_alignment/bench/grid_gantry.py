@@ -25,7 +25,7 @@ from grid_calib.core.model import linear_parts, without_similarity  # noqa: E402
 from grid_calib.core.procedure import GridPlan, measure_grid  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from grid_calib.sim.plate import SmoothField, default_truth  # noqa: E402
-from machine_alignment.bench import main_with_out  # noqa: E402
+from machine_alignment.bench import main_with_out, write_table  # noqa: E402
 from printer_alignment.core.geometry import NOMINAL_LEADS, GantryModel  # noqa: E402
 from calib_core.marks import detect_marks  # noqa: E402
 from printer_alignment.core.vision_procedure import VisionPlan, run_vision_calibration  # noqa: E402
@@ -209,8 +209,7 @@ def run(out: Path, seeds=(1, 2, 3)) -> None:
                              f'{v["max_m"]["mean"] * 1e6:.2f} ({v["max_m"]["min"] * 1e6:.2f}-'
                              f'{v["max_m"]["max"] * 1e6:.2f}) | {v["rms_m"]["mean"] * 1e6:.2f} '
                              f'({v["rms_m"]["min"] * 1e6:.2f}-{v["rms_m"]["max"] * 1e6:.2f}) |')
-    write_atomic(out / 'grid_gantry.md', '\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_table(out, 'grid_gantry', lines)
 
 
 def main(argv=None) -> int:

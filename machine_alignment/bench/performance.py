@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.storage import write_atomic
+from machine_alignment.bench import write_table
 
 
 def _hexapod(size: int):
@@ -153,8 +154,7 @@ def run(out: Path) -> list:
               '(`closed_loop_speed.md`), the grid solver up to N = 101 against the source\'s '
               'route (`grid.md`).']
     write_atomic(out / 'performance.json', json.dumps(rows, indent=2) + '\n')
-    write_atomic(out / 'performance.md', '\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_table(out, 'performance', lines)
     return rows
 
 

@@ -16,7 +16,7 @@ from dispenser_calib.core.model import DispenserModel, nominal_model, place, pro
 from dispenser_calib.core.procedure import (
     WORKING_DISTANCE, check_stroke, evaluation_stops, plan_stops)
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
-from machine_alignment.bench import main_with_out
+from machine_alignment.bench import main_with_out, write_table
 
 NOISE_PX = 0.1
 WATCHED = ('E_B0A', 'E_B0C')
@@ -120,8 +120,7 @@ def run(out: Path) -> dict:
                      f'{q["E_B0A"] * 1e3:.3f} mrad | {p["E_B0C"] * 1e3:.3f} mrad | '
                      f'{q["E_B0C"] * 1e3:.3f} mrad |')
     write_atomic(out / 'plan_five_axis.json', json.dumps(results, indent=2) + '\n')
-    write_atomic(out / 'plan_five_axis.md', '\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_table(out, 'plan_five_axis', lines)
     return results
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.storage import write_atomic
-from machine_alignment.bench import main_with_out
+from machine_alignment.bench import main_with_out, write_table
 from platform_calib.core.compensation import mark_errors
 from platform_calib.core.geometry import nominal_geometry
 from platform_calib.core.identification import identify
@@ -97,8 +97,7 @@ def run(out: Path) -> dict:
     lines += ['', f'CPU {seconds:.0f} s for the whole bench (planning 3000 candidates: under '
               '1 s per plan).']
     write_atomic(out / 'plan_platform.json', json.dumps(results, indent=2) + '\n')
-    write_atomic(out / 'plan_platform.md', '\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_table(out, 'plan_platform', lines)
     return results
 
 

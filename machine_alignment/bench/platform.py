@@ -14,7 +14,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
 from calib_core.storage import write_atomic  # noqa: E402
-from machine_alignment.bench import main_with_out  # noqa: E402
+from machine_alignment.bench import main_with_out, write_table  # noqa: E402
 from platform_calib.core.compensation import (  # noqa: E402
     PSOSettings, compensate, composite_error, mark_positions)
 from platform_calib.core.geometry import nominal_geometry  # noqa: E402
@@ -247,8 +247,7 @@ def run(out: Path) -> None:
                      f'{row["median_offset_m"] * 1e3:.4f} mm | {row["layers"]} x {row["seeds"]} |')
     lines += ['', 'Source: 0.21-1.96 mm before, about 0.10 mm after (simulation); printed '
               'layers within 0.03 mm (experiment).']
-    write_atomic(out / 'platform.md', '\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_table(out, 'platform', lines)
 
 
 def main(argv=None) -> int:
