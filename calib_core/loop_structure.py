@@ -164,9 +164,10 @@ def likely_causes(item: dict) -> str:
     """What could cause an unexplained structure, by its kind and covariate (a hint for the
     engineer, not a diagnosis: the data did not pick one)."""
     if item['covariate'].startswith('angle') or item.get('covariate_unit') == 'rad':
-        return ('an error repeating with the rotary axis\'s angle that is not an angle error: '
-                'radial or tilt error motion (ISO 230-7), eccentricity of the target on the '
-                'table, or the camera\'s view-angle bias')
+        return ('an error repeating with the rotary axis\'s angle that neither an angle error '
+                'nor a radial or axial error motion of the orders tested explains: tilt error '
+                'motion (ISO 230-7), error motion of an order the angles do not resolve, or '
+                'the instrument\'s bias with the view angle')
     if item['covariate'] == 'image_radius':
         return 'lens distortion of higher order than modelled'
     return _CAUSES.get(item['kind'], 'not known')

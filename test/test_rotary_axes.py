@@ -139,6 +139,48 @@ def test_loop_finds_a_worm_gear_error_and_a_z_drift():
     assert report['rms_after'] < 0.95 * report['rms_before']
 
 
+def _radial_two_per_turn(c, size=8e-6):
+    """C's rotor shifting 8 um along its housing's x at c = 0, twice per turn (a two-lobed
+    bearing race), and along y a quarter of that turn later: no angle error at all."""
+    return np.column_stack([size * np.cos(2 * c), size * np.sin(2 * c), np.zeros_like(c)])
+
+
+QUIET = {'position_noise': 5e-6, 'rotation_noise': 50e-6}
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_loop_names_radial_error_motion_of_c(seed):
+    """An 8 um twice-per-turn radial error motion of C is named as such (ISO 230-7), on C's
+    radial directions and order 2 only, each coefficient within 3 sigma of the truth; no
+    scale or angle error is claimed for it, and A (60 deg of travel) is said not to allow
+    one."""
+    poses = _simulated(seed, c_error_motion=_radial_two_per_turn, **QUIET)
+    report = analyze(RotaryLoopModel(poses)).report
+    assert _names(report) == ['error_motion']
+    motion = _effect(report, 'error_motion')
+    assert motion['orders'] == {'c radial': [2]}
+    assert any(reason.startswith('a: no order') for reason in motion['channels_not_tested'])
+    true = {'c_radial_1_cos2': 8e-6, 'c_radial_1_sin2': 0.0, 'c_radial_2_cos2': 0.0,
+            'c_radial_2_sin2': 8e-6}
+    assert set(motion['parameters']) == set(true)
+    for name, value in true.items():
+        assert motion['units'][name] == 'm'
+        assert abs(motion['parameters'][name] - value) < 3 * motion['std_devs'][name]
+    assert report['rms_after'] < 0.9 * report['rms_before']     # held-out rows
+
+
+def test_radial_error_motion_without_the_effect_is_unexplained():
+    """The same table with error motion taken out of the library: nothing is added (no
+    scale or angle harmonic stands in for it) and the structure is reported against C."""
+    class WithoutErrorMotion(RotaryLoopModel):
+        candidates = tuple(c for c in RotaryLoopModel.candidates if c != 'error_motion')
+    poses = _simulated(0, c_error_motion=_radial_two_per_turn, **QUIET)
+    report = analyze(WithoutErrorMotion(poses)).report
+    assert _names(report) == []
+    assert any(item['kind'] == 'periodic' and item['covariate'] in ('position_c', 'angle_c')
+               for item in report['unexplained'])
+
+
 @pytest.fixture(scope='module')
 def real_poses():
     return read_target_poses(REAL / 'positioner_poses.csv', 'j1', 'j2')

@@ -34,6 +34,8 @@ def _covariate_columns(machine, context: dict) -> dict:
         if is_reference(key):
             continue
         value = np.asarray(value, float)
+        if value.ndim > 2:      # a per-row matrix (a rotor's housing frame), not a covariate
+            continue
         if value.ndim == 1:
             out[key] = value
         elif key == 'normalized':

@@ -33,14 +33,18 @@ Names are stable (they appear in reports):
 ``angular_harmonics``       a rotary axis's angular error repeating every turn (worm gear,
                             encoder eccentricity), sum of a_k cos(k theta) + b_k sin(k theta),
                             orders resolved by the angles sampled (rad)
+``error_motion``            radial and axial error motion of a rotary axis (ISO 230-7): the rotor
+                            shifting with its angle, orders 2 and up per component (m); needs
+                            ``rotor_frame`` (n, C, C, 3), each axis's housing frame in the channels
 ==========================  ============================================================
 
 Modules: ``base`` (Effect, Prepared and shared shapes), ``per_channel``, ``leg_play``,
-``periodic``, ``position``, ``categorical``, ``camera``, ``rotary``.
+``periodic``, ``position``, ``categorical``, ``camera``, ``rotary``, ``error_motion``.
 """
 from calib_core.effects.base import Effect, Prepared
 from calib_core.effects.camera import RadialDistortion, TangentialDistortion
 from calib_core.effects.categorical import CATEGORICAL_COVARIATES, BlockStep, WarmUp
+from calib_core.effects.error_motion import ErrorMotion
 from calib_core.effects.leg_play import LegPlay
 from calib_core.effects.per_channel import (
     Compliance, DriftTemperature, DriftTime, Offset, Reversal, Scale, Squareness)
@@ -52,10 +56,10 @@ LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Peri
                                ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
                                DriftTime(), DriftTemperature(), RadialDistortion(),
                                TangentialDistortion(), LegPlay(), Compliance(),
-                               RotaryHarmonics())}
+                               RotaryHarmonics(), ErrorMotion())}
 
 __all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'DriftTemperature',
-           'DriftTime', 'Effect', 'LeadError', 'LegPlay', 'Offset', 'Periodic', 'Prepared',
+           'DriftTime', 'Effect', 'ErrorMotion', 'LeadError', 'LegPlay', 'Offset', 'Periodic', 'Prepared',
            'RadialDistortion', 'Reversal', 'ReversalByPosition', 'RotaryHarmonics', 'Scale',
            'Squareness', 'TangentialDistortion', 'WarmUp', 'resolvable_orders',
            'resolvable_periods']

@@ -14,7 +14,7 @@ from calib_core.datasets import directions_from_order
 from calib_core.effects.rotary import commanded_places
 from calib_core.parameters import Parameter, ParameterSet
 from dispenser_calib.core.rotary import (
-    FITTED_NAMES, LEVER, identify_rotary_axes, model_from, pose_residuals)
+    FITTED_NAMES, LEVER, housing_frames, identify_rotary_axes, model_from, pose_residuals)
 from dispenser_calib.core.target_poses import TargetPoses
 
 ANGLE_STEP = 1e-6   # rad: finite-difference step of the channel Jacobian
@@ -34,7 +34,7 @@ class RotaryLoopModel(MachineModel):
                   'origin\'s position and the lever arm times its orientation error (m)')
     channels = ('a', 'c', 'camera_x', 'camera_y', 'camera_z')
     channel_units = ('rad', 'rad', 'm', 'm', 'm')
-    candidates = ('scale', 'angular_harmonics', 'reversal', 'drift_time',
+    candidates = ('scale', 'angular_harmonics', 'error_motion', 'reversal', 'drift_time',
                   'drift_temperature')
     # Encoders turn, gears wobble and axes reverse; heat moves the target against the camera.
     effect_channels = {'scale': ('a', 'c'), 'angular_harmonics': ('a', 'c'),
@@ -76,9 +76,19 @@ class RotaryLoopModel(MachineModel):
         places = np.column_stack([commanded_places(angles[:, 0]), commanded_places(angles[:, 1])])
         context = {'position': np.column_stack([places, np.zeros((n, 3))]),
                    'angle': np.column_stack([angles, np.full((n, 3), np.nan)]),
-                   'direction': np.column_stack([self.directions[rows], np.zeros((n, 3))])}
+                   'direction': np.column_stack([self.directions[rows], np.zeros((n, 3))]),
+                   'rotor_frame': self._rotor_frame(base, rows)}
         context.update(select_rows(self._scalars, rows))
         return context
+
+    def _rotor_frame(self, base, rows):
+        """(n, 5, 5, 3): A's and C's rotor displacement (radial_1, radial_2, axial, m; see
+        :func:`housing_frames`) as the target's shift in the camera frame, the channels
+        camera_x, camera_y, camera_z."""
+        model = model_from(np.array([base[n] for n in FITTED_NAMES]), self.camera_start)
+        frame = np.zeros((len(rows), 5, 5, 3))
+        frame[:, :2, 2:, :] = housing_frames(model, self.poses.a[rows])
+        return frame
 
     def _residuals(self, base, delta, rows, turn_step=None):
         model = model_from(np.array([base[n] for n in FITTED_NAMES]), self.camera_start)

@@ -148,6 +148,27 @@ def axis_lines_in_camera(model: DispenserModel) -> dict:
     return lines
 
 
+def housing_frames(model: DispenserModel, a: np.ndarray) -> np.ndarray:
+    """Each rotary axis's housing frame in the camera frame, (n, 2, 3, 3) for A then C at
+    the table's A angles ``a`` (n,) rad: columns radial_1, radial_2, axial (right-handed).
+    A's are fixed: Y, Z, X of the table (its axial along v_a, radial_2 along v_c made
+    perpendicular), ISO 230-7's EYA, EZA, EXA; C's are carried by A: X, Y, Z (radial_1
+    along v_a made perpendicular to v_c), EXC, EYC, EZC."""
+    (va, _), (vc, _) = model.a_axis, model.c_axis
+
+    def frame(axial, towards):
+        second = towards - axial * (towards @ axial)
+        second /= np.linalg.norm(second)
+        return second, np.cross(axial, second)
+    z_of_a, y_of_a = frame(va, vc)          # radial_2, then axial x radial_2 = -radial_1
+    x_of_c, y_of_c = frame(vc, va)
+    a_frame = np.column_stack([-y_of_a, z_of_a, va])
+    c_frame = np.column_stack([x_of_c, y_of_c, vc])
+    carried = model.rotation @ rodrigues(va, np.asarray(a, float))
+    return np.stack([np.broadcast_to(model.rotation @ a_frame, carried.shape),
+                     carried @ c_frame], axis=1)
+
+
 def squareness(model: DispenserModel) -> float:
     """The angle (rad) by which A and C miss being perpendicular, positive when the
     angle between them is less than 90 degrees."""

@@ -10,7 +10,7 @@ from calib_core.datasets import directions_from_order
 from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
 from dispenser_calib.core.localisation import reached
 from dispenser_calib.core.model import (
-    NAMES, DispenserModel, _camera_rows, chain_rotation, nominal_model, project, project_rows)
+    NAMES, DispenserModel, rodrigues, _camera_rows, chain_rotation, nominal_model, project, project_rows)
 from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
 from dispenser_calib.core.target_poses import TargetPoses
 
@@ -92,19 +92,30 @@ def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, see
 def measure_target_poses(truth: DispenserModel, a: np.ndarray, c: np.ndarray,
                          times: np.ndarray, position_noise: float = 20e-6,
                          rotation_noise: float = 50e-6, seed: int = 0,
-                         angular_error=None, drift: np.ndarray | None = None) -> TargetPoses:
+                         angular_error=None, drift: np.ndarray | None = None,
+                         c_error_motion=None) -> TargetPoses:
     """The board's pose measured by the machine's own camera (linear axes at zero) at
     each table angle a, c (n,) rad and time (n,) s: the board's frame at reset is the table
     frame, so the truth's axes are those of the measured target. ``angular_error`` (a
     function of c, rad) is what C turns beyond its reading (a worm gear's error);
     ``drift`` (3,) m/s moves the board in the camera frame (Z's thermal drift); noise is
-    normal, ``position_noise`` m per coordinate and ``rotation_noise`` rad per axis."""
+    normal, ``position_noise`` m per coordinate and ``rotation_noise`` rad per axis.
+    ``c_error_motion`` (a function of c, (n, 3) m) shifts C's rotor, and the board with it,
+    along C's housing directions: x along A's axis (made perpendicular to C's), y, and z
+    along C's axis, all carried by A (ISO 230-7 EXC, EYC, EZC)."""
     rng = np.random.default_rng(seed + 70)
     turned = c + (angular_error(c) if angular_error is not None else 0.0)
     stops = np.column_stack([np.zeros((len(a), 3)), a, turned])
     position = _camera_rows(truth, np.zeros((len(a), 3)), stops)
     if drift is not None:
         position = position + np.outer(times - times[0], drift)
+    if c_error_motion is not None:
+        (va, _), (vc, _) = truth.a_axis, truth.c_axis
+        x = va - vc * (va @ vc)
+        x /= np.linalg.norm(x)
+        housing = truth.rotation @ rodrigues(va, np.asarray(a, float)) @ np.column_stack(
+            [x, np.cross(vc, x), vc])
+        position = position + np.einsum('nij,nj->ni', housing, c_error_motion(c))
     rotation = chain_rotation(truth, a, turned)
     wobble = Rotation.from_rotvec(rng.normal(0, rotation_noise, (len(a), 3))).as_matrix()
     return TargetPoses(np.asarray(a, float), np.asarray(c, float), wobble @ rotation,
