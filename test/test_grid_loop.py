@@ -3,6 +3,8 @@ nothing; a thermal expansion of the stage's scale as the machine warms during th
 logged temperature), which the self-calibration's model lacks, is found with its true
 coefficient, lowers the held-out error to the clean level and gives back the true G;
 effects of the position alone are in G already and never added."""
+import json
+
 import numpy as np
 import pytest
 
@@ -79,8 +81,15 @@ def test_the_command_line_finds_the_expansion(tmp_path, capsys):
     assert main(['simulate', 'grid', '--out', str(marks), '--expansion', '10e-6',
                  '--seed', '2']) == 0
     capsys.readouterr()
-    assert main(['analyze', 'grid', '--data', str(marks), '--pitch', '0.01']) == 0
+    assert main(['analyze', 'grid', '--data', str(marks), '--pitch', '0.01',
+                 '--json', str(tmp_path / 'loop.json')]) == 0
     out = capsys.readouterr().out
     assert 'added drift_temperature' in out and 'held-out (leave-one-out' in out
+    report = json.loads((tmp_path / 'loop.json').read_text())
+    added = report['effects_added']
+    assert [e['name'] for e in added] == ['drift_temperature']
+    assert added[0]['region'] in report['regions']
+    assert report['rms_after'] < report['rms_before'] and report['unit'] == 'm'
+    assert (tmp_path / 'loop.png').stat().st_size > 10_000
     assert main(['analyze', 'grid', '--data', str(marks), '--pitch', '0.01',
                  '--region', '3']) == 2

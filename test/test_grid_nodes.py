@@ -14,7 +14,7 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402
 from alignment_msgs.msg import CalibrationResult, GridPlacement  # noqa: E402
-from alignment_msgs.srv import RunCalibration  # noqa: E402
+from alignment_msgs.srv import AnalyzeResiduals, RunCalibration  # noqa: E402
 
 from calib_core.nodes.qos import LATCHED  # noqa: E402
 from calib_core.storage import read_calibration  # noqa: E402
@@ -53,6 +53,27 @@ def test_one_call_measures_every_placement_and_writes_the_map(graph):
     rclpy.spin_once(node, timeout_sec=1.0)
     assert results and results[-1].version == 1
     assert {(p.region, p.placement) for p in placements} >= {(1, 'shifted')}
+
+
+def test_analyze_residuals_on_the_last_run(graph):
+    """The grid's own loop on the run just measured (after the test above): a report per
+    region with the whole run's held-out summary, its figure, the report latched; a
+    random hold-out is refused (the grid loop holds out each reading in turn) and so is
+    putting an effect in force."""
+    _, node, _ = graph
+    client = node.create_client(AnalyzeResiduals, 'grid_calibrator/analyze_residuals')
+    response = call(node, client, AnalyzeResiduals.Request(), timeout=60.0)
+    assert response.success, response.message
+    analysis = response.analysis
+    report = json.loads(analysis.report_json)
+    assert analysis.machine == 'grid' and analysis.unit == 'm'
+    assert set(report['regions']) == {'0', '1'}
+    assert 0 < analysis.rms_after <= analysis.rms_before < 50e-6
+    assert Path(analysis.report_path).with_suffix('.png').stat().st_size > 10_000
+    refused = call(node, client, AnalyzeResiduals.Request(plan_yaml='holdout_fraction: 0.2'))
+    assert not refused.success and 'leave-one-out' in refused.message
+    applied = call(node, client, AnalyzeResiduals.Request(apply=True))
+    assert not applied.success and 'no place' in applied.message
 
 
 def test_the_recorded_run_solves_again_offline_to_the_same_map(graph, tmp_path):

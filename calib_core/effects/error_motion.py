@@ -20,62 +20,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from scipy import stats
-
 from calib_core.effects.base import Effect, Prepared
-from calib_core.effects.rotary import resolvable_orders
+from calib_core.effects.rotary import (
+    FURTHER, harmonic_columns, resolvable_orders, select_orders)
 
 COMPONENTS = ('radial_1', 'radial_2', 'axial')
 GROUPS = (('radial', (0, 1)), ('axial', (2,)))
 FIRST_ORDER = 2
-
-
-def _harmonics(angle: np.ndarray, orders) -> np.ndarray:
-    """(n, 2 len(orders)): cos(k angle), sin(k angle) per order."""
-    return np.column_stack([f(k * angle) for k in orders for f in (np.cos, np.sin)])
-
-
-def _rss(angle: np.ndarray, targets: np.ndarray, orders) -> float:
-    """Residual sum of squares of ``targets`` (n, q) on a constant and the harmonics of
-    ``orders``."""
-    design = np.column_stack([np.ones_like(angle)]
-                             + ([_harmonics(angle, orders)] if orders else []))
-    fitted = design @ np.linalg.lstsq(design, targets, rcond=None)[0]
-    return float(np.sum((targets - fitted) ** 2))
-
-
-def _choose_orders(angle: np.ndarray, targets: np.ndarray, top: int, most: int,
-                   screen: float):
-    """The orders of one component group, from FIRST_ORDER to ``top``: the order that
-    explains most, kept if its F-test (corrected for the orders scanned) passes
-    ``screen``, then more while they lower the information criterion. A screen, not the
-    decision: the loop's own test of the joint fit decides. Returns (orders, scanned)."""
-    n, q = targets.shape
-    candidates = list(range(FIRST_ORDER, top + 1))
-    scanned = len(candidates)
-    if not candidates or n <= 2 * q + 1:
-        return [], max(scanned, 1)
-    rss0 = _rss(angle, targets, [])
-    best = min(candidates, key=lambda k: _rss(angle, targets, [k]))
-    rss1 = _rss(angle, targets, [best])
-    dof = q * (n - 3)
-    f_stat = (rss0 - rss1) / (2 * q) / max(rss1 / dof, 1e-300)
-    if stats.f.sf(f_stat, 2 * q, dof) * scanned >= screen:
-        return [], scanned
-    chosen = [best]
-    candidates.remove(best)
-
-    def criterion(orders):
-        return n * q * np.log(max(_rss(angle, targets, orders), 1e-300) / (n * q)) \
-            + q * (1 + 2 * len(orders)) * np.log(n)
-    while candidates and len(chosen) < most:
-        score = {k: criterion(chosen + [k]) for k in candidates}
-        k = min(score, key=score.get)
-        if score[k] >= criterion(chosen):
-            break
-        chosen.append(k)
-        candidates.remove(k)
-    return sorted(chosen), scanned
 
 
 class ErrorMotion(Effect):
@@ -88,13 +39,12 @@ class ErrorMotion(Effect):
     requires = ('angle', 'rotor_frame')
     max_orders = 3
     min_samples = 12
-    screen = 0.05     # a component group worth handing to the loop's test
 
     def _prepare(self, context, channels, channel_residuals):
         angle, frame = context['angle'], context['rotor_frame']
         if len(angle) < self.min_samples:
             return f'{len(angle)} rows are too few (needs {self.min_samples})'
-        layout, reasons, channel_trials = [], [], {}
+        groups, reasons, channel_trials = [], [], {}
         for i, channel in enumerate(channels):
             if np.all(np.isnan(angle[:, i])) or not np.any(frame[:, i]):
                 continue
@@ -105,17 +55,23 @@ class ErrorMotion(Effect):
             # The rows' residuals as the rotor's displacement (least squares per row).
             displacement = np.einsum('nkc,nc->nk', np.linalg.pinv(frame[:, i]),
                                      channel_residuals)
-            trials = 1.0
+            candidates = list(range(FIRST_ORDER, top + 1))
+            channel_trials[channel] = float(len(candidates)) ** len(GROUPS)
             for group, components in GROUPS:
-                orders, scanned = _choose_orders(angle[:, i], displacement[:, components],
-                                                 top, self.max_orders, self.screen)
-                if orders:
-                    layout.append((i, components, orders))
-                    trials *= scanned
-                else:
-                    reasons.append(f'{channel} {group}: no order of {FIRST_ORDER} to {top} '
-                                   f'stands out (screen p >= {self.screen})')
-            channel_trials[channel] = trials
+                orders, p = select_orders(angle[:, i], displacement[:, components], candidates,
+                                          self.max_orders)
+                groups.append((p, i, group, components, orders))
+        # The group that stands out most passes the screen; every other one (another
+        # axis, the axial beside the radial) must pass the loop's own level on its own.
+        groups.sort(key=lambda g: g[0])
+        layout = []
+        for rank, (p, i, group, components, orders) in enumerate(groups):
+            if orders and (rank == 0 or p < FURTHER):
+                layout.append((i, components, orders))
+            else:
+                reasons.append(f'{channels[i]} {group}: no order of {FIRST_ORDER} to '
+                               f'{max(FIRST_ORDER, resolvable_orders(angle[:, i])[0])} stands '
+                               f'out (p = {p:.2g} over the orders scanned)')
         if not layout:
             return '; '.join(reasons) or 'no channel is a rotary axis with a housing frame'
         names, units = [], []
@@ -131,7 +87,7 @@ class ErrorMotion(Effect):
             out = np.zeros((len(ctx['angle']), width))
             start = 0
             for i, components, orders in layout:
-                columns = _harmonics(ctx['angle'][:, i], orders)
+                columns = harmonic_columns(ctx['angle'][:, i], orders)
                 shift = np.zeros((len(out), 3))
                 for m in components:
                     shift[:, m] = columns @ params[start:start + 2 * len(orders)]

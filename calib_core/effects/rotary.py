@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.effects.base import Effect, Prepared, bic
+from scipy import stats
+
+from calib_core.effects.base import Effect, Prepared
 
 TURN = 2 * np.pi
+SCREEN = 0.05      # an order worth handing to the loop's test of the joint fit
+FURTHER = 1e-3     # a further order of an effect: the loop's own significance level
 SAME_PLACE = 1e-3   # rad: readings of one commanded angle (encoder jitter) are one place
 
 
@@ -65,20 +69,56 @@ def resolvable_orders(angle: np.ndarray) -> tuple[int, str]:
     return (len(distinct) - 1) // 2, need
 
 
-def _order_columns(angle: np.ndarray, orders) -> list:
-    columns = []
-    for k in orders:
-        columns += [np.cos(k * angle), np.sin(k * angle)]
-    return columns
+def harmonic_columns(angle: np.ndarray, orders) -> np.ndarray:
+    """(n, 2 len(orders)): cos(k angle), sin(k angle) per order k."""
+    return np.column_stack([f(k * angle) for k in orders for f in (np.cos, np.sin)]
+                           + [np.empty((len(angle), 0))])
+
+
+def _rss(angle: np.ndarray, targets: np.ndarray, orders) -> float:
+    design = np.column_stack([np.ones_like(angle), harmonic_columns(angle, orders)])
+    fitted = design @ np.linalg.lstsq(design, targets, rcond=None)[0]
+    return float(np.sum((targets - fitted) ** 2))
+
+
+def select_orders(angle: np.ndarray, targets: np.ndarray, candidates, most: int,
+                  screen: float = SCREEN, further: float = FURTHER) -> tuple[list, float]:
+    """The harmonic orders of ``angle`` (n,) rad that ``targets`` (n, q) show, chosen term
+    by term: the order that explains most, kept if its F-test against a constant, times
+    the orders scanned, is below ``screen``; then each further order that explains most of
+    what is left while its nested F-test, times the orders left, is below ``further``
+    (at most ``most`` orders). The first is a screen (the loop's own test of the joint fit
+    decides the effect); the further ones are that decision, made per term, so an order
+    that fits noise is not reported as part of a real effect. Returns the orders and the
+    first order's corrected p-value (1 when none could be tested)."""
+    n, q = targets.shape
+    chosen, left, first = [], list(candidates), 1.0
+    rss = _rss(angle, targets, [])
+    while left and len(chosen) < most:
+        trial = {k: _rss(angle, targets, chosen + [k]) for k in left}
+        best = min(trial, key=trial.get)
+        dof = q * (n - 1 - 2 * (len(chosen) + 1))
+        if dof <= 0:
+            break
+        f_stat = (rss - trial[best]) / (2 * q) / max(trial[best] / dof, 1e-300)
+        p = min(1.0, float(stats.f.sf(f_stat, 2 * q, dof)) * len(left))
+        if not chosen:
+            first = p
+        if p >= (further if chosen else screen):
+            break
+        chosen.append(best)
+        left.remove(best)
+        rss = trial[best]
+    return sorted(chosen), first
 
 
 class RotaryHarmonics(Effect):
     """Angular error of each rotary channel as harmonics of its angle,
     term = sum over the chosen orders k of a_k cos(k theta) + b_k sin(k theta) (rad).
 
-    Orders are chosen per channel from 1 to the resolvable limit by forward selection on
-    the Bayesian information criterion (at most ``max_orders``); the orders scanned count
-    as trials in the significance test. Channels whose ``angle`` is NaN are not rotary.
+    Orders are chosen per channel from 1 to the resolvable limit term by term
+    (:func:`select_orders`, at most ``max_orders``); the orders scanned count as trials in
+    the significance test. Channels whose ``angle`` is NaN are not rotary.
     """
 
     name = 'angular_harmonics'
@@ -89,23 +129,14 @@ class RotaryHarmonics(Effect):
     min_samples = 12
 
     def _orders(self, angle: np.ndarray, residual: np.ndarray):
-        """The chosen orders and the number scanned, or why none."""
+        """The chosen orders (:func:`select_orders`) and the number scanned, or why none."""
         top, need = resolvable_orders(angle)
         if top < 1:
             return f'no harmonic is resolvable: {need}'
-        chosen, criterion = [], bic(np.ones((len(angle), 1)), residual)
-        while len(chosen) < min(self.max_orders, top):
-            scores = {k: bic(np.column_stack([np.ones_like(angle)]
-                                             + _order_columns(angle, chosen + [k])), residual)
-                      for k in range(1, top + 1) if k not in chosen}
-            best = min(scores, key=scores.get)
-            if scores[best] >= criterion:
-                break
-            chosen.append(best)
-            criterion = scores[best]
+        chosen, _ = select_orders(angle, residual[:, None], range(1, top + 1), self.max_orders)
         if not chosen:
-            return f'no harmonic lowers the information criterion ({need})'
-        return sorted(chosen), top
+            return f'no harmonic stands out ({need})'
+        return chosen, top
 
     def _prepare(self, context, channels, channel_residuals):
         angle = context['angle']
@@ -128,7 +159,7 @@ class RotaryHarmonics(Effect):
         names, initial = [], []
         for c, orders in layout:
             x, r = angle[:, c], channel_residuals[:, c]
-            design = np.column_stack([np.ones_like(x)] + _order_columns(x, orders))
+            design = np.column_stack([np.ones_like(x), harmonic_columns(x, orders)])
             initial += list(np.linalg.lstsq(design, r, rcond=None)[0][1:])
             for k in orders:
                 names += [f'cos{k}_{channels[c]}', f'sin{k}_{channels[c]}']
@@ -138,7 +169,7 @@ class RotaryHarmonics(Effect):
             out = np.zeros((len(ctx['angle']), width))
             start = 0
             for c, orders in layout:
-                columns = np.column_stack(_order_columns(ctx['angle'][:, c], orders))
+                columns = harmonic_columns(ctx['angle'][:, c], orders)
                 out[:, c] = columns @ params[start:start + 2 * len(orders)]
                 start += 2 * len(orders)
             return out

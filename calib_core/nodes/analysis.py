@@ -11,7 +11,7 @@ from typing import Callable
 import yaml
 from alignment_msgs.msg import ResidualAnalysis
 
-from calib_core.closed_loop import LoopConfig, LoopResult, MachineModel, analyze
+from calib_core.closed_loop import LoopConfig, MachineModel, analyze
 from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.loop_plots import plot_loop
 from calib_core.nodes.calibrator import parse_plan
@@ -46,6 +46,13 @@ def write_extended_calibration(directory, name: str, content: dict, result,
     return str(path)
 
 
+def general_loop(machine: MachineModel, config: LoopConfig, progress=None):
+    """The closed loop of :mod:`calib_core.closed_loop` on ``machine``: its report, a
+    function drawing its figure to a path, and the result ``apply`` takes."""
+    result = analyze(machine, config, progress=progress)
+    return result.report, lambda png: plot_loop(png, machine, result), result
+
+
 class AnalysisService:
     """Serves AnalyzeResiduals for one calibrator.
 
@@ -57,9 +64,10 @@ class AnalysisService:
         Name used in file names and logs (``vision``, ``hexapod``).
     lock : threading.Lock
         Shared with the calibration service: one calibration or analysis at a time.
-    collect : callable (options: dict) -> MachineModel
-        The data to analyse; ``options`` are the plan's keys other than the loop's own.
-    apply : callable (LoopResult) -> str, or str
+    collect : callable (options: dict) -> data
+        The data to analyse (a MachineModel for the general loop); ``options`` are the
+        plan's keys other than the loop's own.
+    apply : callable (result) -> str, or str
         Writes the extended model as the calibration in force and returns the file path;
         or why this machine cannot put one in force (a request to apply is refused before
         anything runs).
@@ -70,16 +78,20 @@ class AnalysisService:
     options : tuple of str
         The plan keys ``collect`` takes besides the loop's; any other key is refused before
         anything runs.
+    loop : callable (data, LoopConfig, progress) -> (report, draw, result)
+        The loop a machine runs (:func:`general_loop` unless it has its own); ``report``
+        has the keys :func:`analysis_as_message` reads, ``draw(png_path)`` writes the
+        figure, ``result`` is what ``apply`` takes.
     """
 
     def __init__(self, node, kind: str, lock: threading.Lock,
                  collect: Callable[[dict], MachineModel],
-                 apply: Callable[[LoopResult], str] | str,
+                 apply: Callable[[object], str] | str,
                  topic: str, header: Callable, progress: Callable | None = None,
-                 options: tuple = ()):
+                 options: tuple = (), loop: Callable = general_loop):
         self.node, self.kind, self.lock, self.header = node, kind, lock, header
         self.collect, self.apply, self.topic, self.progress = collect, apply, topic, progress
-        self.options = tuple(options)
+        self.options, self.loop = tuple(options), loop
         self.publisher = node.create_publisher(ResidualAnalysis, topic, LATCHED)
 
     def __call__(self, request, response):
@@ -97,13 +109,12 @@ class AnalysisService:
             if unknown:
                 raise InvalidInputError(f'unknown analysis options {sorted(unknown)}; known: '
                                         f'{list(self.options) + list(LOOP_OPTIONS)}')
-            machine = self.collect(options)
-            result = analyze(machine, config, progress=self.progress)
-            response.analysis = self._publish(machine, result, request.apply)
+            report, draw, result = self.loop(self.collect(options), config, self.progress)
+            response.analysis = self._publish(report, draw, result, request.apply)
             response.success = True
             response.message = (f'added {", ".join(response.analysis.effects_added) or "nothing"}; '
-                                f'held-out RMS {result.report["rms_before"]:.4g} -> '
-                                f'{result.report["rms_after"]:.4g} {result.report["unit"]}')
+                                f'held-out RMS {report["rms_before"]:.4g} -> '
+                                f'{report["rms_after"]:.4g} {report["unit"]}')
             logger.info(f'{self.kind} analysis: {response.message}')
         except (MachineAlignmentError, TypeError, ValueError, yaml.YAMLError) as exc:
             logger.error(f'{self.kind} analysis failed: {exc}')
@@ -115,9 +126,9 @@ class AnalysisService:
             self.lock.release()
         return response
 
-    def _publish(self, machine, result: LoopResult, apply: bool) -> ResidualAnalysis:
+    def _publish(self, report: dict, draw: Callable, result, apply: bool) -> ResidualAnalysis:
         stamp = run_stamp()
-        report = dict(result.report, created=stamp)
+        report = dict(report, created=stamp)
         applied_to = ''
         if apply and report['effects_added']:
             applied_to = self.apply(result)
@@ -125,7 +136,7 @@ class AnalysisService:
         path = Path(self.node.get_parameter('output_dir').value) / 'analysis' / \
             f'{self.kind}_{stamp}.json'
         write_atomic(path, json.dumps(report, indent=2) + '\n')
-        plot_loop(path.with_suffix('.png'), machine, result)
+        draw(path.with_suffix('.png'))
         message = analysis_as_message(report, self.header(), bool(applied_to), str(path))
         with RecordedRun(self.node, f'{self.kind}_analysis',
                          {self.topic: 'alignment_msgs/msg/ResidualAnalysis'}) as run:

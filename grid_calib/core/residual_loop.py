@@ -159,15 +159,18 @@ def _columns(prepared, context: dict) -> np.ndarray:
 
 
 def analyze_region(grid: Grid, placements: list[Placement],
-                   min_effect: float = MIN_EFFECT_M) -> dict:
-    """The closed loop on one region's self-calibration; a report (SI units)."""
+                   min_effect: float = MIN_EFFECT_M, alpha: float = ALPHA,
+                   max_effects: int = MAX_EFFECTS, detail: dict | None = None) -> dict:
+    """The closed loop on one region's self-calibration; a report (SI units). ``detail``,
+    when given, receives what a figure needs: ``residuals_before`` and
+    ``residuals_after`` (readings, 2) m and the readings' ``covariates`` (name -> (readings,))."""
     by_name = check_placements(grid, placements)
     system = linear_system(grid, by_name)
     context, dropped = _context(grid, by_name)
     current, added = _Fit(system, np.zeros((len(system.rhs), 0))), []
     base = current
     verdicts, skipped = {}, {}
-    while len(added) < MAX_EFFECTS:
+    while len(added) < max_effects:
         channel_residuals = current.residual.reshape(-1, 2)
         scored = []
         for name in CANDIDATES:
@@ -194,7 +197,7 @@ def analyze_region(grid: Grid, placements: list[Placement],
                                                    / (len(system.rhs) / 2)))})
         for entry in scored:
             entry['p_value'] = min(1.0, entry['p_raw'] * len(scored))
-        significant = [e for e in scored if e['p_value'] < ALPHA and e['size_m'] >= min_effect]
+        significant = [e for e in scored if e['p_value'] < alpha and e['size_m'] >= min_effect]
         for entry in scored:
             if entry not in significant:
                 verdicts[entry['name']] = (f'not significant (p = {entry["p_value"]:.3g}, '
@@ -211,7 +214,44 @@ def analyze_region(grid: Grid, placements: list[Placement],
         added.append(best)
         verdicts[best['name']] = 'added'
         current = best['fit']
+    if detail is not None:
+        detail.update(residuals_before=base.residual.reshape(-1, 2),
+                      residuals_after=current.residual.reshape(-1, 2),
+                      covariates={k: v for k, v in context.items()
+                                  if np.ndim(v) == 1 and not k.endswith(('_ref', '_start'))})
     return _report(grid, system, base, current, added, verdicts, skipped, dropped)
+
+
+def analyze_travel(grid: Grid, regions: dict, min_effect: float = MIN_EFFECT_M,
+                   alpha: float = ALPHA, max_effects: int = MAX_EFFECTS,
+                   details: dict | None = None) -> dict:
+    """The loop on every region (:func:`analyze_region`), with the whole run's summary in
+    the keys every machine's loop report has: ``effects_added`` (each with its
+    ``region``), held-out ``rms_before``/``rms_after`` (leave-one-out, pooled over the
+    regions' predicted readings) and ``max_before``/``max_after`` (m), ``unexplained``
+    (none: the grid loop tests its candidates only). ``details`` receives each region's
+    :func:`analyze_region` detail under its key."""
+    reports, effects, pooled = {}, [], {'before': [], 'after': []}
+    for key, region in regions.items():
+        detail = {} if details is not None else None
+        report = analyze_region(grid, region.placements, min_effect, alpha, max_effects, detail)
+        if details is not None:
+            details[str(key)] = detail
+        reports[str(key)] = report
+        effects += [dict(effect, region=str(key)) for effect in report['effects']]
+        for when in pooled:
+            held = report['held_out'][when]
+            pooled[when].append((held['predicted'], held['rms_m'], held['max_m']))
+
+    def rms(rows):
+        count = sum(n for n, _, _ in rows)
+        return float(np.sqrt(sum(n * r ** 2 for n, r, _ in rows) / max(count, 1)))
+    return {'machine': 'grid', 'base_model': BASE_MODEL, 'unit': 'm', 'effects_added': effects,
+            'rms_before': rms(pooled['before']), 'rms_after': rms(pooled['after']),
+            'max_before': max(m for _, _, m in pooled['before']),
+            'max_after': max(m for _, _, m in pooled['after']),
+            'held_out': 'leave-one-out prediction (PRESS) per region, pooled',
+            'unexplained': [], 'regions': reports}
 
 
 def _stage_error(grid: Grid, system: LinearSystem, fit: _Fit) -> np.ndarray:

@@ -17,33 +17,57 @@ recorded to MCAP (``machine-align calibrate grid --bag`` solves it again offline
 stopped part way replays its complete regions). Plan keys: ``half``, ``pitch``,
 ``columns``, ``rows``, ``first_centre``, ``approach``, ``certified_pitch``, ``stitch``.
 A plan that leaves the travel is refused before anything moves.
+
+Service ``grid_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the grid's closed
+loop (:func:`grid_calib.core.residual_loop.analyze_travel`) on the last run's regions:
+report and figure in ``output_dir/analysis``, published latched on
+``/grid_calibrator/analysis`` and recorded. Plan keys ``alpha`` and ``max_effects``; its
+held-out check is leave-one-out, so ``holdout_fraction`` and ``seed`` are refused.
 """
 import threading
 
 import numpy as np
 from alignment_msgs.msg import (
     CalibrationResult, GantryState, GridMarkReading, GridPlacement, Progress)
-from alignment_msgs.srv import DetectMarks, MoveGantry, RunCalibration
+from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from calib_core.closed_loop import LoopConfig
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.image_plane import NOMINAL_PIXEL_SIZE, CameraToPlate
+from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
+from grid_calib.core.loop_plot import plot_grid_loop
 from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
 from grid_calib.core.records import PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC
+from grid_calib.core.residual_loop import analyze_travel
 from grid_calib.core.stitching import METHODS
 from grid_calib.core.travel import calibrate_travel, grid_result_content
 
 PLAN_KEYS = ('half', 'pitch', 'columns', 'rows', 'first_centre', 'approach',
              'certified_pitch', 'stitch')
+ANALYSIS_TOPIC = '/grid_calibrator/analysis'
+
+
+def grid_loop(data, config: LoopConfig, progress=None):
+    """AnalysisService's loop for the grid: ``data`` is (grid, regions)."""
+    default = LoopConfig()
+    if (config.holdout_fraction, config.seed) != (default.holdout_fraction, default.seed):
+        raise InvalidInputError('the grid loop holds out each reading in turn (leave-one-out): '
+                                'holdout_fraction and seed do not apply')
+    grid, regions = data
+    details = {}
+    report = analyze_travel(grid, regions, alpha=config.alpha, max_effects=config.max_effects,
+                            details=details)
+    return report, lambda png: plot_grid_loop(png, report, details), None
 
 
 def grid_result_message(content: dict, header, file_path='', version=0) -> CalibrationResult:
@@ -114,6 +138,14 @@ class GridCalibratorNode(Node):
                             self.calibration_service, callback_group=group)
         self.create_service(Trigger, 'grid_calibrator/confirm_placement',
                             self.on_confirm_placement, callback_group=group)
+        self._measured = None         # (grid, regions) of the last completed run
+        self.create_service(AnalyzeResiduals, 'grid_calibrator/analyze_residuals',
+                            AnalysisService(
+                                self, 'grid', self.calibration_service.busy, self._last_run,
+                                'the grid map has no place for the run\'s effects (a drift '
+                                'during the run is not a property of the stage)',
+                                ANALYSIS_TOPIC, self._header, loop=grid_loop),
+                            callback_group=group)
         publish_calibration_in_force(
             self, 'grid', self.result_pub,
             lambda content, path: grid_result_message(content, self._header(), path,
@@ -121,6 +153,12 @@ class GridCalibratorNode(Node):
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='machine')
+
+    def _last_run(self, options: dict):
+        if self._measured is None:
+            raise CalibrationError('no grid calibration run to analyse yet: call '
+                                   'grid_calibrator/calibrate first')
+        return self._measured
 
     def _plan_from_parameters(self, overrides: dict) -> tuple[GridPlan, float | None, str]:
         unknown = set(overrides) - set(PLAN_KEYS)
@@ -218,6 +256,7 @@ class GridCalibratorNode(Node):
                 lambda: self._locate(camera), self._progress,
                 lambda r, p, mark, reading: self._record_reading(run, r, p, mark, reading))
             calibration = calibrate_travel(plan.grid, regions, stitch, certified)
+            self._measured = (plan.grid, regions)
             content = grid_result_content(calibration)
             content['report']['camera'] = camera_source
             path, version, content = run.save('grid', content)

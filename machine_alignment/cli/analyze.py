@@ -17,7 +17,8 @@ from dispenser_calib.core.model import read_model
 from dispenser_calib.core.rotary import LEVER
 from dispenser_calib.core.target_poses import poses_from_images, read_target_poses
 from grid_calib.core.data import read_marks
-from grid_calib.core.residual_loop import analyze_region
+from grid_calib.core.loop_plot import plot_grid_loop
+from grid_calib.core.residual_loop import analyze_travel
 from calib_core.iso230_2 import format_figures
 from calib_core.loop_plots import plot_loop
 from hexapod_calib.core.calibration import PoseData
@@ -137,10 +138,9 @@ def cmd_analyze_grid(args) -> int:
     if None in chosen.values():
         raise MachineAlignmentError(f'{args.data} has no region {args.region}; it has '
                                     f'{sorted(regions)}')
-    reports = {}
-    for r, region in chosen.items():
-        report = analyze_region(grid, region.placements, args.min_effect)
-        reports[str(r)] = report
+    details = {}
+    summary = analyze_travel(grid, chosen, args.min_effect, details=details)
+    for r, report in summary['regions'].items():
         before, after = report['held_out']['before'], report['held_out']['after']
         print(f'region {r}: {report["base_model"]}')
         for effect in report['effects']:
@@ -160,8 +160,12 @@ def cmd_analyze_grid(args) -> int:
               f'{before["rms_m"] * 1e9:.2f} -> {after["rms_m"] * 1e9:.2f} nm, max '
               f'{before["max_m"] * 1e9:.2f} -> {after["max_m"] * 1e9:.2f} nm; G changes by up '
               f'to {report["stage_error_change_m"] * 1e9:.2f} nm')
-    if args.json:
-        write_json(args.json, {'data': str(args.data), 'regions': reports})
+    if len(summary['regions']) > 1:
+        print(f'all regions, held out: RMS {summary["rms_before"] * 1e9:.2f} -> '
+              f'{summary["rms_after"] * 1e9:.2f} nm, max {summary["max_before"] * 1e9:.2f} -> '
+              f'{summary["max_after"] * 1e9:.2f} nm')
+    write_json_and_plot(args.json, dict(summary, data=str(args.data)),
+                        lambda png: plot_grid_loop(png, summary, details))
     return 0
 
 
