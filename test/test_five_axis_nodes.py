@@ -11,7 +11,7 @@ import pytest
 DOMAIN = str(1 + os.getpid() % 9)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
-from alignment_msgs.srv import MoveFiveAxis, RunCalibration  # noqa: E402
+from alignment_msgs.srv import AnalyzeResiduals, MoveFiveAxis, RunCalibration  # noqa: E402
 
 from calib_core.storage import read_calibration  # noqa: E402
 from machine_alignment.launcher import five_axis_graph  # noqa: E402
@@ -50,6 +50,28 @@ def test_the_recorded_run_solves_again_offline(graph, tmp_path):
     # Measured 0.0002-0.0016 sigma over runs: the refinement stops at its tolerances, and
     # floating point in another process (OpenCV's threads) crosses them a little apart.
     assert replay['max_difference_to_live_sigma'] < 0.01, replay['max_difference_to_live_sigma']
+
+
+def test_analyze_residuals_images_a_sweep_and_runs_the_rotary_loop(graph):
+    """After the calibration above: the board imaged over a sweep with the linear axes
+    held (3 tilts, C in 45 deg steps), its poses through the calibration in force, the
+    rotary axes' loop on them; the simulated table has no rotary error, so nothing is
+    added. The sweep is recorded; a step outside its range is refused before anything
+    moves."""
+    _, node, out = graph
+    client = node.create_client(AnalyzeResiduals, 'five_axis_calibrator/analyze_residuals')
+    bags = set((out / 'runs').iterdir())
+    response = call(node, client, AnalyzeResiduals.Request(
+        plan_yaml='{tilts: [-0.3, 0.0, 0.3], step: 0.3927}'), timeout=120.0)
+    assert response.success, response.message
+    analysis = response.analysis
+    report = json.loads(analysis.report_json)
+    assert analysis.machine == 'rotary axes' and analysis.unit == 'sigma'
+    assert report['rows']['total'] == 48
+    assert analysis.effects_added == []
+    assert any(p.name.startswith('five_axis_sweep') for p in set((out / 'runs').iterdir()) - bags)
+    refused = call(node, client, AnalyzeResiduals.Request(plan_yaml='{step: 3.0}'))
+    assert not refused.success and 'step must be' in refused.message
 
 
 def test_a_pose_outside_the_strokes_is_refused(graph):

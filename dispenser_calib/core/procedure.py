@@ -73,6 +73,32 @@ def rotary_sweep(tilts=np.linspace(-0.3, 0.3, 5), step: float = np.deg2rad(22.5)
     return np.column_stack([np.zeros((a.size, 3)), a.ravel(), c.ravel()])
 
 
+def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
+                  capture: Callable[[], tuple], clock: Callable[[], float],
+                  record: Callable[[Image, str], None] = lambda *a: None,
+                  progress: Callable[[int, int, str], None] = lambda *a: None):
+    """Image the board at each of ``stops`` (n, 5) (:func:`rotary_sweep`), every stop
+    checked against the strokes before anything moves. ``clock()`` gives the time (s) of
+    each image. Returns the images and their times (n,) s.
+
+    Raises
+    ------
+    StrokeError
+        A stop outside a stroke (before anything moves)."""
+    for pose in stops:
+        check_stroke(pose)
+    images, times = [], []
+    for pose in stops:
+        reached = np.asarray(move(pose), dtype=float)
+        indices, pixels = capture()
+        times.append(clock())
+        images.append(Image(f'sweep{len(images):03d}', reached, np.asarray(indices, int),
+                            np.asarray(pixels, float)))
+        record(images[-1], 'sweep')
+        progress(len(images), len(stops), f'sweep image {len(images)}: {len(indices)} dots')
+    return images, np.asarray(times, float)
+
+
 def evaluation_stops(nominal: DispenserModel, count: int, seed: int = 0) -> np.ndarray:
     """``count`` held-out stops (count, 5) with A and C both turned (a within +-45
     degrees); none for 0."""

@@ -24,13 +24,23 @@ dispenses a test dot at each spot (``five_axis/dispense``), images each from sev
 (``five_axis/capture_dispensed``), locates them through the calibration in force and takes
 the needle tip from where they were dispensed; the tip is used by ``locate`` from then on
 and written as the versioned ``needle`` file (read again at start).
+
+Service ``five_axis_calibrator/analyze_residuals`` (AnalyzeResiduals; plan keys ``tilts``
+(rad), ``step`` (rad), ``both_ways`` besides the loop's own) images the board over a sweep
+with the linear axes held (A at each tilt, C round the turn), takes the board's pose in
+each through the calibration in force and runs the closed loop on the rotary axes
+(:class:`dispenser_calib.core.loop_model.RotaryLoopModel`): a worm gear's error, lost
+motion, error motion, drift. The sweep's images are recorded (``five_axis_sweep`` bag;
+``machine-align analyze rotary --data`` on them with ``--calibration`` repeats it offline).
 """
 import json
+import time
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, FiveAxisObservation, Progress
 from alignment_msgs.srv import (
-    CaptureDots, CaptureFrame, LocateWorkpiece, MeasureNeedle, MoveFiveAxis, RunCalibration)
+    AnalyzeResiduals, CaptureDots, CaptureFrame, LocateWorkpiece, MeasureNeedle, MoveFiveAxis,
+    RunCalibration)
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
@@ -38,6 +48,7 @@ from std_srvs.srv import Trigger
 
 from calib_core.checks import whole_number
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, declare_paths, parse_plan, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
@@ -47,13 +58,17 @@ from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from calib_core.storage import read_calibration, write_calibration
 from dispenser_calib.core.board_images import observe_frame
+from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, parameter_unit
 from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, locate_workpiece, measure_needle,
-    run_five_axis_calibration)
+    measure_sweep, rotary_sweep, run_five_axis_calibration)
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
+from dispenser_calib.core.target_poses import poses_from_images
 
 PLAN_KEYS = ('seed', 'evaluation', 'frames')
+SWEEP_KEYS = ('tilts', 'step', 'both_ways')
+ANALYSIS_TOPIC = '/five_axis_calibrator/analysis'
 
 
 def five_axis_result_message(content: dict, header, file_path='', version=0):
@@ -113,6 +128,13 @@ class FiveAxisCalibratorNode(Node):
         self.calibration_service = CalibrationService(self, 'five-axis', self._run, self._header)
         self.create_service(RunCalibration, 'five_axis_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
+        self.create_service(AnalyzeResiduals, 'five_axis_calibrator/analyze_residuals',
+                            AnalysisService(
+                                self, 'five_axis', self.calibration_service.busy, self._sweep,
+                                'the five-axis calibration file has no place for rotary-axis '
+                                'effects yet', ANALYSIS_TOPIC, self._header, self._progress,
+                                options=SWEEP_KEYS),
+                            callback_group=group)
         self.create_service(LocateWorkpiece, 'five_axis_calibrator/locate', self.on_locate,
                             callback_group=group)
         self.create_service(MeasureNeedle, 'five_axis_calibrator/measure_needle',
@@ -210,6 +232,32 @@ class FiveAxisCalibratorNode(Node):
                              f'set aside {sorted(result.outliers) or "none"}; wrote {path}')
         return message
 
+
+    def _sweep(self, options: dict) -> RotaryLoopModel:
+        """Image the board over a sweep with the linear axes held (plan keys ``tilts``,
+        ``step``, ``both_ways``), recorded, and its board poses through the calibration in
+        force, as the rotary axes' loop model."""
+        if self.model is None:
+            raise CalibrationError('no five-axis calibration in force: call '
+                                   'five_axis_calibrator/calibrate first')
+        tilts = np.asarray(options.get('tilts', np.linspace(-0.3, 0.3, 5)), dtype=float)
+        step = options.get('step', float(np.deg2rad(22.5)))
+        both_ways = options.get('both_ways', False)
+        if tilts.ndim != 1 or not len(tilts) or not np.all(np.isfinite(tilts)):
+            raise InvalidInputError('tilts must be a list of A angles (rad)')
+        if not isinstance(step, (int, float)) or not 0.01 <= step <= np.pi / 2:
+            raise InvalidInputError(f'step must be a C step in rad, 0.01 to pi/2, not {step!r}')
+        if not isinstance(both_ways, bool):
+            raise InvalidInputError(f'both_ways must be true or false, not {both_ways!r}')
+        capture = self._capture_frame if self.get_parameter('frames').value else self._capture
+        start = time.monotonic()
+        with RecordedRun(self, 'five_axis_sweep', {
+                OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation'}) as run:
+            images, times = measure_sweep(
+                rotary_sweep(tilts, float(step), both_ways), self._move, capture,
+                lambda: time.monotonic() - start,
+                lambda image, phase: self._record(run, image, phase), self._progress)
+        return RotaryLoopModel(poses_from_images(self.model, images, times))
 
     def _with_calibration(self, request, response, what: str, known: tuple, work):
         """Run ``work(options)`` on the request's plan with the calibration in force, one

@@ -92,7 +92,9 @@ def run(out: Path) -> dict:
     write_atomic(out / 'closed_loop_rotary.json', json.dumps(results, indent=2) + '\n')
     lines = [f'Rotary table, {len(a)} measured target poses (the real positioner\'s sampling), '
              f'{NOISE["position_noise"] * 1e6:g} um and {NOISE["rotation_noise"] * 1e6:g} urad '
-             f'of noise; {len(SEEDS)} seeds per case (seeds {SEEDS.start}-{SEEDS.stop - 1}).', '',
+             f'of noise; {len(SEEDS)} seeds per case (seeds {SEEDS.start}-{SEEDS.stop - 1}). '
+             f'Injected, twice per turn of C: radial error motion {RADIAL * 1e6:g} um, angle '
+             f'error {ANGLE * 1e6:g} urad.', '',
              '| case | found with exactly its orders | wrong claims | largest coefficient error '
              '(sigma) | coefficient error RMS (sigma) | held-out RMS after / clean floor '
              '(median) | CPU per run (median) |', '|---|---|---|---|---|---|---|']
