@@ -1,5 +1,7 @@
-"""Pictures of a closed-loop run: residuals against each covariate and over the workspace,
-before (base model) and after (extended model), and held-out error histograms."""
+"""Pictures of a closed-loop run: each added effect drawn over its partial residuals (what
+the extended model leaves plus the effect itself) against the covariate it follows, the
+first structure left unexplained, residuals against each covariate and over the
+workspace, before (base model) and after (extended model), and held-out error histograms."""
 from __future__ import annotations
 
 import matplotlib
@@ -12,8 +14,10 @@ from calib_core.closed_loop import LoopResult, MachineModel  # noqa: E402
 from calib_core.effects import LIBRARY  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
 
-_SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px')}
+_SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px'), 'rad': (1e6, 'urad')}
 _MAX_COVARIATE_PANELS = 8
+_MAX_EFFECT_PANELS = 4
+_FEW_VALUES = 10      # a covariate with fewer distinct values is drawn as points, not a line
 _COVARIATE_UNITS = {'position': 'm', 'direction': '+1 / -1', 'time': 's', 'temperature': 'K',
                     'load': 'N', 'image': 'normalised'}
 
@@ -59,6 +63,96 @@ def _covariate_scale(machine: MachineModel, name: str, kind: str) -> tuple[float
     return {'m': (1e3, 'mm'), 'rad': (180 / np.pi, 'deg')}.get(unit, (1.0, unit))
 
 
+def _roughness(term: np.ndarray, covariate: np.ndarray) -> float:
+    """How little ``term`` (n,) follows ``covariate`` (n,): its squared steps when the rows
+    are sorted by the covariate, over its variance (near 0 for the covariate it is a
+    function of)."""
+    order = np.argsort(covariate, kind='stable')
+    spread = float(np.sum((term - term.mean()) ** 2)) or 1.0
+    return float(np.sum(np.diff(term[order]) ** 2)) / spread
+
+
+def effect_panels(machine: MachineModel, result: LoopResult) -> list:
+    """(effect, channel index, covariate name) per panel: each added effect on the
+    channels where its term is largest (at most :data:`_MAX_EFFECT_PANELS` in all), against
+    the covariate its term follows most smoothly among those it is written in."""
+    panels = []
+    for name, term in result.effect_terms.items():
+        size = np.sqrt(np.mean(term ** 2, axis=0))
+        for c in np.argsort(-size)[:3]:
+            # Channels where the effect is small beside its largest are left to the numbers.
+            if size[c] < 0.5 * size.max() or size[c] <= 0 or len(panels) >= _MAX_EFFECT_PANELS:
+                continue
+            varying = [k for k, z in result.covariates.items() if np.ptp(z) > 0]
+            # The covariates the effect is written in, when the data have them.
+            declared = tuple('image_radius' if key == 'normalized' else key
+                             for key in LIBRARY[name].requires)
+            candidates = [k for k in varying if k.startswith(declared)] or varying
+            if candidates:
+                # Equally smooth (rows in the same order): the finer covariate says more.
+                covariate = min(candidates, key=lambda k: (
+                    round(_roughness(term[:, c], result.covariates[k]), 9),
+                    -len(np.unique(result.covariates[k]))))
+                panels.append((name, int(c), covariate))
+    return panels
+
+
+def _channel_scale(machine: MachineModel, c: int) -> tuple[float, str]:
+    units = machine.channel_units or (machine.unit,) * len(machine.channels)
+    return _SCALES.get(units[c], (1.0, units[c]))
+
+
+def _abscissa(machine: MachineModel, result: LoopResult, covariate: str):
+    """A covariate's values in the unit it is plotted in, and the axis label."""
+    kind = covariate.split('_')[0]
+    scale, unit = _covariate_scale(machine, covariate, kind)
+    z = result.covariates[covariate]
+    if kind == 'time':
+        return (z - np.min(z)) * scale, f'{covariate} since the first row ({unit})'
+    return z * scale, f'{covariate} ({unit})' if unit else covariate
+
+
+def _draw_effect(ax, machine, result, effect: str, c: int, covariate: str) -> None:
+    """The base model's residual and the partial residual of ``effect`` on channel ``c``
+    against ``covariate``, with the fitted effect drawn over them."""
+    factor, unit = _channel_scale(machine, c)
+    x, label = _abscissa(machine, result, covariate)
+    term = result.effect_terms[effect][:, c] * factor
+    ax.plot(x, result.channel_before[:, c] * factor, '.', ms=3, color='tab:red', alpha=0.4,
+            label='base model')
+    ax.plot(x, (result.channel_after[:, c]) * factor + term, '.', ms=3, color='tab:blue',
+            alpha=0.6, label='after + this effect')
+    order = np.argsort(x, kind='stable')
+    style = 'k_' if len(np.unique(np.round(x, 9))) < _FEW_VALUES else 'k-'
+    ax.plot(x[order], term[order], style, lw=1.5, ms=14, label='fitted effect')
+    ax.set_xlabel(label)
+    ax.set_ylabel(f'{machine.channels[c]} residual ({unit})')
+    ax.set_title(f'{effect} on {machine.channels[c]}', fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+
+
+def _draw_unexplained(ax, machine, result, item: dict) -> None:
+    """The first unexplained structure: the extended model's residual of its component
+    against its covariate, with the mean in bins of the covariate."""
+    c = machine.channels.index(item['component'].removeprefix('residual_'))
+    factor, unit = _channel_scale(machine, c)
+    covariate = item['covariate']
+    x, label = _abscissa(machine, result, covariate)
+    y = result.channel_after[:, c] * factor
+    ax.plot(x, y, '.', ms=3, color='tab:blue', alpha=0.5, label='after loop')
+    edges = np.unique(np.quantile(x, np.linspace(0, 1, 17)))
+    which = np.clip(np.searchsorted(edges, x, side='right') - 1, 0, len(edges) - 2)
+    means = [(x[which == b].mean(), y[which == b].mean()) for b in range(len(edges) - 1)
+             if np.any(which == b)]
+    ax.plot(*np.array(means).T, 'k-', lw=1.5, label='mean in bins')
+    ax.set_xlabel(label)
+    ax.set_ylabel(f'{machine.channels[c]} residual ({unit})')
+    ax.set_title(f'UNEXPLAINED {item["kind"]} (p = {item["p_value"]:.2g})', fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+
+
 def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     """Write the figure for ``result`` to ``path`` (PNG)."""
     report = result.report
@@ -82,15 +176,25 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
                    and np.max(np.abs(np.subtract(z, w))) < 1e-3 * np.ptp(z)
                    for _, w in distinct):
             distinct.append((name, z))
-    covariates = distinct[:_MAX_COVARIATE_PANELS]
+    effects = effect_panels(machine, result) if result.channel_after is not None else []
+    unexplained = [item for item in report.get('unexplained', [])
+                   if item['component'].removeprefix('residual_') in machine.channels
+                   and item['covariate'] in result.covariates][:1]
+    extra = len(effects) + len(unexplained)
+    covariates = distinct[:max(_MAX_COVARIATE_PANELS - extra, 3)]
     workspace = machine.workspace()
-    panels = len(covariates) + 1 + (workspace is not None and result.residuals_after.shape[1] == 2)
+    panels = (extra + len(covariates) + 1
+              + (workspace is not None and result.residuals_after.shape[1] == 2))
     cols = min(3, panels)
     rows = int(np.ceil(panels / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.6 * rows), squeeze=False)
     axes = axes.ravel()
     held = result.holdout
-    for ax, (name, z) in zip(axes, covariates):
+    for ax, (effect, c, covariate) in zip(axes, effects):
+        _draw_effect(ax, machine, result, effect, c, covariate)
+    for ax, item in zip(axes[len(effects):], unexplained):
+        _draw_unexplained(ax, machine, result, item)
+    for ax, (name, z) in zip(axes[extra:], covariates):
         kind = name.split('_')[0]
         scale, covariate_unit = _covariate_scale(machine, name, kind)
         for shift, residuals, colour, label in (
@@ -115,8 +219,9 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
             ax.set_xlabel(f'{name} ({covariate_unit})' if covariate_unit else name)
         ax.set_ylabel(f'residual ({unit})')
         ax.grid(alpha=0.3)
-    axes[0].legend(loc='best', fontsize=8)
-    k = len(covariates)
+    if covariates:
+        axes[extra].legend(loc='best', fontsize=8)
+    k = extra + len(covariates)
     ax = axes[k]
     before = machine.row_errors(result.residuals_before[held]) * factor
     after = machine.row_errors(result.residuals_after[held]) * factor

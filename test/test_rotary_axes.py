@@ -9,6 +9,7 @@ import pytest
 
 from calib_core.closed_loop import analyze
 from calib_core.effects.rotary import resolvable_orders
+from calib_core.loop_plots import effect_panels, plot_loop
 from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.calibration import refine, stepwise
@@ -116,14 +117,14 @@ def test_loop_adds_nothing_to_clean_poses():
     assert result.report['rms_after'] == pytest.approx(result.report['rms_before'])
 
 
-def test_loop_finds_a_worm_gear_error_and_a_z_drift():
+def test_loop_finds_a_worm_gear_error_and_a_z_drift(tmp_path):
     """C turns 150 urad cos(2c) + 80 urad sin(3c) beyond its reading and the board drifts
     3e-8 m/s along the camera's z (67 um over the run); both are found within 3 sigma and the
     held-out error falls (by little: 20 um of noise per coordinate dominates it)."""
     def worm(c):
         return 150e-6 * np.cos(2 * c) + 80e-6 * np.sin(3 * c)
-    result = analyze(RotaryLoopModel(_simulated(2, angular_error=worm,
-                                                drift=np.array([0.0, 0.0, 3e-8]))))
+    machine = RotaryLoopModel(_simulated(2, angular_error=worm, drift=np.array([0.0, 0.0, 3e-8])))
+    result = analyze(machine)
     report = result.report
     assert {'angular_harmonics', 'drift_time'} <= set(_names(report))
     harmonics = _effect(report, 'angular_harmonics')
@@ -137,6 +138,17 @@ def test_loop_finds_a_worm_gear_error_and_a_z_drift():
     assert set(drift['channels_not_determined']) == {'camera_x', 'camera_y'}
     assert abs(drift['parameters']['rate_camera_z'] - 3e-8) < 3 * drift['std_devs']['rate_camera_z']
     assert report['rms_after'] < 0.95 * report['rms_before']
+    # The figure draws each effect over its partial residuals against the covariate its
+    # term follows: the worm gear against C, the drift against time.
+    panels = {(effect, machine.channels[c], covariate)
+              for effect, c, covariate in effect_panels(machine, result)}
+    assert {(e, ch) for e, ch, _ in panels} == {('angular_harmonics', 'c'), ('drift_time', 'camera_z')}
+    assert {cov for e, _, cov in panels if e == 'drift_time'} == {'time'}
+    assert {cov for e, _, cov in panels if e == 'angular_harmonics'} <= {'position_c', 'angle_c'}
+    partial = result.channel_after[:, 1] + result.effect_terms['angular_harmonics'][:, 1]
+    assert np.corrcoef(partial, worm(machine.poses.c))[0, 1] > 0.5
+    plot_loop(tmp_path / 'loop.png', machine, result)
+    assert (tmp_path / 'loop.png').stat().st_size > 10_000
 
 
 def _radial_two_per_turn(c, size=8e-6):

@@ -25,6 +25,11 @@ class LoopResult:
     residuals_after: np.ndarray         # (N, k), extended model
     covariates: dict = field(default_factory=dict)   # name -> (N,)
     fit: Fit | None = None
+    # In the channels (N, C): the base model's residuals, the extended model's, and each
+    # added effect's fitted term (name -> (N, C)), for partial-residual plots.
+    channel_before: np.ndarray | None = None
+    channel_after: np.ndarray | None = None
+    effect_terms: dict = field(default_factory=dict)
 
 
 def _covariate_columns(machine, context: dict) -> dict:
@@ -64,7 +69,10 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
     holdout, train = primary.holdout, primary.train
     before_all = evaluate(machine, primary.base_fit, every)
     after_all = evaluate(machine, final, every)
-    covariates = _covariate_columns(machine, machine.context(final.base, every))
+    context = machine.context(final.base, every)
+    covariates = _covariate_columns(machine, context)
+    effect_terms = {prepared.effect.name: prepared.term(np.asarray(values, float), context)
+                    for prepared, values in zip(final.effects, final.values)}
     unexplained = structure_tests(
         machine.channels, residuals_by_channel(machine, final, train),
         {k: v[train] for k, v in covariates.items()}, config.alpha)
@@ -140,7 +148,9 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         'unexplained': unexplained,
         'outliers': outliers,
     }
-    return LoopResult(_plain(report), holdout, before_all, after_all, covariates, final)
+    return LoopResult(_plain(report), holdout, before_all, after_all, covariates, final,
+                      residuals_by_channel(machine, primary.base_fit, every),
+                      residuals_by_channel(machine, final, every), effect_terms)
 
 
 def _plain(value):
