@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib_core.effects.periodic import alias_periods
 from calib_core.loop_structure import lack_of_fit, likely_causes, structure_tests
 from calib_core.closed_loop.fitting import (
     Fit, error_summary, evaluate, fit_model, refit, residuals_by_channel)
@@ -105,6 +106,10 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         item = evidence[prepared.effect.name]
         entry = prepared.describe(final.values[k], std[final.effect_slice(k)])
         entry['round'] = item['round']
+        if 'grid_spacing_m' in entry:
+            entry['aliases_m'] = {channel: alias_periods(entry['parameters'][f'period_{channel}'], step)
+                                  for channel, step in entry['grid_spacing_m'].items()
+                                  if f'period_{channel}' in entry['parameters']}
         entry['evidence'] = dict(item['evidence'],
                                  selection_frequency=frequency.get(prepared.effect.name, 0.0))
         effects_added.append(entry)
@@ -196,6 +201,12 @@ def format_report(report: dict) -> str:
                          f'nothing added there')
         for why in effect.get('channels_not_tested', []):
             lines.append(f'    {effect["name"]} not tested on {why}')
+        for channel, aliases in effect.get('aliases_m', {}).items():
+            lines.append(f'    period_{channel}: the targets lie every '
+                         f'{effect["grid_spacing_m"][channel] * 1e3:.4g} mm, where '
+                         f'{", ".join(f"{p * 1e3:.4g}" for p in aliases)} mm take the same '
+                         f'values: the screw\'s lead decides (irregular targets would tell them '
+                         f'apart)')
     if not report['effects_added']:
         lines.append('  added nothing: no candidate effect is significant, identifiable and '
                      'chosen consistently')

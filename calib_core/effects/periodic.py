@@ -35,6 +35,29 @@ def resolvable_periods(position: np.ndarray) -> tuple[float, float, str]:
     return shortest, longest, need
 
 
+def grid_spacing(position: np.ndarray, tolerance: float = 0.01) -> float | None:
+    """The step (m) of the regular grid the distinct positions lie on (each within
+    ``tolerance`` of a step from the first), or None when they are irregular."""
+    distinct = np.unique(position)
+    if len(distinct) < 3:
+        return None
+    step = float(np.median(np.diff(distinct)))
+    if step <= 0:
+        return None
+    offsets = (distinct - distinct[0]) / step
+    return step if np.all(np.abs(offsets - np.round(offsets)) < tolerance) else None
+
+
+def alias_periods(period: float, spacing: float, count: int = 4) -> list:
+    """The periods (m) that take the same values as ``period`` at every position of a grid
+    of step ``spacing``: 1 / |k / spacing -+ 1 / period| for k = 1, 2, ..., the ``count``
+    longest (shorter ones need ever finer screws)."""
+    f, fs = 1.0 / period, 1.0 / spacing
+    found = sorted({1.0 / abs(k * fs + sign * f) for k in range(1, count + 1)
+                    for sign in (-1, 1) if abs(k * fs + sign * f) > 1e-12}, reverse=True)
+    return [p for p in found if abs(p - period) > 1e-3 * period][:count]
+
+
 class Periodic(Effect):
     """Cyclic error per channel, with its harmonics where the positions resolve them.
 
@@ -43,7 +66,10 @@ class Periodic(Effect):
     (:func:`resolvable_periods`), then refined in the joint fit. A period whose
     periodogram has another peak almost as high (an alias, or two periods the data fit
     equally) is refused as not determined. Harmonics 2 and 3 enter when their period is
-    still resolvable and the Bayesian information criterion prefers them.
+    still resolvable and the Bayesian information criterion prefers them. On a regular grid
+    of targets, a period outside the searched band takes the same values at every target as
+    one inside it: the report names the grid's step (``grid_spacing_m``), and the loop's
+    report the aliases of the fitted period (``aliases_m``).
     """
 
     name = 'periodic'
@@ -138,6 +164,9 @@ class Periodic(Effect):
         notes = {'harmonics': {channels[c]: h for c, h in layout},
                  'resolvable_periods_m': {channels[c]: list(resolvable_periods(position[:, c])[:2])
                                           for c, _ in layout}}
+        spacing = {channels[c]: grid_spacing(position[:, c]) for c, _ in layout}
+        if any(step is not None for step in spacing.values()):
+            notes['grid_spacing_m'] = {k: v for k, v in spacing.items() if v is not None}
         if reasons:
             notes['channels_not_tested'] = reasons
         return Prepared(self, tuple(names), tuple(units), np.array(initial, float), term,

@@ -43,13 +43,17 @@ class StageSim:
     landing_sigma : float
         Random landing error per chain and move, m (1 sigma): the stage's repeatability.
     seed : int
+    screw : sequence of 3 float
+        Each chain's lead-screw error once per turn, m (slider displacement
+        a sin(2 pi q / lead)): an error the stage model does not declare.
     """
 
     def __init__(self, truth: StageGeometry = TRUE_STAGE, landing_sigma: float = 1.2e-6,
-                 seed: int | None = 0):
+                 seed: int | None = 0, screw=(0.0, 0.0, 0.0)):
         if not landing_sigma >= 0:
             raise InvalidInputError('landing_sigma must be >= 0')
         self.truth = truth
+        self.screw = np.asarray(screw, dtype=float)
         self.landing_sigma = landing_sigma
         self.rng = np.random.default_rng(seed)
         self.q = np.zeros(3)
@@ -71,7 +75,8 @@ class StageSim:
         """Platform pose in the plate frame (x m, y m, theta rad). Truth: sim only."""
         lead_ratio = np.asarray(self.truth.lead) / NOMINAL_LEAD
         # A landing error is a slider displacement; as an input it is divided by the ratio.
-        q_effective = self.q + self._landing / lead_ratio
+        turn = 2 * np.pi * self.q / np.asarray(self.truth.lead)
+        q_effective = self.q + (self._landing + self.screw * np.sin(turn)) / lead_ratio
         pose = self.truth.forward(q_effective[None], self.directions[None])
         return self.truth.stage_to_plate(pose)[0]
 
@@ -202,15 +207,15 @@ def measure_repeatability(truth: StageGeometry = TRUE_STAGE, q=(1e-3, -1.5e-3, 2
 
 def simulate_calibration_run(truth: StageGeometry = TRUE_STAGE, plan=None,
                              landing_sigma: float = 1.2e-6, camera_noise: float = 0.3e-6,
-                             seed: int = 0):
+                             seed: int = 0, screw=(0.0, 0.0, 0.0)):
     """The calibration run of ``plan`` (default :class:`StagePlan`) on a simulated stage,
     measured by a camera with ``camera_noise`` (m, 1 sigma): a
     :class:`~printer_alignment.core.stage_calibration.StageData`. Every chain lands afresh
     at each target with a short last motion in its direction of travel
     (:func:`~printer_alignment.core.stage.landing_path`), so the sweeps approach from both
-    directions."""
+    directions. ``screw``: see :class:`StageSim`."""
     plan = plan or StagePlan()
-    stage = StageSim(truth, landing_sigma, seed=seed)
+    stage = StageSim(truth, landing_sigma, seed=seed, screw=screw)
     rng = np.random.default_rng(seed + 1)
     targets = plan.targets()
     marks, directions = [], []
