@@ -69,9 +69,21 @@ def test_analyze_residuals_images_a_sweep_and_runs_the_rotary_loop(graph):
     assert analysis.machine == 'rotary axes' and analysis.unit == 'sigma'
     assert report['rows']['total'] == 48
     assert analysis.effects_added == []
-    assert any(p.name.startswith('five_axis_sweep') for p in set((out / 'runs').iterdir()) - bags)
+    sweeps = [p for p in set((out / 'runs').iterdir()) - bags if p.name.startswith('five_axis_sweep')]
+    assert len(sweeps) == 1
     refused = call(node, client, AnalyzeResiduals.Request(plan_yaml='{step: 3.0}'))
     assert not refused.success and 'step must be' in refused.message
+    # Offline: the recorded sweep as the observations CSV, the same loop on it.
+    csv = out / 'sweep.csv'
+    done = machine_align(DOMAIN, 'export', 'five-axis', '--bag', str(sweeps[0]), '--out', str(csv))
+    assert done.returncode == 0, done.stderr
+    again = machine_align(DOMAIN, 'analyze', 'rotary', '--data', str(csv), '--calibration',
+                          str(out / 'calibration' / 'five_axis.yaml'), '--json',
+                          str(out / 'sweep_loop.json'))
+    assert again.returncode == 0, again.stderr
+    offline = json.loads((out / 'sweep_loop.json').read_text())
+    assert offline['rows']['total'] == 48 and offline['effects_added'] == []
+    assert offline['rms_before'] == pytest.approx(report['rms_before'], rel=1e-6)
 
 
 def test_a_pose_outside_the_strokes_is_refused(graph):

@@ -1,8 +1,10 @@
-"""``machine-align export stage|platform|hexapod``: a calibrator's recorded run (MCAP bag)
-as the CSV that ``machine-align analyze`` (and ``calibrate --data``) reads, so the closed
-loop can be run, repeated and shared offline on any live run. A cut run gives the stops it
-recorded. Each row gets a ``time`` column (s since the run's first stop, from the stops'
-header stamps), so a drift during the run can be tested."""
+"""``machine-align export stage|platform|hexapod|five-axis``: a calibrator's recorded run
+(MCAP bag) as the CSV that ``machine-align analyze`` (and ``calibrate --data``) reads, so
+the closed loop can be run, repeated and shared offline on any live run. A cut run gives
+the stops it recorded. Each row gets a ``time`` column (s since the run's first stop, from
+the stops' header stamps), so a drift during the run can be tested. A five-axis bag (a
+calibration run or the sweep ``analyze_residuals`` records) gives the observations CSV of
+its images, which ``analyze rotary --calibration`` reads for a sweep."""
 from __future__ import annotations
 
 import dataclasses
@@ -10,6 +12,10 @@ import dataclasses
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
+from dispenser_calib.core.data import write_observations
+from dispenser_calib.core.records import (
+    OBSERVATIONS_TOPIC as FIVE_AXIS_TOPIC, RESULT_TOPIC as FIVE_AXIS_RESULT_TOPIC,
+    image_from_message)
 from hexapod_calib.core.calibration import PoseData as HexapodPoseData
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC as HEXAPOD_TOPIC, measurement_record)
@@ -65,15 +71,39 @@ def _hexapod(bag):
             'every stop (all rounds and the evaluation)')
 
 
-READERS = {'stage': _stage, 'platform': _platform, 'hexapod': _hexapod}
+@dataclasses.dataclass
+class _Images:
+    """A five-axis run's images, written as the observations CSV."""
+
+    images: list
+
+    def __len__(self):
+        return len(self.images)
+
+    def to_csv(self, path):
+        write_observations(path, self.images)
+
+
+def _five_axis(bag):
+    recorded, _ = read_run(bag, FIVE_AXIS_TOPIC, 'alignment_msgs/msg/FiveAxisObservation',
+                           image_from_message, 'five-axis observations', FIVE_AXIS_RESULT_TOPIC)
+    phases = sorted({phase for _, phase in recorded})
+    return _Images([image for image, _ in recorded]), f'the images ({", ".join(phases)})'
+
+
+READERS = {'stage': _stage, 'platform': _platform, 'hexapod': _hexapod,
+           'five-axis': _five_axis}
+NEXT = {'hexapod': 'analyze hexapod --data {out} --geometry NOMINAL.yaml',
+        'five-axis': ('analyze rotary --data {out} --calibration five_axis.yaml (a sweep with '
+                      'the linear axes held), or calibrate five-axis --data {out}')}
 
 
 def cmd_export(args) -> int:
     data, which = READERS[args.machine](args.bag)
     data.to_csv(args.out)
+    follow = NEXT.get(args.machine, f'analyze {args.machine} --data {{out}}').format(out=args.out)
     print(f'wrote {args.out}: {len(data)} rows, {which} of {args.bag}; run the closed loop '
-          f'with: machine-align analyze {args.machine} --data {args.out}'
-          + (' --geometry NOMINAL.yaml' if args.machine == 'hexapod' else ''))
+          f'with: machine-align {follow}')
     return 0
 
 
@@ -82,7 +112,8 @@ def add_parser(sub) -> None:
                                            'analyze and calibrate --data read')
     machines = parser.add_subparsers(dest='machine', required=True)
     for name, recorder in (('stage', 'stage_calibrator'), ('platform', 'platform_calibrator'),
-                           ('hexapod', 'hexapod_calibrator')):
+                           ('hexapod', 'hexapod_calibrator'),
+                           ('five-axis', 'five_axis_calibrator')):
         machine = machines.add_parser(name, help=f'a run recorded by {recorder}')
         machine.add_argument('--bag', required=True, help=f'a run recorded by {recorder}')
         machine.add_argument('--out', required=True, help='CSV to write (SI units)')
