@@ -9,14 +9,13 @@ against its own sigma, and the held-out RMS after over the clean run's (same see
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.storage import write_atomic
-from machine_alignment.bench import main_with_out
+from machine_alignment.bench import detection_case, main_with_out, write_table
 from platform_calib.core.geometry import nominal_geometry
 from platform_calib.core.loop_model import PlatformLoopModel
 from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
@@ -56,26 +55,12 @@ def run(out: Path) -> dict:
     results = {}
     clean_after = {}
     for case, amplitudes in sorted(CASES.items(), key=lambda c: c[0] != 'clean'):
-        runs, cpu = [], []
-        for seed in SEEDS:
-            start = time.process_time()
-            report = _report(seed, amplitudes)
-            cpu.append(time.process_time() - start)
-            judged = _judge(report, amplitudes)
-            if case == 'clean':
-                clean_after[seed] = report['rms_after']
-            judged['after_over_floor'] = judged['rms_after'] / clean_after[seed]
-            runs.append(judged)
-            print(f'{case}, seed {seed}: found {judged["found"]}, wrong claims '
-                  f'{judged["wrong_claims"]}', flush=True)
-        sigmas = [s for r in runs for s in r['period_error_sigmas']]
-        results[case] = {
-            'runs': len(runs), 'found': sum(r['found'] for r in runs),
-            'wrong_claims': sum(r['wrong_claims'] for r in runs),
-            'feeds_missed': sum(len(r['feeds_missed']) for r in runs),
-            'largest_period_error_sigmas': max(sigmas) if sigmas else None,
-            'median_after_over_floor': float(np.median([r['after_over_floor'] for r in runs])),
-            'median_cpu_s': float(np.median(cpu)), 'per_run': runs}
+        summary = detection_case(case, SEEDS, lambda seed: _report(seed, amplitudes),
+                                 lambda report: _judge(report, amplitudes), clean_after)
+        sigmas = [s for r in summary['per_run'] for s in r['period_error_sigmas']]
+        results[case] = dict(
+            summary, feeds_missed=sum(len(r['feeds_missed']) for r in summary['per_run']),
+            largest_period_error_sigmas=max(sigmas) if sigmas else None)
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / 'closed_loop_channels.json', json.dumps(results, indent=2) + '\n')
     lines = [f'Platform, {POSES} poses, ball-screw periodic error {AMPLITUDE * 1e6:g} um with a '
@@ -91,7 +76,7 @@ def run(out: Path) -> dict:
         lines.append(f'| {case} | {found} | {r["wrong_claims"]} | {r["feeds_missed"]} | '
                      f'{largest} | {r["median_after_over_floor"]:.3f} | '
                      f'{r["median_cpu_s"]:.1f} s |')
-    write_atomic(out / 'closed_loop_channels.md', '\n'.join(lines) + '\n')
+    write_table(out, 'closed_loop_channels', lines)
     return results
 
 

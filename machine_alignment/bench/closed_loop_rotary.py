@@ -12,7 +12,6 @@ own sigma, and the held-out RMS after over the clean run's (same seed)."""
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.storage import write_atomic
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.sim.machine import measure_target_poses, positioner_schedule, true_model
-from machine_alignment.bench import main_with_out, write_table
+from machine_alignment.bench import detection_case, main_with_out, write_table
 
 SEEDS = range(20)
 NOISE = {'position_noise': 5e-6, 'rotation_noise': 50e-6}
@@ -65,29 +64,17 @@ def run(out: Path) -> dict:
     a, c, t = positioner_schedule()
     results, clean_after = {}, {}
     for case, (keywords, effect, orders, truth) in CASES.items():
-        runs, cpu = [], []
-        for seed in SEEDS:
+        def analyse(seed, keywords=keywords):
             poses = measure_target_poses(true_model(seed), a, c, t, seed=seed, **NOISE,
                                          **keywords)
-            start = time.process_time()
-            report = analyze(RotaryLoopModel(poses), LoopConfig()).report
-            cpu.append(time.process_time() - start)
-            judged = _judge(report, effect, orders, truth)
-            if case == 'clean':
-                clean_after[seed] = report['rms_after']
-            judged['after_over_floor'] = judged['rms_after'] / clean_after[seed]
-            runs.append(judged)
-            print(f'{case}, seed {seed}: added {judged["added"]}, found {judged["found"]}',
-                  flush=True)
-        sigmas = [s for r in runs for s in r['coefficient_error_sigmas']]
-        results[case] = {
-            'runs': len(runs), 'found': sum(r['found'] for r in runs),
-            'wrong_claims': sum(r['wrong_claims'] for r in runs),
-            'largest_coefficient_error_sigmas': max(sigmas) if sigmas else None,
-            'coefficient_error_rms_sigmas': float(np.sqrt(np.mean(np.square(sigmas))))
-            if sigmas else None,
-            'median_after_over_floor': float(np.median([r['after_over_floor'] for r in runs])),
-            'median_cpu_s': float(np.median(cpu)), 'per_run': runs}
+            return analyze(RotaryLoopModel(poses), LoopConfig()).report
+        summary = detection_case(case, SEEDS, analyse,
+                                 lambda report: _judge(report, effect, orders, truth), clean_after)
+        sigmas = [s for r in summary['per_run'] for s in r['coefficient_error_sigmas']]
+        results[case] = dict(
+            summary, largest_coefficient_error_sigmas=max(sigmas) if sigmas else None,
+            coefficient_error_rms_sigmas=float(np.sqrt(np.mean(np.square(sigmas))))
+            if sigmas else None)
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / 'closed_loop_rotary.json', json.dumps(results, indent=2) + '\n')
     lines = [f'Rotary table, {len(a)} measured target poses (the real positioner\'s sampling), '
