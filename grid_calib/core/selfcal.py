@@ -58,7 +58,11 @@ class SelfCalibration:
     misalignments: dict               # placement -> (shift_x m, shift_y m, angle rad)
     residuals: dict                   # placement -> (k, 2) m, measured minus model
     noise: float                      # measurement noise sigma estimated from the residuals, m
-    noise_gain: np.ndarray | None     # (s, 2) std of G per unit of noise sigma; None if large
+    noise_gain: np.ndarray | None     # (s, 2) std of G per unit of noise sigma; None if not propagated
+    # (draws, s, 2): G's estimation error for draws of unit measurement noise (what the
+    # stitching propagates); the method behind noise_gain ('exact' or 'sampled, ...').
+    noise_draws: np.ndarray | None = None
+    uncertainty_method: str = 'not propagated'
 
     @property
     def uncertainty(self) -> np.ndarray | None:
@@ -78,6 +82,7 @@ class SelfCalibration:
                            'error_y': float(gy)}
                           for (x, y), (gx, gy) in zip(self.site_positions, self.stage_error)],
                 'gauge': GAUGE, 'residual_rms_m': rms, 'noise_sigma_m': self.noise,
+                'uncertainty_method': self.uncertainty_method,
                 'uncertainty_m': (None if self.uncertainty is None else
                                   [{'x': float(x), 'y': float(y), 'sigma_x': float(sx),
                                     'sigma_y': float(sy)} for (x, y), (sx, sy)
@@ -125,20 +130,18 @@ def _gauge_rows(grid: Grid, f0: int, a0: int, columns: int) -> sparse.csr_matrix
     return sparse.csr_matrix((v, (r, c)), shape=(len(rows), columns))
 
 
-# Work of the solve behind the per-site uncertainty (right-hand sides x unknowns): up to
-# N = 41; larger grids would take minutes (bench_results/grid.md).
+# Work of the exact per-site uncertainty (right-hand sides x unknowns): up to N = 41;
+# larger grids would take minutes, and take the sampled route (bench_results/grid.md).
 MAX_PROPAGATED = 5e7
 PROPAGATION_BLOCK = 256   # right-hand sides solved at once
+NOISE_DRAWS = 256         # draws of the sampled route: each sigma to 1 / sqrt(2 x 256) = 4.4 %
 
 
-def _noise_gain(grid: Grid, factor, design, o_col: int, f0: int, columns: int,
-                scale_sign_y: float) -> np.ndarray | None:
-    """Std of G at every site per unit of measurement noise, (s, 2): for the constrained
-    estimate x = P D^T b (P the KKT inverse's top block), Cov(x) = sigma^2 P D^T D P, taken
-    along each site's G. None when that dense solve would be too large."""
+def _along_sites(grid: Grid, o_col: int, f0: int, columns: int,
+                 scale_sign_y: float) -> sparse.csc_matrix:
+    """(columns, 2 s): G at every site (x then y) as a combination of the unknowns (F, O, R;
+    unknowns in units of the region's half size)."""
     n_sites = len(grid.sites)
-    if 2 * n_sites * factor.shape[0] > MAX_PROPAGATED:
-        return None
     xs, ys = grid.sites[:, 0] / grid.half, grid.sites[:, 1] / grid.half
     rows = np.repeat(np.arange(2 * n_sites), 3)
     cols = np.column_stack([f0 + np.arange(2 * n_sites), np.full(2 * n_sites, o_col),
@@ -146,17 +149,39 @@ def _noise_gain(grid: Grid, factor, design, o_col: int, f0: int, columns: int,
     values = np.column_stack([np.ones(2 * n_sites),
                               np.column_stack([ys, xs]).ravel(),
                               np.column_stack([xs, scale_sign_y * ys]).ravel()]).ravel()
-    along = sparse.csr_matrix((values, (rows, cols)), shape=(2 * n_sites, columns)).T.tocsc()
-    variance = np.empty(2 * n_sites)
+    return sparse.csr_matrix((values, (rows, cols)), shape=(2 * n_sites, columns)).T.tocsc()
+
+
+def _noise_gain(factor, design, along, columns: int) -> np.ndarray:
+    """Std of G at every site per unit of measurement noise, (s, 2), exactly: for the
+    constrained estimate x = P D^T b (P the KKT inverse's top block), Cov(x) = sigma^2 P D^T
+    D P, taken along each site's G (one solve per site and component)."""
+    variance = np.empty(along.shape[1])
     # In blocks of right-hand sides: the dense solve would otherwise hold two (unknowns x
     # 2 sites) matrices at once (about 0.5 GB at N = 41).
-    for start in range(0, 2 * n_sites, PROPAGATION_BLOCK):
+    for start in range(0, along.shape[1], PROPAGATION_BLOCK):
         block = along[:, start:start + PROPAGATION_BLOCK].toarray()
         right = np.zeros((factor.shape[0], block.shape[1]))
         right[:columns] = block
         dz = design @ factor.solve(right)[:columns]
         variance[start:start + block.shape[1]] = np.sum(dz * dz, axis=0)
-    return np.sqrt(variance).reshape(n_sites, 2)
+    return np.sqrt(variance).reshape(-1, 2)
+
+
+def noise_draws(factor, design, along, columns: int, count: int = NOISE_DRAWS,
+                seed: int = 0) -> np.ndarray:
+    """G's estimation error (count, s, 2) for ``count`` draws e of unit, independent
+    measurement noise: x = P D^T e, whose covariance is exactly P D^T D P, the estimate's
+    own. One solve per draw, whatever the grid's size: the sampled route to the per-site
+    uncertainty (each sigma to 1 / sqrt(2 count)), and what the stitching propagates."""
+    rng = np.random.default_rng(seed)
+    out = np.empty((count, along.shape[1]))
+    for start in range(0, count, PROPAGATION_BLOCK // 4):
+        take = min(PROPAGATION_BLOCK // 4, count - start)
+        right = np.zeros((factor.shape[0], take))
+        right[:columns] = design.T @ rng.standard_normal((design.shape[0], take))
+        out[start:start + take] = (along.T @ factor.solve(right)[:columns]).T
+    return out.reshape(count, -1, 2)
 
 
 @dataclass(frozen=True)
@@ -233,13 +258,16 @@ def solve_constrained(design: sparse.csr_matrix, gauge: sparse.csr_matrix, b: np
 
 
 def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float = -1.0,
-                   ordering: str = 'MMD_AT_PLUS_A', propagate: bool = True) -> SelfCalibration:
+                   ordering: str = 'MMD_AT_PLUS_A', propagate: bool = True,
+                   draw_seed: int = 0) -> SelfCalibration:
     """Solve one region from its three placements.
 
     ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
     literal claim, is kept to show that it cannot describe a stage with a scale difference.
     ``ordering`` is SuperLU's column ordering (the bench compares it with the default);
-    ``propagate`` False skips the per-site uncertainty (most of the time from N = 41 on).
+    ``propagate`` False skips the per-site uncertainty: exact up to N = 41
+    (:data:`MAX_PROPAGATED`), sampled beyond (:func:`noise_draws`, seeded by ``draw_seed``:
+    regions stitched together need different seeds, their noise being independent).
 
     Raises
     ------
@@ -257,8 +285,16 @@ def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float 
     # Noise: the residual's variance over the degrees of freedom the fit leaves.
     dof = design.shape[0] - (columns - gauge.shape[0])
     sigma = float(np.sqrt(np.sum(residual ** 2) / dof)) if dof > 0 else float('nan')
-    gain = (_noise_gain(grid, factor, design, o_col, f0, columns, scale_sign_y)
-            if propagate else None)
+    gain, draws, method = None, None, 'not propagated'
+    if propagate:
+        along = _along_sites(grid, o_col, f0, columns, scale_sign_y)
+        draws = noise_draws(factor, design, along, columns, seed=draw_seed)
+        if along.shape[1] * factor.shape[0] <= MAX_PROPAGATED:
+            gain, method = _noise_gain(factor, design, along, columns), 'exact'
+        else:
+            gain = draws.std(axis=0)
+            method = (f'sampled: {NOISE_DRAWS} draws of the noise through the solve, each '
+                      f'sigma to +-{100 / np.sqrt(2 * NOISE_DRAWS):.1f} %')
     if not np.all(np.isfinite(solution)):
         raise PlacementError('the placements do not determine the stage error (singular)')
     o_value, r_value = solution[o_col] / half_size, solution[o_col + 1] / half_size
@@ -268,4 +304,5 @@ def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float 
     by_placement = {name: -residual[k] for k, name in enumerate(PLACEMENTS)}
     g = stage_error(sites * grid.pitch, o_value, r_value, field, scale_sign_y)
     return SelfCalibration(grid, float(o_value), float(r_value), sites, g, field,
-                           solution[a0:e0].reshape(n_marks, 2), mis, by_placement, sigma, gain)
+                           solution[a0:e0].reshape(n_marks, 2), mis, by_placement, sigma, gain,
+                           draws, method)

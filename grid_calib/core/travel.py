@@ -10,7 +10,7 @@ import numpy as np
 from calib_core.sanity import SanityGate
 from grid_calib.core.model import Grid, linear_parts
 from grid_calib.core.selfcal import self_calibrate
-from grid_calib.core.stitching import StitchedMap, stitch
+from grid_calib.core.stitching import StitchedMap, stitch, stitched_draws
 from grid_calib.errors import PlacementError
 
 UNDETERMINED_SCALE = ('undetermined: no external length given (a certified plate pitch); '
@@ -62,10 +62,22 @@ class TravelCalibration:
             one['residual_max_m'] = {k: float(np.abs(v).max())
                                      for k, v in result.residuals.items()}
             regions[str(r)] = one
+        sigma = (stitched.uncertainty if stitched.uncertainty is not None
+                 else np.full_like(stitched.stage_error, np.nan))
+        draws = min(len(r.noise_draws) for r in self.results.values()
+                    if r.noise_draws is not None) if stitched.uncertainty is not None else 0
         return {'sites': [{'x': float(x), 'y': float(y), 'error_x': float(gx),
-                           'error_y': float(gy)}
-                          for (x, y), (gx, gy) in zip(stitched.site_positions,
-                                                      stitched.stage_error)],
+                           'error_y': float(gy), 'sigma_x': float(sx), 'sigma_y': float(sy)}
+                          for (x, y), (gx, gy), (sx, sy) in zip(
+                              stitched.site_positions, stitched.stage_error, sigma)],
+                'uncertainty': (
+                    f'sigma_x, sigma_y: 1-sigma of G per site (m) from the measurement noise '
+                    f'each region\'s residuals show, {draws} draws through each region\'s '
+                    f'solve and the stitching (each sigma to +-{100 / np.sqrt(2 * draws):.1f} '
+                    f'%), in the travel\'s gauge'
+                    + ('; the certified scale\'s own uncertainty is not included'
+                       if self.isotropic_scale is not None else '')) if draws else
+                    'not propagated',
                 'gauge': self.gauge(),
                 'isotropic_scale': self.isotropic_scale,
                 'non_orthogonality_rad': float(whole['non_orthogonality']),
@@ -99,9 +111,17 @@ def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
                                             and abs(certified_pitch / grid.pitch - 1) < 1e-3):
         raise PlacementError(f'certified pitch {certified_pitch!r} m is not within 0.1 % of '
                              f'the nominal {grid.pitch} m')
-    results = {r: self_calibrate(grid, region.placements) for r, region in regions.items()}
+    # Each region draws its own noise (the draws behind the stitched uncertainty).
+    results = {r: self_calibrate(grid, region.placements, draw_seed=k)
+               for k, (r, region) in enumerate(regions.items())}
     origins = {r: region.origin for r, region in regions.items()}
-    stitched = stitch({r: (origins[r], results[r]) for r in results}, grid.pitch, method)
+    placed = {r: (origins[r], results[r]) for r in results}
+    stitched = stitch(placed, grid.pitch, method)
+    # Each region's noise (its own sigma, drawn independently of the others') through the
+    # stitching: the stitched map's per-site uncertainty.
+    draws = stitched_draws(placed, grid.pitch, method,
+                           {r: res.noise_draws * res.noise for r, res in results.items()})
+    stitched.uncertainty = draws.std(axis=0)
     scale = None
     if certified_pitch is not None:
         plate_scale = certified_pitch / grid.pitch - 1
