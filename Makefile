@@ -58,6 +58,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.closed_loop_speed --out bench_results
 	$(BIN)/python -m machine_alignment.bench.stage --out bench_results
 	$(BIN)/python -m machine_alignment.bench.grid --out bench_results
+	$(BIN)/python -m machine_alignment.bench.grid_uncertainty --out bench_results
 	$(BIN)/python -m machine_alignment.bench.grid_gantry --out bench_results
 	$(BIN)/python -m machine_alignment.bench.platform --out bench_results
 	$(BIN)/python -m machine_alignment.bench.plan_platform --out bench_results

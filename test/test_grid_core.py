@@ -149,7 +149,7 @@ def test_per_site_uncertainty_matches_the_spread_over_runs():
 
 
 def test_sampled_uncertainty_agrees_with_the_exact_one(monkeypatch):
-    """The sampled route (noise drawn through the solve, what grids beyond N = 41 take)
+    """The sampled route (noise drawn through the solve, what grids beyond N = 21 take)
     against the exact propagation on the same region: each site's sigma within 20 % (256
     draws know a sigma to 4.4 %), the median within 5 %; the report says which route."""
     from grid_calib.core import selfcal

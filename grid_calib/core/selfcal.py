@@ -130,9 +130,10 @@ def _gauge_rows(grid: Grid, f0: int, a0: int, columns: int) -> sparse.csr_matrix
     return sparse.csr_matrix((v, (r, c)), shape=(len(rows), columns))
 
 
-# Work of the exact per-site uncertainty (right-hand sides x unknowns): up to N = 41;
-# larger grids would take minutes, and take the sampled route (bench_results/grid.md).
-MAX_PROPAGATED = 5e7
+# Work of the exact per-site uncertainty (right-hand sides x unknowns): up to N = 21 or so.
+# Beyond, the sampled route: at N = 41 it takes 0.9 s where the exact one takes 9 s, and
+# N = 101 would take minutes (bench_results/grid_uncertainty.md).
+MAX_PROPAGATED = 5e6
 PROPAGATION_BLOCK = 256   # right-hand sides solved at once
 NOISE_DRAWS = 256         # draws of the sampled route: each sigma to 1 / sqrt(2 x 256) = 4.4 %
 
@@ -265,7 +266,7 @@ def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float 
     ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
     literal claim, is kept to show that it cannot describe a stage with a scale difference.
     ``ordering`` is SuperLU's column ordering (the bench compares it with the default);
-    ``propagate`` False skips the per-site uncertainty: exact up to N = 41
+    ``propagate`` False skips the per-site uncertainty: exact up to about N = 21
     (:data:`MAX_PROPAGATED`), sampled beyond (:func:`noise_draws`, seeded by ``draw_seed``:
     regions stitched together need different seeds, their noise being independent).
 

@@ -53,21 +53,15 @@ def _plot(path: Path, calibration) -> None:
     axes[1, 0].set_ylabel('marks (all regions)')
     axes[1, 0].legend(title='placement')
     ax = axes[1, 1]
-    shown = False
-    for r, result in calibration.results.items():
-        if result.uncertainty is None:
-            continue
-        xy = (result.sites + calibration.origins[r]) * grid.pitch * 1e3
-        dots = ax.scatter(xy[:, 0], xy[:, 1], c=np.linalg.norm(result.uncertainty, axis=1) * 1e9,
-                          s=12, cmap='viridis')
-        shown = True
-    if shown:
-        fig.colorbar(dots, ax=ax, label='1-sigma uncertainty of G per site, |(sx, sy)| (nm)')
-        ax.set_title('uncertainty of G (each region; not through the stitching)', loc='left',
-                     fontsize=10)
+    stitched = calibration.stitched
+    if stitched.uncertainty is not None:
+        xy = stitched.site_positions * 1e3
+        dots = ax.scatter(xy[:, 0], xy[:, 1], s=12, cmap='viridis',
+                          c=np.linalg.norm(stitched.uncertainty, axis=1) * 1e9)
+        fig.colorbar(dots, ax=ax, label='1-sigma of G per site, |(sx, sy)| (nm)')
+        ax.set_title('uncertainty of G through the stitching', loc='left', fontsize=10)
     else:
-        ax.text(0.5, 0.5, 'uncertainty not propagated (grid too large)', ha='center',
-                transform=ax.transAxes)
+        ax.text(0.5, 0.5, 'uncertainty not propagated', ha='center', transform=ax.transAxes)
     ax.set_xlabel('x (mm)')
     ax.set_ylabel('y (mm)')
     ax.set_aspect('equal')
@@ -112,13 +106,17 @@ def cmd_calibrate_grid(args) -> int:
     for r, result in calibration.results.items():
         rms = ', '.join(f'{k} {v * 1e9:.2f}' for k, v in report['regions'][str(r)]
                         ['residual_rms_m'].items())
-        sigma = ('not propagated (grid too large)' if result.uncertainty is None else
-                 f'up to {result.uncertainty.max() * 1e9:.2f} nm')
+        sigma = ('not propagated' if result.uncertainty is None else
+                 f'up to {result.uncertainty.max() * 1e9:.2f} nm ({result.uncertainty_method})')
         print(f'  region {r} at {tuple(calibration.origins[r])} pitches: residual RMS (nm) '
               f'{rms}; noise {result.noise * 1e9:.2f} nm; 1-sigma of G {sigma}')
     if stitched.overlap_rms is not None:
         print(f'  stitched ({stitched.method}): regions disagree at shared sites by '
               f'{stitched.overlap_rms * 1e9:.2f} nm RMS')
+    if stitched.uncertainty is not None:
+        print(f'  1-sigma of the stitched G: median {np.median(stitched.uncertainty) * 1e9:.2f} '
+              f'nm, up to {stitched.uncertainty.max() * 1e9:.2f} nm (each region\'s noise '
+              f'drawn through the stitching)')
     print('  isotropic scale: ' + ('undetermined without an external length (0 in G; '
                                    'give --certified-pitch)'
                                    if calibration.isotropic_scale is None else
