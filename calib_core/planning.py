@@ -15,6 +15,8 @@ The design criteria, on the information matrix ``A = sum J_k^T J_k`` of the chos
 The search is Fedorov's exchange: a greedy start, then sweeps that swap a chosen
 candidate for the one that most improves the criterion, until no swap helps. Every step
 scores all candidates at once by rank-r updates (Woodbury), never refitting anything.
+:func:`augment` adds measurements to what was measured already (the adaptive mode: measure,
+re-identify, add the stops that most reduce the predicted error).
 """
 from __future__ import annotations
 
@@ -132,6 +134,35 @@ def exchange(jacobians, count: int, criterion: str = 'I', working=None,
         if not swapped:
             break
     return Design(np.array(chosen), criterion, float(value), sweeps)
+
+
+def augment(jacobians, prior: np.ndarray, count: int, criterion: str = 'I', working=None,
+            exclude=()) -> np.ndarray:
+    """The ``count`` candidates (indices) that, added one by one (greedy) to the
+    information ``prior`` (p, p) of what was measured already, most improve the criterion;
+    ``exclude`` candidates are not chosen. Arguments as :func:`exchange`."""
+    jacobians = np.asarray(jacobians, dtype=float)
+    if criterion not in CRITERIA:
+        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
+                                f'{criterion}')
+    if count > len(jacobians) - len(set(exclude)):
+        raise InvalidInputError(f'{count} measurements asked from '
+                                f'{len(jacobians) - len(set(exclude))} candidates left')
+    weight = None
+    if criterion == 'I':
+        if working is None:
+            raise InvalidInputError('the I criterion needs the working poses')
+        working = np.asarray(working, dtype=float)
+        weight = np.einsum('wqp,wqs->ps', working, working) / len(working)
+    a = np.asarray(prior, dtype=float).copy()
+    chosen = list(exclude)
+    for _ in range(count):
+        scores = _scores(jacobians, np.linalg.pinv(a), criterion, weight)
+        scores[chosen] = -np.inf
+        best = int(np.argmax(scores))
+        chosen.append(best)
+        a += jacobians[best].T @ jacobians[best]
+    return np.array(chosen[len(set(exclude)):], dtype=int)
 
 
 def sandwich_covariance(jacobian: np.ndarray, noise: np.ndarray) -> np.ndarray:

@@ -133,3 +133,43 @@ def test_plan_hexapod_from_the_command_line(tmp_path, capsys):
     assert len(plan.read_text().splitlines()) == 14
     prediction = json.loads((tmp_path / 'plan.json').read_text())
     assert len(prediction['predicted_parameter_sigmas_m']) == 42
+
+
+def _adaptive_run(target_error, max_poses, seed=2):
+    from platform_calib.core.planning import default_working
+    from platform_calib.core.procedure import PlatformPlan, run_platform_calibration
+    truth = true_geometry(seed)
+    sim = PlatformSim(truth, seed)
+
+    def move(feeds):
+        sim.move(feeds)
+        return sim.read_feeds(), sim.direction
+    plan = PlatformPlan(poses=8, design='I', target_error=target_error, max_poses=max_poses,
+                        step=4, seed=seed)
+    result, _, stops, prediction = run_platform_calibration(plan, nominal_geometry(), move,
+                                                            sim.track)
+    working = default_working(plan.span, seed)
+    reached = forward(truth, inverse(result.geometry, working), working)
+    realised = float(np.sqrt(np.mean(mark_errors(reached, working) ** 2)))
+    return prediction['adaptive'], [s for s in stops if s.phase == 'identify'], realised
+
+
+def test_adaptive_platform_adds_poses_until_the_predicted_error_meets_the_target():
+    """From 8 I-optimal poses (11.2 um predicted), 4 more at a time chosen about the
+    geometry identified so far, until the predicted mark error is below 6 um; what the
+    calibration then realises at the working poses is below the target too (measured
+    4.9 um)."""
+    adaptive, identified, realised = _adaptive_run(6e-6, 60)
+    predicted = [r['predicted_rms_m'] for r in adaptive['rounds']]
+    assert adaptive['stopped'] == 'target met'
+    assert predicted[0] > 6e-6 >= predicted[-1] and np.all(np.diff(predicted) < 0)
+    assert [r['poses'] for r in adaptive['rounds']] == list(range(8, len(identified) + 1, 4))
+    assert realised < 6e-6
+
+
+def test_adaptive_platform_says_when_the_limits_cannot_meet_the_target():
+    """2 um with at most 40 poses: the plan predicts 4.7 um with all 40 and says so after
+    the first 8, before measuring more."""
+    adaptive, identified, _ = _adaptive_run(2e-6, 40)
+    assert adaptive['stopped'].startswith('target cannot be met within max_poses = 40')
+    assert adaptive['best_at_max_poses_m'] > 2e-6 and len(identified) == 8

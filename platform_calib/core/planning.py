@@ -22,7 +22,7 @@ import numpy as np
 import scipy.linalg
 
 from calib_core.errors import InvalidInputError
-from calib_core.planning import exchange, predicted_errors, sandwich_covariance
+from calib_core.planning import augment, exchange, predicted_errors, sandwich_covariance
 from platform_calib.core.compensation import SCREEN
 from platform_calib.core.geometry import PlatformGeometry, parameter_names
 from platform_calib.core.kinematics import inverse, pose_jacobians, rotation
@@ -132,18 +132,66 @@ def plan_platform(nominal: PlatformGeometry, count: int, working=None,
         raise InvalidInputError(f'only {len(pool)} of {candidates} candidate poses keep the '
                                 f'feeds {margin * 1e3:g} mm inside the stroke: widen the '
                                 'candidates or ask for fewer poses')
-    if working is None:
-        working = np.random.default_rng(seed + 92).uniform(-1, 1, (200, 3)) * np.asarray(span)
+    working = default_working(span, seed) if working is None else working
     sensitivity = working_sensitivity(nominal, working)
     rows, noise = identification_rows(nominal, pool, tracker_noise, feed_noise)
-    # Whitened per pose: the information a fit weighted by the noise would have.
+    design = exchange(_whitened(rows, noise), count, criterion, sensitivity)
+    return _predicted(pool[design.chosen], rows[design.chosen], noise[design.chosen],
+                      sensitivity, criterion, len(pool))
+
+
+def default_working(span=WORKING_SPAN, seed: int = 0) -> np.ndarray:
+    """200 random working poses within +-``span`` (x m, y m, theta rad)."""
+    return np.random.default_rng(seed + 92).uniform(-1, 1, (200, 3)) * np.asarray(span)
+
+
+def _whitened(rows: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """Each pose's closure rows whitened by its noise: the information a fit weighted by
+    the noise would have."""
     factor = np.linalg.cholesky(noise)
-    whitened = np.stack([scipy.linalg.solve_triangular(f, r, lower=True)
-                         for f, r in zip(factor, rows)])
-    design = exchange(whitened, count, criterion, sensitivity)
-    chosen = design.chosen
-    jacobian = rows[chosen].reshape(-1, 18)
-    covariance = sandwich_covariance(jacobian, scipy.linalg.block_diag(*noise[chosen]))
+    return np.stack([scipy.linalg.solve_triangular(f, r, lower=True)
+                     for f, r in zip(factor, rows)])
+
+
+def _predicted(poses, rows, noise, sensitivity, criterion: str, candidates: int) -> PoseDesign:
+    """The prediction for identifying from ``poses`` (their rows (n, 3, 18) and noise
+    (n, 3, 3)) with the fit the suite runs."""
+    covariance = sandwich_covariance(rows.reshape(-1, 18), scipy.linalg.block_diag(*noise))
     per_row = predicted_errors(covariance, sensitivity).reshape(len(sensitivity), 2, 2)
-    return PoseDesign(pool[chosen], criterion, np.sqrt(np.diag(covariance)),
-                        np.sqrt(np.sum(per_row ** 2, -1)), len(pool))
+    return PoseDesign(np.asarray(poses), criterion, np.sqrt(np.diag(covariance)),
+                      np.sqrt(np.sum(per_row ** 2, -1)), candidates)
+
+
+def predict_platform(geometry: PlatformGeometry, poses, working=None, span=WORKING_SPAN,
+                     seed: int = 0, tracker_noise=TRACKER_NOISE,
+                     feed_noise: float = FEED_NOISE) -> PoseDesign:
+    """What identifying from ``poses`` (n, 3) gives, predicted about ``geometry`` (the
+    nominal, or the one identified so far)."""
+    working = default_working(span, seed) if working is None else working
+    rows, noise = identification_rows(geometry, np.asarray(poses, float), tracker_noise,
+                                      feed_noise)
+    return _predicted(poses, rows, noise, working_sensitivity(geometry, working), 'given',
+                      len(poses))
+
+
+def extend_platform(geometry: PlatformGeometry, nominal: PlatformGeometry, measured,
+                    count: int, working=None,
+                    criterion: str = 'I', candidates: int = 3000, span=WORKING_SPAN,
+                    margin: float = STROKE_MARGIN, seed: int = 0,
+                    tracker_noise=TRACKER_NOISE, feed_noise: float = FEED_NOISE) -> PoseDesign:
+    """``count`` more poses to measure after ``measured`` (n, 3), chosen about
+    ``geometry`` (the one identified so far) to lower the criterion most, and the
+    prediction for all of them together; candidates whose ``nominal`` feeds (what is
+    commanded) keep ``margin`` inside the stroke."""
+    measured = np.asarray(measured, float)
+    working = default_working(span, seed) if working is None else working
+    pool = candidate_poses(nominal, candidates, span, margin, seed + 1000 + len(measured))
+    sensitivity = working_sensitivity(geometry, working)
+    rows, noise = identification_rows(geometry, np.vstack([measured, pool]), tracker_noise,
+                                      feed_noise)
+    whitened = _whitened(rows, noise)
+    prior = np.einsum('krp,krq->pq', whitened[:len(measured)], whitened[:len(measured)])
+    added = augment(whitened[len(measured):], prior, count, criterion, sensitivity)
+    keep = np.r_[np.arange(len(measured)), len(measured) + added]
+    return _predicted(np.vstack([measured, pool[added]]), rows[keep], noise[keep],
+                      sensitivity, criterion, len(pool))

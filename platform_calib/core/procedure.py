@@ -16,7 +16,7 @@ from platform_calib.core.geometry import PlatformGeometry
 from platform_calib.core.identification import (
     MIN_POSES, POSE_SCHEMA, Identification, PoseData, identify)
 from platform_calib.core.kinematics import inverse
-from platform_calib.core.planning import plan_platform
+from platform_calib.core.planning import extend_platform, plan_platform, predict_platform
 
 
 DESIGNS = ('random', 'I', 'D')
@@ -28,7 +28,13 @@ class PlatformPlan:
     within +-``span``, x m, y m, theta rad, drawn with ``seed``). The identification poses:
     ``targets`` when given (a planned set, e.g. from ``machine-align plan platform``), else
     ``poses`` of them, random (``design`` 'random') or planned here for the least error at
-    the evaluation span ('I') or the largest information ('D')."""
+    the evaluation span ('I') or the largest information ('D').
+
+    Adaptive with ``target_error`` > 0 (m, the predicted 1-sigma mark error at the working
+    poses, RMS): after identifying, predict about the identified geometry; while above the
+    target, add the ``step`` poses that lower it most (D or I as ``design``, I for a random
+    start), measure and identify again, up to ``max_poses``. It stops early, saying so,
+    when even ``max_poses`` poses are predicted to miss the target."""
 
     poses: int = 20
     evaluation_poses: int = 10
@@ -36,6 +42,9 @@ class PlatformPlan:
     seed: int = 0
     design: str = 'random'
     targets: tuple = ()
+    target_error: float = 0.0
+    max_poses: int = 60
+    step: int = 4
 
     def __post_init__(self):
         object.__setattr__(self, 'poses', whole_number(self.poses, 'poses', MIN_POSES))
@@ -48,6 +57,12 @@ class PlatformPlan:
             raise InvalidInputError(f'span must be three positive values (x m, y m, theta '
                                     f'rad; up to 0.1 m and pi/4), not {self.span!r}')
         object.__setattr__(self, 'span', tuple(float(v) for v in span))
+        object.__setattr__(self, 'max_poses', whole_number(self.max_poses, 'max_poses', MIN_POSES))
+        object.__setattr__(self, 'step', whole_number(self.step, 'step', 1))
+        if not (isinstance(self.target_error, (int, float)) and np.isfinite(self.target_error)
+                and 0 <= self.target_error < 1e-3):
+            raise InvalidInputError(f'target_error must be a mark error in m (0 for none, '
+                                    f'below 1 mm), not {self.target_error!r}')
         if self.design not in DESIGNS:
             raise InvalidInputError(f'design must be one of {", ".join(DESIGNS)}, not '
                                     f'{self.design!r}')
@@ -140,14 +155,57 @@ def run_platform_calibration(plan: PlatformPlan, nominal: PlatformGeometry,
         stops.append(Stop(phase, target, np.asarray(reading, float),
                           np.asarray(direction, float), np.asarray(measure(), float)))
         record(stops[-1])
-        progress(len(stops), total, f'{phase} {len(stops)}/{total}')
+        # An adaptive plan adds poses: the count grows past the first plan's total.
+        progress(len(stops), max(total, len(stops)),
+                 f'{phase} {len(stops)}/{max(total, len(stops))}')
 
     for target, feeds in zip(identify_at, nominal_feeds):
         stop('identify', target, feeds)
     result = identify(data_of([s for s in stops if s.phase == 'identify']), nominal)
+    if plan.target_error > 0:
+        result, prediction['adaptive'] = _adapt(plan, nominal, result, stop, stops, progress)
     calibrated = inverse(result.geometry, evaluate_at)
     for target, feeds in zip(evaluate_at, nominal_feeds[len(identify_at):]):
         stop('evaluate_nominal', target, feeds)
     for target, feeds in zip(evaluate_at, calibrated):
         stop('evaluate_calibrated', target, feeds)
     return result, evaluate(stops), stops, prediction
+
+
+def _adapt(plan: PlatformPlan, nominal: PlatformGeometry, result: Identification, stop,
+           stops: list, progress) -> tuple[Identification, dict]:
+    """The adaptive rounds of :class:`PlatformPlan`: (the last identification, the rounds
+    with their predictions and why it stopped)."""
+    criterion = 'I' if plan.design == 'random' else plan.design
+    target, rounds = plan.target_error, []
+
+    def measured():
+        return np.array([s.measured for s in stops if s.phase == 'identify'])
+    while True:
+        poses = measured()
+        now = predict_platform(result.geometry, poses, span=plan.span, seed=plan.seed)
+        rms = now.report()['predicted_mark_error_m']['rms']
+        rounds.append({'poses': len(poses), 'predicted_rms_m': rms})
+        progress(len(stops), len(stops), f'adaptive: {len(poses)} poses, mark error predicted '
+                 f'{rms * 1e6:.2f} um RMS (target {target * 1e6:.2f} um)')
+        if rms <= target:
+            return result, {'target_m': target, 'rounds': rounds, 'stopped': 'target met'}
+        room = plan.max_poses - len(poses)
+        if room <= 0:
+            return result, {'target_m': target, 'rounds': rounds,
+                            'stopped': f'target not met within max_poses = {plan.max_poses}'}
+        best = extend_platform(result.geometry, nominal, poses, room, criterion=criterion,
+                               span=plan.span, seed=plan.seed)
+        floor = best.report()['predicted_mark_error_m']['rms']
+        if floor > target:
+            return result, {'target_m': target, 'rounds': rounds, 'best_at_max_poses_m': floor,
+                            'stopped': (f'target cannot be met within max_poses = '
+                                        f'{plan.max_poses}: {floor * 1e6:.2f} um predicted '
+                                        f'with all of them (the tracker and feed noise and '
+                                        f'the span decide it)')}
+        more = extend_platform(result.geometry, nominal, poses, min(plan.step, room),
+                               criterion=criterion, span=plan.span, seed=plan.seed)
+        added = more.poses[len(poses):]
+        for target_pose, feeds in zip(added, inverse(nominal, added)):
+            stop('identify', target_pose, feeds)
+        result = identify(data_of([s for s in stops if s.phase == 'identify']), nominal)

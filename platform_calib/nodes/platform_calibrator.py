@@ -4,7 +4,9 @@ on the live graph.
 Service ``platform_calibrator/calibrate`` (RunCalibration; plan keys ``poses``,
 ``evaluation_poses``, ``span`` (x m, y m, theta rad), ``seed``, ``design`` (random, or I /
 D: planned here, the prediction in the report), ``targets`` (a planned set of x, y, theta
-rows)) plans random poses (all
+rows), ``target_error`` (m: adaptive, poses added ``step`` at a time until the predicted
+mark error is below it or ``max_poses`` is reached or predicted to miss it)) plans random
+poses (all
 checked against the stroke before anything moves), commands each through the nominal
 inverse kinematics (``platform/move``), reads the feed sensors and the laser tracker
 (``laser_tracker/measure``), identifies the 18 parameters, then evaluates on separate poses
@@ -52,7 +54,8 @@ from platform_calib.core.records import MEASUREMENTS_TOPIC, RESULT_TOPIC
 from platform_calib.core.registration import pose_of_marks, register
 from platform_calib.nodes.conversions import planar_pose_from_message
 
-PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed', 'design', 'targets')
+PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed', 'design', 'targets', 'target_error',
+             'max_poses', 'step')
 ANALYSIS_TOPIC = '/platform_calibrator/analysis'
 
 
@@ -75,6 +78,9 @@ class PlatformCalibratorNode(Node):
         self.declare_parameter('span', [5e-3, 5e-3, float(np.deg2rad(5.0))])
         self.declare_parameter('seed', 0)
         self.declare_parameter('design', 'random')
+        self.declare_parameter('target_error', 0.0)     # m; 0: no adaptive rounds
+        self.declare_parameter('max_poses', 60)
+        self.declare_parameter('step', 4)
         self.declare_parameter('method', 'exact')
         self.declare_parameter('nominal_geometry', '')     # YAML; empty: the built-in
         self.declare_parameter('call_timeout_s', 10.0)
@@ -121,7 +127,8 @@ class PlatformCalibratorNode(Node):
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
         return PlatformPlan(g('poses'), g('evaluation_poses'), tuple(g('span')), g('seed'),
-                            g('design'), tuple(overrides.get('targets', ())))
+                            g('design'), tuple(overrides.get('targets', ())),
+                            g('target_error'), g('max_poses'), g('step'))
 
     def _move(self, feeds):
         self._moved_at = self.get_clock().now()
