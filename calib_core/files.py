@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
 
 import yaml
 
@@ -48,10 +49,27 @@ def read_csv_rows(path: str | os.PathLike, what: str, columns, error=InvalidInpu
     return rows
 
 
+class _NumbersAsTyped(yaml.SafeLoader):
+    """PyYAML's safe loader that also reads ``10e-6`` and ``1e3`` as numbers, as YAML 1.2
+    and people do (YAML 1.1 needs a dot, ``1.0e-5``, and leaves ``10e-6`` a string)."""
+
+
+_NumbersAsTyped.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$'),
+    list('-+0123456789'))
+
+
+def load_yaml(text: str):
+    """YAML ``text`` read safely, exponents without a dot as numbers (yaml.YAMLError for
+    text that is not YAML)."""
+    return yaml.load(text, Loader=_NumbersAsTyped)
+
+
 def read_yaml(path: str | os.PathLike, what: str):
     """The YAML content of ``path``; errors as :func:`read_text`, and for text that is not
     YAML."""
     try:
-        return yaml.safe_load(read_text(path, what))
+        return load_yaml(read_text(path, what))
     except yaml.YAMLError as exc:
         raise InvalidInputError(f'{path} is not valid YAML ({what}): {exc}') from None

@@ -117,4 +117,12 @@ def test_the_calibrator_plans_its_own_poses_and_takes_a_planned_set(graph):
     refused = call(node, client, RunCalibration.Request(
         plan_yaml='{targets: [[0.004, 0.0, 30.0]], evaluation_poses: 4}'))
     assert not refused.success and 'look like degrees' in refused.message
+    # Adaptive: poses added until the predicted mark error meets the target.
+    adaptive = call(node, client, RunCalibration.Request(
+        plan_yaml='{poses: 8, design: I, target_error: 10e-6, step: 4, evaluation_poses: 2}'),
+        timeout=120.0)
+    assert adaptive.success, adaptive.message
+    rounds = json.loads(adaptive.result.report_json)['plan']['adaptive']
+    assert rounds['stopped'] == 'target met' and rounds['rounds'][-1]['predicted_rms_m'] <= 10e-6
+    assert len(rounds['rounds']) > 1
     assert all(running_graph.alive())

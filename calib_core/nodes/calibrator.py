@@ -11,6 +11,7 @@ import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.files import load_yaml
 from calib_core.nodes.conversions import failed_result
 from calib_core.storage import read_calibration
 
@@ -75,7 +76,7 @@ def parse_plan(text: str) -> dict:
     ------
     InvalidInputError
         The text is YAML but not a mapping (yaml.YAMLError for text that is not YAML)."""
-    options = yaml.safe_load(text) if text.strip() else {}
+    options = load_yaml(text) if text.strip() else {}
     if not isinstance(options, dict):
         raise InvalidInputError('plan_yaml must be a YAML mapping')
     return options
