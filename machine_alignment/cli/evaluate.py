@@ -14,6 +14,7 @@ from dispenser_calib.core.model import nominal_model as dispenser_nominal
 from dispenser_calib.core.model import read_model as read_dispenser_model
 from dispenser_calib.core.procedure import evaluation_stops
 from dispenser_calib.sim.machine import observe
+from grid_calib.core.reference_map import compare, read_reference
 from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.kinematics import forward_kinematics
@@ -130,6 +131,40 @@ def cmd_evaluate_alignment(args) -> int:
     return 0
 
 
+def cmd_evaluate_grid(args) -> int:
+    """The stage error map of ``calibrate grid --json`` against a reference map (an
+    interferometer's, a certified plate's, or ``simulate grid --truth``), in one gauge."""
+    try:
+        report = json.loads(open(args.report, encoding='utf-8').read())
+        sites = report['sites']
+        positions = np.array([[s['x'], s['y']] for s in sites], float)
+        errors = np.array([[s['error_x'], s['error_y']] for s in sites], float)
+        sigmas = (np.array([[s['sigma_x'], s['sigma_y']] for s in sites], float)
+                  if sites and 'sigma_x' in sites[0] else None)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise MachineAlignmentError(f'{args.report} is not the JSON report of calibrate grid '
+                                    f'({exc.__class__.__name__}: {exc})') from None
+    if sigmas is not None and not np.all(np.isfinite(sigmas)):
+        sigmas = None
+    pitch = float(np.min(np.diff(np.unique(np.round(positions[:, 0], 12))))) \
+        if len(np.unique(positions[:, 0])) > 1 else 1.0
+    reference_positions, reference_errors = read_reference(args.reference)
+    result = compare(positions, errors, sigmas, reference_positions, reference_errors, pitch,
+                     keep_scale=report.get('isotropic_scale') is not None)
+    result.update(report=str(args.report), reference=str(args.reference))
+    before, after = result['stage_error_m'], result['map_minus_reference_m']
+    print(f'{result["sites_compared"]} sites compared ({result["gauge"]}): the stage error '
+          f'itself RMS {before["rms"] * 1e9:.1f} nm (max {before["max"] * 1e9:.1f} nm); the '
+          f'map against the reference RMS {after["rms"] * 1e9:.2f} nm (max '
+          f'{after["max"] * 1e9:.2f} nm)')
+    if 'in_sigma' in result:
+        print(f'  in the map\'s stated sigma: RMS {result["in_sigma"]["rms"]:.2f}, '
+              f'{result["in_sigma"]["within_2_sigma"]:.0%} within 2 sigma (1 and 95 % when the '
+              f'uncertainty is right and the reference exact)')
+    write_json(args.json, result)
+    return 0
+
+
 def add_parser(sub) -> None:
     evaluate = sub.add_parser('evaluate', help='check a calibration on data not used to fit it')
     evaluated = evaluate.add_subparsers(dest='what', required=True)
@@ -163,6 +198,14 @@ def add_parser(sub) -> None:
     five_axis_eval.add_argument('--seed', type=ranged(int, 0), default=0)
     five_axis_eval.add_argument('--json', help='report to write (JSON)')
     five_axis_eval.set_defaults(func=cmd_evaluate_five_axis)
+    grid_eval = evaluated.add_parser(
+        'grid', help='a grid self-calibration\'s stage error map against a reference map '
+                     '(an interferometer\'s, or what simulate grid --truth writes)')
+    grid_eval.add_argument('--report', required=True, help='JSON report of calibrate grid')
+    grid_eval.add_argument('--reference', required=True,
+                           help='CSV x, y, error_x, error_y (m) of the reference map')
+    grid_eval.add_argument('--json', help='report to write (JSON, SI units)')
+    grid_eval.set_defaults(func=cmd_evaluate_grid)
     alignment_eval = evaluated.add_parser(
         'alignment', help='plan recorded alignments again from their bag (aligner runs)')
     alignment_eval.add_argument('--bag', required=True, help='an alignment_<stamp> bag')

@@ -10,6 +10,7 @@ from calib_core.errors import MachineAlignmentError
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from grid_calib.core.data import Region, write_marks
 from grid_calib.core.model import Grid
+from grid_calib.core.reference_map import write_reference
 from grid_calib.sim.plate import default_travel, measure_travel
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
 from machine_alignment.cli import five_axis, platform
@@ -90,6 +91,12 @@ def cmd_simulate_grid(args) -> int:
                            isotropic_scale=args.isotropic_scale)
     measured = measure_travel(grid, truth, args.noise, args.seed, args.expansion, args.warm_up)
     write_marks(args.out, grid, {r: Region(truth.origins[r], p) for r, p in measured.items()})
+    if args.truth:
+        sites = np.unique(np.vstack([grid.sites + np.asarray(o) for o in truth.origins.values()]),
+                          axis=0) * grid.pitch
+        write_reference(args.truth, sites, truth.error_at(sites))
+        print(f'wrote {args.truth} (the true stage error at the {len(sites)} sites: '
+              f'evaluate grid --reference reads it)')
     print(f'wrote {args.out} ({2 * args.half + 1} x {2 * args.half + 1} marks, 3 placements, '
           f'{columns} x {rows} region(s) sharing one row/column; true non-orthogonality '
           f'{truth.non_orthogonality * 1e6:g} urad, scale difference '
@@ -143,6 +150,8 @@ def add_parser(sub) -> None:
     grid_sim = simulated.add_parser('grid', help='an imperfect grid plate measured at three '
                                                   'placements on a stage (marks CSV)')
     grid_sim.add_argument('--out', required=True, help='CSV to write')
+    grid_sim.add_argument('--truth', help='CSV to write the true stage error to (x, y, '
+                                          'error_x, error_y in m; evaluate grid reads it)')
     grid_sim.add_argument('--half', type=ranged(int, 1, 50, 'sites', 'a (2 x 50 + 1)-site square plate is the largest simulated (memory and time)'), default=5, help='K: the plate has 2K+1 marks a side')
     grid_sim.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), default=0.01, help='m')
     grid_sim.add_argument('--plate-error', type=ranged(float, 0.0, 1e-3, 'm'), default=1e-6, help='m RMS')
