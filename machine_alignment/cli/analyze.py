@@ -9,6 +9,7 @@ import numpy as np
 
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
 from calib_core.closed_loop import LoopConfig, analyze, format_report
+from calib_core.controller_formats import write_linuxcnc_comp
 from calib_core.iso230_2_plot import plot_iso230_2
 from calib_core.errors import MachineAlignmentError
 from dispenser_calib.core.loop_model import RotaryLoopModel
@@ -83,7 +84,7 @@ def _loop_machine(args, dropped: dict):
     return HexapodLoopModel(data, nominal, forces)
 
 
-def _axis_figures(machine, result, report: dict, json_path) -> None:
+def _axis_figures(machine, result, report: dict, json_path, units: str = 'mm') -> None:
     """ISO 230-2 figures before and after, into the report and printed; the
     compensation table beside the JSON."""
     iso = iso230_2_before_after(machine, result.fit)
@@ -99,6 +100,12 @@ def _axis_figures(machine, result, report: dict, json_path) -> None:
         report['compensation_table'] = str(path)
         print(f'wrote {path} (position, correction_up, correction_down in m; '
               f'{len(table)} rows, reference state: mean time and temperature, first block)')
+        comp = Path(json_path).with_name(Path(json_path).stem + '_linuxcnc.comp')
+        write_linuxcnc_comp(comp, table, units)
+        report['linuxcnc_comp_file'] = str(comp)
+        print(f'wrote {comp} (LinuxCNC: [JOINT_n] COMP_FILE = {comp.name}, COMP_FILE_TYPE = '
+              f'1; values in {units}, the machine units; BACKLASH is then ignored, the two '
+              f'directions carry it)')
         figure = Path(json_path).with_name(Path(json_path).stem + '_iso230_2.png')
         held = iso['method'].startswith('leave one cycle out')
         plot_iso230_2(figure, iso['before'], iso['after'], 'after the extended model, '
@@ -119,7 +126,7 @@ def cmd_analyze(args) -> int:
     for name, reason in dropped.items():
         print(f'  column {name}: {reason}')
     if args.machine == 'axis':
-        _axis_figures(machine, result, report, args.json)
+        _axis_figures(machine, result, report, args.json, args.machine_units)
     if args.machine == 'rotary':
         report['identification'] = identified = machine.identified.report()
         print(f'  all poses, base model: A and C {90 - np.degrees(identified["squareness_a_c_rad"]):.4f}'
@@ -190,6 +197,10 @@ def add_parser(sub) -> None:
                                   '(m; px for the camera); default: the machine\'s')
         if name == 'camera':
             machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
+        if name == 'axis':
+            machine.add_argument('--machine-units', choices=('mm', 'inch'), default='mm',
+                                 help='units of the LinuxCNC compensation file written beside '
+                                      'the JSON (the machine\'s units)')
         if name == 'platform':
             machine.add_argument('--geometry', help='nominal geometry YAML (default: built-in)')
         if name == 'rotary':
