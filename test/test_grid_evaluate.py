@@ -4,6 +4,9 @@ grid`; the map's stated sigma checked against its real error; references in mm, 
 shared site, or a report of another kind refused with a clear message."""
 import json
 
+import numpy as np
+
+from grid_calib.core.reference_map import read_reference
 from machine_alignment.cli import main
 
 TOLERANCE = {'map_over_stage_error': 0.1, 'sigma_rms': (0.6, 1.6)}   # measured: 0.02, 0.83-1.15
@@ -25,6 +28,14 @@ def test_the_map_matches_the_truth_within_its_stated_sigma(tmp_path, capsys):
     low, high = TOLERANCE['sigma_rms']
     assert low < evaluation['in_sigma']['rms'] < high
     assert 'in the map\'s stated sigma' in capsys.readouterr().out
+    # The map as the 2-D table beside the JSON, read as a loader would (and as a reference).
+    table = np.loadtxt(tmp_path / 'grid_map.csv', delimiter=',', skiprows=1)
+    sites = json.loads(report.read_text())['sites']
+    assert table.shape == (len(sites), 6)
+    np.testing.assert_allclose(table[:, 2:4], [[s['error_x'], s['error_y']] for s in sites],
+                               rtol=1e-9, atol=1e-18)
+    positions, errors = read_reference(tmp_path / 'grid_map.csv')
+    assert positions.shape == errors.shape == (len(sites), 2)
 
 
 def test_bad_references_are_refused(tmp_path, capsys):

@@ -27,10 +27,15 @@ SCHEMA = Schema((
 SAME_SITE = 1e-3        # of the pitch: positions this close are one site
 
 
-def write_reference(path, positions: np.ndarray, errors: np.ndarray) -> None:
-    """A reference map: positions (k, 2) m and the stage error there (k, 2) m."""
-    lines = [','.join(COLUMNS)] + [f'{x:.12g},{y:.12g},{ex:.12g},{ey:.12g}'
-                                   for (x, y), (ex, ey) in zip(positions, errors)]
+def write_reference(path, positions: np.ndarray, errors: np.ndarray,
+                    sigmas: np.ndarray | None = None) -> None:
+    """A stage error map as CSV: positions (k, 2) m, the stage error there (k, 2) m and,
+    when given, its 1-sigma (k, 2) m (columns ``sigma_x``, ``sigma_y``). The same file
+    is the reference ``evaluate grid`` reads and the table a controller's 2-D compensation
+    loads (subtract the error at the reading: the true position)."""
+    columns = list(COLUMNS) + (['sigma_x', 'sigma_y'] if sigmas is not None else [])
+    values = np.column_stack([positions, errors] + ([sigmas] if sigmas is not None else []))
+    lines = [','.join(columns)] + [','.join(f'{v:.12g}' for v in row) for row in values]
     write_atomic(path, '\n'.join(lines) + '\n')
 
 

@@ -17,6 +17,7 @@ from calib_core.figures import arrow_key  # noqa: E402
 from grid_calib.core.data import read_marks  # noqa: E402
 from grid_calib.core.records import (  # noqa: E402
     PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
+from grid_calib.core.reference_map import write_reference  # noqa: E402
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from machine_alignment.cli.common import ranged, read_run, write_json_and_plot  # noqa: E402
@@ -129,6 +130,12 @@ def cmd_calibrate_grid(args) -> int:
             print(f'  same as the live run: max |G difference| '
                   f'{report["max_difference_to_live_m"]:.3g} m')
     write_json_and_plot(args.json, report, lambda png: _plot(png, calibration))
+    if args.json:
+        table = Path(args.json).with_name(Path(args.json).stem + '_map.csv')
+        write_reference(table, stitched.site_positions, stitched.stage_error,
+                        stitched.uncertainty)
+        print(f'wrote {table} (x, y, error_x, error_y, sigma_x, sigma_y in m: the stage error '
+              f'map per site; a reading minus the error there is the true position)')
     return 0
 
 
