@@ -69,6 +69,20 @@ def _value(a: np.ndarray, criterion: str, weight: np.ndarray | None) -> float:
     return float(np.trace(weight @ np.linalg.inv(a)))
 
 
+def _working_weight(criterion: str, working) -> np.ndarray | None:
+    """The criterion checked, and for ``I`` the mean of the working sensitivities' G^T G
+    (p, p); None for ``D``."""
+    if criterion not in CRITERIA:
+        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
+                                f'{criterion}')
+    if criterion == 'D':
+        return None
+    if working is None:
+        raise InvalidInputError('the I criterion needs the working poses')
+    working = np.asarray(working, dtype=float)
+    return np.einsum('wqp,wqs->ps', working, working) / len(working)
+
+
 def exchange(jacobians, count: int, criterion: str = 'I', working=None,
              max_sweeps: int = 20) -> Design:
     """Choose ``count`` distinct candidates by the criterion.
@@ -88,9 +102,7 @@ def exchange(jacobians, count: int, criterion: str = 'I', working=None,
     InvalidInputError
         An unknown criterion, too few candidates or rows, ``I`` without working poses."""
     jacobians = np.asarray(jacobians, dtype=float)
-    if criterion not in CRITERIA:
-        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
-                                f'{criterion}')
+    weight = _working_weight(criterion, working)
     m, r, p = jacobians.shape
     if not count * r >= p:
         raise InvalidInputError(f'{count} measurements give {count * r} equations for {p} '
@@ -99,12 +111,6 @@ def exchange(jacobians, count: int, criterion: str = 'I', working=None,
         raise InvalidInputError(f'{count} measurements asked from {m} candidates')
     if not np.all(np.isfinite(jacobians)):
         raise InvalidInputError('the candidates\' Jacobians are not finite')
-    weight = None
-    if criterion == 'I':
-        if working is None:
-            raise InvalidInputError('the I criterion needs the working poses')
-        working = np.asarray(working, dtype=float)
-        weight = np.einsum('wqp,wqs->ps', working, working) / len(working)
     ridge = np.diag(RIDGE * np.maximum(np.einsum('mrp,mrp->p', jacobians, jacobians) / m,
                                        1e-300))
     chosen: list[int] = []
@@ -142,18 +148,10 @@ def augment(jacobians, prior: np.ndarray, count: int, criterion: str = 'I', work
     information ``prior`` (p, p) of what was measured already, most improve the criterion;
     ``exclude`` candidates are not chosen. Arguments as :func:`exchange`."""
     jacobians = np.asarray(jacobians, dtype=float)
-    if criterion not in CRITERIA:
-        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
-                                f'{criterion}')
+    weight = _working_weight(criterion, working)
     if count > len(jacobians) - len(set(exclude)):
         raise InvalidInputError(f'{count} measurements asked from '
                                 f'{len(jacobians) - len(set(exclude))} candidates left')
-    weight = None
-    if criterion == 'I':
-        if working is None:
-            raise InvalidInputError('the I criterion needs the working poses')
-        working = np.asarray(working, dtype=float)
-        weight = np.einsum('wqp,wqs->ps', working, working) / len(working)
     a = np.asarray(prior, dtype=float).copy()
     chosen = list(exclude)
     for _ in range(count):
