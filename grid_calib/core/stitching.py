@@ -39,6 +39,7 @@ class StitchedMap:
     overlap_rms: float | None     # RMS disagreement of regions at shared sites, m
     method: str
     uncertainty: np.ndarray | None = None   # 1-sigma of G per site (s, 2) m, if propagated
+    uncertainty_draws: int = 0              # noise draws behind it
 
     @property
     def site_positions(self) -> np.ndarray:

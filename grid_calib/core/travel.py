@@ -64,8 +64,7 @@ class TravelCalibration:
             regions[str(r)] = one
         sigma = (stitched.uncertainty if stitched.uncertainty is not None
                  else np.full_like(stitched.stage_error, np.nan))
-        draws = min(len(r.noise_draws) for r in self.results.values()
-                    if r.noise_draws is not None) if stitched.uncertainty is not None else 0
+        draws = stitched.uncertainty_draws if stitched.uncertainty is not None else 0
         return {'sites': [{'x': float(x), 'y': float(y), 'error_x': float(gx),
                            'error_y': float(gy), 'sigma_x': float(sx), 'sigma_y': float(sy)}
                           for (x, y), (gx, gy), (sx, sy) in zip(
@@ -91,6 +90,10 @@ class TravelCalibration:
                                   'error_y': float(ay)}
                                  for (i, j), (ax, ay) in zip(self.grid.marks, self.plate_errors)],
                 'regions': regions}
+
+
+MAX_DRAWN_VALUES = 5_000_000   # draws x stitched sites carried through the stitching
+MIN_STITCHED_DRAWS = 32         # each stitched sigma to 1 / sqrt(64) = 12.5 % at the least
 
 
 def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
@@ -119,9 +122,12 @@ def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
     stitched = stitch(placed, grid.pitch, method)
     # Each region's noise (its own sigma, drawn independently of the others') through the
     # stitching: the stitched map's per-site uncertainty.
+    # Draws x sites bounded (memory: the stitching holds a few such arrays at once).
+    count = int(np.clip(MAX_DRAWN_VALUES // len(stitched.sites),
+                        MIN_STITCHED_DRAWS, len(next(iter(results.values())).noise_draws)))
     draws = stitched_draws(placed, grid.pitch, method,
-                           {r: res.noise_draws * res.noise for r, res in results.items()})
-    stitched.uncertainty = draws.std(axis=0)
+                           {r: res.noise_draws[:count] * res.noise for r, res in results.items()})
+    stitched.uncertainty, stitched.uncertainty_draws = draws.std(axis=0), count
     scale = None
     if certified_pitch is not None:
         plate_scale = certified_pitch / grid.pitch - 1
