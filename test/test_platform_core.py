@@ -3,6 +3,8 @@ and Jacobians against finite differences, the 18 parameters recovered against th
 simulation's truth (noise-free exactly from 6 poses, with noise within 3 sigma),
 compensation by the exact inverse, Levenberg-Marquardt and the source's particle swarm,
 and bad input refused."""
+import json
+
 import numpy as np
 import pytest
 
@@ -138,8 +140,15 @@ def test_command_line_simulate_calibrate_compensate(tmp_path, capsys):
     assert main(['simulate', 'platform', '--out', str(poses), '--poses', '12', '--seed', '3']) == 0
     assert main(['calibrate', 'platform', '--data', str(poses), '--out', str(geometry)]) == 0
     assert main(['compensate', 'platform', '--geometry', str(geometry), '--count', '4',
-                 '--json', str(tmp_path / 'exact.json')]) == 0
+                 '--json', str(tmp_path / 'exact.json'), '--csv', str(tmp_path / 'feeds.csv')]) == 0
     assert (tmp_path / 'exact.png').exists()
+    # The feeds per target as a labelled table, the same values as the report's.
+    header = (tmp_path / 'feeds.csv').read_text().splitlines()[0]
+    assert header == 'x_m,y_m,theta_rad,feed1_m,feed2_m,feed3_m,converged'
+    table = np.loadtxt(tmp_path / 'feeds.csv', delimiter=',', skiprows=1)
+    report = json.loads((tmp_path / 'exact.json').read_text())
+    np.testing.assert_allclose(table[:, 3:6], [t['feeds_m'] for t in report['targets']],
+                               rtol=1e-11)
     capsys.readouterr()
     assert main(['compensate', 'platform', '--geometry', str(geometry), '--count', '2',
                  '--method', 'pso']) == 2

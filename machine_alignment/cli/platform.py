@@ -12,6 +12,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from calib_core.datasets import write_columns  # noqa: E402
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
 from machine_alignment.cli.common import (  # noqa: E402
@@ -167,6 +168,14 @@ def cmd_compensate_platform(args) -> int:
               'pso_order2_stable': settings.order2_stable() if args.method == 'pso' else None}
     write_json_and_plot(args.json, report, lambda png: _plot(
         png, targets, before, after, args.method, [h for h in history if h]))
+    if args.csv:
+        write_columns(args.csv, ['x_m', 'y_m', 'theta_rad', 'feed1_m', 'feed2_m', 'feed3_m',
+                                 'converged'],
+                      [np.array([r['target'] for r in rows]),
+                       np.array([r['feeds_m'] for r in rows]),
+                       np.array([float(r['converged']) for r in rows])])
+        print(f'wrote {args.csv} (per target: x, y in m, theta in rad, the three feeds in m, '
+              f'converged 1 or 0)')
     return 2 if unconverged else 0
 
 
@@ -218,4 +227,6 @@ def add_compensate_parser(sub) -> None:
     platform.add_argument('--iterations', type=ranged(int, 1, 100000), help='swarm iterations (source 4, stable 200)')
     platform.add_argument('--seed', type=ranged(int, 0), default=0)
     platform.add_argument('--json', help='report to write; the plot goes beside it')
+    platform.add_argument('--csv', help='feeds per target to write (x_m, y_m, theta_rad, '
+                                        'feed1_m, feed2_m, feed3_m, converged)')
     platform.set_defaults(func=cmd_compensate_platform)
