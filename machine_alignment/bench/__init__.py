@@ -3,6 +3,7 @@ results files (JSON and Markdown, figures) into the folder given with ``--out``.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 from typing import Callable
@@ -18,6 +19,11 @@ def main_with_out(run: Callable[[Path], object], description: str, argv=None) ->
     parser.add_argument('--out', default='bench_results', help='folder for the results files')
     run(Path(parser.parse_args(argv).out))
     return 0
+
+
+def write_results(out: Path, name: str, content) -> None:
+    """``content`` as ``<out>/<name>.json`` (atomic, indented; the folder made if needed)."""
+    write_atomic(out / f'{name}.json', json.dumps(content, indent=2) + '\n')
 
 
 def write_table(out: Path, name: str, lines: list) -> None:

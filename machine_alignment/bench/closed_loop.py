@@ -8,7 +8,6 @@ structure reported counts."""
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +19,7 @@ from calib_core.storage import write_atomic
 from hexapod_calib.core.geometry import nominal_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses
-from machine_alignment.bench import main_with_out
+from machine_alignment.bench import main_with_out, write_results
 from printer_alignment.core.loop_models import CameraLoopModel, GantryLoopModel, StageLoopModel
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
@@ -121,8 +120,7 @@ def run(out: Path) -> dict:
                'note': 'held-out RMS: residual norm per row (axis, gantry: m; camera: px) or '
                        'per leg (hexapod: m); noise floor: the same seed without the '
                        'undeclared effects'}
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / 'closed_loop.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'closed_loop', results)
     lines = ['| machine | undeclared effect | found | before | after | noise floor | after / floor | held-out rows |',
              '|---|---|---|---|---|---|---|---|']
     for r in rows:

@@ -12,13 +12,13 @@ simulated axis tests. Writes bench_results/closed_loop_axis.{json,md}.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from calib_core.storage import write_atomic
+from machine_alignment.bench import write_results
 
 MEASURED = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'measured' / 'ecmc_iso230_2'
 REAL_RUNS = {'mcu1025_run_a': 'stepper axis, laser triangulation sensor, 5 targets x 5 cycles',
@@ -86,8 +86,7 @@ def run(out: Path, seeds: int = 100) -> dict:
                         'with_unexplained': sum(bool(r['unexplained']) for r in runs)}
         print(f'clean, {label}: {clean[label]}')
     results = {'real': real, 'sparse_grids': sparse, 'clean': clean}
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / 'closed_loop_axis.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'closed_loop_axis', results)
     write_atomic(out / 'closed_loop_axis.md', _markdown(results))
     return results
 

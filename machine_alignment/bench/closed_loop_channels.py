@@ -8,14 +8,12 @@ any effect or channel claimed where the truth has none (wrong claims), the perio
 against its own sigma, and the held-out RMS after over the clean run's (same seed)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from calib_core.closed_loop import LoopConfig, analyze
-from calib_core.storage import write_atomic
-from machine_alignment.bench import detection_case, main_with_out, write_table
+from machine_alignment.bench import detection_case, main_with_out, write_results, write_table
 from platform_calib.core.geometry import nominal_geometry
 from platform_calib.core.loop_model import PlatformLoopModel
 from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
@@ -61,8 +59,7 @@ def run(out: Path) -> dict:
         results[case] = dict(
             summary, feeds_missed=sum(len(r['feeds_missed']) for r in summary['per_run']),
             largest_period_error_sigmas=max(sigmas) if sigmas else None)
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / 'closed_loop_channels.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'closed_loop_channels', results)
     lines = [f'Platform, {POSES} poses, ball-screw periodic error {AMPLITUDE * 1e6:g} um with a '
              f'{LEAD * 1e3:g} mm lead; {len(SEEDS)} seeds per case (seeds {SEEDS.start}-'
              f'{SEEDS.stop - 1}).', '',

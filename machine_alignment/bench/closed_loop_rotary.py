@@ -11,16 +11,14 @@ run: whether the true effect was added with exactly its orders and components
 own sigma, and the held-out RMS after over the clean run's (same seed)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from calib_core.closed_loop import LoopConfig, analyze
-from calib_core.storage import write_atomic
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.sim.machine import measure_target_poses, positioner_schedule, true_model
-from machine_alignment.bench import detection_case, main_with_out, write_table
+from machine_alignment.bench import detection_case, main_with_out, write_results, write_table
 
 SEEDS = range(20)
 NOISE = {'position_noise': 5e-6, 'rotation_noise': 50e-6}
@@ -75,8 +73,7 @@ def run(out: Path) -> dict:
             summary, largest_coefficient_error_sigmas=max(sigmas) if sigmas else None,
             coefficient_error_rms_sigmas=float(np.sqrt(np.mean(np.square(sigmas))))
             if sigmas else None)
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / 'closed_loop_rotary.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'closed_loop_rotary', results)
     lines = [f'Rotary table, {len(a)} measured target poses (the real positioner\'s sampling), '
              f'{NOISE["position_noise"] * 1e6:g} um and {NOISE["rotation_noise"] * 1e6:g} urad '
              f'of noise; {len(SEEDS)} seeds per case (seeds {SEEDS.start}-{SEEDS.stop - 1}). '

@@ -8,7 +8,6 @@ Each case is one recorded or simulated run of the suite: the CPU time is
 splits, 5 folds), the model built beforehand."""
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from calib_core.closed_loop import LoopConfig, MachineModel, analyze
 from calib_core.storage import write_atomic
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.target_poses import read_target_poses
-from machine_alignment.bench import main_with_out
+from machine_alignment.bench import main_with_out, write_results
 from machine_alignment.bench.closed_loop import _camera, _gantry, _hexapod, _stage
 from platform_calib.core.geometry import nominal_geometry
 from platform_calib.core.loop_model import PlatformLoopModel
@@ -95,8 +94,7 @@ def run(out: Path) -> dict:
                'note': 'CPU seconds of analyze() with LoopConfig() defaults; full fits: '
                        'LoopConfig(linearise=False) and dense finite differences, the loop '
                        'before the first-order and sparse fits'}
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / 'closed_loop_speed.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'closed_loop_speed', results)
     lines = ['| machine | data | rows | fits | CPU s | CPU s, full fits | ratio | added (both) | '
              'largest difference | held-out RMS after |', '|---|---|---|---|---|---|---|---|---|---|']
     for r in rows:

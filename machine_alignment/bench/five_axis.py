@@ -3,13 +3,11 @@ truth, convergence from the nominal model, localisation of a part's features and
 placement of a dispensing path on held-out parts (calibrated against uncalibrated),
 RANSAC against bad images, and the time of identification and localisation. Writes
 bench_results/five_axis.{json,md}."""
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from calib_core.storage import write_atomic
 from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.calibration import calibrate, refine, stepwise
 from dispenser_calib.core.localisation import locate, place_path, reached
@@ -21,7 +19,7 @@ from dispenser_calib.core.procedure import (
     plan_stops)
 from dispenser_calib.sim.images import render_board
 from dispenser_calib.sim.machine import IMAGE_SIZE, needle_hardware, observe, true_model
-from machine_alignment.bench import main_with_out, write_table
+from machine_alignment.bench import main_with_out, write_results, write_table
 
 NOMINAL = nominal_model()
 BOARD = board_points()[0]
@@ -183,7 +181,7 @@ def run(out: Path) -> None:
                       ('rendered', rendered), ('timing', timing)):
         print(f'five-axis bench: {name}', flush=True)
         result[name] = job()
-    write_atomic(out / 'five_axis.json', json.dumps(result, indent=2) + '\n')
+    write_results(out, 'five_axis', result)
     r, c, loc, rs, im = (result[k] for k in ('recovery', 'convergence', 'localisation', 'ransac',
                                             'rendered'))
     history = c['from_nominal_mean_px_per_iteration_median']

@@ -4,7 +4,6 @@ than the stage), the propagated uncertainty against the observed spread, error g
 with the number of stitched regions (joint against chained), and solve time and memory
 for N = 11, 41, 101 marks a side against SuperLU's default ordering in the same run.
 Writes bench_results/grid.{json,md} and grid_stitching.png."""
-import json
 import resource
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -17,7 +16,6 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
-from calib_core.storage import write_atomic  # noqa: E402
 from grid_calib.core.data import Region  # noqa: E402
 from grid_calib.core.model import Grid, without_similarity  # noqa: E402
 from grid_calib.core.reference import solve_by_differences  # noqa: E402
@@ -25,7 +23,7 @@ from grid_calib.core.selfcal import self_calibrate  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from grid_calib.sim.plate import (  # noqa: E402
     default_travel, default_truth, measure_placements, measure_travel)
-from machine_alignment.bench import main_with_out, write_table  # noqa: E402
+from machine_alignment.bench import main_with_out, write_results, write_table  # noqa: E402
 
 GRID = Grid(5, 0.01)
 SIGMA = 20e-9
@@ -168,7 +166,7 @@ def run(out: Path) -> None:
     plot_stitching(out / 'grid_stitching.png', result['stitching'])
     print('grid bench: time and memory', flush=True)
     result['timing'] = timing()
-    write_atomic(out / 'grid.json', json.dumps(result, indent=2) + '\n')
+    write_results(out, 'grid', result)
     lines = [f'Noise-free (5 seeds, N = 11): max |G - true| / max |G| = '
              f'{result["noise_free"]["max_error_over_max_G"]["global"]:.2g} (global solver), '
              f'{result["noise_free"]["max_error_over_max_G"]["reference"]:.2g} (reference '

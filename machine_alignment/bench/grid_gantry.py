@@ -8,7 +8,6 @@ Everything runs through the simulated gantry, camera and Mark detector. Writes
 bench_results/grid_gantry.{json,md} and grid_gantry.png."""
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,13 +18,12 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
 from calib_core.figures import arrow_key  # noqa: E402
-from calib_core.storage import write_atomic  # noqa: E402
 from grid_calib.core.compensation import StageErrorMap  # noqa: E402
 from grid_calib.core.model import linear_parts, without_similarity  # noqa: E402
 from grid_calib.core.procedure import GridPlan, measure_grid  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from grid_calib.sim.plate import SmoothField, default_truth  # noqa: E402
-from machine_alignment.bench import main_with_out, write_table  # noqa: E402
+from machine_alignment.bench import main_with_out, write_results, write_table  # noqa: E402
 from printer_alignment.core.geometry import NOMINAL_LEADS, GantryModel  # noqa: E402
 from calib_core.marks import detect_marks  # noqa: E402
 from printer_alignment.core.vision_procedure import VisionPlan, run_vision_calibration  # noqa: E402
@@ -198,7 +196,7 @@ def run(out: Path, seeds=(1, 2, 3)) -> None:
     result = {'seeds': list(seeds), 'targets_per_seed': EVALUATION_TARGETS,
               'plan': {'marks_per_side': 2 * PLAN.half + 1, 'pitch_m': PLAN.pitch,
                        'regions': f'{PLAN.columns} x {PLAN.rows}'}, 'summary': summary}
-    write_atomic(out / 'grid_gantry.json', json.dumps(result, indent=2) + '\n')
+    write_results(out, 'grid_gantry', result)
     lines = [f'Camera position error against truth at {EVALUATION_TARGETS} random targets over '
              f'the calibrated area, seeds {list(seeds)}: mean over seeds (range), um.', '',
              '| gantry | approach | calibration | max | RMS |', '|---|---|---|---|---|']

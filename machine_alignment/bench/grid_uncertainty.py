@@ -10,7 +10,6 @@ stitching (issue 34). Writes bench_results/grid_uncertainty.{json,md}.
   sites, 20 nm), joint and chained stitching."""
 from __future__ import annotations
 
-import json
 import resource
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -19,14 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from calib_core.storage import write_atomic
 from grid_calib.core import selfcal
 from grid_calib.core.data import Region
 from grid_calib.core.model import Grid
 from grid_calib.core.selfcal import self_calibrate
 from grid_calib.core.travel import calibrate_travel
 from grid_calib.sim.plate import default_travel, default_truth, measure_placements, measure_travel
-from machine_alignment.bench import main_with_out, write_table
+from machine_alignment.bench import main_with_out, write_results, write_table
 
 SIGMA = 20e-9
 MONTE_CARLO_RUNS = 200
@@ -96,8 +94,7 @@ def run(out: Path) -> dict:
                                           'min': float(agreement.min()),
                                           'max': float(agreement.max())},
                'stitched': stitched}
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / 'grid_uncertainty.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'grid_uncertainty', results)
     base = {r['N']: r['seconds'] for r in rows if r['route'] == 'none'}
     lines = [f'One region, {SIGMA * 1e9:g} nm noise, each row in a fresh process (time of the '
              'solve with the per-site sigma; the ratio to the solve without it, same run).', '',

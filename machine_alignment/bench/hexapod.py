@@ -5,7 +5,6 @@ against the number of poses and forward-kinematics speed. Writes ``<out>/hexapod
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from hexapod_calib.core.geometry import nominal_geometry  # noqa: E402
 from hexapod_calib.core.kinematics import forward_kinematics, inverse_kinematics  # noqa: E402
 from hexapod_calib.core.procedure import HexapodPlan, run_hexapod_calibration  # noqa: E402
 from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim  # noqa: E402
+from machine_alignment.bench import write_results  # noqa: E402
 
 PAPER = {'before_max_displacement_m': 0.35e-3, 'before_max_angle_rad': 0.0073,
          'after_max_displacement_m': 0.0121e-3, 'after_max_angle_rad': 0.0011}
@@ -178,7 +178,7 @@ def main(argv=None) -> None:
     rows, slope = identification_time()
     results['identification_time'] = {'rows': rows, 'growth_exponent': slope}
     results['forward_kinematics'] = forward_kinematics_rate()
-    (out / 'hexapod.json').write_text(json.dumps(results, indent=2) + '\n')
+    write_results(out, 'hexapod', results)
     (out / 'hexapod.md').write_text(markdown(results) + '\n')
     print(markdown(results))
     print(f'wrote {out}/hexapod.json, hexapod.md, hexapod_calibration.png')

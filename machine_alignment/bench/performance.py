@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib_core.storage import write_atomic
-from machine_alignment.bench import write_table
+from machine_alignment.bench import write_results, write_table
 
 
 def _hexapod(size: int):
@@ -153,7 +152,7 @@ def run(out: Path) -> list:
               '(`results.md`), the closed loop of every machine against full fits '
               '(`closed_loop_speed.md`), the grid solver up to N = 101 against the source\'s '
               'route (`grid.md`).']
-    write_atomic(out / 'performance.json', json.dumps(rows, indent=2) + '\n')
+    write_results(out, 'performance', rows)
     write_table(out, 'performance', lines)
     return rows
 

@@ -3,12 +3,10 @@ predicted 1-sigma of every ISO 230-7 location and orientation error for plan var
 from the identification Jacobian at the simulated machine's true model (dots detected to
 0.1 px), before anything moves, and the same plans measured on 10 simulated machines.
 Writes bench_results/plan_five_axis.{md,json}."""
-import json
 from pathlib import Path
 
 import numpy as np
 
-from calib_core.storage import write_atomic
 from dispenser_calib.core.calibration import _board_of, calibrate
 from dispenser_calib.core.data import DOT_RADIUS
 from dispenser_calib.core.iso230 import iso230_7, iso230_7_report
@@ -16,7 +14,7 @@ from dispenser_calib.core.model import DispenserModel, nominal_model, place, pro
 from dispenser_calib.core.procedure import (
     WORKING_DISTANCE, check_stroke, evaluation_stops, plan_stops)
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
-from machine_alignment.bench import main_with_out, write_table
+from machine_alignment.bench import main_with_out, write_results, write_table
 
 NOISE_PX = 0.1
 WATCHED = ('E_B0A', 'E_B0C')
@@ -119,7 +117,7 @@ def run(out: Path) -> dict:
         lines.append(f'| {name} | {r["stops"]} | {p["E_B0A"] * 1e3:.3f} mrad | '
                      f'{q["E_B0A"] * 1e3:.3f} mrad | {p["E_B0C"] * 1e3:.3f} mrad | '
                      f'{q["E_B0C"] * 1e3:.3f} mrad |')
-    write_atomic(out / 'plan_five_axis.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'plan_five_axis', results)
     write_table(out, 'plan_five_axis', lines)
     return results
 

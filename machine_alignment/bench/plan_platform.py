@@ -4,14 +4,12 @@ platforms (true geometries 0.2-1 mm and 0.5 degree off the nominal, the simulate
 and feed sensors), each design's poses are measured, the 18 parameters identified, and
 each mark's position error measured at 200 working poses registered with the identified
 model. Writes bench_results/plan_platform.{md,json}."""
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from calib_core.storage import write_atomic
-from machine_alignment.bench import main_with_out, write_table
+from machine_alignment.bench import main_with_out, write_results, write_table
 from platform_calib.core.compensation import mark_errors
 from platform_calib.core.geometry import nominal_geometry
 from platform_calib.core.identification import identify
@@ -96,7 +94,7 @@ def run(out: Path) -> dict:
                      f'{r["within_3_sigma"]:.1%} | {r["z_rms"]:.2f} |')
     lines += ['', f'CPU {seconds:.0f} s for the whole bench (planning 3000 candidates: under '
               '1 s per plan).']
-    write_atomic(out / 'plan_platform.json', json.dumps(results, indent=2) + '\n')
+    write_results(out, 'plan_platform', results)
     write_table(out, 'plan_platform', lines)
     return results
 

@@ -3,7 +3,6 @@ the simulation's truth, the poses needed, compensation by the exact inverse, LM 
 source's particle swarm over 100 seeded platforms (the same targets for every method), and
 a simulated print of many layers. Writes bench_results/platform.{json,md} and
 platform_compensation.png."""
-import json
 import time
 from pathlib import Path
 
@@ -13,8 +12,7 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
-from calib_core.storage import write_atomic  # noqa: E402
-from machine_alignment.bench import main_with_out, write_table  # noqa: E402
+from machine_alignment.bench import main_with_out, write_results, write_table  # noqa: E402
 from platform_calib.core.compensation import (  # noqa: E402
     PSOSettings, compensate, composite_error, mark_positions)
 from platform_calib.core.geometry import nominal_geometry  # noqa: E402
@@ -214,7 +212,7 @@ def run(out: Path) -> None:
     saved = {k: v for k, v in result.items() if k != 'compensation'}
     saved['compensation'] = result['compensation']['rows']
     saved['seconds'] = time.perf_counter() - start
-    write_atomic(out / 'platform.json', json.dumps(saved, indent=2) + '\n')
+    write_results(out, 'platform', saved)
     k, ident = result['kinematics'], result['identification']
     lines = [f'Kinematics: inverse/forward round trip max {k["round_trip_max"]:.2g} (m, rad) '
              f'over 1000 poses; pose Jacobian against finite differences max '

@@ -1,7 +1,6 @@
 """Stage benchmark: the paper's alignment evaluation on the simulated stage, before
 calibration, after the stepwise and after the parametric method, and the stage's ISO 9283
 repeatability through the camera. Writes bench_results/stage.{json,md}."""
-import json
 from pathlib import Path
 
 import matplotlib
@@ -11,7 +10,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
 from calib_core.storage import write_atomic
-from machine_alignment.bench import main_with_out
+from machine_alignment.bench import main_with_out, write_results
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import ParametricModel, calibrate_stage
 from printer_alignment.sim.stage import (
@@ -68,7 +67,7 @@ def run(out: Path) -> None:
         for r in by_model.values():
             del r['position_m'], r['orientation_rad']
     result = {'alignment': rows, 'repeatability': repeatability, 'calibration': report}
-    write_atomic(Path(out) / 'stage.json', json.dumps(result, indent=2) + '\n')
+    write_results(Path(out), 'stage', result)
     lines = ['| poses | model | position max | position mean | orientation max | orientation mean '
              '| position max / RP_l | orientation max / RP_a |',
              '|---|---|---|---|---|---|---|---|']

@@ -19,6 +19,7 @@ from printer_alignment.core.camera_calibration import (
 from printer_alignment.core.dot_markers import LlahIndex, load_uchiya_markers, read_marker_photos
 from calib_core.marks import detect_marks
 from calib_core.sim.render import MarkShape, coverage, render
+from machine_alignment.bench import write_results
 
 REAL = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'real'
 BACKGROUND, CONTRAST = 200.0, -150.0
@@ -261,7 +262,7 @@ def main(argv=None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     results = {'synthetic': bench_synthetic(args.frames, repeats=args.repeats),
                'falloff': bench_falloff(args.frames), 'real': bench_real()}
-    (out / 'results.json').write_text(json.dumps(results, indent=2) + '\n')
+    write_results(out, 'results', results)
     lines = ['blob: SimpleBlobDetector with OpenCV\'s thresholds; tuned: thresholds and areas set '
              'for the frames (see bench_synthetic); grid: findCirclesGrid with the tuned detector. '
              'Times are per frame of 9 Marks, best of the repeats.', '',
