@@ -184,7 +184,9 @@ def add_parser(sub) -> None:
     for name, help_text in FORMATS.items():
         machine = machines.add_parser(name, help=help_text)
         machine.add_argument('--data', required=True, help=help_text)
-        machine.add_argument('--json', help='report to write; the plot goes beside it (.png)')
+        machine.add_argument('--json', help='report to write; the plot goes beside it (.png), '
+                                            'for an axis also the ISO 230-2 plot and the '
+                                            'compensation table (CSV and LinuxCNC file)')
         machine.add_argument('--holdout', type=ranged(float, 0.05, 0.6), default=0.3,
                              help='fraction of rows kept out of every fit')
         machine.add_argument('--alpha', type=ranged(float, 1e-12, 0.5), default=1e-3, help='significance level')

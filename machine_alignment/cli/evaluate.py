@@ -9,6 +9,7 @@ import numpy as np
 
 from calib_core.bags import decode_bag
 from calib_core.errors import MachineAlignmentError
+from calib_core.files import read_text
 from dispenser_calib.core.calibration import reprojection
 from dispenser_calib.core.model import nominal_model as dispenser_nominal
 from dispenser_calib.core.model import read_model as read_dispenser_model
@@ -134,14 +135,15 @@ def cmd_evaluate_alignment(args) -> int:
 def cmd_evaluate_grid(args) -> int:
     """The stage error map of ``calibrate grid --json`` against a reference map (an
     interferometer's, a certified plate's, or ``simulate grid --truth``), in one gauge."""
+    text = read_text(args.report, 'the JSON report of calibrate grid')
     try:
-        report = json.loads(open(args.report, encoding='utf-8').read())
+        report = json.loads(text)
         sites = report['sites']
         positions = np.array([[s['x'], s['y']] for s in sites], float)
         errors = np.array([[s['error_x'], s['error_y']] for s in sites], float)
         sigmas = (np.array([[s['sigma_x'], s['sigma_y']] for s in sites], float)
                   if sites and 'sigma_x' in sites[0] else None)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
         raise MachineAlignmentError(f'{args.report} is not the JSON report of calibrate grid '
                                     f'({exc.__class__.__name__}: {exc})') from None
     if sigmas is not None and not np.all(np.isfinite(sigmas)):

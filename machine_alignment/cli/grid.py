@@ -155,5 +155,5 @@ def add_parser(what) -> None:
                       type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'),
                       help="the plate's certified mean pitch, m: fixes the stage's "
                            'isotropic scale, otherwise undetermined')
-    grid.add_argument('--json', help='report to write (JSON, SI units); the plot goes beside it')
+    grid.add_argument('--json', help='report to write (JSON, SI units); the plot and the map table (_map.csv) go beside it')
     grid.set_defaults(func=cmd_calibrate_grid)
