@@ -218,7 +218,7 @@ def analyze_region(grid: Grid, placements: list[Placement],
         detail.update(residuals_before=base.residual.reshape(-1, 2),
                       residuals_after=current.residual.reshape(-1, 2),
                       covariates={k: v for k, v in context.items()
-                                  if np.ndim(v) == 1 and not k.endswith(('_ref', '_start'))})
+                                  if np.ndim(v) == 1})   # per reading; references are scalars
     return _report(grid, system, base, current, added, verdicts, skipped, dropped)
 
 
