@@ -11,8 +11,14 @@ reverse; with type 0 they are where the axis is, and the reader takes ``nominal 
 as the trim. The controller interpolates linearly between the entries and holds the end
 values beyond them. When a COMP_FILE is given, BACKLASH is ignored: the two directions'
 trims carry it.
+
+A path of poses as an RS274/NGC program (LinuxCNC's G-code; the G-code reference of its
+documentation): G20/G21 for inch/mm, G90 absolute, G94 feed per minute, linear axes in
+machine units and rotary axes (A, B, C) in degrees.
 """
 from __future__ import annotations
+
+import re
 
 import numpy as np
 
@@ -69,3 +75,68 @@ def linuxcnc_trim(entries: np.ndarray, position, forward: bool) -> np.ndarray:
     """The trim LinuxCNC adds to a command at ``position`` (machine units) moving forward
     or in reverse: linear between the entries, the end values beyond them."""
     return np.interp(position, entries[:, 0], entries[:, 1 if forward else 2])
+
+
+# RS274/NGC as LinuxCNC reads it (LinuxCNC G-code reference: G20/G21 units, G90 absolute,
+# G0 rapid, G1 with F in units per minute under G94; rotary axes A, B, C in degrees).
+GCODE_UNITS = {'mm': ('G21', 1e3), 'inch': ('G20', 1 / 0.0254)}
+LINEAR_AXES, ROTARY_AXES = ('X', 'Y', 'Z'), ('A', 'B', 'C')
+
+
+def write_gcode_path(path, poses, axes: str = 'XYZAC', units: str = 'mm',
+                     feed: float = 300.0, comment: str = '') -> int:
+    """Write ``poses`` (k, len(axes)): linear axes in m, rotary axes in rad, as an
+    RS274/NGC program: a rapid (G0) to the first pose, then G1 through the rest at
+    ``feed`` (machine units per minute), absolute (G90), rotary axes in degrees. Returns
+    the move count.
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown units or axis letters, poses not finite or of the wrong width, a feed <= 0."""
+    if units not in GCODE_UNITS:
+        raise InvalidInputError(f'machine units must be one of {", ".join(GCODE_UNITS)}, '
+                                f'not {units!r}')
+    unknown = set(axes) - set(LINEAR_AXES + ROTARY_AXES)
+    if unknown or len(set(axes)) != len(axes):
+        raise InvalidInputError(f'axes {axes!r}: each of X, Y, Z, A, B, C at most once')
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    if poses.shape[1] != len(axes) or not np.all(np.isfinite(poses)) or not len(poses):
+        raise InvalidInputError(f'poses must be finite rows of {len(axes)} values ({axes})')
+    if not feed > 0:
+        raise InvalidInputError(f'feed {feed} must be > 0 ({units}/min)')
+    code, per_m = GCODE_UNITS[units]
+    scale = np.array([per_m if a in LINEAR_AXES else 180.0 / np.pi for a in axes])
+    lines = ['%', f'({comment})' if comment else '(path)', f'{code} G90 G94 G17']
+    for k, pose in enumerate(poses * scale):
+        words = ' '.join(f'{a}{v:.6f}' for a, v in zip(axes, pose))
+        lines.append(f'G0 {words}' if k == 0 else f'G1 {words}' + (f' F{feed:g}' if k == 1 else ''))
+    lines += ['M2', '%']
+    write_atomic(path, '\n'.join(lines) + '\n')
+    return len(poses)
+
+
+def read_gcode_moves(path, axes: str = 'XYZAC') -> np.ndarray:
+    """The positions (k, len(axes)) of the program's G0/G1 moves in m and rad, read as a
+    controller reads them: the units word in force (G20/G21), modal motion and axis
+    words (an axis not named keeps its value), comments in parentheses left out."""
+    per_m, motion, position, moves = None, None, {a: 0.0 for a in axes}, []
+    with open(path, encoding='utf-8') as stream:
+        for line in stream:
+            words = re.sub(r'\([^)]*\)|;.*', '', line).upper().split()
+            named = False
+            for word in words:
+                letter, value = word[0], word[1:]
+                if letter == 'G' and value in ('20', '21'):
+                    per_m = GCODE_UNITS['inch' if value == '20' else 'mm'][1]
+                elif letter == 'G' and value in ('0', '00', '1', '01'):
+                    motion = int(value)
+                elif letter in axes:
+                    if per_m is None:
+                        raise InvalidInputError(f'{path}: an axis word before G20/G21')
+                    position[letter] = float(value) / (per_m if letter in LINEAR_AXES
+                                                       else 180.0 / np.pi)
+                    named = True
+            if named and motion is not None:
+                moves.append([position[a] for a in axes])
+    return np.array(moves).reshape(-1, len(axes))

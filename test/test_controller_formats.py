@@ -10,7 +10,7 @@ import pytest
 from calib_core.axis import AxisModel, iso230_2_before_after
 from calib_core.closed_loop import analyze
 from calib_core.controller_formats import (
-    linuxcnc_trim, read_linuxcnc_comp, write_linuxcnc_comp)
+    linuxcnc_trim, read_gcode_moves, read_linuxcnc_comp, write_gcode_path, write_linuxcnc_comp)
 from calib_core.errors import InvalidInputError
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 
@@ -56,3 +56,38 @@ def test_type_zero_positions_read_as_trims_and_limits_are_refused(tmp_path):
         write_linuxcnc_comp(path, [(i * 1e-3, 0.0, 0.0) for i in range(300)])
     with pytest.raises(InvalidInputError, match='machine units'):
         write_linuxcnc_comp(path, [(0.0, 0.0, 0.0)], 'furlong')
+
+
+@pytest.mark.parametrize('units', ['mm', 'inch'])
+def test_gcode_path_reads_back_in_m_and_rad(tmp_path, units):
+    """A five-axis path written as RS274/NGC (G21/G20, rotary axes in degrees) reads back
+    as a controller reads it, to the 6 decimals written; the first move is a rapid, F is
+    given on the first feed move."""
+    rng = np.random.default_rng(4)
+    poses = np.column_stack([rng.uniform(-0.05, 0.05, (7, 3)), rng.uniform(-0.5, 0.5, 7),
+                             rng.uniform(-3.0, 3.0, 7)])
+    path = tmp_path / 'path.ngc'
+    assert write_gcode_path(path, poses, 'XYZAC', units, 250.0, 'test path') == 7
+    lines = path.read_text().splitlines()
+    assert lines[2].startswith('G21' if units == 'mm' else 'G20')
+    assert lines[3].startswith('G0 ') and lines[4].startswith('G1 ') and lines[4].endswith('F250')
+    per_m = 1e3 if units == 'mm' else 1 / 0.0254
+    assert float(lines[3].split()[1][1:]) == pytest.approx(poses[0, 0] * per_m, abs=1e-6)
+    assert float(lines[3].split()[4][1:]) == pytest.approx(np.degrees(poses[0, 3]), abs=1e-6)
+    # 6 decimals: 1e-6 mm or inch, 1e-6 degree (17 nrad)
+    np.testing.assert_allclose(read_gcode_moves(path), poses, atol=2e-8)
+
+
+def test_gcode_reader_is_modal_and_refuses_what_a_controller_would(tmp_path):
+    path = tmp_path / 'hand.ngc'
+    path.write_text('G21 G90 (a comment X99)\nG0 X1 Y2 Z3 A0 C0\nG1 X4 F100 ; rest\nY5\n')
+    np.testing.assert_allclose(read_gcode_moves(path) * [1e3, 1e3, 1e3, 1, 1],
+                               [[1, 2, 3, 0, 0], [4, 2, 3, 0, 0], [4, 5, 3, 0, 0]])
+    path.write_text('G1 X1\n')
+    with pytest.raises(InvalidInputError, match='G20/G21'):
+        read_gcode_moves(path)
+    for bad in ({'feed': 0.0}, {'units': 'furlong'}, {'axes': 'XYZAA'}):
+        with pytest.raises(InvalidInputError):
+            write_gcode_path(path, np.zeros((2, 5)), **bad)
+    with pytest.raises(InvalidInputError, match='finite'):
+        write_gcode_path(path, [[0, 0, 0, 0, np.nan]])

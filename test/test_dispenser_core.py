@@ -154,6 +154,48 @@ def test_command_line_simulate_calibrate_locate(tmp_path, capsys):
     assert main(['locate', '--calibration', str(cal), '--data', str(views)]) == 2
 
 
+def test_offline_part_localisation_writes_path_poses_a_controller_reads(tmp_path):
+    """simulate five-axis --features writes the part's views, CAD and path; locate fits the
+    part's pose (true: PART_POSE) and writes the path poses as a labelled CSV and G-code,
+    both read back as a consumer would (csv.DictReader; the G-code's words in mm and
+    degrees). Through the true chain the poses put the tip on the part's true path: the
+    same configured tip in the calibrated and the true camera frame differs by a constant
+    55 um offset here (docs/five_axis.md: measure the tip), the path's shape within 5 um."""
+    import csv
+    import json
+    from calib_core.controller_formats import read_gcode_moves
+    from dispenser_calib.core.localisation import reached
+    from dispenser_calib.core.procedure import NEEDLE_TIP, PART_PATH
+    from dispenser_calib.sim.machine import PART_POSE, placed_part
+    from machine_alignment.cli import main
+    obs, cal, views = tmp_path / 'obs.csv', tmp_path / 'cal.yaml', tmp_path / 'views.csv'
+    assert main(['simulate', 'five-axis', '--out', str(obs), '--seed', '3',
+                 '--features', str(views)]) == 0
+    assert main(['calibrate', 'five-axis', '--data', str(obs), '--out', str(cal)]) == 0
+    locate_args = ['locate', '--calibration', str(cal), '--data', str(views),
+                   '--cad', str(tmp_path / 'views_cad.csv')]
+    assert main(locate_args + ['--csv', str(tmp_path / 'p.csv')]) == 2      # no --path
+    assert main(locate_args + ['--path', str(tmp_path / 'views_path.csv')]) == 2   # no --tip
+    assert main(locate_args + ['--path', str(tmp_path / 'views_path.csv'), '--tip',
+                               *map(str, NEEDLE_TIP), '--csv', str(tmp_path / 'path.csv'),
+                               '--gcode', str(tmp_path / 'path.ngc'), '--json',
+                               str(tmp_path / 'loc.json')]) == 0
+    report = json.loads((tmp_path / 'loc.json').read_text())['part']
+    assert np.abs(np.array(report['pose']['translation_m']) - PART_POSE[:3]).max() < 20e-6
+    assert np.abs(np.array(report['pose']['rotation_vector_rad']) - PART_POSE[3:]).max() < 1e-3
+    with open(tmp_path / 'path.csv', newline='') as stream:
+        rows = list(csv.DictReader(stream))
+    assert [r['point'] for r in rows] == [f'p{k}' for k in range(len(PART_PATH))]
+    poses = np.array([[float(r[k]) for k in ('x_m', 'y_m', 'z_m', 'a_rad', 'c_rad')]
+                      for r in rows])
+    np.testing.assert_allclose(poses, [report['path_poses'][r['point']] for r in rows],
+                               atol=1e-12)
+    np.testing.assert_allclose(read_gcode_moves(tmp_path / 'path.ngc'), poses, atol=1e-7)
+    miss = reached(true_model(3), NEEDLE_TIP, poses) - placed_part(PART_PATH)
+    assert np.linalg.norm(miss, axis=1).max() < 100e-6
+    assert np.linalg.norm(miss - miss.mean(axis=0), axis=1).max() < 5e-6
+
+
 def test_the_needle_is_measured_from_dispensed_dots():
     """The true tip is 0.3 mm, -0.2 mm, 0.1 mm from the configured one; three dots are
     dispensed with the configured tip and imaged from four views each (0.1 px of noise).

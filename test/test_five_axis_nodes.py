@@ -93,18 +93,31 @@ def test_a_pose_outside_the_strokes_is_refused(graph):
     assert not response.success and 'outside the stroke' in response.message
 
 
-def test_the_part_is_located_and_the_path_placed(graph):
+def test_the_part_is_located_and_the_path_placed(graph, tmp_path):
     """After the calibration (first test): the simulated part lies 1.5 mm, -1 mm and 0.03
-    rad from the CAD; the service finds that pose and places the 12-point path."""
+    rad from the CAD; ``machine-align call`` has the service find that pose and place the
+    12-point path, and writes the path poses as the labelled CSV and the G-code, the same
+    poses as the report's."""
     _, node, _ = graph
     from alignment_msgs.srv import LocateWorkpiece
-    client = node.create_client(LocateWorkpiece, 'five_axis_calibrator/locate')
-    response = call(node, client, LocateWorkpiece.Request(), timeout=120.0)
-    assert response.success, response.message
-    x, y, z, rx, ry, rz = response.pose
+    from calib_core.controller_formats import read_gcode_moves
+    from calib_core.datasets import read_columns
+    done = machine_align(DOMAIN, 'call', 'five_axis_calibrator/locate', '--quiet', '--json',
+                         str(tmp_path / 'part.json'), '--csv', str(tmp_path / 'path.csv'),
+                         '--gcode', str(tmp_path / 'path.ngc'))
+    assert done.returncode == 0, done.stderr
+    report = json.loads((tmp_path / 'part.json').read_text())
+    x, y, z = report['pose']['translation_m']
+    rx, ry, rz = report['pose']['rotation_vector_rad']
     assert abs(x - 1.5e-3) < 20e-6 and abs(y + 1e-3) < 20e-6 and abs(z) < 20e-6
     assert abs(rz - 0.03) < 1e-3 and abs(rx) < 1e-3 and abs(ry) < 1e-3
-    assert len(response.path_poses) == 12 * 5
+    poses = np.array(report['path_poses'])
+    assert poses.shape == (12, 5)
+    table = read_columns(tmp_path / 'path.csv', ['x_m', 'y_m', 'z_m', 'a_rad', 'c_rad'])
+    np.testing.assert_allclose(np.column_stack([table[k] for k in ('x_m', 'y_m', 'z_m', 'a_rad',
+                                                                   'c_rad')]), poses, atol=1e-12)
+    np.testing.assert_allclose(read_gcode_moves(tmp_path / 'path.ngc'), poses, atol=2e-8)
+    client = node.create_client(LocateWorkpiece, 'five_axis_calibrator/locate')
     refused = call(node, client, LocateWorkpiece.Request(plan_yaml='{views: [[0, 0]]}'))
     assert not refused.success and 'at least two' in refused.message
 

@@ -163,7 +163,7 @@ def finish(nominal: DispenserModel, image_size, images: list, evaluation_images:
     return result, report, images
 
 
-def _view_plan(model: DispenserModel, points: np.ndarray, views) -> list:
+def view_plan(model: DispenserModel, points: np.ndarray, views) -> list:
     """(point number, pose (5,)) per point and view ((a, c) rad): the camera aimed at where
     the point would be."""
     centre = np.array([0.0, 0.0, WORKING_DISTANCE])
@@ -211,7 +211,7 @@ def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, t
     InvalidInputError
         A feature seen in fewer than 2 views, or too few features for a pose."""
     cad = np.atleast_2d(cad)
-    plan = _view_plan(model, cad, views)
+    plan = view_plan(model, cad, views)
     for _, pose in plan:
         check_stroke(pose)
     located, rms = _located(model, cad, plan, move, capture, 'feature')
@@ -247,7 +247,7 @@ def measure_needle(model: DispenserModel, tip_guess: np.ndarray, spots, views,
         A dot seen in fewer than two views."""
     spots = np.atleast_2d(np.asarray(spots, float))
     dispensing = [place(model, spot, 0.0, 0.0, tip_guess) for spot in spots]
-    looking = _view_plan(model, spots, views)
+    looking = view_plan(model, spots, views)
     for pose in dispensing + [pose for _, pose in looking]:
         check_stroke(pose)
     dispensed_at = []

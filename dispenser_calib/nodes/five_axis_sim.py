@@ -28,11 +28,11 @@ from calib_core.errors import MachineAlignmentError
 from calib_core.nodes.images import image_as_message
 from calib_core.nodes.spin import run_node
 from dispenser_calib.core.localisation import reached
-from dispenser_calib.core.model import project_rows, rotation_vector_matrix
 from dispenser_calib.core.procedure import NEEDLE_TIP, PART_CAD, check_stroke
 from dispenser_calib.core.data import board_points
 from dispenser_calib.sim.images import render_board
-from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
+from dispenser_calib.sim.machine import (
+    IMAGE_SIZE, PART_POSE, observe, placed_part, points_in_view, true_model)
 
 
 class FiveAxisSimNode(Node):
@@ -46,13 +46,13 @@ class FiveAxisSimNode(Node):
         # The true tip: 0.3, -0.2, 0.1 mm from the calibrator's configured one.
         self.declare_parameter('needle_tip', (NEEDLE_TIP + [0.3e-3, -0.2e-3, 0.1e-3]).tolist())
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
-        self.declare_parameter('part_pose', [1.5e-3, -1e-3, 0.0, 0.0, 0.0, 0.03])
+        self.declare_parameter('part_pose', PART_POSE.tolist())
         g = lambda n: self.get_parameter(n).value  # noqa: E731
         cad = np.asarray(g('part_cad'), dtype=float)
         placed = np.asarray(g('part_pose'), dtype=float)
         if cad.size % 3 or not np.all(np.isfinite(cad)) or placed.shape != (6,):
             raise ValueError('part_cad must be x y z triples (m) and part_pose six values')
-        self.features = cad.reshape(-1, 3) @ rotation_vector_matrix(placed[3:]).T + placed[:3]
+        self.features = placed_part(cad.reshape(-1, 3), placed)
         if g('noise_px') < 0 or not 0 <= g('bad_fraction') <= 1 or g('frame_noise') < 0:
             raise ValueError('noise_px and frame_noise must be >= 0 and bad_fraction in [0, 1]')
         self.frame_noise = float(g('frame_noise'))
@@ -138,16 +138,12 @@ class FiveAxisSimNode(Node):
         """The ``points`` (n, 3, board frame) in view at the current pose, numbered by
         their row, with ``noise_px``."""
         with self._lock:
-            pose = self.pose.copy()
-        pixels = project_rows(self.truth, points, np.repeat(pose[None], len(points), 0))
-        pixels = pixels + self.rng.normal(0.0, self.noise, pixels.shape)
-        inside = (np.all(np.isfinite(pixels), axis=1) & np.all(pixels >= 0, axis=1)
-                  & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
-        numbers = np.flatnonzero(inside)
+            numbers, pixels = points_in_view(self.truth, points, self.pose.copy(), self.noise,
+                                             self.rng)
         response.success, response.message = True, f'{len(numbers)} {what}'
         response.i, response.j = [int(k) for k in numbers], [0] * len(numbers)
-        response.u = [float(v) for v in pixels[numbers, 0]]
-        response.v = [float(v) for v in pixels[numbers, 1]]
+        response.u = [float(v) for v in pixels[:, 0]]
+        response.v = [float(v) for v in pixels[:, 1]]
         return response
 
 

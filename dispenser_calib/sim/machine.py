@@ -10,7 +10,8 @@ from calib_core.datasets import directions_from_order
 from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
 from dispenser_calib.core.localisation import reached
 from dispenser_calib.core.model import (
-    NAMES, DispenserModel, rodrigues, _camera_rows, chain_rotation, nominal_model, project, project_rows)
+    NAMES, DispenserModel, rodrigues, _camera_rows, chain_rotation, nominal_model, project, project_rows,
+    rotation_vector_matrix)
 from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
 from dispenser_calib.core.target_poses import TargetPoses
 
@@ -152,3 +153,27 @@ def needle_hardware(truth: DispenserModel, tip: np.ndarray, noise_px: float,
         pixels = project_rows(truth, dots, np.repeat(state['pose'][None], len(dots), 0))
         return np.arange(len(dots)), pixels + rng.normal(0, noise_px, pixels.shape)
     return move, dispense, capture
+
+
+# Where the simulated part lies on the table: 1.5 mm, -1 mm off its CAD place and turned
+# 0.03 rad about Z (x, y, z m, rotation vector rad).
+PART_POSE = np.array([1.5e-3, -1e-3, 0.0, 0.0, 0.0, 0.03])
+
+
+def placed_part(cad: np.ndarray, part_pose: np.ndarray = PART_POSE) -> np.ndarray:
+    """The CAD points (k, 3) (part frame, m) where the part lies (board frame, m)."""
+    rotation = rotation_vector_matrix(np.asarray(part_pose[3:], float))
+    return np.atleast_2d(cad) @ rotation.T + np.asarray(part_pose[:3], float)
+
+
+def points_in_view(truth: DispenserModel, points: np.ndarray, pose: np.ndarray,
+                   noise_px: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The ``points`` (n, 3) (board frame, m) the camera sees at ``pose`` (5,): their row
+    numbers (m,) and pixels (m, 2) with ``noise_px`` of noise, those off the image left out."""
+    points = np.atleast_2d(points)
+    pixels = project_rows(truth, points, np.repeat(np.asarray(pose, float)[None], len(points), 0))
+    pixels = pixels + rng.normal(0.0, noise_px, pixels.shape)
+    inside = (np.all(np.isfinite(pixels), axis=1) & np.all(pixels >= 0, axis=1)
+              & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
+    numbers = np.flatnonzero(inside)
+    return numbers, pixels[numbers]

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from alignment_msgs.srv import (
     Align, AnalyzeResiduals, LocateWorkpiece, MeasureNeedle, RegisterScreen, RunCalibration)
 from std_srvs.srv import Trigger
 
-from calib_core.errors import CalibrationError
+from calib_core.controller_formats import write_gcode_path
+from calib_core.errors import CalibrationError, InvalidInputError
+from dispenser_calib.core.part_files import write_path_poses
 from machine_alignment.cli.common import progress, quantity, ranged, write_json
 from machine_alignment.live import LiveClient
 
@@ -72,8 +76,23 @@ def _print_analysis(analysis) -> dict:
     return json.loads(analysis.report_json) if analysis.report_json else {}
 
 
+def _write_path(args, poses) -> None:
+    """The located part's path poses (k, 5) as the labelled CSV and the G-code asked for."""
+    names = [f'p{k}' for k in range(len(poses))]
+    if args.csv:
+        write_path_poses(args.csv, names, poses)
+        print(f'wrote {args.csv} (point, x_m, y_m, z_m, a_rad, c_rad)')
+    if args.gcode:
+        write_gcode_path(args.gcode, poses, 'XYZAC', 'mm', args.feed,
+                         f'dispensing path, {len(poses)} points')
+        print(f'wrote {args.gcode} (RS274/NGC, mm, A and C in degrees)')
+
+
 def cmd_call(args) -> int:
     service_type, progress_topic, _ = SERVICES[args.service]
+    if (args.csv or args.gcode) and service_type is not LocateWorkpiece:
+        raise InvalidInputError('--csv and --gcode write a located part\'s path poses: '
+                                'five_axis_calibrator/locate only')
     request = _request(service_type, args.yaml, args.apply)
     shown = {'step': -1}
 
@@ -103,6 +122,7 @@ def cmd_call(args) -> int:
               f'vector {", ".join(f"{v:.5f}" for v in response.pose[3:])} rad; '
               f'{len(response.path_poses) // 5} path poses')
         report = json.loads(response.report_json)
+        _write_path(args, np.reshape(response.path_poses, (-1, 5)))
     elif service_type is RegisterScreen:
         report = json.loads(response.report_json)
         print(f'registered: marks off by {report["error_before_m"] * 1e3:.3f} mm before, '
@@ -134,4 +154,10 @@ def add_parser(sub) -> None:
     call.add_argument('--timeout', type=ranged(float, 0.1, 86400.0, 's'), default=900.0, help='s')
     call.add_argument('--quiet', action='store_true', help='no progress lines')
     call.add_argument('--json', help='the full report to write')
+    call.add_argument('--csv', help='locate: the path poses as a labelled CSV (point, x_m, '
+                                    'y_m, z_m, a_rad, c_rad)')
+    call.add_argument('--gcode', help='locate: the path poses as G-code (RS274/NGC, mm, '
+                                      'degrees)')
+    call.add_argument('--feed', type=ranged(float, 1e-6, 1e6, 'mm/min'), default=300.0,
+                      help='locate: the G-code\'s feed (mm/min, default 300)')
     call.set_defaults(func=cmd_call)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import matplotlib
 
 matplotlib.use('Agg')
@@ -13,18 +14,22 @@ import numpy as np  # noqa: E402
 
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
-from calib_core.files import read_csv_rows  # noqa: E402
+from calib_core.controller_formats import write_gcode_path  # noqa: E402
 from dispenser_calib.core.calibration import calibrate, check_calibration, reprojection  # noqa: E402
-from dispenser_calib.core.procedure import finish  # noqa: E402
 from dispenser_calib.core.records import (  # noqa: E402
     OBSERVATIONS_TOPIC, RESULT_TOPIC, image_from_message)
 from dispenser_calib.core.data import check_poses, read_observations, write_observations  # noqa: E402
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E402
-from dispenser_calib.core.localisation import locate  # noqa: E402
+from dispenser_calib.core.localisation import fit_part_pose, locate, place_path  # noqa: E402
 from dispenser_calib.core.model import (  # noqa: E402
     NAMES, nominal_model, parameter_unit, read_model, write_model)
-from dispenser_calib.core.procedure import plan_stops, rotary_sweep  # noqa: E402
-from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model  # noqa: E402
+from dispenser_calib.core.part_files import (  # noqa: E402
+    read_points, read_views, write_path_poses, write_points, write_views)
+from dispenser_calib.core.procedure import (  # noqa: E402
+    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, check_stroke, finish, plan_stops,
+    rotary_sweep, view_plan)
+from dispenser_calib.sim.machine import (  # noqa: E402
+    IMAGE_SIZE, PART_POSE, observe, placed_part, points_in_view, true_model)
 from machine_alignment.cli.common import (  # noqa: E402
     parse_size, quantity, ranged, read_run, write_json, write_json_and_plot)
 
@@ -42,9 +47,37 @@ def cmd_simulate(args) -> int:
           f'{IMAGE_SIZE[0]}x{IMAGE_SIZE[1]} px; {len(bad)} with a mis-detected dot: '
           f'{", ".join(bad) or "none"})')
     if args.truth:
-        write_model(args.truth, truth)
-        print(f'wrote {args.truth} (the simulation\'s true model)')
+        write_model(args.truth, truth, {'part_pose': PART_POSE.tolist()})
+        print(f'wrote {args.truth} (the simulation\'s true model and the part\'s pose: x, y, '
+              'z m, rotation vector rad)')
+    if args.features:
+        _simulate_features(args, truth)
     return 0
+
+
+def _simulate_features(args, truth) -> None:
+    """The views ``locate`` reads: the simulated part (the node's default CAD, placed at
+    PART_POSE) imaged through the true chain from FEATURE_VIEWS, each aimed with the
+    nominal model; its CAD and dispensing path beside them."""
+    rng = np.random.default_rng(args.seed + 90)
+    features = placed_part(PART_CAD)
+    names, poses, pixels = [], [], []
+    for k, pose in view_plan(nominal_model(), PART_CAD, FEATURE_VIEWS):
+        check_stroke(pose)
+        seen, found = points_in_view(truth, features[k], pose, args.noise, rng)
+        if len(seen):
+            names.append(f'f{k}')
+            poses.append(pose)
+            pixels.append(found[0])
+    write_views(args.features, names, np.array(poses), np.array(pixels))
+    stem = Path(args.features)
+    cad_path = stem.with_name(stem.stem + '_cad.csv')
+    path_path = stem.with_name(stem.stem + '_path.csv')
+    write_points(cad_path, [f'f{k}' for k in range(len(PART_CAD))], PART_CAD)
+    write_points(path_path, [f'p{k}' for k in range(len(PART_PATH))], PART_PATH)
+    print(f'wrote {args.features} ({len(names)} views of {len(PART_CAD)} features), {cad_path} '
+          f'(the part\'s CAD) and {path_path} (its dispensing path, {len(PART_PATH)} points); '
+          f'the configured needle tip: {" ".join(f"{v:g}" for v in NEEDLE_TIP)} m')
 
 
 def _plot(path: Path, images, result) -> None:
@@ -135,28 +168,68 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_locate(args) -> int:
-    """Features from views: CSV feature, x, y, z, a, c, u, v."""
+    """Features from views (CSV feature, x, y, z, a, c, u, v); with the part's CAD and
+    path, the part's pose and the path poses (labelled CSV, G-code)."""
     model = read_model(args.calibration)
-    rows = read_csv_rows(args.data, 'a features CSV',
-                         ('feature', 'x', 'y', 'z', 'a', 'c', 'u', 'v'))
-    views = {}
-    try:
-        for row in rows:
-            views.setdefault(row['feature'], []).append(
-                [float(row[k]) for k in ('x', 'y', 'z', 'a', 'c', 'u', 'v')])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InvalidInputError(f'{args.data} needs feature, x, y, z, a, c, u, v ({exc!r})') from None
-    check_poses(np.vstack([np.array(table)[:, :5] for table in views.values()]), str(args.data))
+    views = read_views(args.data)
+    check_poses(np.vstack([table[:, :5] for table in views.values()]), str(args.data))
     located = {}
     for name, table in views.items():
-        table = np.array(table)
         point, rms = locate(model, table[:, :5], table[:, 5:])
         located[name] = {'position_m': point.tolist(), 'reprojection_rms_px': rms,
                          'views': len(table)}
         print(f'{name}: ({point[0] * 1e3:.4f}, {point[1] * 1e3:.4f}, {point[2] * 1e3:.4f}) mm '
               f'from {len(table)} views, reprojection RMS {rms:.3f} px')
-    write_json(args.json, located)
+    report = {'features': located}
+    if args.cad:
+        report['part'] = _place_part(args, located)
+    elif args.path or args.csv or args.gcode:
+        raise InvalidInputError('--path, --csv and --gcode place a path on the part: they '
+                                'need --cad (the features\' CAD positions)')
+    write_json(args.json, report)
     return 0
+
+
+def _place_part(args, located) -> dict:
+    """The part's pose from its located CAD features and, given ``--path``, the poses that
+    put the needle tip on each path point, checked against the strokes."""
+    names, cad = read_points(args.cad, 'a part\'s CAD features')
+    missing = [n for n in names if n not in located]
+    if missing or len(names) < 3:
+        raise InvalidInputError(f'{args.cad}: the part\'s pose needs at least 3 features '
+                                f'located; {", ".join(missing) or "fewer than 3"} not in '
+                                f'{args.data}')
+    rotation, translation, misfit = fit_part_pose(
+        cad, np.array([located[n]['position_m'] for n in names]))
+    part = {'pose': {'translation_m': translation.tolist(),
+                     'rotation_vector_rad': cv2.Rodrigues(rotation)[0].ravel().tolist()},
+            'cad_misfit_rms_m': misfit}
+    print(f'part at {", ".join(f"{v * 1e3:.4f}" for v in translation)} mm, rotation vector '
+          f'{", ".join(f"{v:.5f}" for v in part["pose"]["rotation_vector_rad"])} rad; CAD '
+          f'misfit {misfit * 1e6:.2f} um RMS')
+    if not args.path:
+        if args.csv or args.gcode:
+            raise InvalidInputError('--csv and --gcode write the path poses: give --path')
+        return part
+    if args.tip is None:
+        raise InvalidInputError('--path needs --tip X Y Z: the needle tip in the calibrated '
+                                'camera frame (m), as five_axis_calibrator/measure_needle gives it')
+    points, path = read_points(args.path, 'a dispensing path')
+    poses = place_path(read_model(args.calibration), np.array(args.tip),
+                       path @ rotation.T + translation, *args.path_angles)
+    for pose in poses:
+        check_stroke(pose)
+    part['path_poses'] = {name: pose.tolist() for name, pose in zip(points, poses)}
+    print(f'{len(poses)} path poses, table at a {args.path_angles[0]:g}, c '
+          f'{args.path_angles[1]:g} rad; all inside the strokes')
+    if args.csv:
+        write_path_poses(args.csv, points, poses)
+        print(f'wrote {args.csv} (point, x_m, y_m, z_m, a_rad, c_rad)')
+    if args.gcode:
+        write_gcode_path(args.gcode, poses, 'XYZAC', args.machine_units, args.feed,
+                         f'dispensing path of {Path(args.path).name}, {len(poses)} points')
+        print(f'wrote {args.gcode} (RS274/NGC, {args.machine_units}, A and C in degrees)')
+    return part
 
 
 def add_simulate_parser(simulated) -> None:
@@ -168,6 +241,8 @@ def add_simulate_parser(simulated) -> None:
     p.add_argument('--bad-fraction', type=ranged(float, 0.0, 0.5, '', 'RANSAC needs most images good'), default=0.05,
                    help='images with a mis-detected dot')
     p.add_argument('--truth', help='also write the true model (YAML)')
+    p.add_argument('--features', help='also write the views of a part\'s features that locate '
+                                      'reads (CSV), its CAD and path beside them')
     p.add_argument('--sweep', action='store_true',
                    help='the rotary sweep with the linear axes held (for analyze rotary '
                         '--calibration) instead of the calibration stops')
@@ -192,5 +267,19 @@ def add_locate_parser(sub) -> None:
     p = sub.add_parser('locate', help='a workpiece\'s features through the calibrated chain')
     p.add_argument('--calibration', required=True, help='five-axis calibration YAML')
     p.add_argument('--data', required=True, help='CSV: feature, x, y, z (m), a, c (rad), u, v (px)')
-    p.add_argument('--json', help='positions to write')
+    p.add_argument('--cad', help='CSV name, x_m, y_m, z_m: the features in the part\'s frame '
+                                 '(fits the part\'s pose)')
+    p.add_argument('--path', help='CSV name, x_m, y_m, z_m: the dispensing path in the part\'s '
+                                  'frame (places it; needs --cad and --tip)')
+    p.add_argument('--tip', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+                   help='the needle tip in the calibrated camera frame (m)')
+    p.add_argument('--path-angles', type=float, nargs=2, metavar=('A', 'C'), default=(0.17, 0.8),
+                   help='the table\'s tilt and turn while dispensing (rad; default 0.17 0.8)')
+    p.add_argument('--csv', help='the path poses to write as a labelled CSV')
+    p.add_argument('--gcode', help='the path poses to write as G-code (RS274/NGC)')
+    p.add_argument('--machine-units', choices=('mm', 'inch'), default='mm',
+                   help='the G-code\'s linear units (default mm)')
+    p.add_argument('--feed', type=ranged(float, 1e-6, 1e6, 'units/min'), default=300.0,
+                   help='the G-code\'s feed, machine units per minute (default 300)')
+    p.add_argument('--json', help='positions (and the part\'s pose and path poses) to write')
     p.set_defaults(func=cmd_locate)

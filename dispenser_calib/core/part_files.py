@@ -1,0 +1,85 @@
+"""The files of a workpiece's localisation, offline (``machine-align locate``) as on the
+live graph (``five_axis_calibrator/locate``).
+
+- Views CSV (read by ``locate --data``): ``feature, x, y, z, a, c, u, v``: a feature's name,
+  the commanded pose it was imaged at (m, rad) and its centre in that image (px).
+- Points CSV (a part's CAD features, ``--cad``, or its dispensing path, ``--path``):
+  ``name, x_m, y_m, z_m`` in the part's frame; a CAD feature's name is the one the views
+  give it.
+- Path poses CSV (what ``locate --csv`` and ``call five_axis_calibrator/locate --csv``
+  write, for a controller or CAM): ``point, x_m, y_m, z_m, a_rad, c_rad``, the commanded
+  axes that put the needle tip on each path point, in the path's order.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from calib_core.datasets import read_columns
+from calib_core.errors import InvalidInputError
+from calib_core.files import read_csv_rows
+from calib_core.storage import write_atomic
+
+VIEW_COLUMNS = ('feature', 'x', 'y', 'z', 'a', 'c', 'u', 'v')
+POINT_COLUMNS = ('name', 'x_m', 'y_m', 'z_m')
+PATH_POSE_COLUMNS = ('point', 'x_m', 'y_m', 'z_m', 'a_rad', 'c_rad')
+
+
+def read_views(path) -> dict[str, np.ndarray]:
+    """Per feature name, its views (n, 7): pose x, y, z (m), a, c (rad), pixel u, v (px).
+
+    Raises
+    ------
+    InvalidInputError
+        Missing columns, values that are not finite numbers."""
+    views = {}
+    for line, row in enumerate(read_csv_rows(path, 'a features CSV', VIEW_COLUMNS), start=2):
+        try:
+            values = [float(row[k]) for k in VIEW_COLUMNS[1:]]
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f'{path} line {line}: {exc}') from None
+        if not np.all(np.isfinite(values)):
+            raise InvalidInputError(f'{path} line {line}: NaN or infinite value')
+        views.setdefault(row['feature'], []).append(values)
+    return {name: np.array(table) for name, table in views.items()}
+
+
+def write_views(path, names, poses: np.ndarray, pixels: np.ndarray) -> None:
+    """One row per view: ``names`` (n,), ``poses`` (n, 5) m and rad, ``pixels`` (n, 2) px."""
+    lines = [','.join(VIEW_COLUMNS)]
+    lines += [f'{name},' + ','.join(f'{v:.12g}' for v in pose) + f',{u:.6f},{v:.6f}'
+              for name, pose, (u, v) in zip(names, poses, pixels)]
+    write_atomic(path, '\n'.join(lines) + '\n')
+
+
+def read_points(path, what: str) -> tuple[list[str], np.ndarray]:
+    """Names and points (k, 3) m of a points CSV (``name, x_m, y_m, z_m``).
+
+    Raises
+    ------
+    InvalidInputError
+        Missing columns, a name twice, values that are not finite numbers."""
+    rows = read_csv_rows(path, what, POINT_COLUMNS)
+    names = [row['name'] for row in rows]
+    if len(set(names)) != len(names):
+        raise InvalidInputError(f'{path}: a name appears twice in {what}')
+    columns = read_columns(path, list(POINT_COLUMNS[1:]))
+    points = np.column_stack([columns[k] for k in POINT_COLUMNS[1:]])
+    if np.max(np.abs(points)) > 2.0:
+        raise InvalidInputError(f'{path}: {what} reaches {np.max(np.abs(points)):.4g}: '
+                                'points are in m (was it written in mm?)')
+    return names, points
+
+
+def write_points(path, names, points: np.ndarray) -> None:
+    lines = [','.join(POINT_COLUMNS)]
+    lines += [f'{name},' + ','.join(f'{v:.12g}' for v in point)
+              for name, point in zip(names, np.atleast_2d(points))]
+    write_atomic(path, '\n'.join(lines) + '\n')
+
+
+def write_path_poses(path, names, poses: np.ndarray) -> None:
+    """The path poses (k, 5) (x, y, z m, a, c rad) as a labelled CSV, one row per point."""
+    lines = [','.join(PATH_POSE_COLUMNS)]
+    lines += [f'{name},' + ','.join(f'{v:.12g}' for v in pose)
+              for name, pose in zip(names, np.atleast_2d(poses))]
+    write_atomic(path, '\n'.join(lines) + '\n')
