@@ -54,7 +54,12 @@ def _files(tmp_path: Path, rng) -> dict:
         tmp_path / 'five_axis.csv'
     assert main(['simulate', 'grid', '--out', str(grid), '--half', '2']) == 0
     assert main(['simulate', 'platform', '--out', str(platform), '--poses', '20']) == 0
-    assert main(['simulate', 'five-axis', '--out', str(five_axis)]) == 0
+    assert main(['simulate', 'five-axis', '--out', str(five_axis), '--features',
+                 str(tmp_path / 'views.csv'), '--needle', str(tmp_path / 'dots.csv')]) == 0
+    from dispenser_calib.core.model import nominal_model, write_model
+    write_model(tmp_path / 'five_axis_nominal.yaml', nominal_model())
+    _in_mm(tmp_path / 'views_cad.csv', mm / 'cad.csv', ('x_m', 'y_m', 'z_m'))
+    _in_mm(tmp_path / 'dots_dispensed.csv', mm / 'dispensed.csv', ('x_m', 'y_m', 'z_m'))
     _changed(grid, mm / 'grid_turned.csv', {'placement': lambda v, k: 'turned' if k == 0 else v})
     _changed(grid, mm / 'grid_301.csv',
              {'i': lambda v, k: {0: '150', 1: '-150'}.get(k, v)})
@@ -72,7 +77,7 @@ def _files(tmp_path: Path, rng) -> dict:
                  for j, c in enumerate(row.split(','))) for row in rotary[1:]]) + '\n')
     return {'binary': binary, 'latin1': latin1, 'nul': nul, 'folder': folder,
             'blocker': blocker, 'axis': axis, 'hx': geometry, 'mm': mm, 'camera_mm': camera,
-            'grid': grid, 'platform': platform, 'five_axis': five_axis}
+            'grid': grid, 'platform': platform, 'five_axis': five_axis, 'dir': tmp_path}
 
 
 def _changed(source: Path, target: Path, change: dict) -> None:
@@ -161,6 +166,16 @@ CASES = {
                                 'column x (commanded X axis)'),
     'rotary angles in degrees': (['analyze', 'rotary', '--data', '{mm}/rotary_degrees.csv',
                                   '--a-column', 'j1', '--c-column', 'j2'], 'degrees'),
+    'part CAD in mm': (['locate', '--calibration', '{dir}/five_axis_nominal.yaml', '--data',
+                        '{dir}/views.csv', '--cad', '{mm}/cad.csv'], 'was it written in mm'),
+    'locate --path without --tip': (['locate', '--calibration', '{dir}/five_axis_nominal.yaml',
+                                     '--data', '{dir}/views.csv', '--cad', '{dir}/views_cad.csv',
+                                     '--path', '{dir}/views_path.csv'], 'needs --tip'),
+    'needle dispensed poses in mm': (['needle', '--calibration', '{dir}/five_axis_nominal.yaml',
+                                      '--data', '{dir}/dots.csv', '--dispensed',
+                                      '{mm}/dispensed.csv'], 'column x (commanded X axis)'),
+    'call --csv on a calibration': (['call', 'platform_calibrator/calibrate', '--csv',
+                                     '{folder}/p.csv'], 'five_axis_calibrator/locate only'),
     'payload centre in mm': (['analyze', 'hexapod', '--data', '{hx}/calibration.csv',
                               '--geometry', '{hx}/nominal.yaml', '--payload', '25', '30',
                               '-20', '80'], 'look like mm'),

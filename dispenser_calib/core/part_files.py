@@ -8,7 +8,8 @@ live graph (``five_axis_calibrator/locate``).
   give it.
 - Path poses CSV (what ``locate --csv`` and ``call five_axis_calibrator/locate --csv``
   write, for a controller or CAM): ``point, x_m, y_m, z_m, a_rad, c_rad``, the commanded
-  axes that put the needle tip on each path point, in the path's order.
+  axes that put the needle tip on each path point, in the path's order. The same columns
+  give the poses the needle's test dots were dispensed at (``needle --dispensed``).
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from calib_core.datasets import read_columns
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_csv_rows
 from calib_core.storage import write_atomic
+from dispenser_calib.core.data import check_poses
 
 VIEW_COLUMNS = ('feature', 'x', 'y', 'z', 'a', 'c', 'u', 'v')
 POINT_COLUMNS = ('name', 'x_m', 'y_m', 'z_m')
@@ -83,3 +85,21 @@ def write_path_poses(path, names, poses: np.ndarray) -> None:
     lines += [f'{name},' + ','.join(f'{v:.12g}' for v in pose)
               for name, pose in zip(names, np.atleast_2d(poses))]
     write_atomic(path, '\n'.join(lines) + '\n')
+
+
+def read_path_poses(path, what: str) -> tuple[list[str], np.ndarray]:
+    """Names and poses (k, 5) (x, y, z m, a, c rad) of a path poses CSV.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing columns, a name twice, values that are not finite numbers or beyond what
+        a dispenser's axes read (mm written as m)."""
+    rows = read_csv_rows(path, what, PATH_POSE_COLUMNS)
+    names = [row['point'] for row in rows]
+    if len(set(names)) != len(names):
+        raise InvalidInputError(f'{path}: a point appears twice in {what}')
+    columns = read_columns(path, list(PATH_POSE_COLUMNS[1:]))
+    poses = np.column_stack([columns[k] for k in PATH_POSE_COLUMNS[1:]])
+    check_poses(poses, str(path))
+    return names, poses

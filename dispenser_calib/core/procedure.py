@@ -255,9 +255,16 @@ def measure_needle(model: DispenserModel, tip_guess: np.ndarray, spots, views,
         dispensed_at.append(np.asarray(move(pose), dtype=float))
         dispense()
     dots, rms = _located(model, spots, looking, move, capture, 'dispensed dot')
-    dispensed_at = np.array(dispensed_at)
+    return dict(tip_from_dots(model, np.array(dispensed_at), dots), dots_m=dots.tolist(),
+                reprojection_rms_px=rms, dispensed_at=np.array(dispensed_at).tolist())
+
+
+def tip_from_dots(model: DispenserModel, dispensed_at: np.ndarray, dots: np.ndarray) -> dict:
+    """The needle tip (camera frame, m) from test dots located at ``dots`` (k, 3) (board
+    frame, m), dispensed with the machine at ``dispensed_at`` (k, 5): ``tip_m``, the tip
+    each dot alone gives (``tip_per_dot_m``) and their largest distance from it
+    (``spread_m``, m)."""
     each = np.array([tool_centre(model, q[None], d[None]) for q, d in zip(dispensed_at, dots)])
     tip = tool_centre(model, dispensed_at, dots)
-    return {'tip_m': tip.tolist(), 'dots_m': dots.tolist(), 'tip_per_dot_m': each.tolist(),
-            'spread_m': float(np.max(np.linalg.norm(each - tip, axis=1))),
-            'reprojection_rms_px': rms, 'dispensed_at': dispensed_at.tolist()}
+    return {'tip_m': tip.tolist(), 'tip_per_dot_m': each.tolist(),
+            'spread_m': float(np.max(np.linalg.norm(each - tip, axis=1)))}

@@ -32,7 +32,7 @@ from dispenser_calib.core.procedure import NEEDLE_TIP, PART_CAD, check_stroke
 from dispenser_calib.core.data import board_points
 from dispenser_calib.sim.images import render_board
 from dispenser_calib.sim.machine import (
-    IMAGE_SIZE, PART_POSE, observe, placed_part, points_in_view, true_model)
+    IMAGE_SIZE, PART_POSE, TRUE_TIP_OFFSET, observe, placed_part, points_in_view, true_model)
 
 
 class FiveAxisSimNode(Node):
@@ -43,8 +43,7 @@ class FiveAxisSimNode(Node):
         self.declare_parameter('noise_px', 0.1)
         self.declare_parameter('bad_fraction', 0.0)
         self.declare_parameter('frame_noise', 2.0)
-        # The true tip: 0.3, -0.2, 0.1 mm from the calibrator's configured one.
-        self.declare_parameter('needle_tip', (NEEDLE_TIP + [0.3e-3, -0.2e-3, 0.1e-3]).tolist())
+        self.declare_parameter('needle_tip', (NEEDLE_TIP + TRUE_TIP_OFFSET).tolist())
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
         self.declare_parameter('part_pose', PART_POSE.tolist())
         g = lambda n: self.get_parameter(n).value  # noqa: E731

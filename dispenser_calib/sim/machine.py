@@ -155,6 +155,10 @@ def needle_hardware(truth: DispenserModel, tip: np.ndarray, noise_px: float,
     return move, dispense, capture
 
 
+# The simulated needle's true tip: 0.3, -0.2, 0.1 mm from the configured NEEDLE_TIP (m,
+# camera frame).
+TRUE_TIP_OFFSET = np.array([0.3e-3, -0.2e-3, 0.1e-3])
+
 # Where the simulated part lies on the table: 1.5 mm, -1 mm off its CAD place and turned
 # 0.03 rad about Z (x, y, z m, rotation vector rad).
 PART_POSE = np.array([1.5e-3, -1e-3, 0.0, 0.0, 0.0, 0.03])

@@ -22,6 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
         group.add_parser(sub)
     platform.add_compensate_parser(sub)
     five_axis.add_locate_parser(sub)
+    five_axis.add_needle_parser(sub)
     return parser
 
 

@@ -22,14 +22,15 @@ from dispenser_calib.core.data import check_poses, read_observations, write_obse
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E402
 from dispenser_calib.core.localisation import fit_part_pose, locate, place_path  # noqa: E402
 from dispenser_calib.core.model import (  # noqa: E402
-    NAMES, nominal_model, parameter_unit, read_model, write_model)
+    NAMES, nominal_model, parameter_unit, place, read_model, write_model)
 from dispenser_calib.core.part_files import (  # noqa: E402
-    read_points, read_views, write_path_poses, write_points, write_views)
+    read_path_poses, read_points, read_views, write_path_poses, write_points, write_views)
 from dispenser_calib.core.procedure import (  # noqa: E402
-    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, check_stroke, finish, plan_stops,
-    rotary_sweep, view_plan)
+    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, check_stroke, finish,
+    plan_stops, rotary_sweep, tip_from_dots, view_plan)
 from dispenser_calib.sim.machine import (  # noqa: E402
-    IMAGE_SIZE, PART_POSE, observe, placed_part, points_in_view, true_model)
+    IMAGE_SIZE, PART_POSE, TRUE_TIP_OFFSET, needle_hardware, observe, placed_part,
+    points_in_view, true_model)
 from machine_alignment.cli.common import (  # noqa: E402
     parse_size, quantity, ranged, read_run, write_json, write_json_and_plot)
 
@@ -52,7 +53,39 @@ def cmd_simulate(args) -> int:
               'z m, rotation vector rad)')
     if args.features:
         _simulate_features(args, truth)
+    if args.needle:
+        _simulate_needle(args, truth)
     return 0
+
+
+def _simulate_needle(args, truth) -> None:
+    """What ``needle`` reads: a test dot dispensed at each of TEST_SPOTS (aimed with the
+    nominal model and the configured tip; the true tip is TRUE_TIP_OFFSET from it), then
+    each dot imaged from FEATURE_VIEWS through the true chain."""
+    move, dispense, capture = needle_hardware(truth, NEEDLE_TIP + TRUE_TIP_OFFSET, args.noise,
+                                              np.random.default_rng(args.seed + 91))
+    dispensing = np.array([place(nominal_model(), spot, 0.0, 0.0, NEEDLE_TIP)
+                           for spot in TEST_SPOTS])
+    for pose in dispensing:
+        check_stroke(pose)
+        move(pose)
+        dispense()
+    names, poses, pixels = [], [], []
+    for k, pose in view_plan(nominal_model(), TEST_SPOTS, FEATURE_VIEWS):
+        check_stroke(pose)
+        move(pose)
+        numbers, found = capture()
+        for number, pixel in zip(numbers, found):
+            if number == k:
+                names.append(f'd{k}')
+                poses.append(pose)
+                pixels.append(pixel)
+    write_views(args.needle, names, np.array(poses), np.array(pixels))
+    stem = Path(args.needle)
+    dispensed = stem.with_name(stem.stem + '_dispensed.csv')
+    write_path_poses(dispensed, [f'd{k}' for k in range(len(TEST_SPOTS))], dispensing)
+    print(f'wrote {args.needle} ({len(names)} views of {len(TEST_SPOTS)} dispensed test dots) '
+          f'and {dispensed} (the poses they were dispensed at)')
 
 
 def _simulate_features(args, truth) -> None:
@@ -232,6 +265,30 @@ def _place_part(args, located) -> dict:
     return part
 
 
+def cmd_needle(args) -> int:
+    """The needle tip from test dots: views CSV of the dots (feature = the dot's name) and
+    the poses each was dispensed at (path poses CSV)."""
+    model = read_model(args.calibration)
+    views = read_views(args.data)
+    names, dispensed_at = read_path_poses(args.dispensed, 'the poses the dots were dispensed at')
+    missing = [n for n in names if n not in views]
+    if missing:
+        raise InvalidInputError(f'{args.data} has no views of dot(s) {", ".join(missing)} '
+                                f'dispensed in {args.dispensed}')
+    dots, rms = [], []
+    for name in names:
+        point, error = locate(model, views[name][:, :5], views[name][:, 5:])
+        dots.append(point)
+        rms.append(error)
+    result = dict(tip_from_dots(model, dispensed_at, np.array(dots)),
+                  dots_m=np.array(dots).tolist(), reprojection_rms_px=rms)
+    print(f'needle tip {", ".join(f"{v * 1e3:.4f}" for v in result["tip_m"])} mm (calibrated '
+          f'camera frame) from {len(names)} dots; one dot alone within '
+          f'{result["spread_m"] * 1e6:.1f} um')
+    write_json(args.json, result)
+    return 0
+
+
 def add_simulate_parser(simulated) -> None:
     p = simulated.add_parser('five-axis', help='board images of the simulated five-axis '
                                                'dispenser (observations CSV)')
@@ -243,6 +300,8 @@ def add_simulate_parser(simulated) -> None:
     p.add_argument('--truth', help='also write the true model (YAML)')
     p.add_argument('--features', help='also write the views of a part\'s features that locate '
                                       'reads (CSV), its CAD and path beside them')
+    p.add_argument('--needle', help='also write the views of test dots the needle dispensed '
+                                    '(CSV) and the poses they were dispensed at beside them')
     p.add_argument('--sweep', action='store_true',
                    help='the rotary sweep with the linear axes held (for analyze rotary '
                         '--calibration) instead of the calibration stops')
@@ -283,3 +342,15 @@ def add_locate_parser(sub) -> None:
                    help='the G-code\'s feed, machine units per minute (default 300)')
     p.add_argument('--json', help='positions (and the part\'s pose and path poses) to write')
     p.set_defaults(func=cmd_locate)
+
+
+def add_needle_parser(sub) -> None:
+    p = sub.add_parser('needle', help='the needle tip from dispensed test dots imaged through '
+                                      'the calibrated chain')
+    p.add_argument('--calibration', required=True, help='five-axis calibration YAML')
+    p.add_argument('--data', required=True,
+                   help='CSV: feature (the dot), x, y, z (m), a, c (rad), u, v (px)')
+    p.add_argument('--dispensed', required=True,
+                   help='CSV point, x_m, y_m, z_m, a_rad, c_rad: where each dot was dispensed')
+    p.add_argument('--json', help='the tip and the dots to write')
+    p.set_defaults(func=cmd_needle)
