@@ -136,6 +136,24 @@ def test_a_run_on_rendered_frames_finds_and_names_the_dots_itself(graph):
     report = json.loads(response.result.report_json)
     assert report['mean_reprojection_px'] < 0.05
     assert report['held_out']['rms_px_calibrated'] < 0.1
+    # What a viewer shows: every stop's camera frame (JPEG) and the machine's frames on
+    # /tf at the commanded pose, one message per stop, beside the observations.
+    import cv2
+    from calib_core.bags import decode_bag
+    from dispenser_calib.core.model import nominal_frames
+    bag = read_calibration(out / 'calibration', 'five_axis')['bag']
+    recorded = list(decode_bag(bag, ['/tf', '/five_axis_calibrator/frame',
+                                     '/five_axis_calibrator/observations']))
+    by_topic = {t: [m for topic, _, m in recorded if topic == t] for t, _, _ in recorded}
+    stops = by_topic['/five_axis_calibrator/observations']
+    assert len(by_topic['/tf']) == len(by_topic['/five_axis_calibrator/frame']) == len(stops)
+    frame = by_topic['/five_axis_calibrator/frame'][-1]
+    pixels = cv2.imdecode(np.frombuffer(bytes(frame.data), np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert frame.format == 'jpeg' and pixels.shape == (2048, 2448)
+    camera = next(t for t in by_topic['/tf'][-1].transforms if t.child_frame_id == 'camera')
+    expected = nominal_frames(np.array(stops[-1].pose))[0][2]
+    np.testing.assert_allclose([camera.transform.translation.x, camera.transform.translation.y,
+                                camera.transform.translation.z], expected, atol=1e-12)
     refused = call(node, client, RunCalibration.Request(plan_yaml='{frames: maybe}'))
     assert not refused.success and 'frames must be true or false' in refused.message
 

@@ -107,6 +107,15 @@ def test_calibration_service_writes_geometry_records_and_replays(graph):
     records = [measurement_record(msg) for topic, _, msg in decode_bag(bag)
                if topic.endswith('/measurements')]
     assert len(records) == 2 * 20 + 2 * 10
+    # What a viewer shows: each measured pose as a PoseStamped in the base frame, and the
+    # platform and where it was sent on /tf, one message per stop.
+    shown = [msg for topic, _, msg in decode_bag(bag, ['/hexapod_calibrator/measured_pose'])]
+    frames = [msg for topic, _, msg in decode_bag(bag, ['/tf'])]
+    assert len(shown) == len(frames) == len(records)
+    assert shown[-1].header.frame_id == 'base'
+    assert [shown[-1].pose.position.x, shown[-1].pose.position.y, shown[-1].pose.position.z] \
+        == pytest.approx(list(records[-1][3][:3]), abs=1e-12)
+    assert [t.child_frame_id for t in frames[-1].transforms] == ['platform', 'platform_target']
     replayed, _ = identify_from_records(records, nominal_geometry())
     values = replayed.geometry.parameters().as_dict()
     assert max(abs(values[n] - v) for n, v in zip(result.names, result.values)) < 1e-12

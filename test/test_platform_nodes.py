@@ -5,6 +5,7 @@ the marks on target with the exact method and refuses the source's unconverged s
 import json
 import os
 
+import numpy as np
 import pytest
 
 DOMAIN = str(90 + os.getpid() % 10)   # each DDS test module has its own band
@@ -40,6 +41,19 @@ def test_one_call_identifies_and_the_calibration_beats_the_nominal(graph):
         0.3 * evaluation['evaluate_nominal']['median_m']
     assert len(response.result.names) == 18
     assert read_calibration(out / 'calibration', 'platform')['report']['poses'] == 15
+    # What a viewer shows: each pose the tracker measured as a PoseStamped, and the
+    # platform and where it was sent on /tf, one message per stop.
+    from calib_core.bags import decode_bag
+    from scipy.spatial.transform import Rotation
+    bag = read_calibration(out / 'calibration', 'platform')['bag']
+    stops = [m for _, _, m in decode_bag(bag, ['/platform_calibrator/measurements'])]
+    shown = [m for _, _, m in decode_bag(bag, ['/platform_calibrator/measured_pose'])]
+    frames = [m for _, _, m in decode_bag(bag, ['/tf'])]
+    assert len(stops) == len(shown) == len(frames) == 15 + 2 * 8
+    q = shown[-1].pose.orientation
+    np.testing.assert_allclose([shown[-1].pose.position.x, shown[-1].pose.position.y,
+                                Rotation.from_quat([q.x, q.y, q.z, q.w]).as_rotvec()[2]],
+                               stops[-1].measured, atol=1e-12)
 
 
 def test_the_recorded_run_solves_again_offline(graph, tmp_path):

@@ -2,7 +2,9 @@
 ``<record_dir>/<kind>_<stamp>`` holding every message of the run as it was published, and
 (for a calibration) the versioned calibration file that names the bag. The bag is opened
 before the first stop, so a run that fails or is killed still replays what it measured; a
-run refused before it recorded anything (a plan outside the stroke) leaves no bag."""
+run refused before it recorded anything (a plan outside the stroke) leaves no bag.
+Beside the run's own messages, a calibrator records each stop's machine frames on ``/tf``
+(:mod:`calib_core.nodes.scene`) so a viewer shows the machine moving."""
 from __future__ import annotations
 
 import shutil
@@ -12,6 +14,7 @@ from pathlib import Path
 from rclpy.serialization import serialize_message
 
 from calib_core.bags import BagWriter
+from calib_core.nodes.scene import TF_TOPIC, TF_TYPE, transforms_cdr
 from calib_core.storage import write_calibration
 
 
@@ -30,10 +33,11 @@ class RecordedRun:
     kind : str
         Names the bag (``<kind>_<stamp>``) and goes into the calibration file.
     topics : dict
-        Topic -> message type (``pkg/msg/Name``) of everything the run records."""
+        Topic -> message type (``pkg/msg/Name``) of everything the run records (``/tf``
+        is always declared)."""
 
     def __init__(self, node, kind: str, topics: dict[str, str]):
-        self.node, self.kind, self.topics = node, kind, dict(topics)
+        self.node, self.kind, self.topics = node, kind, {TF_TOPIC: TF_TYPE, **topics}
         self.stamp = run_stamp()
         self.bag_path = Path(node.get_parameter('record_dir').value) / f'{kind}_{self.stamp}'
         self._bag = None
@@ -57,6 +61,13 @@ class RecordedRun:
         if publisher is not None:
             publisher.publish(msg)
         self._bag.write(topic, self.node.get_clock().now().nanoseconds, serialize_message(msg))
+        self._recorded += 1
+
+    def record_frames(self, frames: list) -> None:
+        """The machine's frames at this stop on ``/tf``: (parent, child, translation (3,)
+        m, quaternion (x, y, z, w)) each."""
+        now = self.node.get_clock().now().nanoseconds
+        self._bag.write(TF_TOPIC, now, transforms_cdr(now, frames))
         self._recorded += 1
 
     def save(self, name: str, content: dict) -> tuple[Path, int, dict]:

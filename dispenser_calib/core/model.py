@@ -284,3 +284,23 @@ def read_model(path) -> DispenserModel:
     except (KeyError, TypeError, ValueError) as exc:
         raise InvalidInputError(f'{path}: a five-axis calibration needs the parameters '
                                 f'{", ".join(NAMES)} as numbers ({exc!r})') from None
+
+
+def nominal_frames(pose, working_distance: float = 0.120,
+                   a_height: float = -0.030) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """The machine's frames at a commanded ``pose`` (5,) (x, y, z m, a, c rad) through the
+    nominal kinematics (:func:`nominal_model`'s, not a calibration), for a viewer: (parent,
+    child, translation (3,) m, quaternion (x, y, z, w)). ``machine`` is the board-at-reset
+    frame (Z up); X and Z carry the ``camera`` (looking down), Y the table; ``a_cradle``
+    turns by A about X through the line ``a_height`` below the board, ``table`` by C about
+    Z through the board's centre."""
+    x, y, z, a, c = (float(v) for v in np.asarray(pose, dtype=float))
+    return [
+        ('machine', 'camera', np.array([x, 0.0, working_distance + z]),
+         np.array([1.0, 0.0, 0.0, 0.0])),                           # half a turn about X
+        ('machine', 'y_carriage', np.array([0.0, y, 0.0]), np.array([0.0, 0.0, 0.0, 1.0])),
+        ('y_carriage', 'a_cradle', np.array([0.0, 0.0, a_height]),
+         np.array([np.sin(a / 2), 0.0, 0.0, np.cos(a / 2)])),
+        ('a_cradle', 'table', np.array([0.0, 0.0, -a_height]),
+         np.array([0.0, 0.0, np.sin(c / 2), np.cos(c / 2)])),
+    ]

@@ -10,7 +10,9 @@ nominal model), calibrates (Zhang, stepwise start, joint refinement with RANSAC 
 on the held-out images. The calibration is written as an atomic, versioned ``five_axis``
 file (readable by ``machine-align locate --calibration``), published latched on
 ``/five_axis_calibrator/result``, and the run recorded to MCAP (``machine-align calibrate
-five-axis --bag`` solves it again).
+five-axis --bag`` solves it again) with, for a viewer, each stop's machine frames on ``/tf``
+(commanded axes, nominal kinematics) and each camera frame used on
+``/five_axis_calibrator/frame`` (sensor_msgs/CompressedImage, ``frame_format`` jpeg or png).
 
 Service ``five_axis_calibrator/locate`` (LocateWorkpiece; plan keys ``views`` (list of
 [a, c] rad), ``path_angles`` [a, c]) images each of the part's CAD features (``part_cad``)
@@ -55,11 +57,13 @@ from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.images import image_from_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.scene import IMAGE_TYPE, compressed_image
 from calib_core.nodes.spin import run_node
 from calib_core.storage import read_calibration, write_calibration
 from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.loop_model import RotaryLoopModel
-from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, parameter_unit
+from dispenser_calib.core.model import (
+    NAMES, DispenserModel, nominal_frames, nominal_model, parameter_unit)
 from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, locate_workpiece, measure_needle,
     measure_sweep, rotary_sweep, run_five_axis_calibration)
@@ -69,6 +73,7 @@ from dispenser_calib.core.target_poses import poses_from_images
 PLAN_KEYS = ('seed', 'evaluation', 'frames')
 SWEEP_KEYS = ('tilts', 'step', 'both_ways')
 ANALYSIS_TOPIC = '/five_axis_calibrator/analysis'
+FRAME_TOPIC = '/five_axis_calibrator/frame'
 
 
 def five_axis_result_message(content: dict, header, file_path='', version=0):
@@ -93,6 +98,11 @@ class FiveAxisCalibratorNode(Node):
         self.declare_parameter('part_path', PART_PATH.ravel().tolist())
         self.declare_parameter('needle_tip', NEEDLE_TIP.tolist())
         self.declare_parameter('frames', False)
+        self.declare_parameter('frame_format', 'jpeg')
+        if self.get_parameter('frame_format').value not in ('jpeg', 'png'):
+            raise ValueError('frame_format must be jpeg (about 0.5 MB a frame in the bag) or '
+                             'png (lossless, several MB)')
+        self._frame = None       # the last camera frame taken, until it is recorded
         self._plan_from_parameters({})
         self.cad = self._triples('part_cad')
         self.path = self._triples('part_path')
@@ -181,7 +191,8 @@ class FiveAxisCalibratorNode(Node):
         named with the calibration in force (the nominal model before the first)."""
         taken = call_service(self.frame_client, CaptureFrame.Request(), 'camera frame',
                              self.timeout)
-        image = observe_frame(image_from_message(taken.image), self.pose,
+        self._frame = image_from_message(taken.image)
+        image = observe_frame(self._frame, self.pose,
                               self.model or self.nominal, f'frame at {self.pose.round(6).tolist()}')
         return image.indices, image.pixels
 
@@ -204,6 +215,13 @@ class FiveAxisCalibratorNode(Node):
             pose=[float(v) for v in image.pose], i=[int(v) for v in image.indices[:, 0]],
             j=[int(v) for v in image.indices[:, 1]], u=[float(v) for v in image.pixels[:, 0]],
             v=[float(v) for v in image.pixels[:, 1]]), self.observation_pub)
+        # What a viewer shows: the machine at the commanded pose (nominal kinematics) and,
+        # when frames are used, the camera's frame the dots were found in.
+        run.record_frames(nominal_frames(image.pose))
+        frame, self._frame = self._frame, None
+        if frame is not None:
+            run.record(FRAME_TOPIC, compressed_image(frame, self._header(),
+                                                     self.get_parameter('frame_format').value))
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='five_axis_calibration',
@@ -214,6 +232,7 @@ class FiveAxisCalibratorNode(Node):
         seed, evaluation, frames = self._plan_from_parameters(overrides)
         with RecordedRun(self, 'five_axis', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
+                FRAME_TOPIC: IMAGE_TYPE,
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             result, report, _ = run_five_axis_calibration(
                 self.nominal, self.image_size, seed, evaluation, self._move,
@@ -252,7 +271,8 @@ class FiveAxisCalibratorNode(Node):
         capture = self._capture_frame if self.get_parameter('frames').value else self._capture
         start = time.monotonic()
         with RecordedRun(self, 'five_axis_sweep', {
-                OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation'}) as run:
+                OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
+                FRAME_TOPIC: IMAGE_TYPE}) as run:
             images, times = measure_sweep(
                 rotary_sweep(tilts, float(step), both_ways), self._move, capture,
                 lambda: time.monotonic() - start,

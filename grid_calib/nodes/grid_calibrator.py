@@ -44,6 +44,7 @@ from calib_core.nodes.calibrator import (
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
 from grid_calib.core.loop_plot import plot_grid_loop
 from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
@@ -238,6 +239,8 @@ class GridCalibratorNode(Node):
             header=self._header(), region=int(region), placement=placement, i=int(mark[0]),
             j=int(mark[1]), x=float(reading[0]), y=float(reading[1]),
             gantry=self._gantry_state, marks=self._last_marks), self.reading_pub)
+        # What a viewer shows: the camera over the mark, at the stage's reading.
+        run.record_frames([('stage', 'camera', *planar(reading[0], reading[1], 0.0))])
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='grid_calibration',

@@ -15,6 +15,7 @@ import numpy as np
 from alignment_msgs.msg import CalibrationResult, HexapodMeasurement, Progress
 from alignment_msgs.srv import AnalyzeResiduals, MeasurePose, MoveHexapod, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
+from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from std_msgs.msg import Header
 
@@ -25,6 +26,7 @@ from calib_core.nodes.calibrator import (
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.scene import POSE_TYPE, frame_of
 from calib_core.nodes.spin import run_node
 from calib_core.parameters import ParameterSet
 from calib_core.storage import write_calibration
@@ -40,6 +42,7 @@ from hexapod_calib.nodes.conversions import pose_as_message
 from hexapod_calib.core.statics import leg_forces
 
 ANALYSIS_TOPIC = '/hexapod_calibrator/analysis'
+MEASURED_POSE_TOPIC = '/hexapod_calibrator/measured_pose'
 CALIBRATION_NAME = 'hexapod_geometry'
 
 
@@ -133,6 +136,11 @@ class HexapodCalibratorNode(Node):
                                       leg_lengths=np.asarray(legs, float).tolist(),
                                       measured=self._last_measurement),
                    self.measurement_pub)
+        # What a viewer shows: the platform as measured and where it was sent.
+        run.record(MEASURED_POSE_TOPIC, PoseStamped(header=self._header(),
+                                                    pose=self._last_measurement.pose))
+        run.record_frames([('base', 'platform', *frame_of(self._last_measurement.pose)),
+                           ('base', 'platform_target', *frame_of(pose_as_message(target)))])
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='hexapod_calibration',
@@ -151,6 +159,7 @@ class HexapodCalibratorNode(Node):
         stops = []
         with RecordedRun(self, 'hexapod', {
                 MEASUREMENTS_TOPIC: 'alignment_msgs/msg/HexapodMeasurement',
+                MEASURED_POSE_TOPIC: POSE_TYPE,
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             calibration = run_hexapod_calibration(
                 plan, self.nominal, self._move_legs, self._measure, self._progress,

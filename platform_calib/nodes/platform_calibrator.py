@@ -43,6 +43,7 @@ from calib_core.nodes.calibrator import (
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.scene import POSE_TYPE, planar, pose_stamped
 from calib_core.nodes.spin import run_node
 from platform_calib.core.compensation import METHODS, composite_error, mark_positions
 from platform_calib.core.geometry import nominal_geometry, read_geometry
@@ -57,6 +58,7 @@ from platform_calib.nodes.conversions import planar_pose_from_message
 PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed', 'design', 'targets', 'target_error',
              'max_poses', 'step')
 ANALYSIS_TOPIC = '/platform_calibrator/analysis'
+MEASURED_POSE_TOPIC = '/platform_calibrator/measured_pose'
 
 
 def platform_result_message(content: dict, header, file_path='', version=0):
@@ -157,11 +159,16 @@ class PlatformCalibratorNode(Node):
             header=self._header(), phase=stop.phase, target=[float(v) for v in stop.target],
             feeds=[float(v) for v in stop.feeds], direction=[int(v) for v in stop.direction],
             measured=[float(v) for v in stop.measured]), self.measurement_pub)
+        # What a viewer shows: the platform as the tracker measured it and where it was sent.
+        run.record(MEASURED_POSE_TOPIC, pose_stamped(self._header(), *planar(*stop.measured)))
+        run.record_frames([('base', 'platform', *planar(*stop.measured)),
+                           ('base', 'platform_target', *planar(*stop.target))])
 
     def _run(self, overrides: dict) -> CalibrationResult:
         plan = self._plan_from_parameters(overrides)
         with RecordedRun(self, 'platform', {
                 MEASUREMENTS_TOPIC: 'alignment_msgs/msg/PlatformMeasurement',
+                MEASURED_POSE_TOPIC: POSE_TYPE,
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             result, evaluation, stops, prediction = run_platform_calibration(
                 plan, self.nominal, self._move, self._track,

@@ -29,6 +29,7 @@ from calib_core.nodes.calibrator import (
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
@@ -110,6 +111,9 @@ class StageCalibratorNode(Node):
                                     direction=[int(v) for v in direction],
                                     marks_x=marks[:, 0].tolist(), marks_y=marks[:, 1].tolist()),
                    self.observation_pub)
+        # What a viewer shows: each calibration Mark where the camera measured it.
+        run.record_frames([('plate', f'mark{k + 1}', *planar(x, y, 0.0))
+                           for k, (x, y) in enumerate(marks)])
 
     def _run(self, plan: StagePlan) -> CalibrationResult:
         self.locator.vision   # fails early without a vision calibration

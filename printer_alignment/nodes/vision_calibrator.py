@@ -41,6 +41,7 @@ from calib_core.nodes.calibrator import (
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
+from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
@@ -163,6 +164,8 @@ class VisionCalibratorNode(Node):
         msg = VisionObservation(header=self._header(), gantry=self._gantry_state,
                                 marks=detected.marks)
         run.record(OBSERVATIONS_TOPIC, msg, self.observation_pub)
+        # What a viewer shows: the camera where the gantry's encoders put it.
+        run.record_frames([('gantry', 'camera', *planar(msg.gantry.x, msg.gantry.y, 0.0))])
         return observation_from_message(msg).uv
 
     def _move(self, x, y):
