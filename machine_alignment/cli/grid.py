@@ -28,7 +28,7 @@ def _vectors(ax, where_mm, vectors_m, spacing_mm, title):
     longest = max(np.linalg.norm(um, axis=1).max(), 1e-9)
     arrows = ax.quiver(where_mm[:, 0], where_mm[:, 1], um[:, 0], um[:, 1], angles='xy',
                        scale_units='xy', scale=longest / (0.8 * spacing_mm))
-    arrow_key(ax, arrows, longest / 2, 'um')
+    arrow_key(ax, arrows, longest / 2, 'um', 'above')     # a panel lies below
     ax.set_title(f'{title} (longest {longest:.3g} um)', loc='left', fontsize=10)
     ax.set_xlabel('x (mm)')
     ax.set_ylabel('y (mm)')
@@ -42,8 +42,7 @@ def _plot(path: Path, calibration) -> None:
     pitch_mm = grid.pitch * 1e3
     fig, axes = plt.subplots(2, 2, figsize=(12, 10.5))
     _vectors(axes[0, 0], stitched.site_positions * 1e3, stitched.stage_error, pitch_mm,
-             f'stage error G, {len(calibration.results)} region(s) stitched '
-             f'({stitched.method})')
+             f'stage error G, {len(calibration.results)} region(s), {stitched.method}')
     _vectors(axes[0, 1], grid.marks * grid.pitch * 1e3, calibration.plate_errors, pitch_mm,
              'plate mark errors A')
     for name in calibration.results[min(calibration.results)].residuals:
@@ -66,7 +65,7 @@ def _plot(path: Path, calibration) -> None:
     ax.set_xlabel('x (mm)')
     ax.set_ylabel('y (mm)')
     ax.set_aspect('equal')
-    fig.tight_layout(rect=(0, 0.03, 1, 1))     # room for the arrow keys below the axes
+    fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
 
