@@ -148,10 +148,13 @@ def _journal_records(journal: Path) -> Iterator[tuple[str, str, int, bytes]]:
         at = end
 
 
-def cut_run_count(path: str | os.PathLike) -> int | None:
-    """How many messages a cut run's journal holds, or None if ``path`` is a complete bag."""
+def cut_run_count(path: str | os.PathLike, topic: str | None = None) -> int | None:
+    """How many messages (on ``topic``, else on any) a cut run's journal holds, or None if
+    ``path`` is a complete bag."""
     journal = _journal(Path(path))
-    return None if journal is None else sum(1 for _ in _journal_records(journal))
+    if journal is None:
+        return None
+    return sum(1 for recorded, *_ in _journal_records(journal) if topic in (None, recorded))
 
 
 def _require_bag(path: Path) -> None:

@@ -62,7 +62,7 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
     bag = next((tmp_path / 'runs').iterdir())
     recovered = [measurement_record(m) for t, _, m in decode_bag(bag) if t == MEASUREMENTS_TOPIC]
     # Each stop is published, then written: the kill may fall between the two.
-    assert seen_at_kill - 1 <= len(recovered) == cut_run_count(bag) <= seen_at_kill + 1
+    assert seen_at_kill - 1 <= len(recovered) == cut_run_count(bag, MEASUREMENTS_TOPIC) <= seen_at_kill + 1
     assert in_force.read_bytes() == before
     assert read_calibration(calibration, 'hexapod_geometry')['kind'] == 'hexapod'
     assert sorted(p.name for p in calibration.glob('hexapod_geometry*.yaml')) \

@@ -98,7 +98,7 @@ class FiveAxisCalibratorNode(Node):
         self.declare_parameter('part_path', PART_PATH.ravel().tolist())
         self.declare_parameter('needle_tip', NEEDLE_TIP.tolist())
         self.declare_parameter('frames', False)
-        self.declare_parameter('frame_format', 'jpeg')
+        self.declare_parameter('frame_format', 'jpeg')  # frames in the bag: jpeg or png (lossless)
         if self.get_parameter('frame_format').value not in ('jpeg', 'png'):
             raise ValueError('frame_format must be jpeg (about 0.5 MB a frame in the bag) or '
                              'png (lossless, several MB)')

@@ -43,9 +43,9 @@ class FiveAxisSimNode(Node):
         self.declare_parameter('noise_px', 0.1)
         self.declare_parameter('bad_fraction', 0.0)
         self.declare_parameter('frame_noise', 2.0)
-        self.declare_parameter('needle_tip', (NEEDLE_TIP + TRUE_TIP_OFFSET).tolist())
+        self.declare_parameter('needle_tip', (NEEDLE_TIP + TRUE_TIP_OFFSET).tolist())  # 0.3, -0.2, 0.1 mm off
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
-        self.declare_parameter('part_pose', PART_POSE.tolist())
+        self.declare_parameter('part_pose', PART_POSE.tolist())  # 1.5, -1 mm, 0.03 rad
         g = lambda n: self.get_parameter(n).value  # noqa: E731
         cad = np.asarray(g('part_cad'), dtype=float)
         placed = np.asarray(g('part_pose'), dtype=float)

@@ -78,7 +78,7 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     MachineAlignmentError
         The bag holds no such stops (a run of another kind, or a foreign bag), or cannot be
         read."""
-    recovered = cut_run_count(bag)      # None for a complete bag
+    recovered = cut_run_count(bag, stop_topic)      # None for a complete bag
     if recovered == 0:
         raise MachineAlignmentError(f'{bag} is a run cut before its first stop: nothing to '
                                     'replay')
