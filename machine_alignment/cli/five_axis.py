@@ -169,8 +169,8 @@ def cmd_calibrate(args) -> int:
         check_calibration(result.model, report)
     print(f'{len(images)} images, {report["images_used"]} used; mean reprojection '
           f'{report["mean_reprojection_px"]:.3f} px (RMS {report["rms_reprojection_px"]:.3f} '
-          f'px); per iteration from the stepwise start: '
-          + ', '.join(f'{h:.3g}' for h in result.history[:6]))
+          f'px); the refinement took it from {result.history[0]:.3g} px (the stepwise start) '
+          f'to {result.history[-1]:.3g} px in {len(result.history) - 1} iterations (plotted)')
     for name, error in result.outliers.items():
         print(f'  set aside by RANSAC: {name} (RMS {error:.2f} px)')
     for name in NAMES:
