@@ -49,9 +49,11 @@ def read_csv_rows(path: str | os.PathLike, what: str, columns, error=InvalidInpu
     return rows
 
 
-class _NumbersAsTyped(yaml.SafeLoader):
-    """PyYAML's safe loader that also reads ``10e-6`` and ``1e3`` as numbers, as YAML 1.2
-    and people do (YAML 1.1 needs a dot, ``1.0e-5``, and leaves ``10e-6`` a string)."""
+class _NumbersAsTyped(getattr(yaml, 'CSafeLoader', yaml.SafeLoader)):
+    """PyYAML's safe loader (on libyaml's parser where PyYAML has it: a 180 kB marker
+    description reads several times faster) that also reads ``10e-6`` and ``1e3`` as
+    numbers, as YAML 1.2 and people do (YAML 1.1 needs a dot, ``1.0e-5``, and leaves
+    ``10e-6`` a string)."""
 
 
 _NumbersAsTyped.add_implicit_resolver(
