@@ -59,13 +59,9 @@ def read_points(path, what: str) -> tuple[list[str], np.ndarray]:
     Raises
     ------
     InvalidInputError
-        Missing columns, a name twice, values that are not finite numbers."""
-    rows = read_csv_rows(path, what, POINT_COLUMNS)
-    names = [row['name'] for row in rows]
-    if len(set(names)) != len(names):
-        raise InvalidInputError(f'{path}: a name appears twice in {what}')
-    columns = read_columns(path, list(POINT_COLUMNS[1:]))
-    points = np.column_stack([columns[k] for k in POINT_COLUMNS[1:]])
+        Missing columns, a name twice, values that are not finite numbers or beyond 2 m
+        (mm written as m)."""
+    names, points = _read_named(path, what, POINT_COLUMNS)
     if np.max(np.abs(points)) > 2.0:
         raise InvalidInputError(f'{path}: {what} reaches {np.max(np.abs(points)):.4g}: '
                                 'points are in m (was it written in mm?)')
@@ -73,18 +69,12 @@ def read_points(path, what: str) -> tuple[list[str], np.ndarray]:
 
 
 def write_points(path, names, points: np.ndarray) -> None:
-    lines = [','.join(POINT_COLUMNS)]
-    lines += [f'{name},' + ','.join(f'{v:.12g}' for v in point)
-              for name, point in zip(names, np.atleast_2d(points))]
-    write_atomic(path, '\n'.join(lines) + '\n')
+    _write_named(path, POINT_COLUMNS, names, points)
 
 
 def write_path_poses(path, names, poses: np.ndarray) -> None:
     """The path poses (k, 5) (x, y, z m, a, c rad) as a labelled CSV, one row per point."""
-    lines = [','.join(PATH_POSE_COLUMNS)]
-    lines += [f'{name},' + ','.join(f'{v:.12g}' for v in pose)
-              for name, pose in zip(names, np.atleast_2d(poses))]
-    write_atomic(path, '\n'.join(lines) + '\n')
+    _write_named(path, PATH_POSE_COLUMNS, names, poses)
 
 
 def read_path_poses(path, what: str) -> tuple[list[str], np.ndarray]:
@@ -95,11 +85,23 @@ def read_path_poses(path, what: str) -> tuple[list[str], np.ndarray]:
     InvalidInputError
         Missing columns, a name twice, values that are not finite numbers or beyond what
         a dispenser's axes read (mm written as m)."""
-    rows = read_csv_rows(path, what, PATH_POSE_COLUMNS)
-    names = [row['point'] for row in rows]
-    if len(set(names)) != len(names):
-        raise InvalidInputError(f'{path}: a point appears twice in {what}')
-    columns = read_columns(path, list(PATH_POSE_COLUMNS[1:]))
-    poses = np.column_stack([columns[k] for k in PATH_POSE_COLUMNS[1:]])
+    names, poses = _read_named(path, what, PATH_POSE_COLUMNS)
     check_poses(poses, str(path))
     return names, poses
+
+
+def _read_named(path, what: str, columns: tuple) -> tuple[list[str], np.ndarray]:
+    """A CSV of a name column then numbers: the names and the rows (k, len(columns) - 1),
+    a name given twice refused."""
+    names = [row[columns[0]] for row in read_csv_rows(path, what, columns)]
+    if len(set(names)) != len(names):
+        raise InvalidInputError(f'{path}: a {columns[0]} appears twice in {what}')
+    table = read_columns(path, list(columns[1:]))
+    return names, np.column_stack([table[k] for k in columns[1:]])
+
+
+def _write_named(path, columns: tuple, names, rows: np.ndarray) -> None:
+    lines = [','.join(columns)]
+    lines += [f'{name},' + ','.join(f'{v:.12g}' for v in row)
+              for name, row in zip(names, np.atleast_2d(rows))]
+    write_atomic(path, '\n'.join(lines) + '\n')
