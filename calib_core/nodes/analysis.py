@@ -13,7 +13,6 @@ from alignment_msgs.msg import ResidualAnalysis
 
 from calib_core.closed_loop import LoopConfig, MachineModel, analyze
 from calib_core.errors import InvalidInputError, MachineAlignmentError
-from calib_core.loop_plots import plot_loop
 from calib_core.nodes.calibrator import parse_plan
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun, run_stamp
@@ -50,7 +49,13 @@ def general_loop(machine: MachineModel, config: LoopConfig, progress=None):
     """The closed loop of :mod:`calib_core.closed_loop` on ``machine``: its report, a
     function drawing its figure to a path, and the result ``apply`` takes."""
     result = analyze(machine, config, progress=progress)
-    return result.report, lambda png: plot_loop(png, machine, result), result
+
+    def draw(png):
+        # Imported here: matplotlib costs every calibrator 0.3 s at start, and only an
+        # analysis draws.
+        from calib_core.loop_plots import plot_loop
+        plot_loop(png, machine, result)
+    return result.report, draw, result
 
 
 class AnalysisService:

@@ -46,7 +46,6 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
-from grid_calib.core.loop_plot import plot_grid_loop
 from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
 from grid_calib.core.records import PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC
 from grid_calib.core.residual_loop import analyze_travel
@@ -68,7 +67,11 @@ def grid_loop(data, config: LoopConfig, progress=None):
     details = {}
     report = analyze_travel(grid, regions, alpha=config.alpha, max_effects=config.max_effects,
                             details=details)
-    return report, lambda png: plot_grid_loop(png, report, details), None
+
+    def draw(png):
+        from grid_calib.core.loop_plot import plot_grid_loop   # matplotlib: only when drawn
+        plot_grid_loop(png, report, details)
+    return report, draw, None
 
 
 def grid_result_message(content: dict, header, file_path='', version=0) -> CalibrationResult:
