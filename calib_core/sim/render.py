@@ -13,7 +13,8 @@ shows on these images is the detector's. Pixel centres are at integer coordinate
   the circle's exact form to 2e-6 of the contrast (radius 3-80 px, blur 0-1.5 px); the
   quadrature is point-symmetric about the centre, so its error does not move the centre.
   Where the blur is not much narrower than the ellipse (sigma >= 0.03 A) 48 nodes stay
-  within 1e-6 of the 96 that sharper edges need, at half the time.
+  within 1e-6 of the 96 that sharper edges need (a five-axis board frame then renders in
+  0.77 s instead of 1.01 s).
 - cross of half-length L and bar width w at angle theta: the union of two bars, rendered as
   bar1 + bar2 - overlap, each a separable product of erf differences, exact.
 """
