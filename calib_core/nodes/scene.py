@@ -28,7 +28,7 @@ TF_TYPE = 'tf2_msgs/msg/TFMessage'
 POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
 IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
 # JPEG at this quality keeps a 2448 x 2048 board frame near 0.5 MB; 'png' keeps every grey
-# level (several MB a frame with sensor noise) for detecting the dots again offline.
+# level (2.3 MB a frame with 2 grey levels of noise) for detecting the dots again offline.
 JPEG_QUALITY = 90
 
 

@@ -101,7 +101,7 @@ class FiveAxisCalibratorNode(Node):
         self.declare_parameter('frame_format', 'jpeg')  # frames in the bag: jpeg or png (lossless)
         if self.get_parameter('frame_format').value not in ('jpeg', 'png'):
             raise ValueError('frame_format must be jpeg (about 0.5 MB a frame in the bag) or '
-                             'png (lossless, several MB)')
+                             'png (lossless, about 2.3 MB)')
         self._frame = None       # the last camera frame taken, until it is recorded
         self._plan_from_parameters({})
         self.cad = self._triples('part_cad')
