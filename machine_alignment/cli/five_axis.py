@@ -215,7 +215,7 @@ def cmd_locate(args) -> int:
               f'from {len(table)} views, reprojection RMS {rms:.3f} px')
     report = {'features': located}
     if args.cad:
-        report['part'] = _place_part(args, located)
+        report['part'] = _place_part(args, model, located)
     elif args.path or args.csv or args.gcode:
         raise InvalidInputError('--path, --csv and --gcode place a path on the part: they '
                                 'need --cad (the features\' CAD positions)')
@@ -223,7 +223,7 @@ def cmd_locate(args) -> int:
     return 0
 
 
-def _place_part(args, located) -> dict:
+def _place_part(args, model, located) -> dict:
     """The part's pose from its located CAD features and, given ``--path``, the poses that
     put the needle tip on each path point, checked against the strokes."""
     names, cad = read_points(args.cad, 'a part\'s CAD features')
@@ -248,7 +248,7 @@ def _place_part(args, located) -> dict:
         raise InvalidInputError('--path needs --tip X Y Z: the needle tip in the calibrated '
                                 'camera frame (m), as five_axis_calibrator/measure_needle gives it')
     points, path = read_points(args.path, 'a dispensing path')
-    poses = place_path(read_model(args.calibration), np.array(args.tip),
+    poses = place_path(model, np.array(args.tip),
                        path @ rotation.T + translation, *args.path_angles)
     for pose in poses:
         check_stroke(pose)
