@@ -160,8 +160,8 @@ def test_offline_needle_and_part_localisation_write_path_poses_a_controller_read
     the tip from the dots, ``locate`` fits the part's pose (true: PART_POSE) and writes the
     path poses as a labelled CSV and G-code, both read back as a consumer would
     (csv.DictReader; the G-code's words in mm and degrees). Through the true chain and the
-    true tip the poses put the tip on the part's true path within 10 um (measured 1.9-4.1
-    um); with the configured tip instead (0.37 mm from the true one) they miss by 0.40 mm."""
+    true tip the poses put the tip on the part's true path within 10 um (measured at most
+    2.4 um); with the configured tip instead (0.37 mm from the true one) they miss by 0.40 mm."""
     import csv
     import json
     from calib_core.controller_formats import read_gcode_moves

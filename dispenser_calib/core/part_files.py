@@ -32,7 +32,8 @@ def read_views(path) -> dict[str, np.ndarray]:
     Raises
     ------
     InvalidInputError
-        Missing columns, values that are not finite numbers."""
+        Missing columns, values that are not finite numbers, poses no dispenser commands
+        (mm written as m, degrees as rad)."""
     views = {}
     for line, row in enumerate(read_csv_rows(path, 'a features CSV', VIEW_COLUMNS), start=2):
         try:
@@ -42,7 +43,9 @@ def read_views(path) -> dict[str, np.ndarray]:
         if not np.all(np.isfinite(values)):
             raise InvalidInputError(f'{path} line {line}: NaN or infinite value')
         views.setdefault(row['feature'], []).append(values)
-    return {name: np.array(table) for name, table in views.items()}
+    views = {name: np.array(table) for name, table in views.items()}
+    check_poses(np.vstack([table[:, :5] for table in views.values()]), str(path))
+    return views
 
 
 def write_views(path, names, poses: np.ndarray, pixels: np.ndarray) -> None:

@@ -18,9 +18,10 @@ from calib_core.controller_formats import write_gcode_path  # noqa: E402
 from dispenser_calib.core.calibration import calibrate, check_calibration, reprojection  # noqa: E402
 from dispenser_calib.core.records import (  # noqa: E402
     OBSERVATIONS_TOPIC, RESULT_TOPIC, image_from_message)
-from dispenser_calib.core.data import check_poses, read_observations, write_observations  # noqa: E402
+from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E402
-from dispenser_calib.core.localisation import fit_part_pose, locate, place_path  # noqa: E402
+from dispenser_calib.core.localisation import (  # noqa: E402
+    fit_part_pose, locate, place_path, reached)
 from dispenser_calib.core.model import (  # noqa: E402
     NAMES, nominal_model, parameter_unit, place, read_model, write_model)
 from dispenser_calib.core.part_files import (  # noqa: E402
@@ -29,7 +30,7 @@ from dispenser_calib.core.procedure import (  # noqa: E402
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, check_stroke, finish,
     plan_stops, rotary_sweep, tip_from_dots, view_plan)
 from dispenser_calib.sim.machine import (  # noqa: E402
-    IMAGE_SIZE, PART_POSE, TRUE_TIP_OFFSET, needle_hardware, observe, placed_part,
+    IMAGE_SIZE, PART_POSE, TRUE_TIP_OFFSET, observe, placed_part,
     points_in_view, true_model)
 from machine_alignment.cli.common import (  # noqa: E402
     parse_size, quantity, ranged, read_run, write_json, write_json_and_plot)
@@ -62,55 +63,53 @@ def _simulate_needle(args, truth) -> None:
     """What ``needle`` reads: a test dot dispensed at each of TEST_SPOTS (aimed with the
     nominal model and the configured tip; the true tip is TRUE_TIP_OFFSET from it), then
     each dot imaged from FEATURE_VIEWS through the true chain."""
-    move, dispense, capture = needle_hardware(truth, NEEDLE_TIP + TRUE_TIP_OFFSET, args.noise,
-                                              np.random.default_rng(args.seed + 91))
     dispensing = np.array([place(nominal_model(), spot, 0.0, 0.0, NEEDLE_TIP)
                            for spot in TEST_SPOTS])
     for pose in dispensing:
         check_stroke(pose)
-        move(pose)
-        dispense()
-    names, poses, pixels = [], [], []
-    for k, pose in view_plan(nominal_model(), TEST_SPOTS, FEATURE_VIEWS):
-        check_stroke(pose)
-        move(pose)
-        numbers, found = capture()
-        for number, pixel in zip(numbers, found):
-            if number == k:
-                names.append(f'd{k}')
-                poses.append(pose)
-                pixels.append(pixel)
-    write_views(args.needle, names, np.array(poses), np.array(pixels))
+    dots = reached(truth, NEEDLE_TIP + TRUE_TIP_OFFSET, dispensing)
+    names = [f'd{k}' for k in range(len(TEST_SPOTS))]
+    views = _imaged_views(truth, TEST_SPOTS, dots, names, args.noise,
+                          np.random.default_rng(args.seed + 91))
+    write_views(args.needle, *views)
     stem = Path(args.needle)
     dispensed = stem.with_name(stem.stem + '_dispensed.csv')
-    write_path_poses(dispensed, [f'd{k}' for k in range(len(TEST_SPOTS))], dispensing)
-    print(f'wrote {args.needle} ({len(names)} views of {len(TEST_SPOTS)} dispensed test dots) '
-          f'and {dispensed} (the poses they were dispensed at)')
+    write_path_poses(dispensed, names, dispensing)
+    print(f'wrote {args.needle} ({len(views[0])} views of {len(TEST_SPOTS)} dispensed test '
+          f'dots) and {dispensed} (the poses they were dispensed at)')
 
 
 def _simulate_features(args, truth) -> None:
     """The views ``locate`` reads: the simulated part (the node's default CAD, placed at
     PART_POSE) imaged through the true chain from FEATURE_VIEWS, each aimed with the
     nominal model; its CAD and dispensing path beside them."""
-    rng = np.random.default_rng(args.seed + 90)
-    features = placed_part(PART_CAD)
-    names, poses, pixels = [], [], []
-    for k, pose in view_plan(nominal_model(), PART_CAD, FEATURE_VIEWS):
-        check_stroke(pose)
-        seen, found = points_in_view(truth, features[k], pose, args.noise, rng)
-        if len(seen):
-            names.append(f'f{k}')
-            poses.append(pose)
-            pixels.append(found[0])
-    write_views(args.features, names, np.array(poses), np.array(pixels))
+    names = [f'f{k}' for k in range(len(PART_CAD))]
+    views = _imaged_views(truth, PART_CAD, placed_part(PART_CAD), names, args.noise,
+                          np.random.default_rng(args.seed + 90))
+    write_views(args.features, *views)
     stem = Path(args.features)
     cad_path = stem.with_name(stem.stem + '_cad.csv')
     path_path = stem.with_name(stem.stem + '_path.csv')
-    write_points(cad_path, [f'f{k}' for k in range(len(PART_CAD))], PART_CAD)
+    write_points(cad_path, names, PART_CAD)
     write_points(path_path, [f'p{k}' for k in range(len(PART_PATH))], PART_PATH)
-    print(f'wrote {args.features} ({len(names)} views of {len(PART_CAD)} features), {cad_path} '
-          f'(the part\'s CAD) and {path_path} (its dispensing path, {len(PART_PATH)} points); '
-          f'the configured needle tip: {" ".join(f"{v:g}" for v in NEEDLE_TIP)} m')
+    print(f'wrote {args.features} ({len(views[0])} views of {len(PART_CAD)} features), '
+          f'{cad_path} (the part\'s CAD) and {path_path} (its dispensing path, '
+          f'{len(PART_PATH)} points); the configured needle tip: '
+          f'{" ".join(f"{v:g}" for v in NEEDLE_TIP)} m')
+
+
+def _imaged_views(truth, aimed_at, points, names, noise_px: float, rng) -> tuple:
+    """Each of ``points`` (k, 3) (board frame, m; named ``names``) imaged through the true
+    chain from FEATURE_VIEWS, the camera aimed with the nominal model at ``aimed_at`` (k,
+    3), every pose checked against the strokes: (names, poses (n, 5), pixels (n, 2)) of
+    the views in which it is in the frame."""
+    views = []
+    for k, pose in view_plan(nominal_model(), aimed_at, FEATURE_VIEWS):
+        check_stroke(pose)
+        seen, found = points_in_view(truth, points[k], pose, noise_px, rng)
+        if len(seen):
+            views.append((names[k], pose, found[0]))
+    return [v[0] for v in views], np.array([v[1] for v in views]), np.array([v[2] for v in views])
 
 
 def _plot(path: Path, images, result) -> None:
@@ -205,14 +204,12 @@ def cmd_locate(args) -> int:
     path, the part's pose and the path poses (labelled CSV, G-code)."""
     model = read_model(args.calibration)
     views = read_views(args.data)
-    check_poses(np.vstack([table[:, :5] for table in views.values()]), str(args.data))
     located = {}
-    for name, table in views.items():
-        point, rms = locate(model, table[:, :5], table[:, 5:])
+    for name, point, rms in zip(views, *_located(model, views, list(views))):
         located[name] = {'position_m': point.tolist(), 'reprojection_rms_px': rms,
-                         'views': len(table)}
+                         'views': len(views[name])}
         print(f'{name}: ({point[0] * 1e3:.4f}, {point[1] * 1e3:.4f}, {point[2] * 1e3:.4f}) mm '
-              f'from {len(table)} views, reprojection RMS {rms:.3f} px')
+              f'from {len(views[name])} views, reprojection RMS {rms:.3f} px')
     report = {'features': located}
     if args.cad:
         report['part'] = _place_part(args, model, located)
@@ -221,6 +218,13 @@ def cmd_locate(args) -> int:
                                 'need --cad (the features\' CAD positions)')
     write_json(args.json, report)
     return 0
+
+
+def _located(model, views: dict, names: list) -> tuple[np.ndarray, list]:
+    """The named points located from their views through the calibrated chain: (k, 3) m
+    and the reprojection RMS of each (px)."""
+    found = [locate(model, views[name][:, :5], views[name][:, 5:]) for name in names]
+    return np.array([point for point, _ in found]), [rms for _, rms in found]
 
 
 def _place_part(args, model, located) -> dict:
@@ -275,13 +279,9 @@ def cmd_needle(args) -> int:
     if missing:
         raise InvalidInputError(f'{args.data} has no views of dot(s) {", ".join(missing)} '
                                 f'dispensed in {args.dispensed}')
-    dots, rms = [], []
-    for name in names:
-        point, error = locate(model, views[name][:, :5], views[name][:, 5:])
-        dots.append(point)
-        rms.append(error)
-    result = dict(tip_from_dots(model, dispensed_at, np.array(dots)),
-                  dots_m=np.array(dots).tolist(), reprojection_rms_px=rms)
+    dots, rms = _located(model, views, names)
+    result = dict(tip_from_dots(model, dispensed_at, dots), dots_m=dots.tolist(),
+                  reprojection_rms_px=rms)
     print(f'needle tip {", ".join(f"{v * 1e3:.4f}" for v in result["tip_m"])} mm (calibrated '
           f'camera frame) from {len(names)} dots; one dot alone within '
           f'{result["spread_m"] * 1e6:.1f} um')
