@@ -230,6 +230,7 @@ class FiveAxisCalibratorNode(Node):
 
     def _run(self, overrides: dict) -> CalibrationResult:
         seed, evaluation, frames = self._plan_from_parameters(overrides)
+        self._frame = None      # a frame left by a failed run belongs to no stop of this one
         with RecordedRun(self, 'five_axis', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
                 FRAME_TOPIC: IMAGE_TYPE,
@@ -270,6 +271,7 @@ class FiveAxisCalibratorNode(Node):
             raise InvalidInputError(f'both_ways must be true or false, not {both_ways!r}')
         capture = self._capture_frame if self.get_parameter('frames').value else self._capture
         start = time.monotonic()
+        self._frame = None
         with RecordedRun(self, 'five_axis_sweep', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
                 FRAME_TOPIC: IMAGE_TYPE}) as run:

@@ -130,9 +130,9 @@ class HexapodCalibratorNode(Node):
 
     def _record(self, run: RecordedRun, stops, phase, target, legs, measured):
         stops.append((target, measured, legs))
+        target_pose = pose_as_message(target)
         run.record(MEASUREMENTS_TOPIC,
-                   HexapodMeasurement(header=self._header(), phase=phase,
-                                      target=pose_as_message(target),
+                   HexapodMeasurement(header=self._header(), phase=phase, target=target_pose,
                                       leg_lengths=np.asarray(legs, float).tolist(),
                                       measured=self._last_measurement),
                    self.measurement_pub)
@@ -140,7 +140,7 @@ class HexapodCalibratorNode(Node):
         run.record(MEASURED_POSE_TOPIC, PoseStamped(header=self._header(),
                                                     pose=self._last_measurement.pose))
         run.record_frames([('base', 'platform', *frame_of(self._last_measurement.pose)),
-                           ('base', 'platform_target', *frame_of(pose_as_message(target)))])
+                           ('base', 'platform_target', *frame_of(target_pose))])
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='hexapod_calibration',

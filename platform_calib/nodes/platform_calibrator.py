@@ -160,8 +160,9 @@ class PlatformCalibratorNode(Node):
             feeds=[float(v) for v in stop.feeds], direction=[int(v) for v in stop.direction],
             measured=[float(v) for v in stop.measured]), self.measurement_pub)
         # What a viewer shows: the platform as the tracker measured it and where it was sent.
-        run.record(MEASURED_POSE_TOPIC, pose_stamped(self._header(), *planar(*stop.measured)))
-        run.record_frames([('base', 'platform', *planar(*stop.measured)),
+        measured = planar(*stop.measured)
+        run.record(MEASURED_POSE_TOPIC, pose_stamped(self._header(), *measured))
+        run.record_frames([('base', 'platform', *measured),
                            ('base', 'platform_target', *planar(*stop.target))])
 
     def _run(self, overrides: dict) -> CalibrationResult:
