@@ -21,6 +21,7 @@ from calib_core.nodes.qos import LATCHED  # noqa: E402
 from calib_core.storage import read_calibration, write_calibration  # noqa: E402
 from dds import running  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry  # noqa: E402
+from hexapod_calib.core.procedure import HexapodPlan  # noqa: E402
 from hexapod_calib.core.records import (  # noqa: E402
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
 from machine_alignment.cli import main as cli_main  # noqa: E402
@@ -65,8 +66,12 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
     recovered = [measurement_record(m) for t, _, m in decode_bag(bag) if t == MEASUREMENTS_TOPIC]
     # Each stop is published, then written: the kill may fall between the two. Every stop
     # seen is in the bag; stops published just before the kill may not have reached the
-    # test's subscription (measured: 19 in the bag, 10 seen), so more can be.
-    assert seen_at_kill - 1 <= len(recovered) == cut_run_count(bag, MEASUREMENTS_TOPIC) < 60
+    # test's subscription under load (measured: 19 in the bag with 10 seen, and 65 with
+    # 10), so more can be, but fewer than the whole default plan: the run was cut.
+    plan = HexapodPlan()
+    whole_plan = plan.num_poses * plan.iterations + 2 * plan.num_evaluation
+    assert seen_at_kill - 1 <= len(recovered) == cut_run_count(bag, MEASUREMENTS_TOPIC) \
+        < whole_plan
     assert in_force.read_bytes() == before
     assert read_calibration(calibration, 'hexapod_geometry')['kind'] == 'hexapod'
     assert sorted(p.name for p in calibration.glob('hexapod_geometry*.yaml')) \
