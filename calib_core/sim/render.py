@@ -7,7 +7,11 @@ centre of symmetry is the true centre to floating-point precision: any error a d
 shows on these images is the detector's. Pixel centres are at integer coordinates (OpenCV).
 
 - circle of radius R: intensity at distance rho is P(|X| <= R), X ~ N((rho, 0), s^2 I), the
-  non-central chi-square CDF with 2 degrees of freedom (scipy.stats.ncx2), exact.
+  non-central chi-square CDF with 2 degrees of freedom (scipy.special.chndtr), evaluated
+  once per (R, s) on a radial table 400 knots per s across the edge and interpolated
+  linearly (within 1e-6 of the contrast: test/test_render.py). The table is a function of
+  rho alone, so the centre stays exact; a 640 x 480 dot-plate frame renders 4x faster than
+  with the CDF at every pixel.
 - ellipse (a circular dot seen at an angle) of semi-axes A, B: P(X in ellipse) as a 1-D
   integral over the ellipse's chords, by Gauss-Legendre quadrature. At A = B it agrees with
   the circle's exact form to 2e-6 of the contrast (radius 3-80 px, blur 0-1.5 px); the
@@ -23,8 +27,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import erf
-from scipy.stats import ncx2
+from functools import lru_cache
+
+from scipy.special import chndtr, erf
 
 from calib_core.marks.intensity import cross_coverage, edge_sigma
 
@@ -69,11 +74,35 @@ def coverage(mark: MarkShape, u: np.ndarray, v: np.ndarray, blur_sigma: float) -
         return ellipse_coverage(c * du + s * dv, -s * du + c * dv, mark.size * root,
                                 mark.size / root, sigma)
     if mark.kind == 'circle':
-        rho2 = (du ** 2 + dv ** 2) / sigma ** 2
-        return ncx2.cdf((mark.size / sigma) ** 2, 2, rho2)
+        rho, profile = _circle_profile(float(mark.size), sigma)
+        return np.interp(np.hypot(du, dv), rho, profile)
     if mark.kind == 'cross':
         return cross_coverage(du, dv, mark.angle, mark.size, mark.width, sigma)
     raise ValueError(f'unknown Mark kind {mark.kind!r}; use "circle" or "cross"')
+
+
+# The circle's radial profile: knots per blur sigma, and the half-width of the edge band
+# in sigma beyond which the coverage is 1 or 0 to within 1e-17.
+_KNOTS_PER_SIGMA = 400
+_EDGE_HALF_WIDTH = 9.0
+
+
+@lru_cache(maxsize=256)
+def _circle_profile(radius: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Knots ``rho`` (px, from 0) and the exact coverage at them of a circle of
+    ``radius`` blurred by ``sigma`` (px). Linear interpolation between knots sigma / 400
+    apart errs by about h^2 / 8 max|f''| = 0.242 / (8 * 400^2) ~ 2e-7 of the contrast on a
+    straight edge; a small circle's curvature adds to f'', and 1e-6 holds down to a 0.5 px
+    radius (test/test_render.py)."""
+    low = max(radius - _EDGE_HALF_WIDTH * sigma, 0.0)
+    high = radius + _EDGE_HALF_WIDTH * sigma
+    band = np.linspace(low, high, int(np.ceil((high - low) / sigma * _KNOTS_PER_SIGMA)) + 1)
+    values = chndtr((radius / sigma) ** 2, 2, (band / sigma) ** 2)
+    # Knots at 0 (inside) and far outside hold the flat parts of the profile.
+    rho = np.r_[0.0, band, 2 * high + 1e6] if low > 0 else np.r_[band, 2 * high + 1e6]
+    profile = np.r_[1.0, values, 0.0] if low > 0 else np.r_[values, 0.0]
+    rho.flags.writeable = profile.flags.writeable = False
+    return rho, profile
 
 
 # Gauss-Legendre nodes over each pixel's chords (see ellipse_coverage): 96 for sharp edges,
