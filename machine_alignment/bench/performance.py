@@ -1,68 +1,165 @@
-"""How long each job takes and how much memory, and how that grows with its size (issue
-34): every job at two sizes, each in a fresh process (its own peak resident memory), the
-growth as the exponent of time against size. Detection's own table against OpenCV is
-bench_results/results.md; the closed loop's, bench_results/closed_loop_speed.md; the
-grid's against the source's route, bench_results/grid.md. Writes
-bench_results/performance.{md,json}."""
+"""How long each job takes and how much memory, how that grows with its size, and the ratio
+to a baseline timed in the same process on the same data (issue 34). Each job at two or
+three sizes, each size in a fresh process (its own peak resident memory). Baselines:
+OpenCV where OpenCV does the job (Mark detection: a SimpleBlobDetector tuned to the frame;
+localisation: cv2.triangulatePoints), the source's own route where a paper gives one (the
+grid's difference equations, the platform's particle swarm), the route the suite replaced
+where it replaced one (numerical derivatives where the identification has analytic ones;
+the closed loop's full fits), and none where the suite has the only route (today's time is
+then the reference for later changes). Writes bench_results/performance.{md,json}."""
 import argparse
 import json
 import resource
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from machine_alignment.bench import write_results, write_table
 
 
-def _hexapod(size: int):
-    from hexapod_calib.core.calibration import identify
-    from hexapod_calib.core.geometry import nominal_geometry
+@dataclass
+class Work:
+    """A job built at one size: ``job`` and ``baseline`` (or None) are called without
+    arguments on the same data; ``error(result)`` (or None) scores a result against the
+    truth in ``error_unit``, so that a faster baseline is seen at its accuracy."""
+
+    job: Callable
+    baseline: Callable | None = None
+    error: Callable | None = None
+    error_unit: str = ''
+
+
+def _nearest_rms(found: np.ndarray, truth: np.ndarray, within: float) -> float:
+    """RMS distance from each true point to the nearest found one, over those found within
+    ``within`` (same unit); NaN when none is."""
+    found = np.asarray(found, float).reshape(-1, truth.shape[1])
+    if not len(found):
+        return float('nan')
+    distance = np.min(np.linalg.norm(found[None] - truth[:, None], axis=2), axis=1)
+    close = distance[distance < within]
+    return float(np.sqrt(np.mean(close ** 2))) if len(close) else float('nan')
+
+
+def _detection(size: int) -> Work:
+    """One 640 x 480 frame of ``size`` dots (10 px radius, 1 px blur, 3 DN noise) on a
+    square grid; the baseline: SimpleBlobDetector with thresholds and areas set for the
+    frame (bench_results/results.md compares it at every radius, blur and noise)."""
+    from calib_core.marks import detect_marks
+    from calib_core.sim.render import MarkShape, render
+    from machine_alignment.bench.vision import BACKGROUND, CONTRAST, _blob_detector
+    rng = np.random.default_rng(1)
+    side = int(round(np.sqrt(size)))
+    marks = [MarkShape('circle', u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5), 10.0)
+             for v in np.linspace(45, 435, side) for u in np.linspace(45, 595, side)]
+    noise = 3.0
+    image = render(marks, 640, 480, 1.0, BACKGROUND, CONTRAST)
+    image = np.clip(np.round(image + rng.normal(0, noise, image.shape)), 0, 255).astype(np.uint8)
+    level = BACKGROUND + CONTRAST
+    tuned = _blob_detector(level + 10, BACKGROUND - 10, np.pi * 20.0 ** 2)
+    truth = np.array([[m.u, m.v] for m in marks])
+    return Work(lambda: [[m.u, m.v] for m in detect_marks(image).marks],
+                lambda: [k.pt for k in tuned.detect(image)],
+                lambda found: _nearest_rms(np.array(found), truth, 3.0), 'px RMS')
+
+
+def _vision(size: int) -> Work:
+    """Pixel size and gantry model from ``size`` positions over the dot plate (the frames
+    rendered and detected beforehand: bench_results/results.md times the detection)."""
+    from calib_core.marks import detect_marks
+    from printer_alignment.core.geometry import NOMINAL_LEADS
+    from printer_alignment.core.vision_procedure import (
+        VisionPlan, calibrate_from_observations, run_vision_calibration)
+    from printer_alignment.sim.camera import CameraSim
+    from printer_alignment.sim.gantry import GantrySim
+    from printer_alignment.sim.scenes import make_scene
+    gantry, camera = GantrySim(), CameraSim(make_scene('dot_plate'), seed=7)
+    ny = 3 if size <= 12 else 6
+    plan = VisionPlan(nx=size // ny, ny=ny)
+    observations, _ = run_vision_calibration(
+        plan, lambda x, y: gantry.move(x, y) / NOMINAL_LEADS,
+        lambda: np.array([[m.u, m.v] for m in detect_marks(
+            camera.capture(gantry.true_camera_position())).marks]))
+    return Work(lambda: calibrate_from_observations(observations, plan.pitch))
+
+
+def _stage(size: int) -> Work:
+    """The paper's 130-stop run (its plan fixes the size)."""
+    from printer_alignment.core.stage_calibration import calibrate_stage
+    from printer_alignment.sim.stage import simulate_calibration_run
+    data = simulate_calibration_run(seed=1)
+    return Work(lambda: calibrate_stage(data))
+
+
+def _hexapod(size: int) -> Work:
+    """The 42 parameters from ``size`` random poses; the baseline differentiates the same
+    residuals numerically (scipy's 2-point) instead of the analytic leg Jacobian."""
+    from calib_core.least_squares import fit
+    from hexapod_calib.core.calibration import identification_residuals, identify
+    from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry
     from hexapod_calib.sim.hexapod import HexapodTruth, measure_random_poses
-    data, _ = measure_random_poses(HexapodTruth.default(), size, seed=1)
-    return lambda: identify(data, nominal_geometry())
+    truth = HexapodTruth.default()
+    data, _ = measure_random_poses(truth, size, seed=1)
+    nominal = nominal_geometry()
+    return Work(lambda: identify(data, nominal),
+                lambda: fit(lambda p: identification_residuals(
+                    HexapodGeometry.from_parameters(p), data).ravel(),
+                    nominal.parameters(), max_condition=1e6))
 
 
-def _platform(size: int):
+def _platform(size: int) -> Work:
+    """The 18 parameters from ``size`` poses; the baseline: numerical derivatives."""
     from platform_calib.core.geometry import nominal_geometry
     from platform_calib.core.identification import identify
     from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
     data = measure_poses(PlatformSim(true_geometry(0)), plan_poses(size, 0), nominal_geometry())
-    return lambda: identify(data, nominal_geometry())
+    return Work(lambda: identify(data, nominal_geometry()),
+                lambda: identify(data, nominal_geometry(), derivatives='2-point'))
 
 
-def _compensation(size: int):
+def _compensation(size: int) -> Work:
+    """Feeds for ``size`` targets with the identified geometry by the exact inverse; the
+    baseline: the source's particle swarm (pymoo, the stable settings)."""
     from platform_calib.core.compensation import PSOSettings, compensate
     from platform_calib.core.geometry import nominal_geometry
     from platform_calib.sim.platform import plan_poses, true_geometry
     targets = plan_poses(size, 1)
     model, nominal = true_geometry(0), nominal_geometry()
-    return lambda: [compensate(model, nominal, t, 'pso', pso=PSOSettings.stable())
-                    for t in targets]
+    return Work(lambda: [compensate(model, nominal, t, 'exact') for t in targets],
+                lambda: [compensate(model, nominal, t, 'pso', pso=PSOSettings.stable())
+                         for t in targets])
 
 
-def _plan(size: int):
+def _plan(size: int) -> Work:
     from platform_calib.core.geometry import nominal_geometry
     from platform_calib.core.planning import plan_platform
-    return lambda: plan_platform(nominal_geometry(), 12, candidates=size)
+    return Work(lambda: plan_platform(nominal_geometry(), 12, candidates=size))
 
 
-def _grid(size: int):
+def _grid(size: int) -> Work:
+    """One region of a 100 mm plate, ``size`` marks a side, three placements, 20 nm
+    noise, with the per-site uncertainty (exact to N = 21, sampled beyond); the baseline:
+    the source's difference equations (no uncertainty)."""
     from grid_calib.core.model import Grid
-    from grid_calib.core.travel import calibrate_travel
-    from grid_calib.sim.plate import default_travel, measure_travel
+    from grid_calib.core.reference import solve_by_differences
+    from grid_calib.core.selfcal import self_calibrate
+    from grid_calib.sim.plate import default_truth, measure_placements
     half = (size - 1) // 2
-    grid = Grid(half, 0.01 * 5 / half)           # a 100 mm plate whatever N
-    truth = default_travel(grid, 1, 1, seed=1)
-    from grid_calib.core.data import Region
-    regions = {r: Region(truth.origins[r], p)
-               for r, p in measure_travel(grid, truth, 20e-9, 1).items()}
-    return lambda: calibrate_travel(grid, regions)
+    grid = Grid(half, 0.05 / half)
+    truth = default_truth(grid, 1)
+    placements = measure_placements(grid, truth, 20e-9, 1)
+    g = truth.stage_error(grid)
+    return Work(lambda: self_calibrate(grid, placements),
+                lambda: solve_by_differences(grid, placements),
+                lambda result: float(np.sqrt(np.mean((result.stage_error - g) ** 2)) * 1e9),
+                'nm RMS')
 
 
-def _five_axis(size: int):
+def _five_axis(size: int) -> Work:
     from dispenser_calib.core.calibration import calibrate
     from dispenser_calib.core.model import nominal_model
     from dispenser_calib.core.procedure import evaluation_stops, plan_stops
@@ -70,88 +167,206 @@ def _five_axis(size: int):
     stops = np.vstack([plan_stops(nominal_model(), 0),
                        evaluation_stops(nominal_model(), max(size - 27, 0), 5)])[:size]
     images, _ = observe(true_model(0), stops, seed=1)
-    return lambda: calibrate(images, IMAGE_SIZE)
+    return Work(lambda: calibrate(images, IMAGE_SIZE))
 
 
-def _stage(size: int):
-    """The paper's 130-stop run (its plan fixes the size)."""
-    from printer_alignment.core.stage_calibration import calibrate_stage
-    from printer_alignment.sim.stage import simulate_calibration_run
-    data = simulate_calibration_run(seed=1)
-    return lambda: calibrate_stage(data)
+def _localisation(size: int) -> Work:
+    """``size`` features of a part, each seen in two views (the table at two tilts), located
+    through the true model with 0.1 px of noise; the baseline: OpenCV's linear
+    triangulation (cv2.triangulatePoints) of the undistorted pixels with each view's
+    projection matrix, the same two views."""
+    import cv2
+    from dispenser_calib.core.localisation import locate
+    from dispenser_calib.core.model import camera_points
+    from dispenser_calib.core.procedure import view_plan
+    from dispenser_calib.sim.machine import points_in_view, true_model
+    model = true_model(0)
+    rng = np.random.default_rng(2)
+    features = np.column_stack([rng.uniform(-0.01, 0.01, (size, 2)), np.zeros(size)])
+    views = {}
+    for k, pose in view_plan(model, features, [(0.0, 0.0), (0.3, 0.5)]):
+        _, pixels = points_in_view(model, features[k], pose, 0.1, rng)
+        views.setdefault(k, []).append((pose, pixels[0]))
+    k_matrix, distortion = model.camera_matrix, np.r_[model.distortion, 0.0]
+
+    def projection(pose):
+        """K [R | t] of the board-to-camera map at ``pose``, read off the model."""
+        frame = camera_points(model, np.vstack([np.zeros(3), np.eye(3)]), pose)[0]
+        return k_matrix @ np.column_stack([(frame[1:] - frame[0]).T, frame[0]])
+
+    def opencv():
+        located = []
+        for (pose_1, pixel_1), (pose_2, pixel_2) in views.values():
+            ideal = [cv2.undistortPoints(p.reshape(1, 1, 2), k_matrix, distortion, P=k_matrix)
+                     .reshape(2, 1) for p in (pixel_1, pixel_2)]
+            point = cv2.triangulatePoints(projection(pose_1), projection(pose_2), *ideal)
+            located.append(point[:3, 0] / point[3, 0])
+        return located
+
+    def ours():
+        return [locate(model, np.array([p for p, _ in seen]), np.array([u for _, u in seen]))[0]
+                for seen in views.values()]
+    return Work(ours, opencv,
+                lambda located: float(np.sqrt(np.mean((np.array(located) - features) ** 2)) * 1e6),
+                'um RMS')
 
 
-def _platform_loop(size: int):
-    from calib_core.closed_loop import analyze
+def _loop(case: str) -> Callable[[int], Work]:
+    """The closed loop on one case of bench_results/closed_loop_speed.md (its data fix
+    the size); the baseline: the loop's full fits with dense differences, the route the
+    first-order fits replaced."""
+    def build(size: int) -> Work:
+        from calib_core.closed_loop import LoopConfig, analyze
+        from machine_alignment.bench.closed_loop_speed import CASES
+        make = next(build for name, _, build in CASES if name == case)
+        fast, full = make(), make()
+        full.base_sparsity = lambda base, rows: None
+        return Work(lambda: analyze(fast), lambda: analyze(full, LoopConfig(linearise=False)))
+    return build
+
+
+def _platform_loop(size: int) -> Work:
+    """The platform's loop at ``size`` poses (a 10 um screw error on feed 2)."""
+    from calib_core.closed_loop import LoopConfig, analyze
     from platform_calib.core.geometry import nominal_geometry
     from platform_calib.core.loop_model import PlatformLoopModel
     from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
     sim = PlatformSim(true_geometry(0), screw_amplitude=(0.0, 10e-6, 0.0))
     data = measure_poses(sim, plan_poses(size, 0), nominal_geometry())
-    return lambda: analyze(PlatformLoopModel(data, nominal_geometry()))
+    fast, full = (PlatformLoopModel(data, nominal_geometry()) for _ in range(2))
+    full.base_sparsity = lambda base, rows: None
+    return Work(lambda: analyze(fast), lambda: analyze(full, LoopConfig(linearise=False)))
 
 
-# job -> (what, size unit, the two sizes, the function building the job at a size)
+@dataclass(frozen=True)
+class Job:
+    what: str
+    unit: str                   # of the size
+    sizes: tuple
+    build: Callable[[int], Work]
+    baseline: str = 'none: the suite has the only route'
+
+
+_FULL_FITS = 'full fits, dense differences'
 JOBS = {
-    'hexapod identification': ('42 parameters', 'poses', (13, 200), _hexapod),
-    'platform identification': ('18 parameters', 'poses', (20, 200), _platform),
-    'platform compensation, stable swarm': ('per batch of targets', 'targets', (2, 8),
-                                            _compensation),
-    'platform plan (12 poses, I-optimal)': ('exchange over candidates', 'candidates',
-                                            (1000, 4000), _plan),
-    'grid self-calibration, one region': ('3 placements, per-site uncertainty (to N = 41)',
-                                          'marks a side (N)', (11, 41), _grid),
-    'five-axis calibration (RANSAC)': ('31 parameters', 'images', (27, 60), _five_axis),
-    'stage calibration (stepwise + parametric)': ('the paper\'s plan', 'stops', (130,), _stage),
-    'closed loop, platform': ('screw error on feed 2', 'poses', (100, 200), _platform_loop),
+    'Mark detection, one frame': Job('640 x 480, 10 px dots, 3 DN noise', 'Marks', (9, 81),
+                                     _detection, 'OpenCV SimpleBlobDetector, tuned'),
+    'vision calibration': Job('pixel size and gantry (13 parameters)', 'positions', (12, 42),
+                              _vision),
+    'stage calibration': Job('stepwise + parametric, the paper\'s plan', 'stops', (130,),
+                             _stage),
+    'hexapod identification': Job('42 parameters', 'poses', (13, 200), _hexapod,
+                                  'numerical derivatives'),
+    'platform identification': Job('18 parameters', 'poses', (20, 200), _platform,
+                                   'numerical derivatives'),
+    'platform compensation': Job('feeds per target, exact inverse', 'targets', (2, 8),
+                                 _compensation, 'the source\'s particle swarm'),
+    'platform plan': Job('12 poses, I-optimal exchange', 'candidates', (1000, 4000), _plan),
+    'grid self-calibration': Job('one region, 3 placements, per-site sigma',
+                                 'marks a side (N)', (11, 41, 101), _grid,
+                                 'the source\'s difference equations (no sigma)'),
+    'five-axis calibration': Job('31 parameters, RANSAC', 'images', (27, 60), _five_axis),
+    'five-axis localisation': Job('features seen in two views', 'features', (4, 16),
+                                  _localisation, 'cv2.triangulatePoints'),
+    'closed loop, stage': Job('chain backlash', 'rows', (130,), _loop('stage'), _FULL_FITS),
+    'closed loop, rotary axes': Job('real positioner', 'poses', (205,), _loop('rotary axes'),
+                                    _FULL_FITS),
+    'closed loop, hexapod': Job('leg play', 'poses', (200,), _loop('hexapod'), _FULL_FITS),
+    'closed loop, platform': Job('screw error on feed 2', 'poses', (100, 200), _platform_loop,
+                                 _FULL_FITS),
+    'closed loop, axis': Job('real ISO 230-2 run', 'readings', (50,), _loop('axis'),
+                             _FULL_FITS),
+    'closed loop, gantry': Job('squareness, backlash, screw error', 'positions', (200,),
+                               _loop('gantry'), _FULL_FITS),
+    'closed loop, camera': Job('radial distortion', 'dots', (723,), _loop('camera'),
+                               _FULL_FITS),
 }
 
 
-def measure(job: str, size: int) -> dict:
-    """In this process: build the job at ``size``, then time it; peak resident memory
-    before and after (MiB)."""
-    work = JOBS[job][3](size)
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+def _timed(work: Callable, budget: float = 1.0, repeats: int = 5):
+    """Wall time (s) of ``work`` and its result: one run, or for a job under ``budget``
+    seconds the shortest of up to ``repeats`` (the run least disturbed by the machine);
+    CPU time (s) of the first run."""
     start, cpu = time.perf_counter(), time.process_time()
-    work()
-    return {'seconds': time.perf_counter() - start, 'cpu_seconds': time.process_time() - cpu,
-            'peak_mib_before': before,
-            'peak_mib': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    result = work()
+    best, cpu = time.perf_counter() - start, time.process_time() - cpu
+    spent = best
+    for _ in range(repeats - 1):
+        if spent > budget:
+            break
+        start = time.perf_counter()
+        work()
+        took = time.perf_counter() - start
+        best, spent = min(best, took), spent + took
+    return best, cpu, result
 
 
-def run(out: Path) -> list:
+def measure(job: str, size: int) -> dict:
+    """In this process: build the job at ``size``, time it and then its baseline on the same
+    data; peak resident memory (MiB) before the job and after it (before the baseline)."""
+    work = JOBS[job].build(size)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    seconds, cpu, result = _timed(work.job)
+    row = {'seconds': seconds, 'cpu_seconds': cpu, 'peak_mib_before': before,
+           'peak_mib': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    if work.error is not None:
+        row['error'], row['error_unit'] = work.error(result), work.error_unit
+    if work.baseline is not None:
+        row['baseline_seconds'], _, baseline = _timed(work.baseline)
+        row['ratio_to_baseline'] = seconds / row['baseline_seconds']
+        if work.error is not None:
+            row['baseline_error'] = work.error(baseline)
+    return row
+
+
+def _cell(row: dict, key: str, unit: str = '') -> str:
+    value = row.get(key)
+    return '' if value is None else f'{value:.3g}{unit}'
+
+
+def run(out: Path, only=None) -> list:
     rows = []
-    for job, (what, unit, sizes, _) in JOBS.items():
+    for name, job in JOBS.items():
+        if only and name not in only:
+            continue
         results = []
-        for size in sorted(set(sizes)):
+        for size in job.sizes:
             done = subprocess.run([sys.executable, '-m', 'machine_alignment.bench.performance',
-                                   '--job', job, '--size', str(size)],
+                                   '--job', name, '--size', str(size)],
                                   capture_output=True, text=True, check=True)
             results.append({'size': size, **json.loads(done.stdout.strip().splitlines()[-1])})
-            print(f'{job} at {size} {unit}: {results[-1]["seconds"]:.3f} s, peak '
-                  f'{results[-1]["peak_mib"]:.0f} MiB', flush=True)
+            r = results[-1]
+            print(f'{name} at {size} {job.unit}: {r["seconds"]:.4f} s'
+                  + (f', baseline {r["baseline_seconds"]:.4f} s' if 'baseline_seconds' in r
+                     else '') + f', peak {r["peak_mib"]:.0f} MiB', flush=True)
         growth = None
-        if len(results) == 2 and results[0]['seconds'] > 0:
-            growth = float(np.log(results[1]['seconds'] / results[0]['seconds'])
-                           / np.log(results[1]['size'] / results[0]['size']))
-        rows.append({'job': job, 'what': what, 'unit': unit, 'results': results,
-                     'growth_exponent': growth})
-    lines = ['Each job at two sizes, each in a fresh process on this 2-core machine; time of the '
-             'job alone (wall), peak resident memory of the process (in brackets: before the job, '
-             'the imports and the data); growth: the exponent of time against size.', '',
-             '| job | what | size | time | peak memory (before the job) | growth |',
-             '|---|---|---|---|---|---|']
+        if len(results) >= 2 and results[0]['seconds'] > 0:
+            growth = float(np.log(results[-1]['seconds'] / results[0]['seconds'])
+                           / np.log(results[-1]['size'] / results[0]['size']))
+        rows.append({'job': name, 'what': job.what, 'unit': job.unit, 'baseline': job.baseline,
+                     'results': results, 'growth_exponent': growth})
+    lines = ['Each job at one to three sizes, each size in a fresh process on this 2-core '
+             'machine: wall time of the job alone (the shortest of up to 5 runs for jobs under '
+             '1 s), the peak resident memory of the process (in brackets: before the job, the '
+             'imports and the data), the growth (exponent of time against size, first to last '
+             'size), and the baseline timed in the same process on the same data, with both '
+             'results\' error against the truth where the job has one.', '',
+             '| job | what | size | time | peak memory (before) | growth | baseline | '
+             'baseline time | time / baseline | error (baseline\'s) |',
+             '|---|---|---|---|---|---|---|---|---|---|']
     for row in rows:
         for k, r in enumerate(row['results']):
+            first = k == 0
             growth = (f't ~ size^{row["growth_exponent"]:.2f}'
-                      if k == 0 and row['growth_exponent'] is not None else '')
-            lines.append(f'| {row["job"] if k == 0 else ""} | {row["what"] if k == 0 else ""} | '
+                      if first and row['growth_exponent'] is not None else '')
+            error = (f'{r["error"]:.3g} ({r.get("baseline_error", float("nan")):.3g}) '
+                     f'{r["error_unit"]}' if 'error' in r else '')
+            lines.append(f'| {row["job"] if first else ""} | {row["what"] if first else ""} | '
                          f'{r["size"]} {row["unit"]} | {r["seconds"]:.3g} s | '
-                         f'{r["peak_mib"]:.0f} MiB ({r["peak_mib_before"]:.0f}) | {growth} |')
-    lines += ['', 'Elsewhere: Mark detection against OpenCV\'s blob detector '
-              '(`results.md`), the closed loop of every machine against full fits '
-              '(`closed_loop_speed.md`), the grid solver up to N = 101 against the source\'s '
-              'route (`grid.md`).']
+                         f'{r["peak_mib"]:.0f} MiB ({r["peak_mib_before"]:.0f}) | {growth} | '
+                         f'{row["baseline"] if first else ""} | '
+                         f'{_cell(r, "baseline_seconds", " s")} | '
+                         f'{_cell(r, "ratio_to_baseline")} | {error} |')
     write_results(out, 'performance', rows)
     write_table(out, 'performance', lines)
     return rows

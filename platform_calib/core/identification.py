@@ -184,13 +184,19 @@ def check_determined(data: PoseData, start: PlatformGeometry) -> None:
                                    'theta, with every feed over its stroke)')
 
 
-def identify(data: PoseData, start: PlatformGeometry) -> Identification:
+def identify(data: PoseData, start: PlatformGeometry,
+             derivatives: str = 'analytic') -> Identification:
     """The 18 parameters by least squares, chain by chain, from ``start`` (the nominal).
+    ``derivatives``: ``'analytic'`` (the chains' Jacobians) or ``'2-point'`` (scipy's
+    finite differences: the baseline ``make bench`` times against).
 
     Raises
     ------
     CalibrationError
         Fewer than 6 poses, or poses that do not determine a chain's parameters (named)."""
+    if derivatives not in ('analytic', '2-point'):
+        raise InvalidInputError(f"derivatives must be 'analytic' or '2-point', not {derivatives!r}")
+    analytic = derivatives == 'analytic'
     check_determined(data, start)
     geometry, std, residuals, condition = start, np.full(18, np.nan), [], []
     for chain in range(3):
@@ -200,7 +206,8 @@ def identify(data: PoseData, start: PlatformGeometry) -> Identification:
         lower[3] = 1e-6
         solution = least_squares(
             lambda v: _chain_residual(start, chain, v, data), x0,
-            jac=lambda v: _chain_jacobian(start, chain, v, data), method='trf',
+            jac=(lambda v: _chain_jacobian(start, chain, v, data)) if analytic else '2-point',
+            method='trf',
             bounds=(lower, np.inf), xtol=1e-15, ftol=1e-15, gtol=1e-15)
         full = geometry.vector()
         full[6 * chain:6 * chain + 6] = solution.x
