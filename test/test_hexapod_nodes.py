@@ -83,6 +83,11 @@ def test_calibration_service_writes_geometry_records_and_replays(graph):
     still = call(node, client, RunCalibration.Request(
         plan_yaml='translation: [0.0, 0.0, 0.0]\nrotation: [0.0, 0.0, 0.0]'))
     assert not still.success and not (out / 'runs').exists(), still.message
+    # A planned set in mm (the targets key) is refused before anything moves as well.
+    in_mm = call(node, client, RunCalibration.Request(
+        plan_yaml='targets: ' + str([[0.0, 0.0, 200.0, 0.0, 0.0, 0.0]] * 13)))
+    assert not in_mm.success and 'mm or degrees' in in_mm.message, in_mm.message
+    assert not (out / 'runs').exists()
 
     first = client.call_async(RunCalibration.Request(plan_yaml=PLAN))
     time.sleep(0.5)

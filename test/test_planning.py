@@ -135,6 +135,29 @@ def test_plan_hexapod_from_the_command_line(tmp_path, capsys):
     assert len(prediction['predicted_parameter_sigmas_m']) == 42
 
 
+def test_a_planned_hexapod_set_is_measured_as_given_and_checked_before_moving(tmp_path):
+    """The plan CSV of ``plan hexapod`` as the calibrator's ``targets`` key: the run
+    measures exactly those poses; mm and a leg past the stroke are refused before
+    anything moves."""
+    nominal = hexapod_nominal()
+    plan_csv = tmp_path / 'plan.csv'
+    assert main(['plan', 'hexapod', '--poses', '13', '--seed', '4', '--out',
+                 str(plan_csv)]) == 0
+    planned = np.loadtxt(plan_csv, delimiter=',', skiprows=1)
+    plan = HexapodPlan.from_mapping({'targets': planned.tolist(), 'num_evaluation': 10})
+    poses, evaluation = plan.poses(nominal)
+    np.testing.assert_array_equal(poses, planned)
+    assert plan.num_poses == 13 and len(evaluation) == 10
+    in_mm = planned.copy()
+    in_mm[:, :3] *= 1e3
+    with pytest.raises(InvalidInputError, match='mm or degrees'):
+        HexapodPlan.from_mapping({'targets': in_mm.tolist()})
+    too_high = planned.copy()
+    too_high[4, 2] = 0.33                                  # legs past the 0.30 m stroke
+    with pytest.raises(InvalidInputError, match=r'targets \[4\] put a leg outside'):
+        HexapodPlan(targets=tuple(map(tuple, too_high))).poses(nominal)
+
+
 def _adaptive_run(target_error, max_poses, seed=2):
     from platform_calib.core.planning import default_working
     from platform_calib.core.procedure import PlatformPlan, run_platform_calibration

@@ -12,12 +12,12 @@ from typing import Callable
 
 import numpy as np
 
-from calib_core.checks import whole_number
+from calib_core.checks import MAX_POSITION_M, whole_number
 from calib_core.errors import CalibrationError, InvalidInputError
 from hexapod_calib.core.calibration import (
     Identification, PoseData, compensate, identifiability, identify, select_poses,
     summarise_pose_errors)
-from hexapod_calib.core.geometry import HexapodGeometry
+from hexapod_calib.core.geometry import HexapodGeometry, as_poses
 from hexapod_calib.core.kinematics import MAX_CONDITION, condition_numbers, inverse_kinematics
 
 IDENTIFY_PHASE = 'identify_{}'
@@ -33,7 +33,9 @@ class HexapodPlan:
     and ``rotation`` in rad), kept if the nominal leg lengths lie inside ``stroke`` with
     ``margin`` and the pose is well conditioned; ``num_poses`` of ``num_candidates`` are
     chosen for the best-conditioned identification, ``num_evaluation`` others are kept for
-    evaluation only."""
+    evaluation only. ``targets`` (n, 6; m, rad), when given, are a planned set measured
+    instead (e.g. the CSV of ``machine-align plan hexapod``); ``num_poses`` is then their
+    number."""
 
     num_poses: int = 30
     num_candidates: int = 400
@@ -45,15 +47,25 @@ class HexapodPlan:
     rotation: tuple = (0.1, 0.1, 0.1)
     stroke: tuple = (0.17, 0.30)
     margin: float = 0.002
+    targets: tuple = ()
 
     def __post_init__(self):
+        if len(self.targets):
+            targets = as_poses(self.targets, 'targets')
+            if np.abs(targets[:, :3]).max() > MAX_POSITION_M or \
+                    np.abs(targets[:, 3:]).max() > np.pi:
+                raise InvalidInputError('targets must be x, y, z in m and roll, pitch, yaw in '
+                                        'rad (values beyond 2 m or pi: mm or degrees?)')
+            object.__setattr__(self, 'targets', tuple(map(tuple, targets.tolist())))
+            object.__setattr__(self, 'num_poses', len(targets))
         for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations', 'seed'):
             object.__setattr__(self, name, whole_number(getattr(self, name), name,
                                                         0 if name == 'seed' else 1))
         if not (isinstance(self.margin, (int, float)) and np.isfinite(self.margin)
                 and self.margin >= 0):
             raise InvalidInputError(f'margin must be a length >= 0 (m), not {self.margin!r}')
-        if self.num_poses + self.num_evaluation > self.num_candidates:
+        if (0 if len(self.targets) else self.num_poses) + self.num_evaluation > \
+                self.num_candidates:
             raise InvalidInputError('num_candidates must be at least num_poses + num_evaluation')
         for name, size in (('home', 6), ('translation', 3), ('rotation', 3), ('stroke', 2)):
             value = np.asarray(getattr(self, name), dtype=float)
@@ -88,14 +100,25 @@ class HexapodPlan:
               & np.all(legs <= self.stroke[1] - self.margin, axis=1)
               & (condition_numbers(nominal, candidates) < MAX_CONDITION / 10))
         candidates = candidates[ok][:self.num_candidates]
-        if len(candidates) < self.num_poses + self.num_evaluation:
+        planned = len(self.targets) > 0
+        if len(candidates) < (0 if planned else self.num_poses) + self.num_evaluation:
             raise InvalidInputError(f'only {len(candidates)} poses of the box lie inside the '
                                     'stroke; shrink the ranges or ask for fewer poses')
-        chosen = select_poses(nominal, candidates, self.num_poses)
+        if planned:
+            identification, rest = np.array(self.targets), np.arange(len(candidates))
+            legs = inverse_kinematics(nominal, identification)
+            outside = np.flatnonzero(np.any(legs < self.stroke[0] + self.margin, axis=1)
+                                     | np.any(legs > self.stroke[1] - self.margin, axis=1))
+            if len(outside):
+                raise InvalidInputError(f'targets {outside.tolist()} put a leg outside the '
+                                        f'stroke {self.stroke} m with margin {self.margin} m')
+        else:
+            chosen = select_poses(nominal, candidates, self.num_poses)
+            identification = candidates[chosen]
+            rest = np.setdiff1d(np.arange(len(candidates)), chosen)
         # Poses that cannot determine the parameters fail here, before anything moves.
-        identifiability(nominal, candidates[chosen])
-        rest = np.setdiff1d(np.arange(len(candidates)), chosen)
-        return candidates[chosen], candidates[rng.choice(rest, self.num_evaluation, replace=False)]
+        identifiability(nominal, identification)
+        return identification, candidates[rng.choice(rest, self.num_evaluation, replace=False)]
 
 
 @dataclass
