@@ -55,7 +55,8 @@ class HexapodPlan:
             if np.abs(targets[:, :3]).max() > MAX_POSITION_M or \
                     np.abs(targets[:, 3:]).max() > np.pi:
                 raise InvalidInputError('targets must be x, y, z in m and roll, pitch, yaw in '
-                                        'rad (values beyond 2 m or pi: mm or degrees?)')
+                                        f'rad (values beyond {MAX_POSITION_M:g} m or pi: mm or '
+                                        'degrees?)')
             object.__setattr__(self, 'targets', tuple(map(tuple, targets.tolist())))
             object.__setattr__(self, 'num_poses', len(targets))
         for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations', 'seed'):
