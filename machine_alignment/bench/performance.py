@@ -34,15 +34,13 @@ class Work:
     error_unit: str = ''
 
 
-def _nearest_rms(found: np.ndarray, truth: np.ndarray, within: float) -> float:
-    """RMS distance from each true point to the nearest found one, over those found within
-    ``within`` (same unit); NaN when none is."""
-    found = np.asarray(found, float).reshape(-1, truth.shape[1])
-    if not len(found):
-        return float('nan')
-    distance = np.min(np.linalg.norm(found[None] - truth[:, None], axis=2), axis=1)
-    close = distance[distance < within]
-    return float(np.sqrt(np.mean(close ** 2))) if len(close) else float('nan')
+def _dots_rms(found, truth: np.ndarray) -> float:
+    """RMS per coordinate (px) of the true dots' nearest found ones, those within 3 px, as
+    bench_results/results.md reports it; NaN when none is found."""
+    from machine_alignment.bench.vision import _match
+    error = _match(np.asarray(found, float).reshape(-1, 2), truth)
+    good = error[~np.isnan(error).any(axis=1)]
+    return float(np.sqrt(np.mean(good ** 2))) if len(good) else float('nan')
 
 
 def _detection(size: int) -> Work:
@@ -64,7 +62,7 @@ def _detection(size: int) -> Work:
     truth = np.array([[m.u, m.v] for m in marks])
     return Work(lambda: [[m.u, m.v] for m in detect_marks(image).marks],
                 lambda: [k.pt for k in tuned.detect(image)],
-                lambda found: _nearest_rms(np.array(found), truth, 3.0), 'px RMS')
+                lambda found: _dots_rms(found, truth), 'px RMS')
 
 
 def _vision(size: int) -> Work:
@@ -216,26 +214,25 @@ def _loop(case: str) -> Callable[[int], Work]:
     the size); the baseline: the loop's full fits with dense differences, the route the
     first-order fits replaced."""
     def build(size: int) -> Work:
-        from calib_core.closed_loop import LoopConfig, analyze
-        from machine_alignment.bench.closed_loop_speed import CASES
+        from calib_core.closed_loop import analyze
+        from machine_alignment.bench.closed_loop_speed import CASES, analyze_as_before
         make = next(build for name, _, build in CASES if name == case)
         fast, full = make(), make()
-        full.base_sparsity = lambda base, rows: None
-        return Work(lambda: analyze(fast), lambda: analyze(full, LoopConfig(linearise=False)))
+        return Work(lambda: analyze(fast), lambda: analyze_as_before(full))
     return build
 
 
 def _platform_loop(size: int) -> Work:
     """The platform's loop at ``size`` poses (a 10 um screw error on feed 2)."""
-    from calib_core.closed_loop import LoopConfig, analyze
+    from calib_core.closed_loop import analyze
+    from machine_alignment.bench.closed_loop_speed import analyze_as_before
     from platform_calib.core.geometry import nominal_geometry
     from platform_calib.core.loop_model import PlatformLoopModel
     from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
     sim = PlatformSim(true_geometry(0), screw_amplitude=(0.0, 10e-6, 0.0))
     data = measure_poses(sim, plan_poses(size, 0), nominal_geometry())
     fast, full = (PlatformLoopModel(data, nominal_geometry()) for _ in range(2))
-    full.base_sparsity = lambda base, rows: None
-    return Work(lambda: analyze(fast), lambda: analyze(full, LoopConfig(linearise=False)))
+    return Work(lambda: analyze(fast), lambda: analyze_as_before(full))
 
 
 @dataclass(frozen=True)
@@ -324,11 +321,9 @@ def _cell(row: dict, key: str, unit: str = '') -> str:
     return '' if value is None else f'{value:.3g}{unit}'
 
 
-def run(out: Path, only=None) -> list:
+def run(out: Path) -> list:
     rows = []
     for name, job in JOBS.items():
-        if only and name not in only:
-            continue
         results = []
         for size in job.sizes:
             done = subprocess.run([sys.executable, '-m', 'machine_alignment.bench.performance',
