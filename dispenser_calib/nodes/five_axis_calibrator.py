@@ -252,7 +252,6 @@ class FiveAxisCalibratorNode(Node):
                              f'set aside {sorted(result.outliers) or "none"}; wrote {path}')
         return message
 
-
     def _sweep(self, options: dict) -> RotaryLoopModel:
         """Image the board over a sweep with the linear axes held (plan keys ``tilts``,
         ``step``, ``both_ways``), recorded, and its board poses through the calibration in
