@@ -82,7 +82,12 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
                      str(in_force)]) == 0
     replay = capsys.readouterr().out
     assert 'is a cut run' in replay and f'{len(recovered)} stops recovered' in replay, replay
-    assert f'{len(recovered)} recorded stops, {len(recovered)} used' in replay, replay
+    # A kill after the identification rounds leaves evaluation stops in the bag too
+    # (measured under load: 68 recovered, 60 of them identification stops); only the
+    # identification stops are used.
+    identification_stops = sum(phase.startswith('identify_') for phase, *_ in recovered)
+    assert 0 < identification_stops <= plan.num_poses * plan.iterations
+    assert f'{len(recovered)} recorded stops, {identification_stops} used' in replay, replay
 
     # Restarted, the calibrator publishes the calibration in force (latched), and its
     # folders cannot be redirected by a peer on the domain.
