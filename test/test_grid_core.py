@@ -189,3 +189,36 @@ def test_the_camera_angle_for_grid_readings_is_to_the_stage_axes():
                                     'axis_angle': 0.57e-3, 'lead_x': 0.016})
     assert camera == pytest.approx((12.3e-6, 1.43e-3), abs=1e-15)
     assert camera_in_stage_frame({'pixel_size': 12.3e-6}) is None
+
+
+def test_the_bordered_factor_solves_as_superlu_on_the_whole_system():
+    """The sparse block factored alone with the dense columns and gauge rows as a border
+    (grid_calib.core.bordered) gives SuperLU's solution of the whole KKT system, for one
+    right-hand side and for a block of them; a singular sparse block falls back to the
+    whole system."""
+    from scipy import sparse
+
+    from grid_calib.core.bordered import BorderedFactor, dense_columns, factor_kkt, factor_whole_kkt
+    from grid_calib.core.selfcal import linear_system
+
+    grid = Grid(6, 0.01)
+    placements = measure_placements(grid, default_truth(grid, 4), 20e-9, 4)
+    system = linear_system(grid, {p.name: p for p in placements})
+    design, gauge = system.design, system.gauge
+    # O, R and the three placements' shift and turn: every reading of a placement.
+    assert list(dense_columns(design)) == [system.o_col, system.o_col + 1] \
+        + list(range(system.e0, system.e0 + 9))
+    factor = factor_kkt(design, gauge)
+    assert isinstance(factor, BorderedFactor)
+    whole = factor_whole_kkt(design, gauge)
+    rng = np.random.default_rng(0)
+    for right in (rng.standard_normal(factor.shape[0]),
+                  rng.standard_normal((factor.shape[0], 5))):
+        expected = whole.solve(right)
+        assert np.allclose(factor.solve(right), expected, rtol=0,
+                           atol=1e-9 * np.abs(expected).max())
+    # A mark column no reading touches makes the sparse block singular.
+    unread = sparse.hstack([design, sparse.csr_matrix((design.shape[0], 1))]).tocsr()
+    gauge_unread = sparse.hstack([gauge, sparse.csr_matrix((gauge.shape[0], 1))]).tocsr()
+    with pytest.raises(RuntimeError):
+        BorderedFactor(unread, gauge_unread, 'MMD_AT_PLUS_A')

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.sparse.linalg import splu
 
+from grid_calib.core.bordered import factor_kkt
 from grid_calib.core.model import PLACEMENTS, Grid, site_of, stage_error
 from grid_calib.errors import PlacementError
 
@@ -131,7 +131,7 @@ def _gauge_rows(grid: Grid, f0: int, a0: int, columns: int) -> sparse.csr_matrix
 
 
 # Work of the exact per-site uncertainty (right-hand sides x unknowns): up to N = 21 or so.
-# Beyond, the sampled route: at N = 41 it takes 0.9 s where the exact one takes 9 s, and
+# Beyond, the sampled route: at N = 41 it takes 0.3 s where the exact one takes 3 s, and
 # N = 101 would take minutes (bench_results/grid_uncertainty.md).
 MAX_PROPAGATED = 5e6
 PROPAGATION_BLOCK = 256   # right-hand sides solved at once
@@ -205,67 +205,61 @@ class LinearSystem:
 
 def linear_system(grid: Grid, by_name: dict, scale_sign_y: float = -1.0) -> LinearSystem:
     """The design of ``check_placements``' placements (name -> Placement)."""
-    sites = grid.sites
-    site_index = {tuple(s): k for k, s in enumerate(sites)}
-    mark_index = {tuple(m): k for k, m in enumerate(grid.marks)}
-    n_sites, n_marks = len(sites), len(grid.marks)
+    n_sites, n_marks, side = len(grid.sites), len(grid.marks), 2 * grid.half + 1
     f0, o_col, a0, e0 = 0, 2 * n_sites, 2 * n_sites + 2, 2 * n_sites + 2 + 2 * n_marks
     columns = e0 + 3 * len(PLACEMENTS)
     rows, cols, values, rhs = [], [], [], []
     row = 0
-
-    def add(entries, value):
-        nonlocal row
-        for c, v in entries:
-            rows.append(row)
-            cols.append(c)
-            values.append(v)
-        rhs.append(value)
-        row += 1
-
     for p_index, name in enumerate(PLACEMENTS):
         placement = by_name[name]
         mark_ids = np.asarray(placement.marks, dtype=int)
-        for (i, j), deviation in zip(mark_ids, placement.deviation):
-            m, n = site_of(np.array([[i, j]]), name)[0]
-            s, a = site_index[(m, n)], mark_index[(i, j)]
-            x, y = m / grid.half, n / grid.half             # site position / half size
-            e = e0 + 3 * p_index
-            # A as seen: rotated placements swap and negate (A_x, A_y) -> (-A_y, A_x).
-            seen_x = [(a0 + 2 * a + 1, -1.0)] if name == 'rotated' else [(a0 + 2 * a, 1.0)]
-            seen_y = [(a0 + 2 * a, 1.0)] if name == 'rotated' else [(a0 + 2 * a + 1, 1.0)]
-            add([(f0 + 2 * s, 1.0), (o_col, y), (o_col + 1, x), *seen_x, (e, 1.0),
-                 (e + 2, -y)], deviation[0])
-            add([(f0 + 2 * s + 1, 1.0), (o_col, x), (o_col + 1, scale_sign_y * y), *seen_y,
-                 (e + 1, 1.0), (e + 2, x)], deviation[1])
+        m, n = site_of(mark_ids, name).T
+        # Indices in the orders of Grid.sites (n major, N + 1 columns) and Grid.marks.
+        s = (n + grid.half) * (side + 1) + m + grid.half
+        a = (mark_ids[:, 1] + grid.half) * side + mark_ids[:, 0] + grid.half
+        x, y = m / grid.half, n / grid.half             # site position / half size
+        e = np.full(len(s), e0 + 3 * p_index)
+        one = np.ones(len(s))
+        # A as seen: rotated placements swap and negate (A_x, A_y) -> (-A_y, A_x).
+        if name == 'rotated':
+            seen_x, sign_x, seen_y = a0 + 2 * a + 1, -one, a0 + 2 * a
+        else:
+            seen_x, sign_x, seen_y = a0 + 2 * a, one, a0 + 2 * a + 1
+        row_x = row + 2 * np.arange(len(s))
+        # Per row: F, O, R, A as seen, shift, turn (the x row, then the y row).
+        rows += [np.repeat(row_x, 6), np.repeat(row_x + 1, 6)]
+        cols += [np.column_stack([f0 + 2 * s, np.full(len(s), o_col), np.full(len(s), o_col + 1),
+                                  seen_x, e, e + 2]).ravel(),
+                 np.column_stack([f0 + 2 * s + 1, np.full(len(s), o_col),
+                                  np.full(len(s), o_col + 1), seen_y, e + 1, e + 2]).ravel()]
+        values += [np.column_stack([one, y, x, sign_x, one, -y]).ravel(),
+                   np.column_stack([one, x, scale_sign_y * y, one, one, x]).ravel()]
+        rhs.append(np.asarray(placement.deviation, dtype=float).ravel())
+        row += 2 * len(s)
+    rows, cols, values = (np.concatenate(v) for v in (rows, cols, values))
     design = sparse.csr_matrix((values, (rows, cols)), shape=(row, columns))
-    return LinearSystem(design, np.asarray(rhs), _gauge_rows(grid, f0, a0, columns),
+    return LinearSystem(design, np.concatenate(rhs), _gauge_rows(grid, f0, a0, columns),
                         grid.half * grid.pitch, f0, o_col, a0, e0)
 
 
-def solve_constrained(design: sparse.csr_matrix, gauge: sparse.csr_matrix, b: np.ndarray,
-                      ordering: str = 'MMD_AT_PLUS_A'):
+def solve_constrained(design: sparse.csr_matrix, gauge: sparse.csr_matrix, b: np.ndarray):
     """Least squares ``design x ~ b`` with ``gauge x = 0`` exactly (Lagrange multipliers):
     (x, the factor of the KKT matrix, whose top-left block of the inverse maps the normal
     right-hand side to x)."""
     # Not as rows of the fit: the gauge rows span every site and would fill the normal
-    # matrix.
-    kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
-    # The matrix is symmetric: a minimum-degree ordering of its pattern fills 4-5x less than
-    # SuperLU's default (COLAMD), and is 5x faster at N = 61.
-    factor = splu(kkt, permc_spec=ordering)
+    # matrix. The dense columns and the gauge are a border of the sparse block
+    # (grid_calib.core.bordered: 0.2 s at N = 101 where the whole KKT matrix takes 11 s).
+    factor = factor_kkt(design, gauge)
     x = factor.solve(np.concatenate([design.T @ b, np.zeros(gauge.shape[0])]))
     return x[:design.shape[1]], factor
 
 
 def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float = -1.0,
-                   ordering: str = 'MMD_AT_PLUS_A', propagate: bool = True,
-                   draw_seed: int = 0) -> SelfCalibration:
+                   propagate: bool = True, draw_seed: int = 0) -> SelfCalibration:
     """Solve one region from its three placements.
 
     ``scale_sign_y`` is the sign of R in G_y: -1 is the corrected model; +1, the source's
     literal claim, is kept to show that it cannot describe a stage with a scale difference.
-    ``ordering`` is SuperLU's column ordering (the bench compares it with the default);
     ``propagate`` False skips the per-site uncertainty: exact up to about N = 21
     (:data:`MAX_PROPAGATED`), sampled beyond (:func:`noise_draws`, seeded by ``draw_seed``:
     regions stitched together need different seeds, their noise being independent).
@@ -280,7 +274,7 @@ def self_calibrate(grid: Grid, placements: list[Placement], scale_sign_y: float 
     f0, o_col, a0, e0 = system.f0, system.o_col, system.a0, system.e0
     sites, n_marks = grid.sites, len(grid.marks)
     n_sites, columns = len(sites), design.shape[1]
-    solution, factor = solve_constrained(design, gauge, system.rhs / half_size, ordering)
+    solution, factor = solve_constrained(design, gauge, system.rhs / half_size)
     solution = solution * half_size
     residual = (design @ solution - system.rhs).reshape(3, n_marks, 2)
     # Noise: the residual's variance over the degrees of freedom the fit leaves.
