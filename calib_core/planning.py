@@ -149,18 +149,19 @@ def augment(jacobians, prior: np.ndarray, count: int, criterion: str = 'I', work
     ``exclude`` candidates are not chosen. Arguments as :func:`exchange`."""
     jacobians = np.asarray(jacobians, dtype=float)
     weight = _working_weight(criterion, working)
-    if count > len(jacobians) - len(set(exclude)):
-        raise InvalidInputError(f'{count} measurements asked from '
-                                f'{len(jacobians) - len(set(exclude))} candidates left')
+    left = len(jacobians) - len({int(k) for k in exclude})
+    if count > left:
+        raise InvalidInputError(f'{count} measurements asked from {left} candidates left')
     a = np.asarray(prior, dtype=float).copy()
-    chosen = list(exclude)
+    excluded = sorted({int(k) for k in exclude})
+    chosen: list[int] = []
     for _ in range(count):
         scores = _scores(jacobians, np.linalg.pinv(a), criterion, weight)
-        scores[chosen] = -np.inf
+        scores[excluded + chosen] = -np.inf
         best = int(np.argmax(scores))
         chosen.append(best)
         a += jacobians[best].T @ jacobians[best]
-    return np.array(chosen[len(set(exclude)):], dtype=int)
+    return np.array(chosen, dtype=int)
 
 
 def sandwich_covariance(jacobian: np.ndarray, noise: np.ndarray) -> np.ndarray:

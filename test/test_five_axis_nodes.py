@@ -174,3 +174,28 @@ def test_the_needle_is_measured_from_dispensed_dots(graph):
     assert read_calibration(out / 'calibration', 'needle')['tip_m'] == list(response.tip)
     refused = call(node, client, MeasureNeedle.Request(plan_yaml='{spots: [[0.5, 0, 0]]}'))
     assert not refused.success and 'stroke' in refused.message
+
+
+def test_planned_stops_are_measured_with_their_prediction_and_bad_targets_refused(graph):
+    """``design: I, stops: 12``: the calibrator plans 12 stops about the calibration in
+    force, logs and keeps the prediction, measures them and calibrates; targets in mm, a
+    target outside a stroke and a design with targets are refused before anything moves."""
+    _, node, _ = graph
+    client = node.create_client(RunCalibration, 'five_axis_calibrator/calibrate')
+    response = call(node, client, RunCalibration.Request(
+        plan_yaml='{design: I, stops: 12, evaluation: 2}'), timeout=180.0)
+    assert response.success, response.message
+    report = json.loads(response.result.report_json)
+    plan = report['plan']
+    assert plan['stops'] == 12 == report['images_used'] + len(report['bad_images'])
+    assert plan['kinds']['linear'] >= 4 and plan['kinds']['a'] >= 2 and plan['kinds']['c'] >= 2
+    # The prediction, made before anything moved, against what the run then estimated.
+    for name in ('E_B0A', 'E_B0C'):
+        ratio = report['iso230_7']['std_devs'][name] / plan['predicted_iso230_7_sigmas'][name]
+        assert 0.5 < ratio < 2.0, (name, ratio)
+    for plan_yaml, message in (('{targets: [[6.0, 0, 0, 0, 0]]}', 'mm'),
+                               ('{targets: [[0.0, 0, 0.3, 0, 0]]}', 'stroke'),
+                               ('{design: I, targets: [[0, 0, 0, 0, 0]]}', 'not both'),
+                               ('{stops: 12}', 'give design')):
+        refused = call(node, client, RunCalibration.Request(plan_yaml=plan_yaml))
+        assert not refused.success and message in refused.message, (plan_yaml, refused.message)

@@ -10,6 +10,10 @@ live graph (``five_axis_calibrator/locate``).
   write, for a controller or CAM): ``point, x_m, y_m, z_m, a_rad, c_rad``, the commanded
   axes that put the needle tip on each path point, in the path's order. The same columns
   give the poses the needle's test dots were dispensed at (``needle --dispensed``).
+- Plan CSV (what ``machine-align plan five-axis`` writes, read by ``simulate five-axis
+  --plan``): ``stop, x_m, y_m, z_m, a_rad, c_rad``, the stops of a calibration in the
+  order to measure them, each named by its kind (``linear``, ``a`` or ``c`` alone,
+  ``both``) and number.
 """
 from __future__ import annotations
 
@@ -24,6 +28,7 @@ from dispenser_calib.core.data import check_poses
 VIEW_COLUMNS = ('feature', 'x', 'y', 'z', 'a', 'c', 'u', 'v')
 POINT_COLUMNS = ('name', 'x_m', 'y_m', 'z_m')
 PATH_POSE_COLUMNS = ('point', 'x_m', 'y_m', 'z_m', 'a_rad', 'c_rad')
+PLAN_COLUMNS = ('stop', 'x_m', 'y_m', 'z_m', 'a_rad', 'c_rad')
 
 
 def read_views(path) -> dict[str, np.ndarray]:
@@ -91,6 +96,18 @@ def read_path_poses(path, what: str) -> tuple[list[str], np.ndarray]:
     names, poses = _read_named(path, what, PATH_POSE_COLUMNS)
     check_poses(poses, str(path))
     return names, poses
+
+
+def write_plan(path, names, stops: np.ndarray) -> None:
+    """A calibration's stops (n, 5) (x, y, z m, a, c rad), one row each."""
+    _write_named(path, PLAN_COLUMNS, names, stops)
+
+
+def read_plan(path) -> tuple[list[str], np.ndarray]:
+    """Names and stops (n, 5) of a plan CSV, refused as :func:`read_path_poses` refuses."""
+    names, stops = _read_named(path, 'a five-axis plan', PLAN_COLUMNS)
+    check_poses(stops, str(path))
+    return names, stops
 
 
 def _read_named(path, what: str, columns: tuple) -> tuple[list[str], np.ndarray]:

@@ -112,17 +112,19 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
                               move: Callable[[np.ndarray], np.ndarray],
                               capture: Callable[[], tuple],
                               record: Callable[[Image, str], None] = lambda *a: None,
-                              progress: Callable[[int, int, str], None] = lambda *a: None):
+                              progress: Callable[[int, int, str], None] = lambda *a: None,
+                              stops: np.ndarray | None = None):
     """Plan, check every stop, drive, image, calibrate (RANSAC), evaluate on the held-out
     stops. ``move(pose)`` returns the pose the encoders report; ``capture()`` the dots'
-    (indices (k, 2), pixels (k, 2)). Returns (the refinement, its report with the held-out
-    evaluation, the images).
+    (indices (k, 2), pixels (k, 2)); ``stops`` (n, 5) a planned set
+    (:func:`dispenser_calib.core.planning.plan_five_axis`) instead of the stepwise plan.
+    Returns (the refinement, its report with the held-out evaluation, the images).
 
     Raises
     ------
     StrokeError
         A planned stop outside a stroke (before anything moves)."""
-    stops = plan_stops(nominal, seed)
+    stops = plan_stops(nominal, seed) if stops is None else np.asarray(stops, dtype=float)
     held_out = evaluation_stops(nominal, evaluation, seed)
     for pose in np.vstack([stops, held_out]):
         check_stroke(pose)

@@ -1,7 +1,10 @@
 """five_axis_calibrator: the five-axis dispenser's vision calibration on the live graph.
 
 Service ``five_axis_calibrator/calibrate`` (RunCalibration; plan keys ``seed``,
-``evaluation``, ``frames``) plans the stepwise stops (linear, A alone, C alone) and ``evaluation``
+``evaluation``, ``frames``, ``design`` with ``stops``, ``targets``) plans the stepwise stops
+(linear, A alone, C alone), or ``stops`` chosen by the shared planner (``design`` I or D,
+about the calibration in force, else the nominal model; the prediction logged before
+anything moves and kept in the report), or measures ``targets`` as given, and ``evaluation``
 held-out stops where A and C both turn, checks every stop against the strokes before
 anything moves, drives (``five_axis/move``), images the board (``five_axis/capture_board``;
 with ``frames`` true (plan key or parameter), takes the camera's frame from ``five_axis/capture_frame`` and finds and
@@ -64,13 +67,15 @@ from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.model import (
     NAMES, DispenserModel, nominal_frames, nominal_model, parameter_unit)
+from dispenser_calib.core.planning import stops_from_plan_keys
 from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, locate_workpiece, measure_needle,
     measure_sweep, rotary_sweep, run_five_axis_calibration)
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
 from dispenser_calib.core.target_poses import poses_from_images
 
-PLAN_KEYS = ('seed', 'evaluation', 'frames')
+PLAN_KEYS = ('seed', 'evaluation', 'frames', 'design', 'stops', 'targets')
+PLANNED_KEYS = ('design', 'stops', 'targets')
 SWEEP_KEYS = ('tilts', 'step', 'both_ways')
 ANALYSIS_TOPIC = '/five_axis_calibrator/analysis'
 FRAME_TOPIC = '/five_axis_calibrator/frame'
@@ -164,7 +169,9 @@ class FiveAxisCalibratorNode(Node):
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='camera')
 
-    def _plan_from_parameters(self, overrides: dict) -> tuple[int, int, bool]:
+    def _plan_from_parameters(self, overrides: dict) -> tuple[int, int, bool, dict]:
+        """seed, evaluation, frames, and the keys that choose the stops (checked when the
+        stops are planned)."""
         unknown = set(overrides) - set(PLAN_KEYS)
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
@@ -172,7 +179,7 @@ class FiveAxisCalibratorNode(Node):
         if not isinstance(g('frames'), bool):
             raise InvalidInputError(f'frames must be true or false, not {g("frames")!r}')
         return (whole_number(g('seed'), 'seed', 0), whole_number(g('evaluation'), 'evaluation', 0),
-                g('frames'))
+                g('frames'), {k: overrides[k] for k in PLANNED_KEYS if k in overrides})
 
     def _move(self, pose):
         reached = call_service(self.move_client, MoveFiveAxis.Request(
@@ -229,7 +236,16 @@ class FiveAxisCalibratorNode(Node):
         self.get_logger().info(f'[{step}/{total}] {message}')
 
     def _run(self, overrides: dict) -> CalibrationResult:
-        seed, evaluation, frames = self._plan_from_parameters(overrides)
+        seed, evaluation, frames, choice = self._plan_from_parameters(overrides)
+        stops, plan = stops_from_plan_keys(choice, self.model or self.nominal, self.image_size,
+                                           seed)
+        if plan is not None:
+            self._progress(0, 1, f'{len(stops)} stops planned ({plan["criterion"]}): predicted '
+                                 f'before anything moves: part placement '
+                                 f'{plan["predicted_working_error_m"]["rms"] * 1e6:.2f} um RMS, '
+                                 f'E_B0A +- {plan["predicted_iso230_7_sigmas"]["E_B0A"] * 1e6:.0f}'
+                                 f' urad, E_B0C +- '
+                                 f'{plan["predicted_iso230_7_sigmas"]["E_B0C"] * 1e6:.0f} urad')
         self._frame = None      # a frame left by a failed run belongs to no stop of this one
         with RecordedRun(self, 'five_axis', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
@@ -238,7 +254,9 @@ class FiveAxisCalibratorNode(Node):
             result, report, _ = run_five_axis_calibration(
                 self.nominal, self.image_size, seed, evaluation, self._move,
                 self._capture_frame if frames else self._capture,
-                lambda image, phase: self._record(run, image, phase), self._progress)
+                lambda image, phase: self._record(run, image, phase), self._progress, stops)
+            if plan is not None:
+                report['plan'] = plan
             path, version, content = run.save('five_axis', {
                 'parameters': report['parameters'], 'std_devs': report['std_devs'],
                 'report': report})

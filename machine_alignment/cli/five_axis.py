@@ -25,7 +25,8 @@ from dispenser_calib.core.localisation import (  # noqa: E402
 from dispenser_calib.core.model import (  # noqa: E402
     NAMES, nominal_model, parameter_unit, place, read_model, write_model)
 from dispenser_calib.core.part_files import (  # noqa: E402
-    read_path_poses, read_points, read_views, write_path_poses, write_points, write_views)
+    read_path_poses, read_plan, read_points, read_views, write_path_poses, write_points,
+    write_views)
 from dispenser_calib.core.procedure import (  # noqa: E402
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, check_stroke, finish,
     plan_stops, rotary_sweep, tip_from_dots, view_plan)
@@ -38,7 +39,14 @@ from machine_alignment.cli.common import (  # noqa: E402
 
 def cmd_simulate(args) -> int:
     truth = true_model(args.seed)
-    stops = rotary_sweep() if args.sweep else plan_stops(nominal_model(), args.seed)
+    if args.plan and args.sweep:
+        raise InvalidInputError('--plan and --sweep are two different runs: give one')
+    if args.plan:
+        stops = read_plan(args.plan)[1]
+        for pose in stops:
+            check_stroke(pose)
+    else:
+        stops = rotary_sweep() if args.sweep else plan_stops(nominal_model(), args.seed)
     worm = None
     if args.worm:
         amplitude, order = args.worm
@@ -297,6 +305,8 @@ def add_simulate_parser(simulated) -> None:
     p.add_argument('--noise', type=ranged(float, 0.0, 50.0, 'px'), default=0.1, help='dot-centre noise, px')
     p.add_argument('--bad-fraction', type=ranged(float, 0.0, 0.5, '', 'RANSAC needs most images good'), default=0.05,
                    help='images with a mis-detected dot')
+    p.add_argument('--plan', help='CSV of the stops to image (machine-align plan five-axis; '
+                                  'default: the stepwise plan)')
     p.add_argument('--truth', help='also write the true model (YAML)')
     p.add_argument('--features', help='also write the views of a part\'s features that locate '
                                       'reads (CSV), its CAD and path beside them')

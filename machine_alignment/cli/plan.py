@@ -1,12 +1,16 @@
-"""``machine-align plan platform|hexapod``: the poses to measure for an identification,
-chosen before anything moves, with what they are predicted to give."""
+"""``machine-align plan platform|hexapod|five-axis``: the poses to measure for an
+identification, chosen before anything moves, with what they are predicted to give."""
 from __future__ import annotations
 
+from dispenser_calib.core.model import nominal_model as dispenser_nominal
+from dispenser_calib.core.model import read_model as read_dispenser_model
+from dispenser_calib.core.part_files import write_plan
+from dispenser_calib.core.planning import plan_five_axis, todays_prediction
 from hexapod_calib.core.geometry import POSE_NAMES, nominal_geometry as hexapod_nominal
 from hexapod_calib.core.geometry import read_geometry as read_hexapod_geometry
 from hexapod_calib.core.planning import predict as predict_hexapod
 from hexapod_calib.core.procedure import HexapodPlan
-from machine_alignment.cli.common import check_writable, ranged, write_json
+from machine_alignment.cli.common import check_writable, parse_size, ranged, write_json
 from machine_alignment.cli.platform import read_targets
 from platform_calib.core.geometry import nominal_geometry, read_geometry
 from platform_calib.core.planning import plan_platform
@@ -62,6 +66,43 @@ def cmd_plan_hexapod(args) -> int:
     return 0
 
 
+def cmd_plan_five_axis(args) -> int:
+    check_writable(args.out, '--out')
+    size = parse_size(args.image_size) if args.image_size else (2448, 2048)
+    model = (read_dispenser_model(args.calibration) if args.calibration
+             else dispenser_nominal(size=size))
+    plan = plan_five_axis(model, args.stops, size, args.criterion, args.noise_px, args.seed)
+    today = todays_prediction(model, size, args.noise_px, args.seed)
+    report = plan.report()
+    print(f'{args.stops} stops chosen ({"test-pose (I)" if args.criterion == "I" else "D"}-'
+          f'optimal) from {plan.candidates} candidates inside the strokes with the board in '
+          'view: ' + ', '.join(f'{n} {kind}' for kind, n in report['kinds'].items())
+          + ' (linear; A alone; C alone; A and C both turned)')
+    print(f'predicted before anything moves (dots to {args.noise_px:g} px, first order), '
+          f'against today\'s {today["stops"]}-stop stepwise plan:')
+    for label, ours, theirs, unit, factor in (
+            ('part placement at the working poses, RMS', plan.working_error_m['rms'],
+             today['working_error_m']['rms'], 'um', 1e6),
+            ('E_B0A (A\'s tilt about Y)', plan.iso230_7_sigmas['E_B0A'],
+             today['iso230_7_sigmas']['E_B0A'], 'urad', 1e6),
+            ('E_B0C (C\'s tilt about Y)', plan.iso230_7_sigmas['E_B0C'],
+             today['iso230_7_sigmas']['E_B0C'], 'urad', 1e6)):
+        print(f'  {label}: {ours * factor:.3g} {unit} (today {theirs * factor:.3g} {unit}, '
+              '1 sigma)')
+    numbers = {kind: 0 for kind in report['kinds']}
+    names = []
+    for kind in plan.kinds:
+        numbers[kind] += 1
+        names.append(f'{kind}_{numbers[kind]:02d}')
+    write_plan(args.out, names, plan.stops)
+    print(f'wrote {args.out} (stop, x_m, y_m, z_m, a_rad, c_rad: simulate five-axis --plan '
+          'measures it)')
+    today_report = {k: v for k, v in today.items() if k != 'covariance'}
+    write_json(args.json, {**report, 'stops_m_rad': plan.stops.tolist(), 'names': names,
+                           'todays_plan': today_report})
+    return 0
+
+
 def add_parser(sub) -> None:
     plan = sub.add_parser('plan', help='choose the measurements for a calibration and '
                                        'predict their result before anything moves')
@@ -102,3 +143,23 @@ def add_parser(sub) -> None:
     hexapod.add_argument('--out', required=True, help='plan CSV to write (x..yaw)')
     hexapod.add_argument('--json', help='the prediction to write')
     hexapod.set_defaults(func=cmd_plan_hexapod)
+
+    five_axis = what.add_parser('five-axis', help='stops for the five-axis dispenser\'s '
+                                                  'vision calibration')
+    five_axis.add_argument('--stops', type=ranged(int, 8, 124), required=True,
+                           help='how many stops to image (at least 8: the stepwise start\'s '
+                                '4 linear and 2 for each rotary axis alone)')
+    five_axis.add_argument('--calibration', help='five-axis calibration YAML to plan about '
+                                                 '(default: the nominal model)')
+    five_axis.add_argument('--image-size', help='WxH px (default 2448x2048)')
+    five_axis.add_argument('--criterion', choices=('I', 'D'), default='I',
+                           help='I: least predicted placement error of the part at the '
+                                'working poses (default); D: largest determinant')
+    five_axis.add_argument('--noise-px', type=ranged(float, 1e-4, 10.0, 'px'), default=0.1,
+                           help='dot detection noise, px (1 sigma per coordinate)')
+    five_axis.add_argument('--seed', type=ranged(int, 0), default=0,
+                           help='draw of the working poses')
+    five_axis.add_argument('--out', required=True,
+                           help='plan CSV to write (stop, x_m, y_m, z_m, a_rad, c_rad)')
+    five_axis.add_argument('--json', help='the prediction to write')
+    five_axis.set_defaults(func=cmd_plan_five_axis)

@@ -1,0 +1,297 @@
+"""The five-axis calibration's stops chosen for what the user needs (issue 32), with the
+shared planner (:mod:`calib_core.planning`), and what they are predicted to give before
+anything moves.
+
+Candidates: stops of the kinds the stepwise start needs (linear stops at a = c = 0 spread
+over X, Y and Z; A turned alone; C turned alone) and stops with A and C both turned, each
+aimed so the board's centre is on the optical axis at the working distance, inside the
+strokes, and keeping most of the board in view through the nominal model. Each
+candidate's rows are the pixels of its visible dots, differentiated by the 31 parameters
+at the nominal (or current) model and divided by the detection noise; they enter the
+planner as the triangular factor of their information (31 rows), which is all a design
+criterion sees of them.
+
+What the user needs: where a point of the part lands in the camera's (the needle's)
+frame at the poses the machine will dispense at, A within +-45 degrees and C anywhere.
+Its sensitivity to the parameters is the working sensitivity of the test-pose (I)
+criterion; the prediction is first order and from the detection noise alone.
+
+The stepwise start needs 4 linear stops not in one plane and two angles of each rotary
+axis turned alone: the plan reserves them first (greedy within their kind), then adds
+the stops that most improve the criterion from every kind.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.checks import whole_number
+from calib_core.errors import InvalidInputError
+from calib_core.planning import CRITERIA, augment, information, predicted_errors
+from dispenser_calib.core.data import DOT_RADIUS, board_points, check_poses
+from dispenser_calib.core.iso230 import iso230_7_report
+from dispenser_calib.core.model import NAMES, DispenserModel, camera_points, place, project_rows
+from dispenser_calib.core.procedure import (
+    NEEDLE_TIP, PART_PATH, STROKES, WORKING_DISTANCE, check_stroke, evaluation_stops,
+    plan_stops)
+
+NOISE_PX = 0.1              # px, 1 sigma per coordinate of a detected dot
+# Linear candidates about the aimed pose (m): X and Y keep the 20 x 16 mm board inside the
+# 40 x 34 mm field at 120 mm; Z +-40 mm of the 50 mm stroke (depth of field not modelled).
+LINEAR_OFFSETS = {'x': (-6e-3, 0.0, 6e-3), 'y': (-5e-3, 0.0, 5e-3),
+                  'z': (-40e-3, -20e-3, 0.0, 20e-3, 40e-3)}
+A_ALONE_DEG = tuple(range(-80, 81, 10))
+C_ALONE_DEG = tuple(range(15, 360, 15))
+BOTH_A_DEG, BOTH_C_DEG = (-60, -30, 30, 60), tuple(range(0, 360, 30))
+MIN_IN_VIEW = 0.8           # share of the board's dots a candidate must keep in view
+# The stepwise start's minimum per kind (dispenser_calib.core.calibration.stepwise).
+RESERVED = (('linear', 4), ('a', 2), ('c', 2))
+WORKING_POSES = 30
+STEP = 1e-6                 # relative step of the central differences
+
+
+@dataclass(frozen=True)
+class FiveAxisPlan:
+    """The chosen stops (n, 5) (x, y, z m; a, c rad), the kind of each, the candidates
+    considered, and the prediction: every parameter's 1-sigma, every ISO 230-7 error's, and
+    the part points' error at the working poses (m)."""
+
+    stops: np.ndarray
+    kinds: list
+    candidates: int
+    criterion: str
+    noise_px: float
+    parameter_sigmas: dict
+    iso230_7_sigmas: dict
+    working_error_m: dict
+
+    def report(self) -> dict:
+        return {'criterion': self.criterion, 'stops': len(self.stops),
+                'kinds': {k: self.kinds.count(k) for k in ('linear', 'a', 'c', 'both')},
+                'candidates': self.candidates, 'noise_px': self.noise_px,
+                'predicted_parameter_sigmas': self.parameter_sigmas,
+                'predicted_iso230_7_sigmas': self.iso230_7_sigmas,
+                'predicted_working_error_m': self.working_error_m,
+                'working': f'{WORKING_POSES} poses with A within +-45 deg and C anywhere, the '
+                           f'{len(PART_PATH)} points of the part\'s path brought to the needle '
+                           'tip; their place in the camera (needle) frame, less the offset '
+                           'common to all (taken up by the tip measured through the camera)',
+                'note': 'first order, from the detection noise alone; effects the model '
+                        'lacks come on top'}
+
+
+def candidate_stops(model: DispenserModel, image_size) -> tuple[np.ndarray, list]:
+    """Stops (M, 5) inside the strokes with at least :data:`MIN_IN_VIEW` of the board in
+    view through ``model``, and the kind of each ('linear', 'a', 'c', 'both')."""
+    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+    aimed = place(model, np.zeros(3), 0.0, 0.0, centre)
+    stops, kinds = [], []
+    for dx in LINEAR_OFFSETS['x']:
+        for dy in LINEAR_OFFSETS['y']:
+            for dz in LINEAR_OFFSETS['z']:
+                stops.append(aimed + np.array([dx, dy, dz, 0.0, 0.0]))
+                kinds.append('linear')
+    angles = ([(a, 0.0, 'a') for a in A_ALONE_DEG if a]
+              + [(0.0, c, 'c') for c in C_ALONE_DEG]
+              + [(a, c, 'both') for a in BOTH_A_DEG for c in BOTH_C_DEG if c])
+    for a, c, kind in angles:
+        stops.append(place(model, np.zeros(3), np.deg2rad(a), np.deg2rad(c), centre))
+        kinds.append(kind)
+    stops = np.array(stops)
+    keep = np.array([_inside_strokes(s) for s in stops]) & (
+        _share_in_view(model, stops, image_size) >= MIN_IN_VIEW)
+    return stops[keep], [k for k, kept in zip(kinds, keep) if kept]
+
+
+def _inside_strokes(pose: np.ndarray) -> bool:
+    return all(low <= v <= high for v, (low, high) in zip(pose, STROKES.values()))
+
+
+def _share_in_view(model: DispenserModel, stops: np.ndarray, image_size) -> np.ndarray:
+    board, _ = board_points()
+    pixels = _pixels(model, board, stops).reshape(len(stops), len(board), 2)
+    width, height = image_size
+    inside = (np.all(np.isfinite(pixels), axis=2) & (pixels[..., 0] >= 0)
+              & (pixels[..., 0] <= width - 1) & (pixels[..., 1] >= 0)
+              & (pixels[..., 1] <= height - 1))
+    return inside.mean(axis=1)
+
+
+def _pixels(model: DispenserModel, points: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """Every point at every stop, (stops x points, 2) px, dots as their images' centres."""
+    rows = np.tile(points, (len(stops), 1))
+    poses = np.repeat(stops, len(points), axis=0)
+    return project_rows(model, rows, poses, DOT_RADIUS)
+
+
+def _derivatives(function, model: DispenserModel) -> np.ndarray:
+    """Central differences of ``function(model)`` (n,) by every parameter, (n, p)."""
+    columns = []
+    for j, value in enumerate(model.values):
+        step = STEP * max(1.0, abs(value))
+        up, down = model.values.copy(), model.values.copy()
+        up[j] += step
+        down[j] -= step
+        columns.append((function(DispenserModel(up)) - function(DispenserModel(down)))
+                       / (2 * step))
+    return np.column_stack(columns)
+
+
+def stop_rows(model: DispenserModel, stops: np.ndarray, image_size,
+              noise_px: float = NOISE_PX) -> np.ndarray:
+    """Each stop's identification rows whitened by the detection noise, as the triangular
+    factor R (p, p) of its information (R^T R = J^T J / noise^2), (M, p, p)."""
+    board, _ = board_points()
+    jacobian = _derivatives(lambda m: _pixels(m, board, stops).ravel(), model) / noise_px
+    jacobian = jacobian.reshape(len(stops), 2 * len(board), -1)
+    pixels = _pixels(model, board, stops).reshape(len(stops), len(board), 2)
+    width, height = image_size
+    seen = (np.all(np.isfinite(pixels), axis=2) & (pixels[..., 0] >= 0)
+            & (pixels[..., 0] <= width - 1) & (pixels[..., 1] >= 0)
+            & (pixels[..., 1] <= height - 1))
+    # Rows of dots out of view carry nothing.
+    jacobian = np.where(np.repeat(seen, 2, axis=1)[..., None], jacobian, 0.0)
+    return np.linalg.qr(jacobian, mode='r')
+
+
+def working_sensitivity(model: DispenserModel, seed: int = 0) -> np.ndarray:
+    """d(part point in the camera frame)/d(parameters) at the working poses, (W, 3 k, p) m
+    per parameter unit: :data:`WORKING_POSES` table angles with A within +-45 degrees and
+    C anywhere (:func:`evaluation_stops`), each of the part path's k points brought to the
+    needle's tip there by the linear axes (:func:`place`), as a dispensing path is. The
+    displacement common to every point and pose is taken out: the tip is measured through
+    the same camera and model (:func:`procedure.tip_from_dots`), which takes it up; what
+    is left is what the user sees on the part."""
+    angles = evaluation_stops(model, WORKING_POSES, seed + 1)[:, 3:]
+    poses = np.array([[place(model, point, a, c, NEEDLE_TIP) for point in PART_PATH]
+                      for a, c in angles])                               # (W, k, 5)
+
+    def landed(m: DispenserModel) -> np.ndarray:
+        return np.stack([camera_points(m, point, poses[:, k])[:, 0]
+                         for k, point in enumerate(PART_PATH)], axis=1).ravel()
+    derivative = _derivatives(landed, model).reshape(len(poses), len(PART_PATH), 3, -1)
+    derivative -= derivative.mean(axis=(0, 1))
+    return derivative.reshape(len(poses), 3 * len(PART_PATH), -1)
+
+
+def _scales(model: DispenserModel) -> np.ndarray:
+    """Column scales that bring the parameters to one order of size (as the refinement
+    scales them): px, m and rad differ by 10 orders, and a factor or inverse of the
+    unscaled information loses the weak directions (the principal point against the
+    board's lateral place). The criteria do not depend on them."""
+    return np.maximum(np.abs(model.values), 1e-3)
+
+
+def predict(model: DispenserModel, stops: np.ndarray, image_size, noise_px: float = NOISE_PX,
+            seed: int = 0, rows: np.ndarray | None = None) -> dict:
+    """What the identification from ``stops`` (n, 5) will give, first order: the
+    parameters' covariance, their and the ISO 230-7 errors' 1-sigma and the working
+    error (m: RMS, median and max over the working poses and points of the 3-D error)."""
+    scale = _scales(model)
+    rows = (stop_rows(model, stops, image_size, noise_px) if rows is None else rows) * scale
+    covariance = np.linalg.inv(information(rows, np.arange(len(rows)))) * np.outer(scale, scale)
+    working = working_sensitivity(model, seed)
+    per_row = predicted_errors(covariance, working)                 # (W, 3 k)
+    per_point = np.sqrt(np.sum(per_row.reshape(len(working), -1, 3) ** 2, axis=2))
+    return {'covariance': covariance,
+            'parameter_sigmas': dict(zip(NAMES, map(float, np.sqrt(np.diag(covariance))))),
+            'iso230_7_sigmas': iso230_7_report(model, covariance)['std_devs'],
+            'working_error_m': {'rms': float(np.sqrt(np.mean(per_point ** 2))),
+                                'median': float(np.median(per_point)),
+                                'max': float(per_point.max())}}
+
+
+def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str = 'I',
+                   noise_px: float = NOISE_PX, seed: int = 0) -> FiveAxisPlan:
+    """``count`` stops chosen from :func:`candidate_stops` by ``criterion`` ('I': the part
+    points' error at the working poses; 'D': the information's determinant), the stepwise
+    start's minimum reserved first; and their prediction.
+
+    Raises
+    ------
+    InvalidInputError
+        Fewer stops than the stepwise start needs, more than the candidates, an unknown
+        criterion."""
+    if criterion not in CRITERIA:
+        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
+                                f'{criterion}')
+    least = sum(n for _, n in RESERVED)
+    if count < least:
+        raise InvalidInputError(f'{count} stops: the stepwise start needs at least {least} '
+                                '(4 linear, A and C each alone at two angles)')
+    stops, kinds = candidate_stops(model, image_size)
+    if count > len(stops):
+        raise InvalidInputError(f'{count} stops asked from {len(stops)} candidates')
+    scale = _scales(model)
+    rows = stop_rows(model, stops, image_size, noise_px) * scale
+    working = working_sensitivity(model, seed) * scale if criterion == 'I' else None
+    # A prior of a millionth of a mean stop's information per parameter: the start from
+    # nothing, where the criterion is not yet defined.
+    mean = np.einsum('mrp,mrp->p', rows, rows) / len(rows)
+    prior = np.diag(1e-6 * mean)
+    chosen: list[int] = []
+    kinds_array = np.array(kinds)
+    for kind, needed in RESERVED:
+        others = np.flatnonzero(kinds_array != kind).tolist()
+        picked = augment(rows, prior + information(rows, chosen), needed, criterion, working,
+                         exclude=set(chosen) | set(others))
+        chosen += picked.tolist()
+    chosen += augment(rows, prior + information(rows, chosen), count - len(chosen), criterion,
+                      working, exclude=chosen).tolist()
+    chosen_stops = stops[chosen]
+    linear = chosen_stops[kinds_array[chosen] == 'linear', :3]
+    if np.linalg.matrix_rank(np.column_stack([linear, np.ones(len(linear))]), tol=1e-6) < 4:
+        raise InvalidInputError('the planned linear stops lie in one plane: the stepwise start '
+                                'cannot use them; plan more stops')
+    predicted = predict(model, chosen_stops, image_size, noise_px, seed, rows[chosen] / scale)
+    return FiveAxisPlan(chosen_stops, [kinds[k] for k in chosen], len(stops), criterion,
+                        noise_px, predicted['parameter_sigmas'], predicted['iso230_7_sigmas'],
+                        predicted['working_error_m'])
+
+
+def todays_prediction(model: DispenserModel, image_size, noise_px: float = NOISE_PX,
+                      seed: int = 0) -> dict:
+    """The prediction for today's stepwise plan (:func:`plan_stops`), to compare, with its
+    number of stops."""
+    stops = plan_stops(model, seed)
+    return {**predict(model, stops, image_size, noise_px, seed), 'stops': len(stops)}
+
+
+def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
+                         seed: int = 0) -> tuple[np.ndarray | None, dict | None]:
+    """The calibrator's plan keys: ``targets`` (a list of [x, y, z m, a, c rad] stops, as
+    given), or ``design`` ('I' or 'D') with ``stops`` (how many, default 27) planned about
+    ``model``; neither: (None, None), the stepwise plan. Returns the stops (n, 5) and, when
+    planned, the plan's report (its prediction).
+
+    Raises
+    ------
+    InvalidInputError
+        Both keys, malformed targets, mm or degrees (beyond what a dispenser's axes read).
+    StrokeError
+        A target outside a stroke (before anything moves)."""
+    if 'targets' in options and 'design' in options:
+        raise InvalidInputError('give targets (the stops as given) or design (stops planned '
+                                'here), not both')
+    if 'stops' in options and 'design' not in options:
+        raise InvalidInputError('stops is the number of stops a design plans: give design '
+                                '(I or D) with it')
+    if 'targets' in options:
+        try:
+            targets = np.array(options['targets'], dtype=float)
+        except (TypeError, ValueError):
+            raise InvalidInputError('targets must be a list of [x, y, z, a, c] stops (m, '
+                                    'rad)') from None
+        if targets.ndim != 2 or targets.shape[1] != 5 or not len(targets):
+            raise InvalidInputError(f'targets must be a list of [x, y, z, a, c] stops (m, rad), '
+                                    f'got shape {targets.shape}')
+        check_poses(targets, 'targets')
+        for pose in targets:
+            check_stroke(pose)
+        return targets, None
+    if 'design' in options:
+        count = whole_number(options.get('stops', 27), 'stops', sum(n for _, n in RESERVED))
+        plan = plan_five_axis(model, count, image_size, str(options['design']), seed=seed)
+        return plan.stops, plan.report()
+    return None, None
