@@ -94,7 +94,7 @@ def _try_candidate(machine, current: Fit, name: str, train, context, channel_res
     entry = {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
              'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
              'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train))),
-             'extra': extra, 'noise': noise,
+             'extra': extra, 'noise': noise, 'dof': dof,
              'channels': tuple(groups or ()) if prepared.separable else None}
     if channels is not None:
         return entry
@@ -130,6 +130,34 @@ def _judge(machine, current: Fit, entry: dict, train, min_effect: float, alpha: 
     return 'candidate'
 
 
+def _nested_terms_p_value(general: dict, special: dict) -> float:
+    """p-value of the terms a candidate has beyond one it supersedes, both fitted in the
+    same round (nested models: F-test of the extra terms against the general one's noise)."""
+    extra = general['extra'] - special['extra']
+    if extra <= 0:
+        return 1.0
+    gain = max(special['fit'].rss - general['fit'].rss, 0.0)
+    f_stat = gain / extra / max(general['noise'], 1e-300)
+    return float(stats.f.sf(f_stat, extra, general['dof']))
+
+
+def _prefer_the_simpler(accepted: list, alpha: float) -> list:
+    """The accepted candidates less those that supersede another accepted one without
+    their extra terms being significant at ``alpha``: a reversal that changes along the
+    travel is not claimed over a constant one for a 1-sigma slope that happened to lower
+    the cross-validated error. The general effect is tried again in the next round, on top
+    of the simple one, where only its extra terms are tested."""
+    by_name = {e['effect']: e for e in accepted}
+    kept = []
+    for entry in accepted:
+        special = [by_name[n] for n in entry['prepared'].effect.supersedes if n in by_name]
+        entry['nested_p_value'] = min((_nested_terms_p_value(entry, s) for s in special),
+                                      default=None)
+        if entry['nested_p_value'] is None or entry['nested_p_value'] < alpha:
+            kept.append(entry)
+    return kept
+
+
 def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=None) -> _Split:
     """Forward selection on one hold-out split (steps 2 and 3 of the module's list)."""
     holdout, train, folds, base_fit = _make_split(machine, config, seed)
@@ -163,7 +191,9 @@ def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=
         rounds.append({'cv_rms_current': current_cv, 'candidates': [
             {k: entry[k] for k in ('effect', 'f_statistic', 'p_value', 'cv_rms', 'significant',
                                    'size', 'status')} for entry in scored]})
-        accepted = [e for e in scored if e['status'] == 'candidate' and e['cv_rms'] < current_cv]
+        accepted = _prefer_the_simpler(
+            [e for e in scored if e['status'] == 'candidate' and e['cv_rms'] < current_cv],
+            config.alpha)
         if not accepted:
             break
         best = min(accepted, key=lambda e: e['cv_rms'])
