@@ -177,25 +177,37 @@ def test_the_needle_is_measured_from_dispensed_dots(graph):
 
 
 def test_planned_stops_are_measured_with_their_prediction_and_bad_targets_refused(graph):
-    """``design: I, stops: 12``: the calibrator plans 12 stops about the calibration in
-    force, logs and keeps the prediction, measures them and calibrates; targets in mm, a
-    target outside a stroke and a design with targets are refused before anything moves."""
+    """``design: I, stops: 10, target_error: 1.6 um``: the calibrator plans 10 stops about
+    the calibration in force, logs and keeps the prediction, measures them, calibrates and
+    adds 4 stops at a time until the predicted placement error meets the target; targets in
+    mm, a target outside a stroke, a design with targets and adaptive keys without a
+    target are refused before anything moves."""
     _, node, _ = graph
     client = node.create_client(RunCalibration, 'five_axis_calibrator/calibrate')
     response = call(node, client, RunCalibration.Request(
-        plan_yaml='{design: I, stops: 12, evaluation: 2}'), timeout=180.0)
+        plan_yaml='{design: I, stops: 10, target_error: 1.6e-6, max_stops: 30, evaluation: 2}'),
+        timeout=180.0)
     assert response.success, response.message
     report = json.loads(response.result.report_json)
-    plan = report['plan']
-    assert plan['stops'] == 12 == report['images_used'] + len(report['bad_images'])
+    plan, adaptive = report['plan'], report['adaptive']
+    assert plan['stops'] == 10
     assert plan['kinds']['linear'] >= 4 and plan['kinds']['a'] >= 2 and plan['kinds']['c'] >= 2
-    # The prediction, made before anything moved, against what the run then estimated.
+    assert adaptive['stopped'] == 'target met', adaptive
+    counts = [r['stops'] for r in adaptive['rounds']]
+    assert counts == list(range(10, counts[-1] + 1, 4)) and len(counts) >= 2
+    assert report['images_used'] + len(report['bad_images']) == counts[-1]
+    assert adaptive['rounds'][-1]['predicted_rms_m'] <= 1.6e-6 < adaptive['rounds'][0][
+        'predicted_rms_m']
+    # The prediction, made before anything moved, against what the run then estimated
+    # (with the stops the adaptive rounds added: smaller).
     for name in ('E_B0A', 'E_B0C'):
         ratio = report['iso230_7']['std_devs'][name] / plan['predicted_iso230_7_sigmas'][name]
-        assert 0.5 < ratio < 2.0, (name, ratio)
+        assert 0.3 < ratio < 1.5, (name, ratio)
     for plan_yaml, message in (('{targets: [[6.0, 0, 0, 0, 0]]}', 'mm'),
                                ('{targets: [[0.0, 0, 0.3, 0, 0]]}', 'stroke'),
                                ('{design: I, targets: [[0, 0, 0, 0, 0]]}', 'not both'),
-                               ('{stops: 12}', 'give design')):
+                               ('{stops: 12}', 'give design'),
+                               ('{design: I, max_stops: 40}', 'give target_error'),
+                               ('{design: I, target_error: 2.0}', 'below 1 mm')):
         refused = call(node, client, RunCalibration.Request(plan_yaml=plan_yaml))
         assert not refused.success and message in refused.message, (plan_yaml, refused.message)

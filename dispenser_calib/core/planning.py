@@ -29,6 +29,7 @@ import numpy as np
 from calib_core.checks import whole_number
 from calib_core.errors import InvalidInputError
 from calib_core.planning import CRITERIA, augment, information, predicted_errors
+from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.data import DOT_RADIUS, board_points, check_poses
 from dispenser_calib.core.iso230 import iso230_7_report
 from dispenser_calib.core.model import NAMES, DispenserModel, camera_points, place, project_rows
@@ -175,6 +176,19 @@ def working_sensitivity(model: DispenserModel, seed: int = 0) -> np.ndarray:
     return derivative.reshape(len(poses), 3 * len(PART_PATH), -1)
 
 
+def placement_error(model: DispenserModel, reference: DispenserModel, seed: int = 0) -> float:
+    """RMS (m) of where the part path's points land against the needle's tip at the
+    working poses (:func:`working_sensitivity`'s) when placed with ``model`` on the machine
+    ``reference`` describes (a simulation's truth, a better calibration), the offset common
+    to every point and pose taken out: what the predicted working error is the 1-sigma of."""
+    angles = evaluation_stops(model, WORKING_POSES, seed + 1)[:, 3:]
+    landed = np.array([[camera_points(reference, point, place(model, point, a, c, NEEDLE_TIP)
+                                      [None])[0, 0] for point in PART_PATH]
+                       for a, c in angles]).reshape(-1, 3)
+    landed -= landed.mean(axis=0)
+    return float(np.sqrt(np.mean(np.sum(landed ** 2, axis=1))))
+
+
 def _scales(model: DispenserModel) -> np.ndarray:
     """Column scales that bring the parameters to one order of size (as the refinement
     scales them): px, m and rad differ by 10 orders, and a factor or inverse of the
@@ -259,16 +273,20 @@ def todays_prediction(model: DispenserModel, image_size, noise_px: float = NOISE
 
 
 def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
-                         seed: int = 0) -> tuple[np.ndarray | None, dict | None]:
+                         seed: int = 0) -> tuple[np.ndarray | None, dict | None,
+                                                 'AdaptivePlan | None']:
     """The calibrator's plan keys: ``targets`` (a list of [x, y, z m, a, c rad] stops, as
     given), or ``design`` ('I' or 'D') with ``stops`` (how many, default 27) planned about
-    ``model``; neither: (None, None), the stepwise plan. Returns the stops (n, 5) and, when
-    planned, the plan's report (its prediction).
+    ``model``; neither: (None, None), the stepwise plan. With ``target_error`` (m) the run
+    is adaptive (:class:`AdaptivePlan`, ``max_stops`` and ``step`` with it). Returns the
+    stops (n, 5), when planned the plan's report (its prediction), and the adaptive plan
+    or None.
 
     Raises
     ------
     InvalidInputError
-        Both keys, malformed targets, mm or degrees (beyond what a dispenser's axes read).
+        Both keys, malformed targets, mm or degrees (beyond what a dispenser's axes read),
+        ``max_stops`` or ``step`` without ``target_error``.
     StrokeError
         A target outside a stroke (before anything moves)."""
     if 'targets' in options and 'design' in options:
@@ -277,6 +295,14 @@ def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
     if 'stops' in options and 'design' not in options:
         raise InvalidInputError('stops is the number of stops a design plans: give design '
                                 '(I or D) with it')
+    adaptive = None
+    if 'target_error' in options:
+        adaptive = AdaptivePlan(tuple(image_size), options['target_error'],
+                                options.get('max_stops', 60), options.get('step', 4),
+                                str(options.get('design', 'I')), seed=seed)
+    elif {'max_stops', 'step'} & set(options):
+        raise InvalidInputError('max_stops and step belong to the adaptive mode: give '
+                                'target_error (m) with them')
     if 'targets' in options:
         try:
             targets = np.array(options['targets'], dtype=float)
@@ -289,9 +315,93 @@ def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
         check_poses(targets, 'targets')
         for pose in targets:
             check_stroke(pose)
-        return targets, None
+        return targets, None, adaptive
     if 'design' in options:
         count = whole_number(options.get('stops', 27), 'stops', sum(n for _, n in RESERVED))
         plan = plan_five_axis(model, count, image_size, str(options['design']), seed=seed)
-        return plan.stops, plan.report()
-    return None, None
+        return plan.stops, plan.report(), adaptive
+    return None, None, adaptive
+
+
+def extend_five_axis(model: DispenserModel, measured: np.ndarray, count: int, image_size,
+                     criterion: str = 'I', noise_px: float = NOISE_PX,
+                     seed: int = 0) -> tuple[np.ndarray, dict]:
+    """The ``count`` candidate stops (count, 5) that, added to the ``measured`` ones (n, 5),
+    most improve the criterion about ``model`` (greedy), and the prediction for all of
+    them together."""
+    stops, _ = candidate_stops(model, image_size)
+    scale = _scales(model)
+    rows = stop_rows(model, stops, image_size, noise_px) * scale
+    working = working_sensitivity(model, seed) * scale if criterion == 'I' else None
+    prior = information(stop_rows(model, measured, image_size, noise_px) * scale,
+                        np.arange(len(measured)))
+    prior += np.diag(1e-6 * np.einsum('mrp,mrp->p', rows, rows) / len(rows))
+    taken = [k for k, stop in enumerate(stops)
+             if np.any(np.all(np.abs(measured - stop) < 1e-9, axis=1))]
+    count = min(count, len(stops) - len(taken))
+    chosen = augment(rows, prior, count, criterion, working, exclude=taken)
+    return stops[chosen], predict(model, np.vstack([measured, stops[chosen]]), image_size,
+                                  noise_px, seed)
+
+
+@dataclass
+class AdaptivePlan:
+    """The adaptive mode (the calibrator's plan keys ``target_error``, ``max_stops``,
+    ``step``): after the planned stops are imaged, calibrate and predict the part's
+    placement error about the calibration so far; while it is above ``target_error`` (m,
+    RMS at the working poses), add the ``step`` stops that lower it most, image them and
+    calibrate again, up to ``max_stops``. It stops, saying so, when even ``max_stops``
+    stops are predicted to miss the target. Called with the images so far, it returns the
+    stops to image next (none when done); ``rounds`` and ``stopped`` say what happened."""
+
+    image_size: tuple
+    target_error: float
+    max_stops: int = 60
+    step: int = 4
+    criterion: str = 'I'
+    noise_px: float = NOISE_PX
+    seed: int = 0
+    rounds: list | None = None
+    stopped: str = ''
+
+    def __post_init__(self):
+        if not (isinstance(self.target_error, (int, float)) and np.isfinite(self.target_error)
+                and 0 < self.target_error < 1e-3):
+            raise InvalidInputError(f'target_error must be a placement error in m, above 0 and '
+                                    f'below 1 mm, not {self.target_error!r}')
+        self.max_stops = whole_number(self.max_stops, 'max_stops', sum(n for _, n in RESERVED))
+        self.step = whole_number(self.step, 'step', 1)
+        self.rounds = []
+
+    def __call__(self, images: list) -> np.ndarray:
+        # The calibration (not only its prediction) comes first: the Jacobian is taken
+        # about the machine as measured so far, not about the nominal one.
+        _, result = calibrate(images, self.image_size)
+        measured = np.array([im.pose for im in images])
+        now = predict(result.model, measured, self.image_size, self.noise_px, self.seed)
+        rms = now['working_error_m']['rms']
+        self.rounds.append({'stops': len(measured), 'predicted_rms_m': rms})
+        if rms <= self.target_error:
+            return self._stop('target met')
+        room = self.max_stops - len(measured)
+        if room <= 0:
+            return self._stop(f'target not met within max_stops = {self.max_stops}')
+        _, best = extend_five_axis(result.model, measured, room, self.image_size,
+                                   self.criterion, self.noise_px, self.seed)
+        floor = best['working_error_m']['rms']
+        if floor > self.target_error:
+            return self._stop(f'target cannot be met within max_stops = {self.max_stops}: '
+                              f'{floor * 1e6:.2f} um predicted with all of them (the detection '
+                              'noise and the strokes decide it)', best_at_max_stops_m=floor)
+        more, _ = extend_five_axis(result.model, measured, min(self.step, room),
+                                   self.image_size, self.criterion, self.noise_px, self.seed)
+        return more
+
+    def _stop(self, why: str, **detail) -> np.ndarray:
+        self.stopped = why
+        self.rounds[-1].update(detail)
+        return np.zeros((0, 5))
+
+    def report(self) -> dict:
+        return {'target_m': self.target_error, 'max_stops': self.max_stops, 'step': self.step,
+                'rounds': self.rounds, 'stopped': self.stopped}

@@ -113,11 +113,14 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
                               capture: Callable[[], tuple],
                               record: Callable[[Image, str], None] = lambda *a: None,
                               progress: Callable[[int, int, str], None] = lambda *a: None,
-                              stops: np.ndarray | None = None):
+                              stops: np.ndarray | None = None,
+                              adapt: Callable[[list], np.ndarray] | None = None):
     """Plan, check every stop, drive, image, calibrate (RANSAC), evaluate on the held-out
     stops. ``move(pose)`` returns the pose the encoders report; ``capture()`` the dots'
     (indices (k, 2), pixels (k, 2)); ``stops`` (n, 5) a planned set
-    (:func:`dispenser_calib.core.planning.plan_five_axis`) instead of the stepwise plan.
+    (:func:`dispenser_calib.core.planning.plan_five_axis`) instead of the stepwise plan;
+    ``adapt(images)`` (:class:`dispenser_calib.core.planning.AdaptivePlan`), after the
+    stops are imaged and after each addition, the further stops to image (none: enough).
     Returns (the refinement, its report with the held-out evaluation, the images).
 
     Raises
@@ -128,18 +131,30 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
     held_out = evaluation_stops(nominal, evaluation, seed)
     for pose in np.vstack([stops, held_out]):
         check_stroke(pose)
-    total = len(stops) + len(held_out) + 1
     images, evaluation_images = [], []
-    for phase, poses, out in (('calibrate', stops, images), ('evaluate', held_out,
-                                                               evaluation_images)):
-        for pose in poses:
-            reached = np.asarray(move(pose), dtype=float)
-            indices, pixels = capture()
-            out.append(Image(f'{phase}{len(out):03d}', reached, np.asarray(indices, int),
-                             np.asarray(pixels, float)))
-            record(out[-1], phase)
-            progress(len(images) + len(evaluation_images), total,
-                     f'{phase} image {len(out)}: {len(indices)} dots')
+
+    def image(phase, pose, out):
+        reached = np.asarray(move(pose), dtype=float)
+        indices, pixels = capture()
+        out.append(Image(f'{phase}{len(out):03d}', reached, np.asarray(indices, int),
+                         np.asarray(pixels, float)))
+        record(out[-1], phase)
+        # An adaptive run adds stops: the count grows past the first plan's total.
+        total = max(len(stops), len(images)) + len(held_out) + 1
+        progress(len(images) + len(evaluation_images), total,
+                 f'{phase} image {len(out)}: {len(indices)} dots')
+
+    for pose in stops:
+        image('calibrate', pose, images)
+    more = adapt(images) if adapt else ()
+    while len(more):
+        for pose in more:
+            check_stroke(pose)
+        for pose in more:
+            image('calibrate', pose, images)
+        more = adapt(images)
+    for pose in held_out:
+        image('evaluate', pose, evaluation_images)
     return finish(nominal, image_size, images, evaluation_images)
 
 

@@ -1,10 +1,12 @@
 """five_axis_calibrator: the five-axis dispenser's vision calibration on the live graph.
 
 Service ``five_axis_calibrator/calibrate`` (RunCalibration; plan keys ``seed``,
-``evaluation``, ``frames``, ``design`` with ``stops``, ``targets``) plans the stepwise stops
-(linear, A alone, C alone), or ``stops`` chosen by the shared planner (``design`` I or D,
-about the calibration in force, else the nominal model; the prediction logged before
-anything moves and kept in the report), or measures ``targets`` as given, and ``evaluation``
+``evaluation``, ``frames``, ``design`` with ``stops``, ``targets``, ``target_error`` with
+``max_stops`` and ``step``) plans the stepwise stops (linear, A alone, C alone), or ``stops``
+chosen by the shared planner (``design`` I or D, about the calibration in force, else the
+nominal model; the prediction logged before anything moves and kept in the report), or
+measures ``targets`` as given; with ``target_error`` (m) it adds stops until the predicted
+placement error meets it (the adaptive mode, ``report['adaptive']``); and ``evaluation``
 held-out stops where A and C both turn, checks every stop against the strokes before
 anything moves, drives (``five_axis/move``), images the board (``five_axis/capture_board``;
 with ``frames`` true (plan key or parameter), takes the camera's frame from ``five_axis/capture_frame`` and finds and
@@ -74,8 +76,8 @@ from dispenser_calib.core.procedure import (
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
 from dispenser_calib.core.target_poses import poses_from_images
 
-PLAN_KEYS = ('seed', 'evaluation', 'frames', 'design', 'stops', 'targets')
-PLANNED_KEYS = ('design', 'stops', 'targets')
+PLANNED_KEYS = ('design', 'stops', 'targets', 'target_error', 'max_stops', 'step')
+PLAN_KEYS = ('seed', 'evaluation', 'frames') + PLANNED_KEYS
 SWEEP_KEYS = ('tilts', 'step', 'both_ways')
 ANALYSIS_TOPIC = '/five_axis_calibrator/analysis'
 FRAME_TOPIC = '/five_axis_calibrator/frame'
@@ -237,8 +239,8 @@ class FiveAxisCalibratorNode(Node):
 
     def _run(self, overrides: dict) -> CalibrationResult:
         seed, evaluation, frames, choice = self._plan_from_parameters(overrides)
-        stops, plan = stops_from_plan_keys(choice, self.model or self.nominal, self.image_size,
-                                           seed)
+        stops, plan, adapt = stops_from_plan_keys(choice, self.model or self.nominal,
+                                                  self.image_size, seed)
         if plan is not None:
             self._progress(0, 1, f'{len(stops)} stops planned ({plan["criterion"]}): predicted '
                                  f'before anything moves: part placement '
@@ -254,9 +256,12 @@ class FiveAxisCalibratorNode(Node):
             result, report, _ = run_five_axis_calibration(
                 self.nominal, self.image_size, seed, evaluation, self._move,
                 self._capture_frame if frames else self._capture,
-                lambda image, phase: self._record(run, image, phase), self._progress, stops)
+                lambda image, phase: self._record(run, image, phase), self._progress, stops,
+                adapt)
             if plan is not None:
                 report['plan'] = plan
+            if adapt is not None:
+                report['adaptive'] = adapt.report()
             path, version, content = run.save('five_axis', {
                 'parameters': report['parameters'], 'std_devs': report['std_devs'],
                 'report': report})

@@ -10,9 +10,8 @@ import numpy as np
 
 from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.iso230 import iso230_7
-from dispenser_calib.core.model import DispenserModel, camera_points, nominal_model, place
-from dispenser_calib.core.planning import (
-    NEEDLE_TIP, PART_PATH, WORKING_POSES, plan_five_axis, predict)
+from dispenser_calib.core.model import DispenserModel, nominal_model, place
+from dispenser_calib.core.planning import WORKING_POSES, placement_error, plan_five_axis, predict
 from dispenser_calib.core.procedure import (
     WORKING_DISTANCE, check_stroke, evaluation_stops, plan_stops)
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
@@ -66,18 +65,6 @@ def plans() -> dict:
     return variants
 
 
-def working_error(model: DispenserModel, truth: DispenserModel) -> float:
-    """RMS (m) of where the part path's points land against the needle's tip at the
-    planner's working poses, placed with ``model`` on the ``truth`` machine, the offset
-    common to every point and pose taken out (the tip measured through the same camera
-    takes it up): what the planner's working error predicts."""
-    angles = evaluation_stops(model, WORKING_POSES, 1)[:, 3:]
-    landed = np.array([[camera_points(truth, point, place(model, point, a, c, NEEDLE_TIP)[None])
-                        [0, 0] for point in PART_PATH] for a, c in angles]).reshape(-1, 3)
-    landed -= landed.mean(axis=0)
-    return float(np.sqrt(np.mean(np.sum(landed ** 2, axis=1))))
-
-
 def predicted(truth: DispenserModel, stops) -> dict:
     """1-sigma of the watched ISO 230-7 errors (rad) and the working error's RMS (m)."""
     prediction = predict(truth, stops, IMAGE_SIZE, NOISE_PX)
@@ -96,7 +83,7 @@ def realised(stops, machines: int = MACHINES) -> dict:
         found, true = iso230_7(result.model), iso230_7(truth)
         for name in WATCHED:
             errors[name].append(found[name] - true[name])
-        errors['working_m'].append(working_error(result.model, truth))
+        errors['working_m'].append(placement_error(result.model, truth))
     return {name: float(np.sqrt(np.mean(np.square(v)))) for name, v in errors.items()}
 
 
