@@ -101,7 +101,7 @@ def candidate_stops(model: DispenserModel, image_size) -> tuple[np.ndarray, list
         kinds.append(kind)
     stops = np.array(stops)
     keep = np.array([_inside_strokes(s) for s in stops]) & (
-        _share_in_view(model, stops, image_size) >= MIN_IN_VIEW)
+        _in_view(model, stops, image_size).mean(axis=1) >= MIN_IN_VIEW)
     return stops[keep], [k for k, kept in zip(kinds, keep) if kept]
 
 
@@ -109,14 +109,14 @@ def _inside_strokes(pose: np.ndarray) -> bool:
     return all(low <= v <= high for v, (low, high) in zip(pose, STROKES.values()))
 
 
-def _share_in_view(model: DispenserModel, stops: np.ndarray, image_size) -> np.ndarray:
+def _in_view(model: DispenserModel, stops: np.ndarray, image_size) -> np.ndarray:
+    """Which of the board's dots each stop images through ``model``, (M, k) bool."""
     board, _ = board_points()
     pixels = _pixels(model, board, stops).reshape(len(stops), len(board), 2)
     width, height = image_size
-    inside = (np.all(np.isfinite(pixels), axis=2) & (pixels[..., 0] >= 0)
-              & (pixels[..., 0] <= width - 1) & (pixels[..., 1] >= 0)
-              & (pixels[..., 1] <= height - 1))
-    return inside.mean(axis=1)
+    return (np.all(np.isfinite(pixels), axis=2) & (pixels[..., 0] >= 0)
+            & (pixels[..., 0] <= width - 1) & (pixels[..., 1] >= 0)
+            & (pixels[..., 1] <= height - 1))
 
 
 def _pixels(model: DispenserModel, points: np.ndarray, stops: np.ndarray) -> np.ndarray:
@@ -146,14 +146,25 @@ def stop_rows(model: DispenserModel, stops: np.ndarray, image_size,
     board, _ = board_points()
     jacobian = _derivatives(lambda m: _pixels(m, board, stops).ravel(), model) / noise_px
     jacobian = jacobian.reshape(len(stops), 2 * len(board), -1)
-    pixels = _pixels(model, board, stops).reshape(len(stops), len(board), 2)
-    width, height = image_size
-    seen = (np.all(np.isfinite(pixels), axis=2) & (pixels[..., 0] >= 0)
-            & (pixels[..., 0] <= width - 1) & (pixels[..., 1] >= 0)
-            & (pixels[..., 1] <= height - 1))
     # Rows of dots out of view carry nothing.
-    jacobian = np.where(np.repeat(seen, 2, axis=1)[..., None], jacobian, 0.0)
+    seen = np.repeat(_in_view(model, stops, image_size), 2, axis=1)
+    jacobian = np.where(seen[..., None], jacobian, 0.0)
     return np.linalg.qr(jacobian, mode='r')
+
+
+def _working_poses(model: DispenserModel, seed: int) -> np.ndarray:
+    """(W, k, 5): at each of the working table angles, the pose that brings each of the
+    part path's k points to the needle's tip through ``model``."""
+    angles = evaluation_stops(model, WORKING_POSES, seed + 1)[:, 3:]
+    return np.array([[place(model, point, a, c, NEEDLE_TIP) for point in PART_PATH]
+                     for a, c in angles])
+
+
+def _landed(model: DispenserModel, poses: np.ndarray) -> np.ndarray:
+    """Where the part path's points are in the camera frame at ``poses`` (W, k, 5), per
+    ``model``: (W, k, 3) m."""
+    return np.stack([camera_points(model, point, poses[:, k])[:, 0]
+                     for k, point in enumerate(PART_PATH)], axis=1)
 
 
 def working_sensitivity(model: DispenserModel, seed: int = 0) -> np.ndarray:
@@ -164,14 +175,9 @@ def working_sensitivity(model: DispenserModel, seed: int = 0) -> np.ndarray:
     displacement common to every point and pose is taken out: the tip is measured through
     the same camera and model (:func:`procedure.tip_from_dots`), which takes it up; what
     is left is what the user sees on the part."""
-    angles = evaluation_stops(model, WORKING_POSES, seed + 1)[:, 3:]
-    poses = np.array([[place(model, point, a, c, NEEDLE_TIP) for point in PART_PATH]
-                      for a, c in angles])                               # (W, k, 5)
-
-    def landed(m: DispenserModel) -> np.ndarray:
-        return np.stack([camera_points(m, point, poses[:, k])[:, 0]
-                         for k, point in enumerate(PART_PATH)], axis=1).ravel()
-    derivative = _derivatives(landed, model).reshape(len(poses), len(PART_PATH), 3, -1)
+    poses = _working_poses(model, seed)
+    derivative = _derivatives(lambda m: _landed(m, poses).ravel(), model)
+    derivative = derivative.reshape(len(poses), len(PART_PATH), 3, -1)
     derivative -= derivative.mean(axis=(0, 1))
     return derivative.reshape(len(poses), 3 * len(PART_PATH), -1)
 
@@ -181,10 +187,7 @@ def placement_error(model: DispenserModel, reference: DispenserModel, seed: int 
     working poses (:func:`working_sensitivity`'s) when placed with ``model`` on the machine
     ``reference`` describes (a simulation's truth, a better calibration), the offset common
     to every point and pose taken out: what the predicted working error is the 1-sigma of."""
-    angles = evaluation_stops(model, WORKING_POSES, seed + 1)[:, 3:]
-    landed = np.array([[camera_points(reference, point, place(model, point, a, c, NEEDLE_TIP)
-                                      [None])[0, 0] for point in PART_PATH]
-                       for a, c in angles]).reshape(-1, 3)
+    landed = _landed(reference, _working_poses(model, seed)).reshape(-1, 3)
     landed -= landed.mean(axis=0)
     return float(np.sqrt(np.mean(np.sum(landed ** 2, axis=1))))
 
