@@ -106,8 +106,8 @@ def run(out: Path) -> dict:
              'stops at the nominal model). Realised: RMS of identified minus true over '
              f'{MACHINES} simulated machines (noise {NOISE_PX} px). Strokes: A +-90 deg, C '
              '+-360 deg, Z +-50 mm.', '',
-             '| plan | stops | E_B0A predicted | realised | E_B0C predicted | realised '
-             '| placement predicted | realised |',
+             '| plan | stops | E_B0A predicted | E_B0A realised | E_B0C predicted | '
+             'E_B0C realised | placement predicted | placement realised |',
              '|---|---|---|---|---|---|---|---|']
     for name, r in results.items():
         p, q = r['predicted'], r['realised_rms']
