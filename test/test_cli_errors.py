@@ -71,6 +71,8 @@ def _files(tmp_path: Path, rng) -> dict:
               'c': lambda v, k: str(float(np.degrees(float(v))))})
     _changed(five_axis, mm / 'five_axis_mm.csv',
              {name: lambda v, k: repr(float(v) * 1e3) for name in 'xyz'})
+    (mm / 'five_axis_plan.csv').write_text('stop,x_m,y_m,z_m,a_rad,c_rad\n'
+                                           'linear_01,6.0,5.0,0.0,0.0,0.0\n')
     rotary = REAL_POSES.read_text().splitlines()
     (mm / 'rotary_degrees.csv').write_text('\n'.join([rotary[0]] + [
         ','.join(str(float(np.degrees(float(c)))) if j in (1, 2) else c
@@ -164,6 +166,14 @@ CASES = {
                                      '{mm}/five_axis_degrees.csv'], 'look like degrees'),
     'five-axis x, y, z in mm': (['calibrate', 'five-axis', '--data', '{mm}/five_axis_mm.csv'],
                                 'column x (commanded X axis)'),
+    'five-axis plan in mm': (['simulate', 'five-axis', '--plan', '{mm}/five_axis_plan.csv',
+                              '--out', '{folder}/f.csv'], 'column x (commanded X axis)'),
+    'five-axis --plan with --sweep': (['simulate', 'five-axis', '--plan',
+                                       '{mm}/five_axis_plan.csv', '--sweep', '--out',
+                                       '{folder}/f.csv'], 'give one'),
+    'five-axis plan for a tiny image': (['plan', 'five-axis', '--stops', '20', '--image-size',
+                                         '100x100', '--out', '{folder}/plan.csv'],
+                                        '0 candidates'),
     'rotary angles in degrees': (['analyze', 'rotary', '--data', '{mm}/rotary_degrees.csv',
                                   '--a-column', 'j1', '--c-column', 'j2'], 'degrees'),
     'part CAD in mm': (['locate', '--calibration', '{dir}/five_axis_nominal.yaml', '--data',

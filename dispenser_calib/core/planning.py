@@ -239,7 +239,9 @@ def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str
                                 '(4 linear, A and C each alone at two angles)')
     stops, kinds = candidate_stops(model, image_size)
     if count > len(stops):
-        raise InvalidInputError(f'{count} stops asked from {len(stops)} candidates')
+        raise InvalidInputError(f'{count} stops asked from {len(stops)} candidates (inside the '
+                                f'strokes and with {MIN_IN_VIEW:.0%} of the board in a '
+                                f'{image_size[0]}x{image_size[1]} px image through the model)')
     scale = _scales(model)
     rows = stop_rows(model, stops, image_size, noise_px) * scale
     working = working_sensitivity(model, seed) * scale if criterion == 'I' else None
