@@ -4,13 +4,14 @@ placement at the working poses, for plan variants and for the planner's own choi
 same number of stops (dispenser_calib.core.planning, planned at the nominal model), from
 the identification Jacobian (dots detected to 0.1 px) before anything moves, and the same
 plans measured on 20 simulated machines. Writes bench_results/plan_five_axis.{md,json}."""
+import time
 from pathlib import Path
 
 import numpy as np
 
 from dispenser_calib.core.calibration import calibrate
-from dispenser_calib.core.iso230 import iso230_7
-from dispenser_calib.core.model import DispenserModel, nominal_model, place
+from dispenser_calib.core.iso230 import ORIENTATION, iso230_7
+from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, place
 from dispenser_calib.core.planning import WORKING_POSES, placement_error, plan_five_axis, predict
 from dispenser_calib.core.procedure import (
     WORKING_DISTANCE, check_stroke, evaluation_stops, plan_stops)
@@ -55,48 +56,62 @@ def plans() -> dict:
         'today + 12 linear stops over Z +-40 mm': np.vstack([today, _spread_z(linear, 40e-3)]),
         'today twice (54 stops, the noise halved in variance)': np.vstack([today, today]),
     }
+    planning_seconds = {}
     for criterion in ('I', 'D'):
+        start = time.perf_counter()
         plan = plan_five_axis(nominal, len(today), IMAGE_SIZE, criterion, NOISE_PX)
+        planning_seconds[criterion] = time.perf_counter() - start
         kinds = ', '.join(f'{plan.kinds.count(k)} {k}' for k in ('linear', 'a', 'c', 'both'))
         variants[f'planned {len(today)} stops, {criterion} ({kinds})'] = plan.stops
     for stops in variants.values():
         for pose in stops:
             check_stroke(pose)
-    return variants
+    return variants, planning_seconds
 
 
 def predicted(truth: DispenserModel, stops) -> dict:
-    """1-sigma of the watched ISO 230-7 errors (rad) and the working error's RMS (m)."""
+    """1-sigma of every ISO 230-7 error (rad, m) and parameter, and the working error's RMS
+    (m)."""
     prediction = predict(truth, stops, IMAGE_SIZE, NOISE_PX)
-    return {**{k: prediction['iso230_7_sigmas'][k] for k in WATCHED},
-            'working_m': prediction['working_error_m']['rms']}
+    return {**prediction['iso230_7_sigmas'], 'working_m': prediction['working_error_m']['rms'],
+            'parameters': prediction['parameter_sigmas']}
 
 
 def realised(stops, machines: int = MACHINES) -> dict:
-    """RMS over ``machines`` simulated machines of the identified minus true value, and of
-    the working error."""
-    errors = {name: [] for name in (*WATCHED, 'working_m')}
+    """RMS over ``machines`` simulated machines of the identified minus true value of every
+    ISO 230-7 error and parameter, and of the working error."""
+    errors, parameters = {}, []
     for seed in range(machines):
         truth = true_model(seed)
         images, _ = observe(truth, stops, noise_px=NOISE_PX, seed=seed)
         _, result = calibrate(images, IMAGE_SIZE)
         found, true = iso230_7(result.model), iso230_7(truth)
-        for name in WATCHED:
-            errors[name].append(found[name] - true[name])
-        errors['working_m'].append(placement_error(result.model, truth))
-    return {name: float(np.sqrt(np.mean(np.square(v)))) for name, v in errors.items()}
+        for name in found:
+            errors.setdefault(name, []).append(found[name] - true[name])
+        errors.setdefault('working_m', []).append(placement_error(result.model, truth))
+        parameters.append(result.model.values - truth.values)
+    rms = {name: float(np.sqrt(np.mean(np.square(v)))) for name, v in errors.items()}
+    return {**rms, 'parameters': dict(zip(NAMES, np.sqrt(np.mean(np.square(parameters), 0))))}
+
+
+def _ratio_range(r: dict) -> tuple[float, float, float]:
+    """Realised over predicted per parameter: median, smallest, largest."""
+    ratio = [r['realised_rms']['parameters'][n] / r['predicted']['parameters'][n]
+             for n in NAMES]
+    return float(np.median(ratio)), float(np.min(ratio)), float(np.max(ratio))
 
 
 def run(out: Path) -> dict:
     truth = true_model(0)
     results = {}
-    for name, stops in plans().items():
+    variants, planning_seconds = plans()
+    for name, stops in variants.items():
         results[name] = {'stops': len(stops), 'predicted': predicted(truth, stops),
                          'realised_rms': realised(stops)}
         r = results[name]
         print(f'{name}: ' + ', '.join(
             f'{k} predicted {r["predicted"][k] * 1e3:.3f} m(rad), realised '
-            f'{r["realised_rms"][k] * 1e3:.3f}' for k in r['predicted']), flush=True)
+            f'{r["realised_rms"][k] * 1e3:.3f}' for k in (*WATCHED, 'working_m')), flush=True)
     lines = ['Five-axis dispenser: E_B0A (A\'s axis tilt about Y), E_B0C (C\'s) and the '
              'part\'s placement at the working poses (the path\'s 12 points brought to the '
              f'needle tip at {WORKING_POSES} poses, A within +-45 deg, C anywhere; the offset '
@@ -115,7 +130,22 @@ def run(out: Path) -> dict:
                      f'{q["E_B0A"] * 1e3:.3f} mrad | {p["E_B0C"] * 1e3:.3f} mrad | '
                      f'{q["E_B0C"] * 1e3:.3f} mrad | {p["working_m"] * 1e6:.2f} um | '
                      f'{q["working_m"] * 1e6:.2f} um |')
-    write_results(out, 'plan_five_axis', results)
+    today, planned = next(iter(results)), next(n for n in results if n.startswith('planned'))
+    lines += ['', f'Every ISO 230-7 error, today\'s plan against the planner\'s (I) at the same '
+              f'{results[today]["stops"]} stops:', '',
+              '| ISO 230-7 error | today predicted | today realised | planned predicted | '
+              'planned realised |', '|---|---|---|---|---|']
+    for error in iso230_7(truth):
+        unit = 'urad' if error in ORIENTATION else 'um'
+        cells = [f'{results[plan][kind][error] * 1e6:.3g} {unit}' for plan in (today, planned)
+                 for kind in ('predicted', 'realised_rms')]
+        lines.append(f'| {error} | ' + ' | '.join(cells) + ' |')
+    lines += ['', 'Realised over predicted per parameter (31 parameters): ' + '; '.join(
+        f'{name}: median {m:.2f}, {lo:.2f}-{hi:.2f}' for name, (m, lo, hi) in
+        ((n, _ratio_range(results[n])) for n in (today, planned))) + '.',
+              '', 'Planning time (124 candidates, 27 stops): ' + ', '.join(
+                  f'{c} {t:.2f} s' for c, t in planning_seconds.items()) + '.']
+    write_results(out, 'plan_five_axis', {**results, 'planning_seconds': planning_seconds})
     write_table(out, 'plan_five_axis', lines)
     return results
 
