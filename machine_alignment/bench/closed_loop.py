@@ -1,10 +1,11 @@
 """`make bench` part: the closed loop on every simulated machine, with the effect the
 model lacks and without it. Writes bench_results/closed_loop.{json,md}.
 
-For each case: the effects found, the held-out RMS before (base model) and after, and the
-noise floor: the held-out RMS after on the same machine without the undeclared effects
-(same seeds). False-positive rate: clean data over many seeds, any effect added or any
-structure reported counts."""
+For each case, over 20 seeds: how often exactly the undeclared effects were added, the
+wrong claims (effects added that were not injected), the held-out RMS before (base model)
+and after, and after over the noise floor: the held-out RMS after on the same seed without
+the undeclared effects. False-positive rate: clean data over many seeds, any effect added
+or any structure reported counts."""
 from __future__ import annotations
 
 import dataclasses
@@ -15,15 +16,17 @@ import numpy as np
 from calib_core.axis import AxisModel
 from calib_core.closed_loop import LoopConfig, analyze
 from calib_core.sim.axis import AxisTruth, simulate_axis_test
-from calib_core.storage import write_atomic
 from hexapod_calib.core.geometry import nominal_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure_random_poses
-from machine_alignment.bench import main_with_out, write_results
+from machine_alignment.bench import detection_case, main_with_out, write_results, write_table
 from printer_alignment.core.loop_models import CameraLoopModel, GantryLoopModel, StageLoopModel
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
 from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
+
+
+SEEDS = range(20)
 
 
 def _axis(truth_kwargs: dict, seed: int):
@@ -53,40 +56,54 @@ def _hexapod(play: bool, seed: int, force_to_close_play: float = 5.0):
     return HexapodLoopModel(data, nominal, forces)
 
 
-def _stage(backlash: bool, seed: int):
+def _stage(backlash: bool, seed: int, screw=(0.0, 0.0, 0.0)):
     truth = TRUE_STAGE if backlash else dataclasses.replace(TRUE_STAGE, backlash=(0.0, 0.0, 0.0))
-    return StageLoopModel(simulate_calibration_run(truth, seed=seed))
+    return StageLoopModel(simulate_calibration_run(truth, seed=seed, screw=screw))
+
+
+# Cases whose effect must be found on given channels only: effect -> the channels its
+# parameters may name (the suffix after the last underscore).
+ON_CHANNELS = {'periodic on chain 2 only (1.5 um, 2 mm lead)': {'periodic': {'chain2'}}}
 
 
 def _cases():
+    """(machine, effect, the effect names the loop should add, data with the effect, data
+    without it: the floor, named), and the clean data of the false-positive runs."""
     ideal = GantryErrors.ideal()
     no_screw = dataclasses.replace(GantryErrors(), backlash_x=0.0, backlash_y=0.0,
                                    periodic_amplitude_x=0.0, periodic_amplitude_y=0.0,
                                    model=dataclasses.replace(GantryErrors().model,
                                                              non_orthogonality=0.0))
+    axis_floor = ('axis', lambda s: _axis({}, s))
+    warm_axis_floor = ('axis, 1 K warmer', lambda s: _axis({'temperature_rise': 1.0}, s))
+    camera_floor = ('camera', lambda s: _camera((0, 0, 0, 0), s))
     return [
-        ('axis', 'reversal (backlash 4 um)', lambda s: _axis({'backlash': 4e-6}, s),
-         lambda s: _axis({}, s)),
-        ('axis', 'periodic (1.5 um, 16 mm pitch)',
-         lambda s: _axis({'periodic_amplitude': 1.5e-6}, s), lambda s: _axis({}, s)),
-        ('axis', 'reversal + periodic', lambda s: _axis({'backlash': 3e-6,
-                                                         'periodic_amplitude': 1e-6}, s),
-         lambda s: _axis({}, s)),
-        ('axis', 'drift_temperature (11.5e-6/K, 1 K)',
+        ('axis', 'reversal (backlash 4 um)', {'reversal'},
+         lambda s: _axis({'backlash': 4e-6}, s), axis_floor),
+        ('axis', 'periodic (1.5 um, 16 mm pitch)', {'periodic'},
+         lambda s: _axis({'periodic_amplitude': 1.5e-6}, s), axis_floor),
+        ('axis', 'reversal + periodic', {'reversal', 'periodic'},
+         lambda s: _axis({'backlash': 3e-6, 'periodic_amplitude': 1e-6}, s), axis_floor),
+        ('axis', 'drift_temperature (11.5e-6/K, 1 K)', {'drift_temperature'},
          lambda s: _axis({'expansion': 11.5e-6, 'temperature_rise': 1.0}, s),
-         lambda s: _axis({'temperature_rise': 1.0}, s)),
+         warm_axis_floor),
         ('gantry', 'squareness + reversal (4 / 6 um) + periodic (1.5 / 2 um)',
-         lambda s: _gantry(GantryErrors(), s), lambda s: _gantry(no_screw, s)),
-        ('camera', 'radial_distortion (k1 -0.25, k2 0.08)',
-         lambda s: _camera((-0.25, 0.08, 0, 0), s), lambda s: _camera((0, 0, 0, 0), s)),
+         {'squareness', 'reversal', 'periodic'}, lambda s: _gantry(GantryErrors(), s),
+         ('gantry', lambda s: _gantry(no_screw, s))),
+        ('camera', 'radial_distortion (k1 -0.25, k2 0.08)', {'radial_distortion'},
+         lambda s: _camera((-0.25, 0.08, 0, 0), s), camera_floor),
         ('camera', 'radial + tangential_distortion',
-         lambda s: _camera((-0.25, 0.08, 1e-3, -8e-4), s), lambda s: _camera((0, 0, 0, 0), s)),
-        ('stage', 'reversal (chain backlash 3 / 4 / 2.5 um)', lambda s: _stage(True, s),
-         lambda s: _stage(False, s)),
-        ('hexapod', 'leg_play (8.3-9.9 um)', lambda s: _hexapod(True, s),
-         lambda s: _hexapod(False, s)),
-        ('hexapod', 'leg_play closed by the load sign alone (0 N)',
-         lambda s: _hexapod(True, s, 0.0), lambda s: _hexapod(False, s, 0.0)),
+         {'radial_distortion', 'tangential_distortion'},
+         lambda s: _camera((-0.25, 0.08, 1e-3, -8e-4), s), camera_floor),
+        ('stage', 'reversal (chain backlash 3 / 4 / 2.5 um)', {'reversal'},
+         lambda s: _stage(True, s), ('stage', lambda s: _stage(False, s))),
+        ('stage', 'periodic on chain 2 only (1.5 um, 2 mm lead)', {'periodic'},
+         lambda s: _stage(False, s, (0.0, 1.5e-6, 0.0)), ('stage', lambda s: _stage(False, s))),
+        ('hexapod', 'leg_play (8.3-9.9 um)', {'leg_play'}, lambda s: _hexapod(True, s),
+         ('hexapod', lambda s: _hexapod(False, s))),
+        ('hexapod', 'leg_play closed by the load sign alone (0 N)', {'leg_play'},
+         lambda s: _hexapod(True, s, 0.0),
+         ('hexapod, 0 N', lambda s: _hexapod(False, s, 0.0))),
     ], {'axis': (lambda s: _axis({'temperature_rise': 0.5}, s), 200),
         'gantry': (lambda s: _gantry(ideal, s), 30),
         'camera': (lambda s: _camera((0, 0, 0, 0), s), 15),
@@ -94,44 +111,94 @@ def _cases():
         'hexapod': (lambda s: _hexapod(False, s), 10)}
 
 
-def run(out: Path) -> dict:
+def _judge(report: dict, expected: set, channels: dict | None = None) -> dict:
+    """Found: exactly the ``expected`` effects added, each on the ``channels`` given for it
+    (effect -> channel names); wrong claims: every other effect added, an expected one on a
+    channel not given, and on clean data (nothing expected) every structure reported
+    UNEXPLAINED."""
+    added = {e['name'] for e in report['effects_added']}
+    off_channel, elsewhere = 0, False
+    for effect in report['effects_added']:
+        allowed = (channels or {}).get(effect['name'])
+        if allowed is not None:
+            named = {p.rsplit('_', 1)[-1] for p in effect['parameters']}
+            off_channel += len(named - allowed)
+            elsewhere |= named != allowed
+    return {'found': bool(expected) and added == expected and not elsewhere,
+            'added': sorted(added),
+            'wrong_claims': len(added - expected) + off_channel
+            + (0 if expected else len(report['unexplained'])),
+            'rms_before': report['rms_before'], 'rms_after': report['rms_after'],
+            'held_out': report['rows']['held_out']}
+
+
+def _median_range(values) -> dict:
+    return {'median': float(np.median(values)), 'min': float(np.min(values)),
+            'max': float(np.max(values))}
+
+
+def run(out: Path, seeds: range = SEEDS) -> dict:
     cases, clean = _cases()
-    rows = []
-    for machine, effect, with_effect, without in cases:
-        report = analyze(with_effect(3)).report
-        floor = analyze(without(3)).report
-        rows.append({'machine': machine, 'effect': effect,
-                     'found': [e['name'] for e in report['effects_added']],
-                     'unit': report['unit'], 'rms_before': report['rms_before'],
-                     'rms_after': report['rms_after'], 'noise_floor': floor['rms_after'],
-                     'after_over_floor': report['rms_after'] / floor['rms_after'],
-                     'held_out': report['rows']['held_out']})
-        print(f'{machine:8} {effect:55} found {rows[-1]["found"]}, after/floor '
-              f'{rows[-1]["after_over_floor"]:.2f}')
-    false_positives = {}
-    for machine, (make, seeds) in clean.items():
+    rows, floors, floor_runs = [], {}, {}
+    for machine, effect, expected, with_effect, (floor_name, without) in cases:
+        if floor_name not in floors:
+            floors[floor_name] = {}
+            floor = detection_case('clean', seeds,
+                                   lambda s: analyze(without(s), LoopConfig(seed=s)).report,
+                                   lambda report: _judge(report, set()), floors[floor_name])
+            floor_runs[f'{floor_name} (the floors)'] = {
+                'runs': floor['runs'], 'with_a_finding': sum(
+                    r['wrong_claims'] > 0 for r in floor['per_run'])}
+        summary = detection_case(effect, seeds,
+                                 lambda s: analyze(with_effect(s), LoopConfig(seed=s)).report,
+                                 lambda report: _judge(report, expected, ON_CHANNELS.get(effect)),
+                                 floors[floor_name])
+        runs = summary.pop('per_run')
+        rows.append({'machine': machine, 'effect': effect, 'expected': sorted(expected),
+                     'floor': floor_name, 'unit': 'px' if machine == 'camera' else 'm', **summary,
+                     'rms_before': _median_range([r['rms_before'] for r in runs]),
+                     'rms_after': _median_range([r['rms_after'] for r in runs]),
+                     'after_over_floor': _median_range([r['after_over_floor'] for r in runs]),
+                     'added_when_not_found': sorted({', '.join(r['added']) or 'nothing'
+                                                     for r in runs if not r['found']}),
+                     'held_out': runs[0]['held_out']})
+    false_positives = dict(floor_runs)
+    for machine, (make, count) in clean.items():
         hits = 0
-        for seed in range(seeds):
+        for seed in range(count):
             report = analyze(make(100 + seed), LoopConfig(seed=seed)).report
             hits += bool(report['effects_added'] or report['unexplained'])
-        false_positives[machine] = {'runs': seeds, 'with_a_finding': hits}
-        print(f'{machine:8} clean data: {hits} of {seeds} runs added or reported something')
-    results = {'cases': rows, 'false_positives': false_positives,
+        false_positives[machine] = {'runs': count, 'with_a_finding': hits}
+        print(f'{machine:8} clean data: {hits} of {count} runs added or reported something')
+    results = {'seeds': [seeds.start, seeds.stop - 1], 'cases': rows,
+               'false_positives': false_positives,
                'note': 'held-out RMS: residual norm per row (axis, gantry: m; camera: px) or '
                        'per leg (hexapod: m); noise floor: the same seed without the '
-                       'undeclared effects'}
+                       'undeclared effects; found: exactly the expected effects added; '
+                       'wrong claims: effects added that were not injected'}
     write_results(out, 'closed_loop', results)
-    lines = ['| machine | undeclared effect | found | before | after | noise floor | after / floor | held-out rows |',
-             '|---|---|---|---|---|---|---|---|']
+    lines = [f'Each case over {len(seeds)} seeds (seeds {seeds.start}-{seeds.stop - 1}: the '
+             'simulated data and the hold-out splits); the noise floor of a seed is the '
+             'held-out RMS after on the same seed without the undeclared effect. Medians, '
+             'with the range over the seeds in brackets.', '',
+             '| machine | undeclared effect | found exactly it | wrong claims | before | after '
+             '| after / floor | held-out rows | CPU per run |',
+             '|---|---|---|---|---|---|---|---|---|']
     for r in rows:
         scale, unit = (1e6, 'um') if r['unit'] == 'm' else (1.0, 'px')
-        lines.append(f'| {r["machine"]} | {r["effect"]} | {", ".join(r["found"]) or "nothing"} | '
-                     f'{r["rms_before"] * scale:.3g} {unit} | {r["rms_after"] * scale:.3g} {unit} | '
-                     f'{r["noise_floor"] * scale:.3g} {unit} | {r["after_over_floor"]:.2f} | '
-                     f'{r["held_out"]} |')
+        before, after, ratio = r['rms_before'], r['rms_after'], r['after_over_floor']
+        lines.append(f'| {r["machine"]} | {r["effect"]} | {r["found"]} of {r["runs"]} | '
+                     f'{r["wrong_claims"]} | {before["median"] * scale:.3g} {unit} | '
+                     f'{after["median"] * scale:.3g} {unit} | {ratio["median"]:.2f} '
+                     f'({ratio["min"]:.2f}-{ratio["max"]:.2f}) | {r["held_out"]} | '
+                     f'{r["median_cpu_s"]:.2g} s |')
+    missed = [f'{r["effect"]}: {"; ".join(r["added_when_not_found"])}'
+              for r in rows if r['added_when_not_found']]
+    if missed:
+        lines += ['', 'Added where the case was not found exactly: ' + ' | '.join(missed) + '.']
     lines += ['', '| clean data | runs | runs with a finding |', '|---|---|---|']
     lines += [f'| {m} | {v["runs"]} | {v["with_a_finding"]} |' for m, v in false_positives.items()]
-    write_atomic(out / 'closed_loop.md', '\n'.join(lines) + '\n')
+    write_table(out, 'closed_loop', lines)
     return results
 
 
