@@ -339,3 +339,22 @@ def test_adaptive_five_axis_says_when_the_strokes_cannot_meet_the_target():
     with pytest.raises(InvalidInputError, match='below 1 mm'):
         from dispenser_calib.core.planning import AdaptivePlan
         AdaptivePlan((2448, 2048), 2.0)
+
+
+def test_hexapod_poses_by_the_shared_exchange():
+    """``design: I`` chooses the 13 poses by the shared exchange on the whitened leg rows:
+    distinct candidates inside the stroke that determine the 42 parameters, predicted
+    within a few per cent of today's greedy choice at the same evaluation poses (the
+    actuators' repeatability is most of the error, bench_results/plan_hexapod.md); an
+    unknown design is refused."""
+    nominal = hexapod_nominal()
+    greedy, working = HexapodPlan(num_poses=13, seed=0).poses(nominal)
+    planned, _ = HexapodPlan(num_poses=13, seed=0, design='I').poses(nominal)
+    assert len({tuple(p) for p in planned.round(12)}) == 13
+    legs = inverse_kinematics(nominal, planned)
+    assert legs.min() >= 0.17 and legs.max() <= 0.30
+    ours = predict(nominal, planned, working)['predicted_displacement_m']['rms']
+    today = predict(nominal, greedy, working)['predicted_displacement_m']['rms']
+    assert ours < 1.02 * today, (ours, today)
+    with pytest.raises(InvalidInputError, match='design must be one of'):
+        HexapodPlan(design='A')

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from calib_core.planning import predicted_errors, sandwich_covariance
+from calib_core.planning import exchange, predicted_errors, sandwich_covariance
 from hexapod_calib.core.calibration import PoseData, identification_jacobian
 from hexapod_calib.core.geometry import HexapodGeometry
 from hexapod_calib.core.kinematics import inverse_kinematics, jacobian
@@ -23,6 +23,9 @@ from hexapod_calib.core.kinematics import inverse_kinematics, jacobian
 POSITION_NOISE = 0.6e-6     # m per axis
 ANGLE_NOISE = 6e-6          # rad per axis
 ACTUATOR_NOISE = 0.5e-6     # m per leg: where a leg stops against where it was sent
+# The I criterion weighs a rotation error as the displacement it makes this far from the
+# platform's centre (m), so that one number scores both.
+LEVER = 0.1
 
 
 def _rows(geometry: HexapodGeometry, poses) -> np.ndarray:
@@ -30,6 +33,35 @@ def _rows(geometry: HexapodGeometry, poses) -> np.ndarray:
     poses = np.atleast_2d(poses)
     data = PoseData(poses, poses, inverse_kinematics(geometry, poses))
     return -identification_jacobian(geometry, data).reshape(len(poses), 6, -1)
+
+
+def _leg_noise(geometry: HexapodGeometry, poses, position_noise: float, angle_noise: float,
+               actuator_noise: float) -> np.ndarray:
+    """Covariance (n, 6, 6) of the six leg-length rows of each pose: the pose sensor's noise
+    through the leg-length Jacobian and the actuators' repeatability."""
+    legs_by_pose = jacobian(geometry, poses)                                   # (n, 6, 6)
+    pose_noise = np.diag([position_noise ** 2] * 3 + [angle_noise ** 2] * 3)
+    return legs_by_pose @ pose_noise @ np.swapaxes(legs_by_pose, 1, 2) \
+        + actuator_noise ** 2 * np.eye(6)
+
+
+def exchange_poses(geometry: HexapodGeometry, candidates, count: int, criterion: str,
+                   working, position_noise: float = POSITION_NOISE,
+                   angle_noise: float = ANGLE_NOISE,
+                   actuator_noise: float = ACTUATOR_NOISE) -> np.ndarray:
+    """Indices of ``count`` of the ``candidates`` (M, 6) chosen by the shared exchange:
+    each pose's six rows whitened by their correlated noise (:func:`_leg_noise`); for
+    ``criterion`` 'I' the least mean squared pose error at the ``working`` poses (W, 6),
+    a rotation weighed at :data:`LEVER`; 'D' the largest information determinant."""
+    rows = _rows(geometry, candidates)
+    factor = np.linalg.cholesky(_leg_noise(geometry, candidates, position_noise, angle_noise,
+                                           actuator_noise))
+    whitened = np.linalg.solve(factor, rows)
+    sensitivity = None
+    if criterion == 'I':
+        sensitivity = np.linalg.solve(jacobian(geometry, working), _rows(geometry, working))
+        sensitivity = sensitivity * np.array([1.0] * 3 + [LEVER] * 3)[None, :, None]
+    return exchange(whitened, count, criterion, sensitivity).chosen
 
 
 def predict(geometry: HexapodGeometry, poses, working, position_noise: float = POSITION_NOISE,
@@ -40,10 +72,7 @@ def predict(geometry: HexapodGeometry, poses, working, position_noise: float = P
     platform's displacement (m) and rotation (rad) error, RMS and max (the calibration's
     share and the actuators' repeatability together)."""
     rows = _rows(geometry, poses)
-    legs_by_pose = jacobian(geometry, poses)                                   # (n, 6, 6)
-    pose_noise = np.diag([position_noise ** 2] * 3 + [angle_noise ** 2] * 3)
-    noise = legs_by_pose @ pose_noise @ np.swapaxes(legs_by_pose, 1, 2) \
-        + actuator_noise ** 2 * np.eye(6)                                       # (n, 6, 6)
+    noise = _leg_noise(geometry, poses, position_noise, angle_noise, actuator_noise)
     covariance = sandwich_covariance(rows.reshape(-1, rows.shape[-1]),
                                      scipy.linalg.block_diag(*noise))
     at_work = jacobian(geometry, working)

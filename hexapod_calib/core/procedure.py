@@ -19,10 +19,13 @@ from hexapod_calib.core.calibration import (
     summarise_pose_errors)
 from hexapod_calib.core.geometry import HexapodGeometry, as_poses
 from hexapod_calib.core.kinematics import MAX_CONDITION, condition_numbers, inverse_kinematics
+from hexapod_calib.core.planning import exchange_poses
 
 IDENTIFY_PHASE = 'identify_{}'
 EVALUATE_NOMINAL = 'evaluate_nominal'
 EVALUATE_CALIBRATED = 'evaluate_calibrated'
+DESIGNS = ('greedy', 'I', 'D')
+WORKING_SAMPLE = 100        # candidates that stand for the box in the I criterion
 
 
 @dataclass(frozen=True)
@@ -32,8 +35,10 @@ class HexapodPlan:
     Poses are drawn uniformly from a box about ``home`` (half-widths ``translation`` in m
     and ``rotation`` in rad), kept if the nominal leg lengths lie inside ``stroke`` with
     ``margin`` and the pose is well conditioned; ``num_poses`` of ``num_candidates`` are
-    chosen for the best-conditioned identification, ``num_evaluation`` others are kept for
-    evaluation only. ``targets`` (n, 6; m, rad), when given, are a planned set measured
+    chosen for the best-conditioned identification (``design`` 'greedy': each leg's
+    information determinant, greedily; 'I' or 'D': the shared exchange on the rows
+    whitened by the pose sensor's and actuators' noise, 'I' for the least pose error over
+    the box), ``num_evaluation`` others are kept for evaluation only. ``targets`` (n, 6; m, rad), when given, are a planned set measured
     instead (e.g. the CSV of ``machine-align plan hexapod``); ``num_poses`` is then their
     number."""
 
@@ -48,8 +53,12 @@ class HexapodPlan:
     stroke: tuple = (0.17, 0.30)
     margin: float = 0.002
     targets: tuple = ()
+    design: str = 'greedy'
 
     def __post_init__(self):
+        if self.design not in DESIGNS:
+            raise InvalidInputError(f'design must be one of {", ".join(DESIGNS)}, not '
+                                    f'{self.design!r}')
         if len(self.targets):
             targets = as_poses(self.targets, 'targets')
             if np.abs(targets[:, :3]).max() > MAX_POSITION_M or \
@@ -114,7 +123,14 @@ class HexapodPlan:
                 raise InvalidInputError(f'targets {outside.tolist()} put a leg outside the '
                                         f'stroke {self.stroke} m with margin {self.margin} m')
         else:
-            chosen = select_poses(nominal, candidates, self.num_poses)
+            if self.design == 'greedy':
+                chosen = select_poses(nominal, candidates, self.num_poses)
+            else:
+                # The working sample from its own generator: the plan's draws stay as they are.
+                working = np.random.default_rng(self.seed + 1).choice(
+                    len(candidates), min(WORKING_SAMPLE, len(candidates)), replace=False)
+                chosen = exchange_poses(nominal, candidates, self.num_poses, self.design,
+                                        candidates[working])
             identification = candidates[chosen]
             rest = np.setdiff1d(np.arange(len(candidates)), chosen)
         # Poses that cannot determine the parameters fail here, before anything moves.

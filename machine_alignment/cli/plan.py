@@ -46,13 +46,16 @@ def cmd_plan_platform(args) -> int:
 def cmd_plan_hexapod(args) -> int:
     check_writable(args.out, '--out')
     nominal = read_hexapod_geometry(args.geometry) if args.geometry else hexapod_nominal()
-    plan = HexapodPlan(num_poses=args.poses, num_candidates=args.candidates, seed=args.seed)
+    plan = HexapodPlan(num_poses=args.poses, num_candidates=args.candidates, seed=args.seed,
+                       design=args.criterion)
     poses, working = plan.poses(nominal)
     prediction = predict_hexapod(nominal, poses, working, args.position_noise,
                                  args.angle_noise, args.actuator_noise)
     moved, turned = prediction['predicted_displacement_m'], prediction['predicted_rotation_rad']
-    print(f'{args.poses} poses chosen (D-optimal, greedy) from {args.candidates} candidates '
-          'inside the strokes')
+    how = {'greedy': 'each leg\'s information determinant, greedily',
+           'I': 'least pose error over the box, exchange', 'D': 'D-optimal, exchange'}
+    print(f'{args.poses} poses chosen ({how[args.criterion]}) from {args.candidates} '
+          'candidates inside the strokes')
     print(f'predicted before anything moves (pose sensor {args.position_noise * 1e6:g} um / '
           f'{args.angle_noise * 1e6:g} urad, actuators {args.actuator_noise * 1e6:g} um, first '
           f'order) at {len(working)} other poses: displacement RMS {moved["rms"] * 1e6:.2f} um, '
@@ -139,6 +142,10 @@ def add_parser(sub) -> None:
                          help='pose sensor, rad per axis (1 sigma)')
     hexapod.add_argument('--actuator-noise', type=ranged(float, 0.0, 1e-3, 'm'), default=0.5e-6,
                          help='how far a leg stops from where it is sent, m (1 sigma)')
+    hexapod.add_argument('--criterion', choices=('greedy', 'I', 'D'), default='greedy',
+                         help='greedy: each leg\'s information determinant (the calibrator\'s '
+                              'default); I: least pose error over the box; D: largest '
+                              'determinant, both by the shared exchange')
     hexapod.add_argument('--seed', type=ranged(int, 0), default=0)
     hexapod.add_argument('--out', required=True, help='plan CSV to write (x..yaw)')
     hexapod.add_argument('--json', help='the prediction to write')
