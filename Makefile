@@ -63,6 +63,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.platform --out bench_results
 	$(BIN)/python -m machine_alignment.bench.plan_platform --out bench_results
 	$(BIN)/python -m machine_alignment.bench.plan_five_axis --out bench_results
+	$(BIN)/python -m machine_alignment.bench.plan_hexapod --out bench_results
 	$(BIN)/python -m machine_alignment.bench.five_axis --out bench_results
 	$(BIN)/python -m machine_alignment.bench.performance --out bench_results
 
