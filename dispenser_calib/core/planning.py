@@ -5,7 +5,8 @@ anything moves.
 Candidates: stops of the kinds the stepwise start needs (linear stops at a = c = 0 spread
 over X, Y and Z; A turned alone; C turned alone) and stops with A and C both turned, each
 aimed so the board's centre is on the optical axis at the working distance, inside the
-strokes, and keeping most of the board in view through the nominal model. Each
+strokes, keeping most of the board in view through the nominal model, and seen no more
+steeply than the Mark detector can find its dots (:data:`MAX_VIEW_DEG`). Each
 candidate's rows are the pixels of its visible dots, differentiated by the 31 parameters
 at the nominal (or current) model and divided by the detection noise; they enter the
 planner as the triangular factor of their information (31 rows), which is all a design
@@ -32,7 +33,8 @@ from calib_core.planning import CRITERIA, augment, information, predicted_errors
 from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.data import DOT_RADIUS, board_points, check_poses
 from dispenser_calib.core.iso230 import iso230_7_report
-from dispenser_calib.core.model import NAMES, DispenserModel, camera_points, place, project_rows
+from dispenser_calib.core.model import (
+    NAMES, DispenserModel, camera_points, chain_rotation, place, project_rows)
 from dispenser_calib.core.procedure import (
     NEEDLE_TIP, PART_PATH, STROKES, WORKING_DISTANCE, check_stroke, evaluation_stops,
     plan_stops)
@@ -46,6 +48,12 @@ A_ALONE_DEG = tuple(range(-80, 81, 10))
 C_ALONE_DEG = tuple(range(15, 360, 15))
 BOTH_A_DEG, BOTH_C_DEG = (-60, -30, 30, 60), tuple(range(0, 360, 30))
 MIN_IN_VIEW = 0.8           # share of the board's dots a candidate must keep in view
+# The steepest view of the board a candidate may have (angle between the board's normal and
+# the line of sight to its centre): a dot seen at 60 degrees is an ellipse of aspect 2, under
+# the Mark detector's limit of 2.5 (66 degrees, calib_core.marks.config.MAX_ELLIPSE_ASPECT)
+# with room for perspective; steeper, the dots are not found on a real frame, and the
+# board's far edge leaves the depth of field. The simulated camera images them anyway.
+MAX_VIEW_DEG = 60.0
 # The stepwise start's minimum per kind (dispenser_calib.core.calibration.stepwise).
 RESERVED = (('linear', 4), ('a', 2), ('c', 2))
 WORKING_POSES = 30
@@ -100,9 +108,19 @@ def candidate_stops(model: DispenserModel, image_size) -> tuple[np.ndarray, list
         stops.append(place(model, np.zeros(3), np.deg2rad(a), np.deg2rad(c), centre))
         kinds.append(kind)
     stops = np.array(stops)
-    keep = np.array([_inside_strokes(s) for s in stops]) & (
-        _in_view(model, stops, image_size).mean(axis=1) >= MIN_IN_VIEW)
+    keep = (np.array([_inside_strokes(s) for s in stops])
+            & (_in_view(model, stops, image_size).mean(axis=1) >= MIN_IN_VIEW)
+            & (view_angle(model, stops) <= np.deg2rad(MAX_VIEW_DEG)))
     return stops[keep], [k for k, kept in zip(kinds, keep) if kept]
+
+
+def view_angle(model: DispenserModel, stops: np.ndarray) -> np.ndarray:
+    """Angle (rad) between the board's normal and the line of sight to its centre at each
+    stop (M,), through ``model``."""
+    normal = chain_rotation(model, stops[:, 3], stops[:, 4])[:, :, 2]          # (M, 3)
+    centre = camera_points(model, np.zeros(3), stops)[:, 0]                     # (M, 3)
+    cosine = np.abs(np.einsum('mi,mi->m', normal, centre)) / np.linalg.norm(centre, axis=1)
+    return np.arccos(np.clip(cosine, 0.0, 1.0))
 
 
 def _inside_strokes(pose: np.ndarray) -> bool:

@@ -12,7 +12,8 @@ import numpy as np
 from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7
 from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, place
-from dispenser_calib.core.planning import WORKING_POSES, placement_error, plan_five_axis, predict
+from dispenser_calib.core.planning import (
+    WORKING_POSES, candidate_stops, placement_error, plan_five_axis, predict)
 from dispenser_calib.core.procedure import (
     WORKING_DISTANCE, check_stroke, evaluation_stops, plan_stops)
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
@@ -131,6 +132,7 @@ def run(out: Path) -> dict:
                      f'{q["E_B0C"] * 1e3:.3f} mrad | {p["working_m"] * 1e6:.2f} um | '
                      f'{q["working_m"] * 1e6:.2f} um |')
     today, planned = next(iter(results)), next(n for n in results if n.startswith('planned'))
+    candidates = len(candidate_stops(nominal_model(size=IMAGE_SIZE), IMAGE_SIZE)[0])
     lines += ['', f'Every ISO 230-7 error, today\'s plan against the planner\'s (I) at the same '
               f'{results[today]["stops"]} stops:', '',
               '| ISO 230-7 error | today predicted | today realised | planned predicted | '
@@ -143,7 +145,8 @@ def run(out: Path) -> dict:
     lines += ['', 'Realised over predicted per parameter (31 parameters): ' + '; '.join(
         f'{name}: median {m:.2f}, {lo:.2f}-{hi:.2f}' for name, (m, lo, hi) in
         ((n, _ratio_range(results[n])) for n in (today, planned))) + '.',
-              '', 'Planning time (124 candidates, 27 stops): ' + ', '.join(
+              '', f'Planning time ({candidates} candidates, '
+              f'{results[today]["stops"]} stops): ' + ', '.join(
                   f'{c} {t:.2f} s' for c, t in planning_seconds.items()) + '.']
     write_results(out, 'plan_five_axis', {**results, 'planning_seconds': planning_seconds})
     write_table(out, 'plan_five_axis', lines)
