@@ -218,7 +218,10 @@ def test_five_axis_plan_keeps_what_the_stepwise_start_needs_and_predicts_better_
     # No stop sees the board more steeply than the Mark detector finds its dots.
     from dispenser_calib.core.planning import MAX_VIEW_DEG, view_angle
     assert view_angle(nominal, plan.stops).max() <= np.deg2rad(MAX_VIEW_DEG) + 1e-9
-    steep = np.array([[0.0, 0.0, 0.0, np.deg2rad(80.0), 0.0]])
+    from dispenser_calib.core.model import place
+    from dispenser_calib.core.procedure import WORKING_DISTANCE
+    steep = place(nominal, np.zeros(3), np.deg2rad(80.0), 0.0,
+                  np.array([0.0, 0.0, WORKING_DISTANCE]))[None]
     assert np.rad2deg(view_angle(nominal, steep))[0] == pytest.approx(80.0, abs=1.0)
     assert plan.working_error_m['rms'] < 0.5 * today['working_error_m']['rms']
     for name in ('E_B0A', 'E_B0C'):
