@@ -326,8 +326,9 @@ def _adaptive_five_axis(target: float, max_stops: int):
 
 
 def test_adaptive_five_axis_adds_stops_until_the_predicted_placement_meets_the_target():
-    """From 10 planned stops (1.93 um predicted), 4 more chosen about the calibration so
-    far until the predicted placement error is below 1.5 um (measured: met at 14 stops);
+    """From 10 planned stops (2.16 um predicted), 4 more at a time chosen about the
+    calibration so far until the predicted placement error is below 1.5 um (measured: met
+    at 18 stops);
     the placement the calibration then realises on the true machine is about that (one
     machine: within 1.5x the target)."""
     adaptive, images, realised = _adaptive_five_axis(1.5e-6, 40)
@@ -339,7 +340,7 @@ def test_adaptive_five_axis_adds_stops_until_the_predicted_placement_meets_the_t
 
 
 def test_adaptive_five_axis_says_when_the_strokes_cannot_meet_the_target():
-    """0.5 um within 30 stops: the best 30 could give (0.93 um) is said after the first 10,
+    """0.5 um within 30 stops: the best 30 could give (1.15 um) is said after the first 10,
     before anything more moves."""
     adaptive, images, _ = _adaptive_five_axis(0.5e-6, 30)
     assert adaptive['stopped'].startswith('target cannot be met within max_stops = 30')

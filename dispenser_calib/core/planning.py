@@ -41,9 +41,12 @@ from dispenser_calib.core.procedure import (
 
 NOISE_PX = 0.1              # px, 1 sigma per coordinate of a detected dot
 # Linear candidates about the aimed pose (m): X and Y keep the 20 x 16 mm board inside the
-# 40 x 34 mm field at 120 mm; Z +-40 mm of the 50 mm stroke (depth of field not modelled).
-LINEAR_OFFSETS = {'x': (-6e-3, 0.0, 6e-3), 'y': (-5e-3, 0.0, 5e-3),
-                  'z': (-40e-3, -20e-3, 0.0, 20e-3, 40e-3)}
+# 40 x 34 mm field at 120 mm; Z moves the camera, and so the board out of focus, within the
+# depth of field (m either way; Z in five steps). The default is of today's plan's +-4 mm: a
+# 25 mm lens at f/8 focused at 120 mm blurs a dot 40 mm nearer by about 120 px, more than
+# the dot; the simulated camera images it sharp whatever Z is.
+LINEAR_XY = {'x': (-6e-3, 0.0, 6e-3), 'y': (-5e-3, 0.0, 5e-3)}
+DEPTH_OF_FIELD = 5e-3
 A_ALONE_DEG = tuple(range(-80, 81, 10))
 C_ALONE_DEG = tuple(range(15, 360, 15))
 BOTH_A_DEG, BOTH_C_DEG = (-60, -30, 30, 60), tuple(range(0, 360, 30))
@@ -90,15 +93,17 @@ class FiveAxisPlan:
                         'lacks come on top'}
 
 
-def candidate_stops(model: DispenserModel, image_size) -> tuple[np.ndarray, list]:
+def candidate_stops(model: DispenserModel, image_size,
+                    depth_of_field: float = DEPTH_OF_FIELD) -> tuple[np.ndarray, list]:
     """Stops (M, 5) inside the strokes with at least :data:`MIN_IN_VIEW` of the board in
-    view through ``model``, and the kind of each ('linear', 'a', 'c', 'both')."""
+    view through ``model``, seen at :data:`MAX_VIEW_DEG` or less, the linear ones within
+    ``depth_of_field`` (m) of focus; and the kind of each ('linear', 'a', 'c', 'both')."""
     centre = np.array([0.0, 0.0, WORKING_DISTANCE])
     aimed = place(model, np.zeros(3), 0.0, 0.0, centre)
     stops, kinds = [], []
-    for dx in LINEAR_OFFSETS['x']:
-        for dy in LINEAR_OFFSETS['y']:
-            for dz in LINEAR_OFFSETS['z']:
+    for dx in LINEAR_XY['x']:
+        for dy in LINEAR_XY['y']:
+            for dz in np.linspace(-depth_of_field, depth_of_field, 5):
                 stops.append(aimed + np.array([dx, dy, dz, 0.0, 0.0]))
                 kinds.append('linear')
     angles = ([(a, 0.0, 'a') for a in A_ALONE_DEG if a]
@@ -238,7 +243,8 @@ def predict(model: DispenserModel, stops: np.ndarray, image_size, noise_px: floa
 
 
 def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str = 'I',
-                   noise_px: float = NOISE_PX, seed: int = 0) -> FiveAxisPlan:
+                   noise_px: float = NOISE_PX, seed: int = 0,
+                   depth_of_field: float = DEPTH_OF_FIELD) -> FiveAxisPlan:
     """``count`` stops chosen from :func:`candidate_stops` by ``criterion`` ('I': the part
     points' error at the working poses; 'D': the information's determinant), the stepwise
     start's minimum reserved first; and their prediction.
@@ -255,7 +261,7 @@ def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str
     if count < least:
         raise InvalidInputError(f'{count} stops: the stepwise start needs at least {least} '
                                 '(4 linear, A and C each alone at two angles)')
-    stops, kinds = candidate_stops(model, image_size)
+    stops, kinds = candidate_stops(model, image_size, depth_of_field)
     if count > len(stops):
         raise InvalidInputError(f'{count} stops asked from {len(stops)} candidates (inside the '
                                 f'strokes and with {MIN_IN_VIEW:.0%} of the board in a '
@@ -347,12 +353,12 @@ def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
 
 
 def extend_five_axis(model: DispenserModel, measured: np.ndarray, count: int, image_size,
-                     criterion: str = 'I', noise_px: float = NOISE_PX,
-                     seed: int = 0) -> tuple[np.ndarray, dict]:
+                     criterion: str = 'I', noise_px: float = NOISE_PX, seed: int = 0,
+                     depth_of_field: float = DEPTH_OF_FIELD) -> tuple[np.ndarray, dict]:
     """The ``count`` candidate stops (count, 5) that, added to the ``measured`` ones (n, 5),
     most improve the criterion about ``model`` (greedy), and the prediction for all of
     them together."""
-    stops, _ = candidate_stops(model, image_size)
+    stops, _ = candidate_stops(model, image_size, depth_of_field)
     scale = _scales(model)
     rows = stop_rows(model, stops, image_size, noise_px) * scale
     working = working_sensitivity(model, seed) * scale if criterion == 'I' else None

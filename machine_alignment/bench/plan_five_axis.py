@@ -13,7 +13,7 @@ from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7
 from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, place
 from dispenser_calib.core.planning import (
-    WORKING_POSES, candidate_stops, placement_error, plan_five_axis, predict)
+    DEPTH_OF_FIELD, WORKING_POSES, candidate_stops, placement_error, plan_five_axis, predict)
 from dispenser_calib.core.procedure import (
     WORKING_DISTANCE, check_stroke, evaluation_stops, plan_stops)
 from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
@@ -48,22 +48,26 @@ def plans() -> dict:
         "today's 27 stops (12 linear, A alone at 4 tilts, C alone at 11 angles)": today,
         'today + 6 stops with A and C both turned': np.vstack(
             [today, evaluation_stops(nominal, 6, 9)]),
-        'today, A alone at 8 tilts up to +-80 deg': np.vstack(
+        'today, A alone at 8 tilts up to +-80 deg (beyond the detector\'s view)': np.vstack(
             [linear, _alone((-80, -60, -40, -20, 20, 40, 60, 80), c_turn)]),
         'today, C turned again with A at +30 and -30 deg': np.vstack(
             [today, _alone((), c_turn, 30.0), _alone((), c_turn, -30.0)]),
-        'today, the 12 linear stops spread over Z +-40 mm': np.vstack(
+        'today, the 12 linear stops spread over Z +-40 mm (out of focus)': np.vstack(
             [_spread_z(linear, 40e-3), today[12:]]),
-        'today + 12 linear stops over Z +-40 mm': np.vstack([today, _spread_z(linear, 40e-3)]),
+        'today + 12 linear stops over Z +-40 mm (out of focus)': np.vstack(
+            [today, _spread_z(linear, 40e-3)]),
         'today twice (54 stops, the noise halved in variance)': np.vstack([today, today]),
     }
     planning_seconds = {}
-    for criterion in ('I', 'D'):
+    for criterion, depth in (('I', DEPTH_OF_FIELD), ('D', DEPTH_OF_FIELD), ('I', 40e-3)):
         start = time.perf_counter()
-        plan = plan_five_axis(nominal, len(today), IMAGE_SIZE, criterion, NOISE_PX)
-        planning_seconds[criterion] = time.perf_counter() - start
+        plan = plan_five_axis(nominal, len(today), IMAGE_SIZE, criterion, NOISE_PX,
+                              depth_of_field=depth)
+        if depth == DEPTH_OF_FIELD:
+            planning_seconds[criterion] = time.perf_counter() - start
         kinds = ', '.join(f'{plan.kinds.count(k)} {k}' for k in ('linear', 'a', 'c', 'both'))
-        variants[f'planned {len(today)} stops, {criterion} ({kinds})'] = plan.stops
+        beyond = '' if depth == DEPTH_OF_FIELD else f', Z +-{depth * 1e3:g} mm: out of focus'
+        variants[f'planned {len(today)} stops, {criterion} ({kinds}{beyond})'] = plan.stops
     for stops in variants.values():
         for pose in stops:
             check_stroke(pose)

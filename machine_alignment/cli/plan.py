@@ -5,7 +5,8 @@ from __future__ import annotations
 from dispenser_calib.core.model import nominal_model as dispenser_nominal
 from dispenser_calib.core.model import read_model as read_dispenser_model
 from dispenser_calib.core.part_files import write_plan
-from dispenser_calib.core.planning import plan_five_axis, todays_prediction
+from dispenser_calib.core.planning import (
+    DEPTH_OF_FIELD, MAX_VIEW_DEG, plan_five_axis, todays_prediction)
 from hexapod_calib.core.geometry import POSE_NAMES, nominal_geometry as hexapod_nominal
 from hexapod_calib.core.geometry import read_geometry as read_hexapod_geometry
 from hexapod_calib.core.planning import predict as predict_hexapod
@@ -74,12 +75,15 @@ def cmd_plan_five_axis(args) -> int:
     size = parse_size(args.image_size) if args.image_size else (2448, 2048)
     model = (read_dispenser_model(args.calibration) if args.calibration
              else dispenser_nominal(size=size))
-    plan = plan_five_axis(model, args.stops, size, args.criterion, args.noise_px, args.seed)
+    plan = plan_five_axis(model, args.stops, size, args.criterion, args.noise_px, args.seed,
+                          args.depth_of_field)
     today = todays_prediction(model, size, args.noise_px, args.seed)
     report = plan.report()
     print(f'{args.stops} stops chosen ({"test-pose (I)" if args.criterion == "I" else "D"}-'
           f'optimal) from {plan.candidates} candidates inside the strokes with the board in '
-          'view: ' + ', '.join(f'{n} {kind}' for kind, n in report['kinds'].items())
+          f'view, seen at {MAX_VIEW_DEG:g} degrees or less, the linear ones within '
+          f'+-{args.depth_of_field * 1e3:g} mm of focus: '
+          + ', '.join(f'{n} {kind}' for kind, n in report['kinds'].items())
           + ' (linear; A alone; C alone; A and C both turned)')
     print(f'predicted before anything moves (dots to {args.noise_px:g} px, first order), '
           f'against today\'s {today["stops"]}-stop stepwise plan:')
@@ -164,6 +168,10 @@ def add_parser(sub) -> None:
                                 'working poses (default); D: largest determinant')
     five_axis.add_argument('--noise-px', type=ranged(float, 1e-4, 10.0, 'px'), default=0.1,
                            help='dot detection noise, px (1 sigma per coordinate)')
+    five_axis.add_argument('--depth-of-field', type=ranged(float, 0.0, 0.05, 'm'),
+                           default=DEPTH_OF_FIELD,
+                           help='how far Z may take the board from focus either way, m '
+                                '(the lens\'s depth of field; the simulation has none)')
     five_axis.add_argument('--seed', type=ranged(int, 0), default=0,
                            help='draw of the working poses')
     five_axis.add_argument('--out', required=True,
