@@ -9,14 +9,11 @@ import numpy as np
 import pytest
 
 from calib_core.errors import InvalidInputError
-from hexapod_calib.core.calibration import identify as identify_hexapod
-from hexapod_calib.core.calibration import pose_errors
 from hexapod_calib.core.geometry import nominal_geometry as hexapod_nominal
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.planning import predict
 from hexapod_calib.core.procedure import HexapodPlan
-from hexapod_calib.core.procedure import measure_poses as measure_hexapod_poses
-from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
+from hexapod_calib.sim.hexapod import HexapodTruth, displacement_after_identifying
 from calib_core.planning import exchange, information
 from machine_alignment.cli import main
 from platform_calib.core.compensation import mark_errors
@@ -110,18 +107,9 @@ def test_hexapod_prediction_matches_what_the_identification_achieves():
     nominal = hexapod_nominal()
     poses, working = HexapodPlan(num_poses=13, seed=0).poses(nominal)
     predicted = predict(nominal, poses, working)['predicted_displacement_m']['rms']
-    realised = []
-    for seed in range(4):
-        truth = dataclasses.replace(HexapodTruth.default(seed=seed), leg_play=np.zeros(6))
-        sim, sensor = HexapodSim(truth, nominal, seed=seed), PoseSensorSim(seed=seed + 1)
-        data = measure_hexapod_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
-                                     lambda: sensor.measure(sim.pose))
-        identified = identify_hexapod(data, nominal).geometry
-        reached = []
-        for legs in inverse_kinematics(identified, working):
-            sim.move_legs(legs)
-            reached.append(sim.pose.copy())
-        realised.append(np.sqrt(np.mean(pose_errors(working, np.array(reached))[0] ** 2)))
+    realised = [displacement_after_identifying(
+        dataclasses.replace(HexapodTruth.default(seed=seed), leg_play=np.zeros(6)), nominal,
+        poses, working, seed) for seed in range(4)]
     assert 0.67 < np.median(realised) / predicted < 1.5
 
 

@@ -187,3 +187,21 @@ def measure_random_poses(truth: HexapodTruth, count: int, seed: int,
     data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
                          lambda: sensor.measure(sim.pose))
     return data, leg_forces(nominal, poses, truth.payload_mass, truth.payload_centre)
+
+
+def displacement_after_identifying(truth: HexapodTruth, nominal: HexapodGeometry, poses,
+                                   working, seed: int) -> float:
+    """The simulated hexapod ``truth`` measured at ``poses`` (n, 6) with the nominal legs,
+    its 42 parameters identified, then sent to ``working`` (W, 6) with the identified
+    geometry: the RMS displacement error there (m), what a plan's prediction predicts."""
+    from hexapod_calib.core.calibration import identify, pose_errors
+    from hexapod_calib.core.procedure import measure_poses
+    sim, sensor = HexapodSim(truth, nominal, seed=seed), PoseSensorSim(seed=seed + 1)
+    data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
+                         lambda: sensor.measure(sim.pose))
+    identified = identify(data, nominal).geometry
+    reached = []
+    for legs in inverse_kinematics(identified, working):
+        sim.move_legs(legs)
+        reached.append(sim.pose.copy())
+    return float(np.sqrt(np.mean(pose_errors(working, np.array(reached))[0] ** 2)))

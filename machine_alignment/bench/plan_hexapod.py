@@ -10,12 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.errors import CalibrationError
-from hexapod_calib.core.calibration import identifiability, identify, pose_errors
+from hexapod_calib.core.calibration import identifiability
 from hexapod_calib.core.geometry import nominal_geometry
-from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.planning import predict
-from hexapod_calib.core.procedure import HexapodPlan, measure_poses
-from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
+from hexapod_calib.core.procedure import HexapodPlan
+from hexapod_calib.sim.hexapod import HexapodTruth, displacement_after_identifying
 from machine_alignment.bench import main_with_out, write_results, write_table
 
 MACHINES = 20
@@ -56,19 +55,9 @@ def designs(nominal) -> tuple[dict, np.ndarray, dict]:
 def realised(poses: np.ndarray, working: np.ndarray, nominal) -> list:
     """Per simulated hexapod, the RMS displacement (m) at ``working`` after identifying
     from ``poses``."""
-    out = []
-    for seed in range(MACHINES):
-        truth = dataclasses.replace(HexapodTruth.default(seed=seed), leg_play=np.zeros(6))
-        sim, sensor = HexapodSim(truth, nominal, seed=seed), PoseSensorSim(seed=seed + 1)
-        data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
-                             lambda: sensor.measure(sim.pose))
-        identified = identify(data, nominal).geometry
-        reached = []
-        for legs in inverse_kinematics(identified, working):
-            sim.move_legs(legs)
-            reached.append(sim.pose.copy())
-        out.append(float(np.sqrt(np.mean(pose_errors(working, np.array(reached))[0] ** 2))))
-    return out
+    return [displacement_after_identifying(
+        dataclasses.replace(HexapodTruth.default(seed=seed), leg_play=np.zeros(6)), nominal,
+        poses, working, seed) for seed in range(MACHINES)]
 
 
 def run(out: Path) -> dict:
