@@ -9,6 +9,14 @@ import numpy as np
 import pytest
 
 from calib_core.errors import InvalidInputError
+from dispenser_calib.core.iso230 import iso230_7
+from dispenser_calib.core.model import NAMES, place, read_model
+from dispenser_calib.core.model import nominal_model as dispenser_nominal
+from dispenser_calib.core.planning import (
+    MAX_VIEW_DEG, AdaptivePlan, placement_error, plan_five_axis, todays_prediction, view_angle)
+from dispenser_calib.core.procedure import (
+    WORKING_DISTANCE, check_stroke, run_five_axis_calibration)
+from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
 from hexapod_calib.core.geometry import nominal_geometry as hexapod_nominal
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.planning import predict
@@ -190,11 +198,6 @@ def test_five_axis_plan_keeps_what_the_stepwise_start_needs_and_predicts_better_
     """The planner's 27 stops (from linear, A-alone, C-alone and A-and-C candidates inside
     the strokes) keep the stepwise start's minimum and are predicted, before anything
     moves, to place the part and determine E_B0A / E_B0C better than today's 27."""
-    from dispenser_calib.core.planning import plan_five_axis, todays_prediction
-    from dispenser_calib.core.procedure import check_stroke
-    from dispenser_calib.sim.machine import IMAGE_SIZE
-    from dispenser_calib.core.model import nominal_model as dispenser_nominal
-
     nominal = dispenser_nominal(size=IMAGE_SIZE)
     plan = plan_five_axis(nominal, 27, IMAGE_SIZE)
     today = todays_prediction(nominal, IMAGE_SIZE)
@@ -204,10 +207,7 @@ def test_five_axis_plan_keeps_what_the_stepwise_start_needs_and_predicts_better_
     assert plan.kinds.count('linear') >= 4 and plan.kinds.count('a') >= 2 \
         and plan.kinds.count('c') >= 2
     # No stop sees the board more steeply than the Mark detector finds its dots.
-    from dispenser_calib.core.planning import MAX_VIEW_DEG, view_angle
     assert view_angle(nominal, plan.stops).max() <= np.deg2rad(MAX_VIEW_DEG) + 1e-9
-    from dispenser_calib.core.model import place
-    from dispenser_calib.core.procedure import WORKING_DISTANCE
     steep = place(nominal, np.zeros(3), np.deg2rad(80.0), 0.0,
                   np.array([0.0, 0.0, WORKING_DISTANCE]))[None]
     assert np.rad2deg(view_angle(nominal, steep))[0] == pytest.approx(80.0, abs=1.0)
@@ -225,13 +225,6 @@ def test_five_axis_planned_stops_calibrate_as_predicted():
     calibration run: every parameter's error against its predicted sigma (RMS of the
     z-scores over 3 machines, 93 values) is about one, and the planned run beats today's
     on E_B0A and E_B0C realised."""
-    from dispenser_calib.core.iso230 import iso230_7
-    from dispenser_calib.core.model import NAMES
-    from dispenser_calib.core.model import nominal_model as dispenser_nominal
-    from dispenser_calib.core.planning import plan_five_axis
-    from dispenser_calib.core.procedure import run_five_axis_calibration
-    from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
-
     nominal = dispenser_nominal(size=IMAGE_SIZE)
     plan = plan_five_axis(nominal, 27, IMAGE_SIZE)
     sigma = np.array([plan.parameter_sigmas[n] for n in NAMES])
@@ -275,8 +268,6 @@ def test_plan_five_axis_then_simulate_then_calibrate_from_the_command_line(tmp_p
     assert main(['simulate', 'five-axis', '--plan', str(plan), '--out', str(data), '--truth',
                  str(truth), '--bad-fraction', '0', '--seed', '2']) == 0
     assert main(['calibrate', 'five-axis', '--data', str(data), '--out', str(calibration)]) == 0
-    from dispenser_calib.core.iso230 import iso230_7
-    from dispenser_calib.core.model import read_model
     found, true = iso230_7(read_model(calibration)), iso230_7(read_model(truth))
     for name in ('E_B0A', 'E_B0C'):
         sigma = predicted['predicted_iso230_7_sigmas'][name]
@@ -291,11 +282,6 @@ def test_plan_five_axis_then_simulate_then_calibrate_from_the_command_line(tmp_p
 
 def _adaptive_five_axis(target: float, max_stops: int):
     """From 10 planned stops on a simulated dispenser, adaptive to ``target`` (m)."""
-    from dispenser_calib.core.model import nominal_model as dispenser_nominal
-    from dispenser_calib.core.planning import AdaptivePlan, placement_error, plan_five_axis
-    from dispenser_calib.core.procedure import run_five_axis_calibration
-    from dispenser_calib.sim.machine import IMAGE_SIZE, observe, true_model
-
     nominal, truth, at = dispenser_nominal(size=IMAGE_SIZE), true_model(4), {}
 
     def move(pose):
@@ -334,7 +320,6 @@ def test_adaptive_five_axis_says_when_the_strokes_cannot_meet_the_target():
     assert adaptive['stopped'].startswith('target cannot be met within max_stops = 30')
     assert adaptive['rounds'][-1]['best_at_max_stops_m'] > 0.5e-6 and len(images) == 10
     with pytest.raises(InvalidInputError, match='below 1 mm'):
-        from dispenser_calib.core.planning import AdaptivePlan
         AdaptivePlan((2448, 2048), 2.0)
 
 
