@@ -3,11 +3,16 @@ predicted 1-sigma of every ISO 230-7 location and orientation error and of the p
 placement at the working poses, for plan variants and for the planner's own choice of the
 same number of stops (dispenser_calib.core.planning, planned at the nominal model), from
 the identification Jacobian (dots detected to 0.1 px) before anything moves, and the same
-plans measured on 20 simulated machines. Writes bench_results/plan_five_axis.{md,json}."""
+plans measured on 20 simulated machines. Writes bench_results/plan_five_axis.{md,json,png}."""
+import textwrap
 import time
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
 
 from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7
@@ -106,6 +111,33 @@ def _ratio_range(r: dict) -> tuple[float, float, float]:
     return float(np.median(ratio)), float(np.min(ratio)), float(np.max(ratio))
 
 
+def plot(path: Path, results: dict) -> None:
+    """Predicted against realised per plan, E_B0A (mrad) and the part's placement (um),
+    each on one scale for every plan."""
+    names = [n for n in results if n != 'planning_seconds']
+    fig, axes = plt.subplots(1, 2, figsize=(12, 0.55 * len(names) + 1.6), sharey=True)
+    rows = np.arange(len(names))
+    for ax, key, factor, unit in ((axes[0], 'E_B0A', 1e3, 'mrad'),
+                                  (axes[1], 'working_m', 1e6, 'um')):
+        predicted = [results[n]['predicted'][key] * factor for n in names]
+        realised = [results[n]['realised_rms'][key] * factor for n in names]
+        ax.barh(rows - 0.2, predicted, 0.4, label='predicted before anything moves (1 sigma)',
+                color='0.7')
+        ax.barh(rows + 0.2, realised, 0.4, label=f'realised, RMS over {MACHINES} machines',
+                color='tab:blue')
+        ax.set_xlabel(f'{"E_B0A" if key == "E_B0A" else "part placement at the working poses"}'
+                      f' ({unit})')
+        ax.grid(axis='x', alpha=0.3)
+    axes[0].set_yticks(rows, [textwrap.fill(n, 48) for n in names], fontsize=8)
+    axes[0].invert_yaxis()
+    axes[1].legend(loc='lower right', fontsize=8)
+    fig.suptitle('Five-axis plans: E_B0A and the part\'s placement, predicted before anything '
+                 'moves and realised')
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def run(out: Path) -> dict:
     truth = true_model(0)
     results = {}
@@ -153,6 +185,7 @@ def run(out: Path) -> dict:
               f'{results[today]["stops"]} stops): ' + ', '.join(
                   f'{c} {t:.2f} s' for c, t in planning_seconds.items()) + '.']
     write_results(out, 'plan_five_axis', {**results, 'planning_seconds': planning_seconds})
+    plot(out / 'plan_five_axis.png', results)
     write_table(out, 'plan_five_axis', lines)
     return results
 
