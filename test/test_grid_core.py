@@ -198,7 +198,8 @@ def test_the_bordered_factor_solves_as_superlu_on_the_whole_system():
     whole system."""
     from scipy import sparse
 
-    from grid_calib.core.bordered import BorderedFactor, dense_columns, factor_kkt, factor_whole_kkt
+    from grid_calib.core.bordered import (
+        BorderedFactor, dense_columns, factor_kkt, factor_whole_kkt, kkt_matrix)
     from grid_calib.core.selfcal import linear_system
 
     grid = Grid(6, 0.01)
@@ -220,5 +221,6 @@ def test_the_bordered_factor_solves_as_superlu_on_the_whole_system():
     # A mark column no reading touches makes the sparse block singular.
     unread = sparse.hstack([design, sparse.csr_matrix((design.shape[0], 1))]).tocsr()
     gauge_unread = sparse.hstack([gauge, sparse.csr_matrix((gauge.shape[0], 1))]).tocsr()
+    border = np.concatenate([dense_columns(unread), unread.shape[1] + np.arange(gauge.shape[0])])
     with pytest.raises(RuntimeError):
-        BorderedFactor(unread, gauge_unread, 'MMD_AT_PLUS_A')
+        BorderedFactor(kkt_matrix(unread, gauge_unread), border, 'MMD_AT_PLUS_A')

@@ -8,12 +8,11 @@ Normal equations with the gauge as exact constraints (Lagrange multipliers):
 Almost every unknown (the stage's residual field F and the plate's mark errors A) touches a
 handful of rows, but a few (O, R, the placements' misalignments, the closed loop's extra
 columns) touch every row of a placement, and the gauge rows span every site. Factored as one
-matrix, those dense rows and columns defeat the fill-reducing ordering: at N = 101 SuperLU's
-factor of the whole system holds 34 million entries and takes 11 s. Here the sparse block is
-factored alone (2.8 million entries, 0.2 s at N = 101) and the dense columns and gauge rows
-are a border of a few dozen, eliminated through their Schur complement (Golub and Van Loan,
-Matrix Computations, section 4.5, block LU of a bordered matrix). The solution is the same
-to rounding.
+matrix, those dense rows and columns defeat the fill-reducing ordering. Here the sparse block
+is factored alone and the dense columns and gauge rows are a border of a few dozen,
+eliminated through their Schur complement (Golub and Van Loan, Matrix Computations, section
+4.5, block LU of a bordered matrix): at N = 101, 0.73 s where SuperLU on the whole matrix
+takes 15.6 s in the same run (bench_results/grid.md). The solution is the same to rounding.
 """
 from __future__ import annotations
 
@@ -39,23 +38,27 @@ def dense_columns(design: sparse.spmatrix) -> np.ndarray:
     return np.flatnonzero(counts > limit)
 
 
+def kkt_matrix(design: sparse.csr_matrix, gauge: sparse.csr_matrix) -> sparse.csc_matrix:
+    """The KKT matrix above, (columns + gauge rows) square."""
+    return sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
+
+
 class BorderedFactor:
-    """Solves the KKT system above, in its own layout: (columns + gauge rows,) or
-    (columns + gauge rows, k) right-hand sides, x then the multipliers.
+    """Solves the KKT system ``kkt`` in its own layout, (size,) or (size, k) right-hand
+    sides, x then the multipliers, with the unknowns ``border`` (indices) eliminated
+    through their Schur complement and the rest factored by SuperLU.
 
     Raises ``RuntimeError`` (as SuperLU does) when the sparse block or the border's Schur
     complement is singular; :func:`factor_kkt` then factors the whole matrix instead."""
 
-    def __init__(self, design: sparse.csr_matrix, gauge: sparse.csr_matrix, ordering: str):
-        columns = design.shape[1]
-        self.shape = (columns + gauge.shape[0],) * 2
-        dense = dense_columns(design)
-        self._sparse = np.setdiff1d(np.arange(columns), dense)
-        self._border = np.concatenate([dense, columns + np.arange(gauge.shape[0])])
-        kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
-        inner = kkt[self._sparse][:, self._sparse].tocsc()
-        coupling = kkt[self._sparse][:, self._border].toarray()     # (sparse, border)
-        corner = kkt[self._border][:, self._border].toarray()       # (border, border)
+    def __init__(self, kkt: sparse.csc_matrix, border: np.ndarray, ordering: str):
+        self.shape = kkt.shape
+        self._border = border
+        self._sparse = np.setdiff1d(np.arange(kkt.shape[0]), border)
+        rows = kkt[self._sparse]
+        inner = rows[:, self._sparse].tocsc()
+        coupling = rows[:, border].toarray()                        # (sparse, border)
+        corner = kkt[border][:, border].toarray()                   # (border, border)
         # The sparse block is D^T D on F and A: symmetric positive definite, so no pivoting
         # is needed and the symmetric ordering is kept.
         self._inner = splu(inner, permc_spec=ordering, diag_pivot_thresh=0.0,
@@ -68,7 +71,6 @@ class BorderedFactor:
         self._schur = np.linalg.inv(schur) if schur.size else schur
         if not np.all(np.isfinite(self._schur)):
             raise RuntimeError('the border is singular')
-        self.fill = self._inner.L.nnz + self._inner.U.nnz
 
     def solve(self, right: np.ndarray) -> np.ndarray:
         right = np.asarray(right, dtype=float)
@@ -82,23 +84,24 @@ class BorderedFactor:
 
 def factor_whole_kkt(design: sparse.csr_matrix, gauge: sparse.csr_matrix,
                      ordering: str = ORDERING):
-    """SuperLU on the whole KKT matrix (the route before the border: 11 s at N = 101)."""
-    kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
-    return splu(kkt, permc_spec=ordering)
+    """SuperLU on the whole KKT matrix (the route before the border)."""
+    return splu(kkt_matrix(design, gauge), permc_spec=ordering)
 
 
 def factor_kkt(design: sparse.csr_matrix, gauge: sparse.csr_matrix, ordering: str = ORDERING):
-    """A factor of the KKT matrix with a ``solve`` and a ``shape``: bordered when the sparse
-    block is regular (the self-calibration's case), else SuperLU on the whole matrix."""
+    """A factor of the KKT matrix with a ``solve`` and a ``shape``: bordered (the dense
+    columns of ``design`` and the gauge rows) when the sparse block is regular (the
+    self-calibration's case), else SuperLU on the whole matrix."""
+    kkt = kkt_matrix(design, gauge)
+    border = np.concatenate([dense_columns(design), design.shape[1] + np.arange(gauge.shape[0])])
     try:
-        factor = BorderedFactor(design, gauge, ordering)
+        factor = BorderedFactor(kkt, border, ordering)
     except RuntimeError:
-        return factor_whole_kkt(design, gauge, ordering)
+        return splu(kkt, permc_spec=ordering)
     # A nearly singular sparse block factors without complaint and solves badly: checked on
     # one right-hand side (a solve and a product, against the factorisation's cost).
-    kkt = sparse.bmat([[design.T @ design, gauge.T], [gauge, None]], format='csc')
     probe = np.random.default_rng(0).standard_normal(kkt.shape[0])
     error = np.linalg.norm(kkt @ factor.solve(probe) - probe)
     if not error <= PROBE_TOLERANCE * np.linalg.norm(probe):
-        return factor_whole_kkt(design, gauge, ordering)
+        return splu(kkt, permc_spec=ordering)
     return factor
