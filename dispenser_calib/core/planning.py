@@ -103,7 +103,7 @@ def candidate_stops(model: DispenserModel, image_size,
     stops, kinds = [], []
     for dx in LINEAR_XY['x']:
         for dy in LINEAR_XY['y']:
-            for dz in np.linspace(-depth_of_field, depth_of_field, 5):
+            for dz in np.unique(np.linspace(-depth_of_field, depth_of_field, 5)):
                 stops.append(aimed + np.array([dx, dy, dz, 0.0, 0.0]))
                 kinds.append('linear')
     angles = ([(a, 0.0, 'a') for a in A_ALONE_DEG if a]
@@ -242,6 +242,41 @@ def predict(model: DispenserModel, stops: np.ndarray, image_size, noise_px: floa
                                 'max': float(per_point.max())}}
 
 
+@dataclass(frozen=True)
+class _Candidates:
+    """The candidate stops (M, 5), their kinds, the parameter scales (p,), each stop's
+    scaled rows (M, p, p), the scaled working sensitivity (None for 'D') and a prior of a
+    millionth of a mean stop's information per parameter (the start from nothing, where
+    the criterion is not yet defined)."""
+
+    stops: np.ndarray
+    kinds: list
+    scale: np.ndarray
+    rows: np.ndarray
+    working: np.ndarray | None
+    prior: np.ndarray
+
+
+def _candidates(model: DispenserModel, image_size, criterion: str, noise_px: float, seed: int,
+                depth_of_field: float, needed: int) -> _Candidates:
+    """The candidates of :func:`candidate_stops` and their rows; at least ``needed`` of them.
+
+    Raises
+    ------
+    InvalidInputError
+        Fewer candidates than ``needed``."""
+    stops, kinds = candidate_stops(model, image_size, depth_of_field)
+    if needed > len(stops):
+        raise InvalidInputError(f'{needed} stops asked from {len(stops)} candidates (inside '
+                                f'the strokes and with {MIN_IN_VIEW:.0%} of the board in a '
+                                f'{image_size[0]}x{image_size[1]} px image through the model)')
+    scale = _scales(model)
+    rows = stop_rows(model, stops, image_size, noise_px) * scale
+    working = working_sensitivity(model, seed) * scale if criterion == 'I' else None
+    prior = np.diag(1e-6 * np.einsum('mrp,mrp->p', rows, rows) / len(rows))
+    return _Candidates(stops, kinds, scale, rows, working, prior)
+
+
 def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str = 'I',
                    noise_px: float = NOISE_PX, seed: int = 0,
                    depth_of_field: float = DEPTH_OF_FIELD) -> FiveAxisPlan:
@@ -261,34 +296,24 @@ def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str
     if count < least:
         raise InvalidInputError(f'{count} stops: the stepwise start needs at least {least} '
                                 '(4 linear, A and C each alone at two angles)')
-    stops, kinds = candidate_stops(model, image_size, depth_of_field)
-    if count > len(stops):
-        raise InvalidInputError(f'{count} stops asked from {len(stops)} candidates (inside the '
-                                f'strokes and with {MIN_IN_VIEW:.0%} of the board in a '
-                                f'{image_size[0]}x{image_size[1]} px image through the model)')
-    scale = _scales(model)
-    rows = stop_rows(model, stops, image_size, noise_px) * scale
-    working = working_sensitivity(model, seed) * scale if criterion == 'I' else None
-    # A prior of a millionth of a mean stop's information per parameter: the start from
-    # nothing, where the criterion is not yet defined.
-    mean = np.einsum('mrp,mrp->p', rows, rows) / len(rows)
-    prior = np.diag(1e-6 * mean)
+    c = _candidates(model, image_size, criterion, noise_px, seed, depth_of_field, count)
     chosen: list[int] = []
-    kinds_array = np.array(kinds)
+    kinds = np.array(c.kinds)
     for kind, needed in RESERVED:
-        others = np.flatnonzero(kinds_array != kind).tolist()
-        picked = augment(rows, prior + information(rows, chosen), needed, criterion, working,
-                         exclude=set(chosen) | set(others))
+        others = np.flatnonzero(kinds != kind).tolist()
+        picked = augment(c.rows, c.prior + information(c.rows, chosen), needed, criterion,
+                         c.working, exclude=set(chosen) | set(others))
         chosen += picked.tolist()
-    chosen += augment(rows, prior + information(rows, chosen), count - len(chosen), criterion,
-                      working, exclude=chosen).tolist()
-    chosen_stops = stops[chosen]
-    linear = chosen_stops[kinds_array[chosen] == 'linear', :3]
+    chosen += augment(c.rows, c.prior + information(c.rows, chosen), count - len(chosen),
+                      criterion, c.working, exclude=chosen).tolist()
+    chosen_stops = c.stops[chosen]
+    linear = chosen_stops[kinds[chosen] == 'linear', :3]
     if np.linalg.matrix_rank(np.column_stack([linear, np.ones(len(linear))]), tol=1e-6) < 4:
         raise InvalidInputError('the planned linear stops lie in one plane: the stepwise start '
                                 'cannot use them; plan more stops')
-    predicted = predict(model, chosen_stops, image_size, noise_px, seed, rows[chosen] / scale)
-    return FiveAxisPlan(chosen_stops, [kinds[k] for k in chosen], len(stops), criterion,
+    predicted = predict(model, chosen_stops, image_size, noise_px, seed,
+                        c.rows[chosen] / c.scale)
+    return FiveAxisPlan(chosen_stops, [c.kinds[k] for k in chosen], len(c.stops), criterion,
                         noise_px, predicted['parameter_sigmas'], predicted['iso230_7_sigmas'],
                         predicted['working_error_m'])
 
@@ -355,22 +380,19 @@ def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
 def extend_five_axis(model: DispenserModel, measured: np.ndarray, count: int, image_size,
                      criterion: str = 'I', noise_px: float = NOISE_PX, seed: int = 0,
                      depth_of_field: float = DEPTH_OF_FIELD) -> tuple[np.ndarray, dict]:
-    """The ``count`` candidate stops (count, 5) that, added to the ``measured`` ones (n, 5),
-    most improve the criterion about ``model`` (greedy), and the prediction for all of
-    them together."""
-    stops, _ = candidate_stops(model, image_size, depth_of_field)
-    scale = _scales(model)
-    rows = stop_rows(model, stops, image_size, noise_px) * scale
-    working = working_sensitivity(model, seed) * scale if criterion == 'I' else None
-    prior = information(stop_rows(model, measured, image_size, noise_px) * scale,
-                        np.arange(len(measured)))
-    prior += np.diag(1e-6 * np.einsum('mrp,mrp->p', rows, rows) / len(rows))
-    taken = [k for k, stop in enumerate(stops)
+    """The ``count`` candidate stops (count, 5) that, added one by one to the ``measured``
+    ones (n, 5), most improve the criterion about ``model`` (greedy, so the first k of them
+    are the best k), and the prediction for all of them together."""
+    c = _candidates(model, image_size, criterion, noise_px, seed, depth_of_field, 1)
+    measured_rows = stop_rows(model, measured, image_size, noise_px) * c.scale
+    prior = c.prior + information(measured_rows, np.arange(len(measured)))
+    taken = [k for k, stop in enumerate(c.stops)
              if np.any(np.all(np.abs(measured - stop) < 1e-9, axis=1))]
-    count = min(count, len(stops) - len(taken))
-    chosen = augment(rows, prior, count, criterion, working, exclude=taken)
-    return stops[chosen], predict(model, np.vstack([measured, stops[chosen]]), image_size,
-                                  noise_px, seed)
+    count = min(count, len(c.stops) - len(taken))
+    chosen = augment(c.rows, prior, count, criterion, c.working, exclude=taken)
+    every = np.concatenate([measured_rows, c.rows[chosen]]) / c.scale
+    return c.stops[chosen], predict(model, np.vstack([measured, c.stops[chosen]]), image_size,
+                                    noise_px, seed, every)
 
 
 @dataclass
@@ -415,16 +437,15 @@ class AdaptivePlan:
         room = self.max_stops - len(measured)
         if room <= 0:
             return self._stop(f'target not met within max_stops = {self.max_stops}')
-        _, best = extend_five_axis(result.model, measured, room, self.image_size,
-                                   self.criterion, self.noise_px, self.seed)
+        # Greedy: the first ``step`` of the best ``room`` stops are the best ``step``.
+        more, best = extend_five_axis(result.model, measured, room, self.image_size,
+                                      self.criterion, self.noise_px, self.seed)
         floor = best['working_error_m']['rms']
         if floor > self.target_error:
             return self._stop(f'target cannot be met within max_stops = {self.max_stops}: '
                               f'{floor * 1e6:.2f} um predicted with all of them (the detection '
                               'noise and the strokes decide it)', best_at_max_stops_m=floor)
-        more, _ = extend_five_axis(result.model, measured, min(self.step, room),
-                                   self.image_size, self.criterion, self.noise_px, self.seed)
-        return more
+        return more[:self.step]
 
     def _stop(self, why: str, **detail) -> np.ndarray:
         self.stopped = why

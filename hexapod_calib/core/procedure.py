@@ -38,9 +38,9 @@ class HexapodPlan:
     chosen for the best-conditioned identification (``design`` 'greedy': each leg's
     information determinant, greedily; 'I' or 'D': the shared exchange on the rows
     whitened by the pose sensor's and actuators' noise, 'I' for the least pose error over
-    the box), ``num_evaluation`` others are kept for evaluation only. ``targets`` (n, 6; m, rad), when given, are a planned set measured
-    instead (e.g. the CSV of ``machine-align plan hexapod``); ``num_poses`` is then their
-    number."""
+    the box), ``num_evaluation`` others are kept for evaluation only. ``targets`` (n, 6;
+    m, rad), when given, are a planned set measured instead (e.g. the CSV of
+    ``machine-align plan hexapod``); ``num_poses`` is then their number."""
 
     num_poses: int = 30
     num_candidates: int = 400
