@@ -28,6 +28,20 @@ def test_reversal_found_with_its_backlash():
     assert report['unexplained'] == []
 
 
+@pytest.mark.parametrize('seed', [13, 17, 18])
+def test_a_constant_backlash_is_not_called_position_dependent(seed):
+    """On these seeds the general effect (reversal changing along the travel) lowered the
+    cross-validated error more than the constant one by a 1.1-1.6 sigma slope and was
+    added in its place (bench_results/closed_loop.md, before the nested-terms rule): the
+    constant backlash is what is claimed, at its true 4 um within 3 sigma."""
+    data = simulate_axis_test(AxisTruth(backlash=4e-6), seed=seed)
+    report = analyze(AxisModel(data), LoopConfig(seed=seed)).report
+    assert [e['name'] for e in report['effects_added']] == ['reversal']
+    effect = report['effects_added'][0]
+    assert abs(effect['parameters']['backlash_axis'] - 4e-6) < 3 * effect['std_devs'][
+        'backlash_axis']
+
+
 def test_periodic_error_found_with_its_pitch():
     truth = AxisTruth(periodic_amplitude=1.5e-6, pitch=0.016)
     report = analyze(AxisModel(simulate_axis_test(truth, seed=12))).report
