@@ -165,9 +165,9 @@ def likely_causes(item: dict) -> str:
     engineer, not a diagnosis: the data did not pick one)."""
     if item['covariate'].startswith('angle') or item.get('covariate_unit') == 'rad':
         return ('an error repeating with the rotary axis\'s angle that neither an angle error '
-                'nor a radial or axial error motion of the orders tested explains: tilt error '
-                'motion (ISO 230-7), error motion of an order the angles do not resolve, or '
-                'the instrument\'s bias with the view angle')
+                'nor an error motion (radial, axial, tilt; ISO 230-7) of the orders tested '
+                'explains: error motion of an order the angles do not resolve or too small '
+                'to stand out from this noise, or the instrument\'s bias with the view angle')
     if item['covariate'] == 'image_radius':
         return 'lens distortion of higher order than modelled'
     return _CAUSES.get(item['kind'], 'not known')

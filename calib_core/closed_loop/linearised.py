@@ -45,7 +45,7 @@ class LinearisedModel(MachineModel):
         self.machine = machine
         self.expansion = base
         for name in ('name', 'base_model', 'unit', 'channels', 'channel_units',
-                     'effect_channels', 'candidates', 'min_effect'):
+                     'channel_blocks', 'effect_channels', 'candidates', 'min_effect'):
             setattr(self, name, getattr(machine, name))
         every = np.arange(len(machine))
         self._count = len(every)
@@ -76,9 +76,8 @@ class LinearisedModel(MachineModel):
                             - machine.residuals(base, -step, every, self._context))
                            / (2 * CHANNEL_STEP))
         self._channel_jacobian = np.stack(columns, axis=-1)      # (N, k, C)
-        # The channel shift that best explains a residual (least squares per row), as
-        # every machine's own channel_residuals defines it.
-        self._to_channels = -np.linalg.pinv(self._channel_jacobian)   # (N, C, k)
+        # The channel shift that best explains a residual, as the machine defines it.
+        self._to_channels = machine.to_channels(self._channel_jacobian)   # (N, C, k)
 
     def __len__(self):
         return self._count

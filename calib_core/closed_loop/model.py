@@ -26,6 +26,10 @@ class MachineModel:
     channels: tuple = ()
     channel_units: tuple = ()   # per channel when not every one is in m (rad: rotary axis)
     effect_channels: dict = {}  # candidate name -> the channels it may act on (default all)
+    # Channels whose view of a residual is found together (least squares per row); each
+    # block explains the whole residual on its own. One block of every channel unless a
+    # machine has more channels than a row has residuals (a target's turn beside its axes').
+    channel_blocks: tuple = ()
     candidates: tuple = ()
     min_effect = 50e-9   # smallest effect worth adding, RMS in the residuals' unit
     # Fit the loop's models to first order about the base solution (see
@@ -60,6 +64,16 @@ class MachineModel:
                           context: dict) -> np.ndarray:
         """Residuals expressed in the channels (what ``delta`` lacks), shape (n, C)."""
         return self.residuals(base, delta, rows, context)
+
+    def to_channels(self, jacobian: np.ndarray) -> np.ndarray:
+        """The map (n, C, k) from a row's residual to the channel shifts that best explain
+        it, from the residuals' channel Jacobian ``jacobian`` (n, k, C): least squares per
+        row within each of :attr:`channel_blocks`."""
+        out = np.zeros(jacobian.shape[:1] + jacobian.shape[2:] + jacobian.shape[1:2])
+        for block in self.channel_blocks or (self.channels,):
+            index = [self.channels.index(c) for c in block]
+            out[:, index] = -np.linalg.pinv(jacobian[:, :, index])
+        return out
 
     def strata(self) -> np.ndarray:
         """Label per row; hold-out and folds sample every label (e.g. camera views)."""

@@ -33,9 +33,11 @@ Names are stable (they appear in reports):
 ``angular_harmonics``       a rotary axis's angular error repeating every turn (worm gear,
                             encoder eccentricity), sum of a_k cos(k theta) + b_k sin(k theta),
                             orders resolved by the angles sampled (rad)
-``error_motion``            radial and axial error motion of a rotary axis (ISO 230-7): the rotor
-                            shifting with its angle, orders 2 and up per component (m); needs
-                            ``rotor_frame`` (n, C, C, 3), each axis's housing frame in the channels
+``error_motion``            radial, axial and tilt error motion of a rotary axis (ISO 230-7): the
+                            rotor shifting (m) and tilting (rad) with its angle, orders 2 and up
+                            per component; needs ``rotor_frame`` (n, C, C, 5), each axis's
+                            housing frame in the channels (``rotor_view`` if they see it
+                            otherwise)
 ==========================  ============================================================
 
 Modules: ``base`` (Effect, Prepared and shared shapes), ``per_channel``, ``leg_play``,

@@ -1,10 +1,17 @@
 """The closed loop's view of the rotary axes measured by target poses
 (:mod:`dispenser_calib.core.rotary`): rows are the poses, the base model the 14 parameters
 (the axes as lines, the camera's orientation, the target's place), channels the two table
-angles (rad) and a shift of the target in the camera frame (m). An effect on an angle is
-the table turning other than its reading says (a worm gear, an encoder's eccentricity,
-lost motion as the axis reverses); one on the shift is the target moving against the
-instrument (thermal drift of a stand or of the Z column)."""
+angles (rad), a shift of the target in the camera frame (m) and a turn of the target about
+its origin, a rotation vector in the camera frame (rad). An effect on an angle is the
+table turning other than its reading says (a worm gear, an encoder's eccentricity, lost
+motion as the axis reverses); one on the shift is the target moving against the
+instrument (thermal drift of a stand or of the Z column); the rotor's error motion
+(ISO 230-7) shifts and tilts it.
+
+A row has six residuals and the channels are eight: a turn about A's axis is a turn of
+the target and a shift at once. The residual's view in the channels is therefore found
+in two blocks, each explaining the whole residual on its own: the angles with the shift,
+and the turn alone (what a tilt of a rotor's axis shows)."""
 from __future__ import annotations
 
 import numpy as np
@@ -14,10 +21,13 @@ from calib_core.datasets import directions_from_order
 from calib_core.effects.rotary import commanded_places
 from calib_core.parameters import Parameter, ParameterSet
 from dispenser_calib.core.rotary import (
-    FITTED_NAMES, LEVER, housing_frames, identify_rotary_axes, model_from, pose_residuals)
+    FITTED_NAMES, LEVER, housing_frames, identify_rotary_axes, model_from, pose_residuals,
+    tilt_arms)
 from dispenser_calib.core.target_poses import TargetPoses
 
-ANGLE_STEP = 1e-6   # rad: finite-difference step of the channel Jacobian
+CHANNEL_STEP = 1e-6   # rad or m: finite-difference step of the channel Jacobian
+SHIFT = ('camera_x', 'camera_y', 'camera_z')
+TURN = ('turn_x', 'turn_y', 'turn_z')
 
 
 def _unit(name: str) -> str:
@@ -32,14 +42,14 @@ class RotaryLoopModel(MachineModel):
     base_model = ('A and C as lines (two tilts and two offsets each), the camera\'s '
                   'orientation and the target\'s place: 14 parameters; residual: the target '
                   'origin\'s position and the lever arm times its orientation error (m)')
-    channels = ('a', 'c', 'camera_x', 'camera_y', 'camera_z')
-    channel_units = ('rad', 'rad', 'm', 'm', 'm')
+    channels = ('a', 'c') + SHIFT + TURN
+    channel_units = ('rad', 'rad', 'm', 'm', 'm', 'rad', 'rad', 'rad')
+    channel_blocks = (('a', 'c') + SHIFT, TURN)
     candidates = ('scale', 'angular_harmonics', 'error_motion', 'reversal', 'drift_time',
                   'drift_temperature')
     # Encoders turn, gears wobble and axes reverse; heat moves the target against the camera.
     effect_channels = {'scale': ('a', 'c'), 'angular_harmonics': ('a', 'c'),
-                       'reversal': ('a', 'c'), 'drift_time': ('camera_x', 'camera_y', 'camera_z'),
-                       'drift_temperature': ('camera_x', 'camera_y', 'camera_z')}
+                       'reversal': ('a', 'c'), 'drift_time': SHIFT, 'drift_temperature': SHIFT}
     min_effect = 1e-6
 
     def __init__(self, poses: TargetPoses, lever: float = LEVER):
@@ -74,42 +84,59 @@ class RotaryLoopModel(MachineModel):
         # Encoder readings of one commanded angle differ in the last digits; the tests for
         # periods and trends count distinct positions, so they see the commanded places.
         places = np.column_stack([commanded_places(angles[:, 0]), commanded_places(angles[:, 1])])
-        context = {'position': np.column_stack([places, np.zeros((n, 3))]),
-                   'angle': np.column_stack([angles, np.full((n, 3), np.nan)]),
-                   'direction': np.column_stack([self.directions[rows], np.zeros((n, 3))]),
+        context = {'position': np.column_stack([places, np.zeros((n, 6))]),
+                   'angle': np.column_stack([angles, np.full((n, 6), np.nan)]),
+                   'direction': np.column_stack([self.directions[rows], np.zeros((n, 6))]),
                    'rotor_frame': self._rotor_frame(base, rows)}
+        # How a rotor's motion looks in the channel residuals: the two blocks see a tilt
+        # about A's direction partly as a turn of A (the screen must expect that).
+        jacobian = self._channel_jacobian(base, np.zeros((n, len(self.channels))), rows)[1]
+        seen = -np.einsum('nck,nkd->ncd', self.to_channels(jacobian), jacobian)
+        context['rotor_view'] = np.einsum('ncd,nidm->nicm', seen, context['rotor_frame'])
         context.update(select_rows(self._scalars, rows))
         return context
 
     def _rotor_frame(self, base, rows):
-        """(n, 5, 5, 3): A's and C's rotor displacement (radial_1, radial_2, axial, m; see
-        :func:`housing_frames`) as the target's shift in the camera frame, the channels
-        camera_x, camera_y, camera_z."""
+        """(n, 8, 8, 5): A's and C's rotor displacement (radial_1, radial_2, axial, m) and
+        tilt (about radial_1 and radial_2, rad; see :func:`housing_frames`) as the
+        channels' terms: a displacement shifts the target in the camera frame, a tilt about
+        the pivot of :func:`tilt_arms` turns it and shifts its origin by tilt x arm."""
         model = model_from(np.array([base[n] for n in FITTED_NAMES]), self.camera_start)
-        frame = np.zeros((len(rows), 5, 5, 3))
-        frame[:, :2, 2:, :] = housing_frames(model, self.poses.a[rows])
+        a, c = self.poses.a[rows], self.poses.c[rows]
+        housing, arms = housing_frames(model, a), tilt_arms(model, a, c)
+        frame = np.zeros((len(rows), 8, 8, 5))
+        for axis in range(2):
+            frame[:, axis, 2:5, :3] = housing[:, axis]
+            for k in range(2):
+                tilt = housing[:, axis, :, k]
+                frame[:, axis, 5:, 3 + k] = tilt
+                frame[:, axis, 2:5, 3 + k] = np.cross(tilt, arms[:, axis])
         return frame
 
-    def _residuals(self, base, delta, rows, turn_step=None):
+    def _residuals(self, base, delta, rows):
         model = model_from(np.array([base[n] for n in FITTED_NAMES]), self.camera_start)
-        turn = delta[:, :2] if turn_step is None else delta[:, :2] + turn_step
         return pose_residuals(model, self.frame, self.poses.subset(rows), self.lever,
-                              turn=turn, shift=delta[:, 2:])
+                              turn=delta[:, :2], shift=delta[:, 2:5], rotate=delta[:, 5:])
 
     def residuals(self, base, delta, rows, context):
         return self._residuals(base, delta, rows)
 
-    def channel_residuals(self, base, delta, rows, context):
-        """Per pose, the angle turns (rad) and target shift (m) that best explain its
-        residual: least squares on the pose's 6 x 5 channel Jacobian."""
+    def _channel_jacobian(self, base, delta, rows):
+        """The residuals (n, 6) and their derivative by each channel's term (n, 6, 8)."""
         r0 = self._residuals(base, delta, rows)
-        jacobian = np.zeros((len(rows), 6, 5))
-        for k in range(2):
-            step = np.zeros((len(rows), 2))
-            step[:, k] = ANGLE_STEP
-            jacobian[:, :, k] = (r0 - self._residuals(base, delta, rows, step)) / ANGLE_STEP
-        jacobian[:, :3, 2:] = np.eye(3)
-        return np.einsum('nij,nj->ni', np.linalg.pinv(jacobian), r0)
+        jacobian = np.zeros(r0.shape + (len(self.channels),))
+        for k in range(len(self.channels)):
+            step = delta.copy()
+            step[:, k] += CHANNEL_STEP
+            jacobian[:, :, k] = (self._residuals(base, step, rows) - r0) / CHANNEL_STEP
+        return r0, jacobian
+
+    def channel_residuals(self, base, delta, rows, context):
+        """Per pose, the angle turns and target shift (rad, m) that best explain its
+        residual, and apart from them the target's turn (rad) that does: least squares
+        per block of :attr:`channel_blocks` on the pose's channel Jacobian."""
+        r0, jacobian = self._channel_jacobian(base, delta, rows)
+        return np.einsum('nck,nk->nc', self.to_channels(jacobian), r0)
 
     def row_errors(self, residuals):
         """Per pose, the norm of the target origin's position error and the lever arm

@@ -81,10 +81,13 @@ def table_frame(poses: TargetPoses) -> np.ndarray:
 
 def pose_residuals(model: DispenserModel, frame: np.ndarray, poses: TargetPoses,
                    lever: float = LEVER, turn: np.ndarray | None = None,
-                   shift: np.ndarray | None = None, weighted: bool = True) -> np.ndarray:
+                   shift: np.ndarray | None = None, weighted: bool = True,
+                   rotate: np.ndarray | None = None) -> np.ndarray:
     """Measured minus modelled, (n, 6) m: the target origin's position and ``lever`` times
-    the rotation vector of R_meas R_model^T. ``turn`` (n, 2) rad is added to a, c and
-    ``shift`` (n, 3) m to the modelled position (the closed loop's effects). With the
+    the rotation vector of R_meas R_model^T. ``turn`` (n, 2) rad is added to a, c,
+    ``shift`` (n, 3) m to the modelled position and ``rotate`` (n, 3) rad, a rotation
+    vector in the camera frame, turns the modelled target about its origin (the closed
+    loop's effects). With the
     poses' covariance (and ``weighted``), the residuals are whitened instead: (position,
     rotation vector) times the inverse of each pose's covariance's Cholesky factor, in
     standard deviations."""
@@ -94,6 +97,8 @@ def pose_residuals(model: DispenserModel, frame: np.ndarray, poses: TargetPoses,
     if shift is not None:
         position = position + shift
     modelled = chain_rotation(model, angles[:, 0], angles[:, 1]) @ frame
+    if rotate is not None:
+        modelled = Rotation.from_rotvec(rotate).as_matrix() @ modelled
     rotation = Rotation.from_matrix(poses.rotation @ np.transpose(modelled, (0, 2, 1)))
     if weighted and poses.covariance is not None:
         raw = np.column_stack([poses.translation - position, rotation.as_rotvec()])
@@ -167,6 +172,21 @@ def housing_frames(model: DispenserModel, a: np.ndarray) -> np.ndarray:
     carried = model.rotation @ rodrigues(va, np.asarray(a, float))
     return np.stack([np.broadcast_to(model.rotation @ a_frame, carried.shape),
                      carried @ c_frame], axis=1)
+
+
+def tilt_arms(model: DispenserModel, a: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """From each rotary axis's tilt pivot to the target's origin in the camera frame, (n,
+    2, 3) m for A then C at the table's angles a, c (n,) rad. The pivot is the foot of the
+    origin at reset on the axis line (A's t_a, C's t_c as A carries it): a tilt of the
+    rotor by w (rad, camera frame) moves the origin by w x arm. Where along the axis the
+    rotor tilts is a gauge: another pivot adds to the radial error motion of the same
+    orders, so the radial motion stated is the one at the target's own height."""
+    (va, ta), (vc, tc) = model.a_axis, model.c_axis
+    a, c = np.asarray(a, float), np.asarray(c, float)
+    carried = rodrigues(va, a)
+    from_c = (carried @ rodrigues(vc, c)) @ -tc
+    from_a = from_c + carried @ (tc - ta)
+    return np.stack([from_a, from_c], axis=1) @ model.rotation.T
 
 
 def squareness(model: DispenserModel) -> float:

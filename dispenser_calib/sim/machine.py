@@ -94,7 +94,8 @@ def measure_target_poses(truth: DispenserModel, a: np.ndarray, c: np.ndarray,
                          times: np.ndarray, position_noise: float = 20e-6,
                          rotation_noise: float = 50e-6, seed: int = 0,
                          angular_error=None, drift: np.ndarray | None = None,
-                         c_error_motion=None) -> TargetPoses:
+                         c_error_motion=None, c_tilt_motion=None,
+                         tilt_height: float = 0.0) -> TargetPoses:
     """The board's pose measured by the machine's own camera (linear axes at zero) at
     each table angle a, c (n,) rad and time (n,) s: the board's frame at reset is the table
     frame, so the truth's axes are those of the measured target. ``angular_error`` (a
@@ -103,21 +104,29 @@ def measure_target_poses(truth: DispenserModel, a: np.ndarray, c: np.ndarray,
     normal, ``position_noise`` m per coordinate and ``rotation_noise`` rad per axis.
     ``c_error_motion`` (a function of c, (n, 3) m) shifts C's rotor, and the board with it,
     along C's housing directions: x along A's axis (made perpendicular to C's), y, and z
-    along C's axis, all carried by A (ISO 230-7 EXC, EYC, EZC)."""
+    along C's axis, all carried by A (ISO 230-7 EXC, EYC, EZC). ``c_tilt_motion`` (a
+    function of c, (n, 2) rad) tilts C's rotor about the first two of those directions
+    (EAC, EBC when C's x is the machine's X), about the point of C's axis ``tilt_height``
+    m along it from the foot of the board's origin (a bearing below the table top: < 0)."""
     rng = np.random.default_rng(seed + 70)
     turned = c + (angular_error(c) if angular_error is not None else 0.0)
     stops = np.column_stack([np.zeros((len(a), 3)), a, turned])
     position = _camera_rows(truth, np.zeros((len(a), 3)), stops)
     if drift is not None:
         position = position + np.outer(times - times[0], drift)
-    if c_error_motion is not None:
-        (va, _), (vc, _) = truth.a_axis, truth.c_axis
-        x = va - vc * (va @ vc)
-        x /= np.linalg.norm(x)
-        housing = truth.rotation @ rodrigues(va, np.asarray(a, float)) @ np.column_stack(
-            [x, np.cross(vc, x), vc])
-        position = position + np.einsum('nij,nj->ni', housing, c_error_motion(c))
+    (va, ta), (vc, tc) = truth.a_axis, truth.c_axis
+    x = va - vc * (va @ vc)
+    x /= np.linalg.norm(x)
+    carried = truth.rotation @ rodrigues(va, np.asarray(a, float))
+    housing = carried @ np.column_stack([x, np.cross(vc, x), vc])
     rotation = chain_rotation(truth, a, turned)
+    if c_tilt_motion is not None:
+        tilt = np.einsum('nij,nj->ni', housing[:, :, :2], c_tilt_motion(c))
+        pivot = carried @ (tc - ta + tilt_height * vc) + truth.rotation @ ta + truth.affine[:, 3]
+        position = position + np.cross(tilt, position - pivot)
+        rotation = Rotation.from_rotvec(tilt).as_matrix() @ rotation
+    if c_error_motion is not None:
+        position = position + np.einsum('nij,nj->ni', housing, c_error_motion(c))
     wobble = Rotation.from_rotvec(rng.normal(0, rotation_noise, (len(a), 3))).as_matrix()
     return TargetPoses(np.asarray(a, float), np.asarray(c, float), wobble @ rotation,
                        position + rng.normal(0, position_noise, position.shape),
