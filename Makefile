@@ -64,6 +64,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.plan_platform --out bench_results
 	$(BIN)/python -m machine_alignment.bench.plan_five_axis --out bench_results
 	$(BIN)/python -m machine_alignment.bench.plan_hexapod --out bench_results
+	$(BIN)/python -m machine_alignment.bench.plan_stage --out bench_results
 	$(BIN)/python -m machine_alignment.bench.five_axis --out bench_results
 	$(BIN)/python -m machine_alignment.bench.performance --out bench_results
 

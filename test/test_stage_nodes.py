@@ -14,7 +14,7 @@ from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibratio
 from calib_core.bags import decode_bag  # noqa: E402
 from machine_alignment.cli import main as cli_main  # noqa: E402
 from machine_alignment.launcher import stage_graph  # noqa: E402
-from calib_core.storage import write_calibration  # noqa: E402
+from calib_core.storage import read_calibration, write_calibration  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
 from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E402
 from printer_alignment.core.records import stage_data_from_records, stage_record  # noqa: E402
@@ -122,10 +122,16 @@ def test_calibration_replay_alignment_and_closed_loop(graph):
 
 
 def test_calibration_and_alignment_triggered_from_the_command_line(graph):
+    """A run the calibrator plans itself (the sweeps of 3 and 8 chosen stops, as short as
+    the test's grid run), its prediction stated in the calibration it puts in force."""
     running, node, out = graph
-    done = machine_align(DOMAIN, 'call', 'stage_calibrator/calibrate', PLAN)
+    done = machine_align(DOMAIN, 'call', 'stage_calibrator/calibrate',
+                         'design: I\nstops: 8\nsweep_points: 3\n')
     assert done.returncode == 0, done.stderr
     assert 'stage calibration, version' in done.stdout and 'lead1' in done.stdout
+    prediction = read_calibration(out / 'calibration', 'stage')['report']['plan_prediction']
+    assert prediction['stops'] == 27 and prediction['planned_stops'] == 8
+    assert 0.3e-6 < prediction['predicted_rms_m'] < 2e-6
     aligned = machine_align(DOMAIN, 'call', 'aligner/align', 'parametric')
     assert aligned.returncode == 0, aligned.stderr
     assert 'aligned:' in aligned.stdout

@@ -67,6 +67,13 @@ class RotaryLoopModel(MachineModel):
         self._scalars = scalar_covariates(poses.covariates)
         # Hold-out and folds sample every tilt: the table's sweeps are at fixed a.
         self._strata = np.unique(np.round(poses.a, 3), return_inverse=True)[1]
+        # How a channel term looks in the channel residuals (N, 8, 8): the two blocks see a
+        # tilt about A's direction partly as a turn of A, and the error-motion screen must
+        # expect that. Once, at the base model on every pose: it moves with the base only
+        # to second order, and only the screen reads it.
+        every = np.arange(len(poses))
+        jacobian = self._channel_jacobian(self.initial(), np.zeros((len(poses), 8)), every)[1]
+        self._seen = -np.einsum('nck,nkd->ncd', self.to_channels(jacobian), jacobian)
 
     def __len__(self):
         return len(self.poses)
@@ -88,11 +95,8 @@ class RotaryLoopModel(MachineModel):
                    'angle': np.column_stack([angles, np.full((n, 6), np.nan)]),
                    'direction': np.column_stack([self.directions[rows], np.zeros((n, 6))]),
                    'rotor_frame': self._rotor_frame(base, rows)}
-        # How a rotor's motion looks in the channel residuals: the two blocks see a tilt
-        # about A's direction partly as a turn of A (the screen must expect that).
-        jacobian = self._channel_jacobian(base, np.zeros((n, len(self.channels))), rows)[1]
-        seen = -np.einsum('nck,nkd->ncd', self.to_channels(jacobian), jacobian)
-        context['rotor_view'] = np.einsum('ncd,nidm->nicm', seen, context['rotor_frame'])
+        context['rotor_view'] = np.einsum('ncd,nidm->nicm', self._seen[rows],
+                                          context['rotor_frame'])
         context.update(select_rows(self._scalars, rows))
         return context
 

@@ -1,6 +1,8 @@
-"""``machine-align plan platform|hexapod|five-axis``: the poses to measure for an
+"""``machine-align plan platform|hexapod|five-axis|stage``: the poses to measure for an
 identification, chosen before anything moves, with what they are predicted to give."""
 from __future__ import annotations
+
+import numpy as np
 
 from dispenser_calib.core.model import nominal_model as dispenser_nominal
 from dispenser_calib.core.model import read_model as read_dispenser_model
@@ -15,6 +17,10 @@ from machine_alignment.cli.common import check_writable, parse_size, ranged, wri
 from machine_alignment.cli.platform import read_targets
 from platform_calib.core.geometry import nominal_geometry, read_geometry
 from platform_calib.core.planning import plan_platform
+from printer_alignment.core.stage import NOMINAL_STAGE
+from printer_alignment.core.stage_calibration import StagePlan, write_stage_plan
+from printer_alignment.core.stage_planning import (
+    CAMERA_NOISE, LANDING_SIGMA, plan_stage, platform_marks, predict_stage_plan)
 
 
 def cmd_plan_platform(args) -> int:
@@ -110,6 +116,29 @@ def cmd_plan_five_axis(args) -> int:
     return 0
 
 
+def cmd_plan_stage(args) -> int:
+    check_writable(args.out, '--out')
+    marks = platform_marks(np.reshape(args.marks, (2, 2)))
+    noise = {'landing_sigma': args.landing_sigma, 'camera_noise': args.camera_noise}
+    plan = plan_stage(NOMINAL_STAGE, marks, args.stops, args.sweep_points,
+                      criterion=args.criterion, **noise)
+    today = predict_stage_plan(NOMINAL_STAGE, marks, StagePlan().targets(), **noise)
+    print(f'{len(plan.targets)} stops: home, sweeps of {args.sweep_points} points each way and '
+          f'{args.stops} chosen ({"test-pose (I)" if args.criterion == "I" else "D"}-optimal) '
+          f'from {plan.candidates} candidates inside the stroke')
+    print(f'predicted before anything moves (landing {args.landing_sigma * 1e6:g} um per chain, '
+          f'camera {args.camera_noise * 1e6:g} um, first order): the calibration Marks\' plate '
+          f'positions at 40 working inputs RMS {plan.predicted_rms_m * 1e6:.3f} um, max '
+          f'{plan.predicted_max_m * 1e6:.3f} um (1 sigma); today\'s {len(today.targets)}-stop run '
+          f'{today.predicted_rms_m * 1e6:.3f} um, max {today.predicted_max_m * 1e6:.3f} um')
+    write_stage_plan(args.out, plan.targets)
+    print(f'wrote {args.out} (q1, q2, q3 m in visiting order: simulate stage --plan and the '
+          'calibrator\'s targets key measure it)')
+    write_json(args.json, {**plan.report(), 'targets_m': plan.targets.tolist(),
+                           'todays_run': today.report()})
+    return 0
+
+
 def add_parser(sub) -> None:
     plan = sub.add_parser('plan', help='choose the measurements for a calibration and '
                                        'predict their result before anything moves')
@@ -178,3 +207,22 @@ def add_parser(sub) -> None:
                            help='plan CSV to write (stop, x_m, y_m, z_m, a_rad, c_rad)')
     five_axis.add_argument('--json', help='the prediction to write')
     five_axis.set_defaults(func=cmd_plan_five_axis)
+
+    stage = what.add_parser('stage', help='stops for the XY-Theta stage\'s calibration run')
+    stage.add_argument('--stops', type=ranged(int, 1, 729), required=True,
+                       help='stops to choose beside home and the sweeps')
+    stage.add_argument('--sweep-points', type=ranged(int, 3, 50), default=3,
+                       help='points of each sweep each way (the stepwise start needs them)')
+    stage.add_argument('--marks', type=float, nargs=4, metavar=('X1', 'Y1', 'X2', 'Y2'),
+                       default=(0.0351, 0.0791, 0.1551, 0.0797),
+                       help='the calibration Marks\' plate positions with the stage at home, '
+                            'm (the calibrator\'s calibration_marks)')
+    stage.add_argument('--criterion', choices=('I', 'D'), default='I',
+                       help='I: least Mark error at the working inputs; D: D-optimal')
+    stage.add_argument('--landing-sigma', type=ranged(float, 0.0, 1e-3, 'm'),
+                       default=LANDING_SIGMA, help='a chain\'s landing repeatability, m')
+    stage.add_argument('--camera-noise', type=ranged(float, 1e-9, 1e-3, 'm'),
+                       default=CAMERA_NOISE, help='a measured Mark coordinate\'s noise, m')
+    stage.add_argument('--out', required=True, help='plan CSV to write (q1, q2, q3)')
+    stage.add_argument('--json', help='the prediction to write')
+    stage.set_defaults(func=cmd_plan_stage)

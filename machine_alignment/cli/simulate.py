@@ -21,6 +21,7 @@ from machine_alignment.cli.common import progress, ranged
 from printer_alignment.core.camera_calibration import write_correspondences
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
+from printer_alignment.core.stage_calibration import read_stage_plan
 from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
 
 
@@ -47,9 +48,10 @@ def cmd_simulate_hexapod(args) -> int:
 
 def cmd_simulate_stage(args) -> int:
     truth = TRUE_STAGE.with_changes(backlash=(0.0, 0.0, 0.0)) if args.no_backlash else TRUE_STAGE
-    data = simulate_calibration_run(truth, seed=args.seed)
+    plan = read_stage_plan(args.plan) if args.plan else None
+    data = simulate_calibration_run(truth, plan=plan, seed=args.seed)
     data.to_csv(args.out)
-    print(f'wrote {args.out} ({len(data)} stops)')
+    print(f'wrote {args.out} ({len(data)} stops{f" of {args.plan}" if args.plan else ""})')
     return 0
 
 
@@ -123,6 +125,8 @@ def add_parser(sub) -> None:
     stage_sim.add_argument('--out', required=True, help='CSV to write')
     stage_sim.add_argument('--no-backlash', action='store_true',
                            help='a stage without backlash (clean data for the closed loop)')
+    stage_sim.add_argument('--plan', help='a planned run (plan stage\'s CSV: q1, q2, q3 m) '
+                                          'instead of the sweeps and the grid')
     stage_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     stage_sim.set_defaults(func=cmd_simulate_stage)
 

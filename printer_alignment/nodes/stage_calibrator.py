@@ -12,6 +12,12 @@ versioned calibration file ``stage`` and published latched on
 shared file system). Progress on ``/stage_calibrator/progress``. One run at a time; a
 failed or interrupted run leaves the previous calibration in force.
 
+Plan keys (``overrides_json``): ``sweep_points``, ``grid``, ``span`` (today's run), ``design``
+(``grid``; ``I`` or ``D``: the sweeps and ``stops`` stops chosen by
+:mod:`printer_alignment.core.stage_planning`, planned here), ``targets`` (a planned run,
+[[q1, q2, q3], ...] m, home first, as ``machine-align plan stage`` writes it); a planned
+run's prediction is in the report (``plan_prediction``).
+
 Service ``stage_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
 the last run's measurements with the error model without backlash as the base model.
 """
@@ -22,6 +28,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Header
 
+from calib_core.checks import whole_number
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import (
@@ -34,13 +41,17 @@ from calib_core.nodes.spin import run_node
 from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC)
+from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import (
     StagePlan, check_stage_calibration, models_as_dict, models_from_dict)
+from printer_alignment.core.stage_planning import (
+    plan_stage, platform_marks, predict_stage_plan)
 from printer_alignment.core.stage_procedure import run_stage_calibration
 from printer_alignment.nodes.mark_locator import MarkLocator
 
 ANALYSIS_TOPIC = '/stage_calibrator/analysis'
-PLAN_KEYS = ('sweep_points', 'grid', 'span')
+PLAN_KEYS = ('sweep_points', 'grid', 'span', 'design', 'stops', 'targets')
+DESIGNS = ('grid', 'I', 'D')
 
 
 class StageCalibratorNode(Node):
@@ -51,6 +62,8 @@ class StageCalibratorNode(Node):
         self.declare_parameter('sweep_points', StagePlan.sweep_points)
         self.declare_parameter('grid', list(StagePlan.grid))
         self.declare_parameter('span', StagePlan.span)
+        self.declare_parameter('design', 'grid')   # grid; I or D: the sweeps and `stops` planned
+        self.declare_parameter('stops', 40)        # chosen stops of a planned run
         # Where the two calibration Marks are (plate frame, m) with the stage at home, as
         # taught by jogging the camera over them once.
         self.declare_parameter('calibration_marks', [0.0351, 0.0791, 0.1551, 0.0797])
@@ -68,7 +81,7 @@ class StageCalibratorNode(Node):
         self.progress_pub = self.create_publisher(Progress, '/stage_calibrator/progress', 10)
         self.observation_pub = self.create_publisher(StageObservation, OBSERVATIONS_TOPIC, 10)
         self.calibration_service = CalibrationService(
-            self, 'stage', lambda overrides: self._run(self._plan(overrides)), self._header)
+            self, 'stage', lambda overrides: self._run(*self._plan(overrides)), self._header)
         self.create_service(RunCalibration, 'stage_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
         self._data = self._content = None    # StageData and file content of the last run
@@ -83,13 +96,26 @@ class StageCalibratorNode(Node):
                                             ANALYSIS_TOPIC, self._header),
                             callback_group=group)
 
-    def _plan(self, overrides: dict) -> StagePlan:
+    def _plan(self, overrides: dict) -> tuple[StagePlan, dict | None]:
+        """The run to measure and, for a planned one, what it is predicted to give."""
         unknown = set(overrides) - set(PLAN_KEYS)
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
+        design = g('design')
+        if design not in DESIGNS:
+            raise InvalidInputError(f'design must be one of {", ".join(DESIGNS)}, not {design!r}')
+        marks = platform_marks(self.home_marks)
+        if 'targets' in overrides:
+            targets = np.asarray(overrides['targets'], dtype=float)
+            plan = StagePlan(stops=targets)    # checks the shape, home first and the stroke
+            return plan, predict_stage_plan(NOMINAL_STAGE, marks, plan.targets()).report()
+        if design != 'grid':
+            planned = plan_stage(NOMINAL_STAGE, marks, whole_number(g('stops'), 'stops', 1),
+                                 int(g('sweep_points')), criterion=design)
+            return StagePlan(stops=planned.targets), planned.report()
         return StagePlan(sweep_points=int(g('sweep_points')),
-                         grid=tuple(int(v) for v in g('grid')), span=float(g('span')))
+                         grid=tuple(int(v) for v in g('grid')), span=float(g('span'))), None
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='plate')
@@ -115,7 +141,7 @@ class StageCalibratorNode(Node):
         run.record_frames([('plate', f'mark{k + 1}', *planar(x, y, 0.0))
                            for k, (x, y) in enumerate(marks)])
 
-    def _run(self, plan: StagePlan) -> CalibrationResult:
+    def _run(self, plan: StagePlan, prediction: dict | None) -> CalibrationResult:
         self.locator.vision   # fails early without a vision calibration
         with RecordedRun(self, 'stage', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/StageObservation',
@@ -126,6 +152,8 @@ class StageCalibratorNode(Node):
                 lambda expected: self.locator.measure(expected, 'circle'), self._progress,
                 lambda *stop: self._record_stop(run, *stop))
             check_stage_calibration(report)   # else nothing is put in force
+            if prediction is not None:
+                report['plan_prediction'] = prediction
             path, version, content = run.save('stage', {'models': models_as_dict(models),
                                                         'report': report})
             result = stage_result_message(report, models, self._header(), str(path), version)

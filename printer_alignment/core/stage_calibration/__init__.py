@@ -24,7 +24,9 @@ Modules: ``data`` (measurements and plan), ``models`` (what the aligner uses),
 ``stepwise``, ``parametric``, ``both`` (:func:`calibrate_stage`).
 """
 from printer_alignment.core.stage_calibration.both import calibrate_stage, check_stage_calibration
-from printer_alignment.core.stage_calibration.data import STAGE_COLUMNS, STAGE_DIRECTIONS, StageData, StagePlan, relative_motions
+from printer_alignment.core.stage_calibration.data import (
+    STAGE_COLUMNS, STAGE_DIRECTIONS, StageData, StagePlan, read_stage_plan, relative_motions,
+    write_stage_plan)
 from printer_alignment.core.stage_calibration.models import (
     ParametricModel, StageModel, StepwiseModel, models_as_dict, models_from_dict)
 from printer_alignment.core.stage_calibration.parametric import PARAMETRIC_GAUGE, mark_names, parametric_calibration, predict_marks
@@ -34,4 +36,4 @@ __all__ = ['PARAMETRIC_GAUGE', 'STAGE_COLUMNS', 'STAGE_DIRECTIONS', 'ParametricM
            'StageModel', 'StagePlan', 'StepwiseModel', 'calibrate_stage',
            'check_stage_calibration', 'mark_names',
            'models_as_dict', 'models_from_dict', 'parametric_calibration', 'predict_marks',
-           'relative_motions', 'stepwise_calibration']
+           'read_stage_plan', 'relative_motions', 'stepwise_calibration', 'write_stage_plan']

@@ -95,13 +95,25 @@ class StageData:
 class StagePlan:
     """Which inputs the calibration visits (m). ``span`` is the fraction of the stroke
     used; sweeps have ``sweep_points`` each way, the workspace grid ``grid`` points per
-    input (q1, (q2 + q3) / 2, q3 - q2)."""
+    input (q1, (q2 + q3) / 2, q3 - q2). ``stops`` (n, 3) m, when given, are the whole run
+    in visiting order instead (a planned one, :mod:`printer_alignment.core.stage_planning`):
+    it starts at home, and the stepwise start needs its sweeps among them."""
 
     sweep_points: int = 9
     grid: tuple = (5, 5, 3)
     span: float = 0.95
+    stops: np.ndarray | None = None
 
     def __post_init__(self):
+        if self.stops is not None:
+            stops = np.asarray(self.stops, dtype=float)
+            if stops.ndim != 2 or stops.shape[1] != 3 or not len(stops):
+                raise InvalidInputError(f'stops must be (n, 3) chain inputs in m, not shape '
+                                        f'{stops.shape}')
+            if np.any(stops[0] != 0):
+                raise InvalidInputError('a planned run starts at home (0, 0, 0): the Marks '
+                                        'measured there are the reference of every other stop')
+            object.__setattr__(self, 'stops', check_stroke(stops))
         object.__setattr__(self, 'sweep_points', whole_number(self.sweep_points, 'sweep_points', 3))
         if len(self.grid) != 3:
             raise InvalidInputError(f'grid must be three counts, not {self.grid!r}')
@@ -111,8 +123,8 @@ class StagePlan:
         if not 0 < self.span <= 1:
             raise InvalidInputError('span must be in (0, 1]')
 
-    def targets(self) -> np.ndarray:
-        """Inputs in visiting order, m, (n, 3). Starts at home; sweeps go up and back."""
+    def sweeps(self) -> np.ndarray:
+        """Home, then each sweep up and back (the stepwise start's stops), m, (n, 3)."""
         reach = self.span * STROKE
         ramp = np.linspace(-reach, reach, self.sweep_points)
         both_ways = np.concatenate([ramp, ramp[::-1]])
@@ -120,6 +132,14 @@ class StagePlan:
         x_sweep = np.column_stack([both_ways, zero, zero])
         y_sweep = np.column_stack([zero, both_ways, both_ways])
         attitude = np.column_stack([zero, -both_ways, both_ways])
+        return check_stroke(np.vstack([np.zeros((1, 3)), x_sweep, y_sweep, attitude]))
+
+    def targets(self) -> np.ndarray:
+        """Inputs in visiting order, m, (n, 3). Starts at home; sweeps go up and back;
+        then the planned stops or the workspace grid."""
+        if self.stops is not None:
+            return self.stops.copy()
+        reach = self.span * STROKE
         n1, nm, nw = self.grid
         rows = []
         # Mean of q2, q3 and their difference share the stroke: |qm| + |w| / 2 <= reach.
@@ -129,8 +149,29 @@ class StagePlan:
                 q1s = np.linspace(-reach, reach, n1)
                 for q1 in (q1s if (j + k) % 2 == 0 else q1s[::-1]):
                     rows.append([q1, qm - w / 2, qm + w / 2])
-        return check_stroke(np.vstack([np.zeros((1, 3)), x_sweep, y_sweep, attitude,
-                                       np.array(rows)]))
+        return np.vstack([self.sweeps(), check_stroke(np.array(rows))])
+
+
+PLAN_COLUMNS = ('q1', 'q2', 'q3')
+PLAN_SCHEMA = Schema(tuple(Column(n, 'm', -STROKE, STROKE, f'chain {n[1]} input')
+                           for n in PLAN_COLUMNS))
+
+
+def write_stage_plan(path, targets: np.ndarray) -> None:
+    """A planned run as CSV: q1, q2, q3 (m), one stop per row in visiting order."""
+    write_columns(path, list(PLAN_COLUMNS), [np.asarray(targets, dtype=float)])
+
+
+def read_stage_plan(path) -> StagePlan:
+    """The run of a plan CSV (:func:`write_stage_plan`), checked as a plan.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing columns, values outside the stroke (mm given for m?), not home first."""
+    columns = read_columns(path, list(PLAN_COLUMNS))
+    PLAN_SCHEMA.check(columns, path)
+    return StagePlan(stops=np.column_stack([columns[n] for n in PLAN_COLUMNS]))
 
 
 def relative_motions(marks: np.ndarray, home: np.ndarray):

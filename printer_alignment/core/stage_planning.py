@@ -1,0 +1,244 @@
+"""Planning the XY-Theta stage's calibration run: which stops to measure beside the sweeps
+so that the parametric calibration predicts the platform best where the stage will work,
+and what it will reach, stated before the stage moves.
+
+The stepwise start needs its three sweeps (each input up and back), so they stay, short
+(``sweep_points`` per way) if asked; the planner replaces the workspace grid by stops
+chosen from candidates inside the stroke (:func:`candidate_inputs`) with the shared
+:func:`calib_core.planning.augment`, the sweeps' information being the prior.
+
+Rows: per stop, the parametric model's Jacobian of the two calibration Marks' plate
+positions (4 rows) by its free parameters (the gauge of
+:data:`~printer_alignment.core.stage_calibration.parametric.PARAMETRIC_GAUGE` fixed, the
+Marks' platform positions free), whitened by the stop's noise: the camera's on each
+coordinate and each chain's landing through the kinematics. The I criterion: the mean
+squared error of the two Marks' predicted plate positions at working inputs approached
+from below, as the aligner moves (default: random inputs within 80 % of the stroke, as the
+paper's evaluation). Directions of approach follow from the order the stops are visited
+in: the plan's stops are ordered first, their prediction made with the directions that
+order gives.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+from calib_core.parameters import Parameter, ParameterSet
+from calib_core.planning import CRITERIA, augment, information, predicted_errors
+from printer_alignment.core.geometry import rotate_points
+from printer_alignment.core.stage import NOMINAL_STAGE, STROKE, StageGeometry, check_stroke
+from printer_alignment.core.stage_calibration.data import StagePlan
+from printer_alignment.core.stage_calibration.parametric import (
+    PARAMETRIC_GAUGE, mark_names, predict_marks)
+
+LANDING_SIGMA = 1.2e-6     # m: a chain's landing repeatability (1 sigma), as in docs/stage.md
+CAMERA_NOISE = 0.3e-6      # m: a Mark's measured plate coordinate (1 sigma)
+WORKING_REACH = 0.8        # of the stroke: where the aligner works
+STEP = 1e-8                # m or rad: central-difference step of the parameters
+
+
+@dataclass(frozen=True)
+class StageDesign:
+    """A planned calibration run and what it is predicted to give.
+
+    Attributes
+    ----------
+    targets : (n, 3) array
+        Inputs in visiting order, m: home, the sweeps, then the planned stops.
+    planned : int
+        How many of them the planner chose (the rest are home and the sweeps).
+    std_devs : dict
+        Predicted 1-sigma of each free parameter (SI units).
+    predicted_rms_m, predicted_max_m : float
+        Predicted error of the Marks' plate positions at the working inputs, m (RMS over
+        them, the largest 1-sigma).
+    criterion : str
+    candidates : int
+    """
+
+    targets: np.ndarray
+    planned: int
+    std_devs: dict
+    predicted_rms_m: float
+    predicted_max_m: float
+    criterion: str
+    candidates: int
+
+    def report(self) -> dict:
+        return {'stops': int(len(self.targets)), 'planned_stops': self.planned,
+                'criterion': self.criterion, 'candidates': self.candidates,
+                'predicted_rms_m': self.predicted_rms_m,
+                'predicted_max_m': self.predicted_max_m,
+                'predicted_std_devs': self.std_devs,
+                'prediction': 'the Marks\' plate positions at the working inputs, from the '
+                              'noise stated and the model at the nominal (or given) geometry'}
+
+
+def free_parameters(geometry: StageGeometry, marks) -> ParameterSet:
+    """The parametric fit's parameters at ``geometry`` and the Marks' platform positions
+    ``marks`` (2, 2) m, the gauge fixed as the fit fixes it."""
+    parameters = ParameterSet(geometry.as_parameters().parameters + [
+        Parameter(n, float(v), 'm') for n, v in zip(mark_names(), np.ravel(marks))])
+    for name in PARAMETRIC_GAUGE:
+        parameters.set_free(name, False)
+    return parameters
+
+
+def platform_marks(home_marks, geometry: StageGeometry | None = None) -> np.ndarray:
+    """The calibration Marks' platform positions (2, 2) m from their plate positions with
+    the stage at home (as taught), through ``geometry`` (default the nominal stage)."""
+    geometry = geometry or NOMINAL_STAGE
+    pose = geometry.stage_to_plate(geometry.forward(np.zeros((1, 3))))[0]
+    return rotate_points(-pose[2], np.asarray(home_marks, dtype=float) - pose[:2])
+
+
+def _marks(parameters: ParameterSet, vector, q, directions) -> np.ndarray:
+    values = parameters.with_free_vector(vector).as_dict()
+    marks = np.array([values[n] for n in mark_names()]).reshape(2, 2)
+    return predict_marks(StageGeometry.from_parameters(values), marks, q,
+                         directions).reshape(len(q), 4)
+
+
+def mark_jacobian(parameters: ParameterSet, q, directions) -> np.ndarray:
+    """d(Marks' plate positions)/d(free parameters), (n, 4, p), at inputs ``q`` (n, 3) m
+    approached from ``directions`` (n, 3); central differences."""
+    x0 = parameters.free_vector()
+    columns = []
+    for j in range(len(x0)):
+        step = np.zeros_like(x0)
+        step[j] = STEP
+        columns.append((_marks(parameters, x0 + step, q, directions)
+                        - _marks(parameters, x0 - step, q, directions)) / (2 * STEP))
+    return np.stack(columns, axis=-1)
+
+
+def stop_noise(parameters: ParameterSet, q, directions, landing_sigma: float = LANDING_SIGMA,
+               camera_noise: float = CAMERA_NOISE) -> np.ndarray:
+    """Covariance (n, 4, 4) of each stop's measured Marks, m^2: every chain lands with
+    ``landing_sigma`` and the camera adds ``camera_noise`` per coordinate."""
+    x0 = parameters.free_vector()
+    columns = []
+    for k in range(3):
+        step = np.zeros(3)
+        step[k] = STEP
+        columns.append((_marks(parameters, x0, q + step, directions)
+                        - _marks(parameters, x0, q - step, directions)) / (2 * STEP))
+    through = np.stack(columns, axis=-1)                                   # (n, 4, 3)
+    return (landing_sigma ** 2 * through @ np.swapaxes(through, 1, 2)
+            + camera_noise ** 2 * np.eye(4))
+
+
+def whitened_rows(parameters: ParameterSet, q, directions, **noise) -> np.ndarray:
+    """Each stop's Jacobian divided by its noise's Cholesky factor, (n, 4, p)."""
+    factor = np.linalg.cholesky(stop_noise(parameters, q, directions, **noise))
+    return np.linalg.solve(factor, mark_jacobian(parameters, q, directions))
+
+
+def candidate_inputs(per_axis: int = 9, span: float = StagePlan.span) -> np.ndarray:
+    """Inputs (n, 3) m on a grid of q1, (q2 + q3) / 2 and q3 - q2 inside ``span`` of the
+    stroke, where the mean and the difference of q2 and q3 share it as the plan's grid
+    does (|mean| + |difference| / 2 <= reach)."""
+    reach = span * STROKE
+    levels = np.linspace(-1, 1, per_axis)
+    rows = [[q1 * reach, (m * (reach - abs(w) * reach / 2)) - w * reach / 2,
+             (m * (reach - abs(w) * reach / 2)) + w * reach / 2]
+            for w in levels for m in levels for q1 in levels]
+    return np.unique(np.round(check_stroke(np.array(rows)), 12), axis=0)
+
+
+def default_working(count: int = 40, seed: int = 0) -> np.ndarray:
+    """Working inputs (count, 3) m: uniform within WORKING_REACH of the stroke, as the
+    paper's evaluation draws its targets."""
+    reach = WORKING_REACH * STROKE
+    return np.random.default_rng(seed).uniform(-reach, reach, (count, 3))
+
+
+def visiting_directions(targets: np.ndarray) -> np.ndarray:
+    """Each chain's direction of its last motion (n, 3) when ``targets`` (n, 3) m are
+    visited in order from home: +1 where it rose to the stop, -1 where it fell, the
+    previous direction where it did not move (the stage starts with +1)."""
+    directions = np.ones_like(targets)
+    previous, now = np.ones(3), np.zeros(3)
+    for k, q in enumerate(targets):
+        moved = np.sign(q - now)
+        previous = np.where(moved != 0, moved, previous)
+        directions[k], now = previous, q
+    return directions
+
+
+def route(stops: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``stops`` (n, 3) in a short visiting order from ``start`` (3,): the nearest one not
+    visited yet, each time."""
+    left, order, now = list(range(len(stops))), [], np.asarray(start, float)
+    while left:
+        nearest = min(left, key=lambda k: float(np.abs(stops[k] - now).max()))
+        order.append(nearest)
+        left.remove(nearest)
+        now = stops[nearest]
+    return stops[order]
+
+
+def predict_stage_plan(geometry: StageGeometry, marks, targets, working=None,
+                       criterion: str = 'I', candidates: int = 0, planned: int = 0,
+                       **noise) -> StageDesign:
+    """What the calibration run ``targets`` (n, 3) m, visited in that order, is predicted to
+    give: each free parameter's 1-sigma and the Marks' error at the ``working`` inputs."""
+    targets = check_stroke(np.asarray(targets, dtype=float))
+    parameters = free_parameters(geometry, marks)
+    rows = whitened_rows(parameters, targets, visiting_directions(targets), **noise)
+    covariance = np.linalg.pinv(information(rows, np.arange(len(rows))))
+    working = default_working() if working is None else np.asarray(working, dtype=float)
+    sensitivity = mark_jacobian(parameters, working, np.ones_like(working))
+    errors = predicted_errors(covariance, sensitivity.reshape(-1, 2, covariance.shape[0]))
+    sigma = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    return StageDesign(targets, planned, dict(zip(parameters.free_names, map(float, sigma))),
+                       float(np.sqrt(np.mean(np.sum(errors.reshape(len(working), 2, 2) ** 2,
+                                                     axis=2)))),
+                       float(np.max(np.linalg.norm(errors.reshape(len(working), 2, 2),
+                                                   axis=2))),
+                       criterion, candidates)
+
+
+def plan_stage(geometry: StageGeometry, marks, stops: int, sweep_points: int = 3,
+               working=None, criterion: str = 'I', per_axis: int = 9,
+               **noise) -> StageDesign:
+    """Home, the sweeps of ``sweep_points`` per way, and ``stops`` chosen stops.
+
+    Parameters
+    ----------
+    geometry : StageGeometry
+        The nominal (or a calibrated) stage.
+    marks : (2, 2) array
+        The calibration Marks' platform positions, m (as the stepwise start gives them).
+    stops : int
+        Stops to choose beside home and the sweeps.
+    working : (W, 3) array, optional
+        Inputs the stage will work at, m (default :func:`default_working`).
+    criterion : 'I' or 'D'
+
+    Raises
+    ------
+    InvalidInputError
+        Fewer than one stop, an unknown criterion, or more stops than candidates.
+    """
+    if criterion not in CRITERIA:
+        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
+                                f'{criterion}')
+    if not 1 <= stops:
+        raise InvalidInputError(f'plan at least one stop beside the sweeps, not {stops}')
+    sweeps = StagePlan(sweep_points=sweep_points).sweeps()
+    parameters = free_parameters(geometry, marks)
+    prior_rows = whitened_rows(parameters, sweeps, visiting_directions(sweeps), **noise)
+    pool = candidate_inputs(per_axis)
+    # The candidates' directions are those of a stop reached from home, which the route
+    # later replaces by its own: the backlash terms are small beside the geometry's.
+    rows = whitened_rows(parameters, pool, np.sign(pool + 1e-15), **noise)
+    working = default_working() if working is None else np.asarray(working, dtype=float)
+    sensitivity = mark_jacobian(parameters, working, np.ones_like(working))
+    chosen = augment(rows, information(prior_rows, np.arange(len(prior_rows))), stops,
+                     criterion, sensitivity if criterion == 'I' else None)
+    targets = np.vstack([sweeps, route(pool[chosen], sweeps[-1])])
+    return predict_stage_plan(geometry, marks, targets, working, criterion, len(pool),
+                              stops, **noise)
