@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 DOMAIN = str(230 + os.getpid() % 3)   # each DDS test module has its own band
@@ -18,7 +19,9 @@ from alignment_msgs.srv import AnalyzeResiduals, RunCalibration  # noqa: E402
 
 from calib_core.nodes.qos import LATCHED  # noqa: E402
 from calib_core.storage import read_calibration  # noqa: E402
+from grid_calib.core.data import read_marks  # noqa: E402
 from grid_calib.core.records import PLACEMENT_TOPIC, RESULT_TOPIC  # noqa: E402
+from machine_alignment.cli import main as cli_main  # noqa: E402
 from machine_alignment.launcher import grid_graph  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
 
@@ -83,6 +86,15 @@ def test_the_recorded_run_solves_again_offline_to_the_same_map(graph, tmp_path):
                          str(tmp_path / 'replay.json'))
     assert done.returncode == 0, done.stderr
     assert json.loads((tmp_path / 'replay.json').read_text())['max_difference_to_live_m'] < 1e-12
+    # The run as the analyze command's CSV: every reading, each with its time in the run.
+    marks = tmp_path / 'marks.csv'
+    assert cli_main(['export', 'grid', '--bag', bag, '--out', str(marks)]) == 0
+    grid, regions = read_marks(marks, PLAN['pitch'])
+    assert set(regions) == {0, 1} and grid.half == PLAN['half']
+    times = np.concatenate([p.covariates['time'] for r in regions.values()
+                            for p in r.placements])
+    assert len(times) == 2 * 3 * 9 and times.min() == 0 and 0 < times.max() < 600
+    assert cli_main(['analyze', 'grid', '--data', str(marks), '--pitch', str(PLAN['pitch'])]) == 0
 
 
 def test_a_plan_outside_the_travel_is_refused_before_anything_moves(graph):

@@ -33,18 +33,26 @@ def grid_from_placements(placements) -> Grid:
     return Grid((count - 1) // 2, pitch)
 
 
+def _stamp(msg) -> float:
+    """A reading's header stamp (s), NaN for a reading without one."""
+    header = getattr(msg, 'header', None)
+    return np.nan if header is None else header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
 def regions_from_readings(grid: Grid, readings) -> tuple[dict, list[str]]:
     """Regions (region -> ``data.Region``) from GridMarkReading messages, and a sentence for
     each region left out because its run is incomplete (a run stopped or killed part way):
-    what was measured is kept, nothing incomplete is solved.
+    what was measured is kept, nothing incomplete is solved. With every reading stamped,
+    each carries its ``time`` (s since the run's first reading) for the closed loop.
 
     Raises
     ------
     PlacementError
         A reading with NaN or an unknown placement, or a complete region whose placements
         are not the method's."""
-    by_region = {}
-    for msg in readings:
+    by_region, stamps = {}, np.array([_stamp(msg) for msg in readings])
+    start = np.min(stamps) if len(stamps) and np.all(np.isfinite(stamps)) else None
+    for msg, stamp in zip(readings, stamps):
         if msg.placement not in PLACEMENTS:
             raise PlacementError(f'a reading names placement {msg.placement!r}; the method '
                                  f'uses {PLACEMENTS}')
@@ -52,7 +60,8 @@ def regions_from_readings(grid: Grid, readings) -> tuple[dict, list[str]]:
             raise PlacementError(f'region {msg.region}, {msg.placement}, mark ({msg.i}, '
                                  f'{msg.j}): the reading is NaN or infinite')
         by_region.setdefault(int(msg.region), {}).setdefault(msg.placement, []).append(
-            ((int(msg.i), int(msg.j)), (float(msg.x), float(msg.y))))
+            ((int(msg.i), int(msg.j)), (float(msg.x), float(msg.y)),
+             None if start is None else stamp - start))
     regions, left_out = {}, []
     full = len(grid.marks)
     for region in sorted(by_region):
@@ -61,7 +70,10 @@ def regions_from_readings(grid: Grid, readings) -> tuple[dict, list[str]]:
             left_out.append(f'region {region} left out: incomplete ('
                             + ', '.join(f'{p} {n}/{full}' for p, n in counts.items()) + ')')
             continue
-        as_arrays = {p: (np.array([m for m, _ in rows]), np.array([r for _, r in rows]))
+        as_arrays = {p: (np.array([m for m, _, _ in rows]), np.array([r for _, r, _ in rows]))
                      for p, rows in by_region[region].items()}
-        regions[region] = region_from_readings(grid, as_arrays, f'region {region}')
+        times = None if start is None else {
+            p: {'time': np.array([t for _, _, t in rows])}
+            for p, rows in by_region[region].items()}
+        regions[region] = region_from_readings(grid, as_arrays, f'region {region}', times)
     return regions, left_out

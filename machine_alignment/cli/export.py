@@ -1,10 +1,11 @@
-"""``machine-align export stage|platform|hexapod|five-axis``: a calibrator's recorded run
+"""``machine-align export stage|platform|hexapod|five-axis|grid``: a calibrator's recorded run
 (MCAP bag) as the CSV that ``machine-align analyze`` (and ``calibrate --data``) reads, so
 the closed loop can be run, repeated and shared offline on any live run. A cut run gives
 the stops it recorded. Each row gets a ``time`` column (s since the run's first stop, from
 the stops' header stamps), so a drift during the run can be tested. A five-axis bag (a
 calibration run or the sweep ``analyze_residuals`` records) gives the observations CSV of
-its images, which ``analyze rotary --calibration`` reads for a sweep."""
+its images, which ``analyze rotary --calibration`` reads for a sweep; a grid bag the marks
+CSV of its complete regions, which ``analyze grid`` reads."""
 from __future__ import annotations
 
 import dataclasses
@@ -16,10 +17,12 @@ from dispenser_calib.core.data import write_observations
 from dispenser_calib.core.records import (
     OBSERVATIONS_TOPIC as FIVE_AXIS_TOPIC, RESULT_TOPIC as FIVE_AXIS_RESULT_TOPIC,
     image_from_message)
+from grid_calib.core.data import write_marks
 from hexapod_calib.core.calibration import PoseData as HexapodPoseData
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC as HEXAPOD_TOPIC, measurement_record)
 from machine_alignment.cli.common import read_run
+from machine_alignment.cli.grid import grid_run
 from platform_calib.core.procedure import data_of
 from platform_calib.core.records import (
     MEASUREMENTS_TOPIC as PLATFORM_TOPIC, RESULT_TOPIC as PLATFORM_RESULT_TOPIC,
@@ -91,11 +94,32 @@ def _five_axis(bag):
     return _Images([image for image, _ in recorded]), f'the images ({", ".join(phases)})'
 
 
+@dataclasses.dataclass
+class _Marks:
+    """A grid run's complete regions, written as the marks CSV."""
+
+    grid: object
+    regions: dict
+
+    def __len__(self):
+        return sum(len(p.marks) for region in self.regions.values()
+                   for p in region.placements)
+
+    def to_csv(self, path):
+        write_marks(path, self.grid, self.regions)
+
+
+def _grid(bag):
+    grid, regions, _ = grid_run(bag)
+    return _Marks(grid, regions), f'the readings of region(s) {", ".join(map(str, regions))}'
+
+
 READERS = {'stage': _stage, 'platform': _platform, 'hexapod': _hexapod,
-           'five-axis': _five_axis}
+           'five-axis': _five_axis, 'grid': _grid}
 NEXT = {'hexapod': 'analyze hexapod --data {out} --geometry NOMINAL.yaml',
         'five-axis': ('analyze rotary --data {out} --calibration five_axis.yaml (a sweep with '
-                      'the linear axes held), or calibrate five-axis --data {out}')}
+                      'the linear axes held), or calibrate five-axis --data {out}'),
+        'grid': 'analyze grid --data {out} --pitch PITCH (the plate\'s, m)'}
 
 
 def cmd_export(args) -> int:
@@ -113,7 +137,7 @@ def add_parser(sub) -> None:
     machines = parser.add_subparsers(dest='machine', required=True)
     for name, recorder in (('stage', 'stage_calibrator'), ('platform', 'platform_calibrator'),
                            ('hexapod', 'hexapod_calibrator'),
-                           ('five-axis', 'five_axis_calibrator')):
+                           ('five-axis', 'five_axis_calibrator'), ('grid', 'grid_calibrator')):
         machine = machines.add_parser(name, help=f'a run recorded by {recorder}')
         machine.add_argument('--bag', required=True, help=f'a run recorded by {recorder}')
         machine.add_argument('--out', required=True, help='CSV to write (SI units)')

@@ -70,7 +70,7 @@ def _plot(path: Path, calibration) -> None:
     plt.close(fig)
 
 
-def _from_bag(bag):
+def grid_run(bag):
     """The grid and regions of a run recorded by grid_calibrator, the regions a cut run
     left incomplete named, and the live run's report (None if it ended without one)."""
     readings, recorded = read_run(bag, READINGS_TOPIC, 'alignment_msgs/msg/GridMarkReading',
@@ -88,7 +88,7 @@ def _from_bag(bag):
 def cmd_calibrate_grid(args) -> int:
     recorded = None
     if args.bag:
-        grid, regions, recorded = _from_bag(args.bag)
+        grid, regions, recorded = grid_run(args.bag)
     else:
         if args.pitch is None:
             raise MachineAlignmentError('--data needs --pitch (the plate\'s nominal pitch, m)')
