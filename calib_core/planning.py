@@ -16,11 +16,13 @@ The search is Fedorov's exchange: a greedy start, then sweeps that swap a chosen
 candidate for the one that most improves the criterion, until no swap helps. Every step
 scores all candidates at once by rank-r updates (Woodbury), never refitting anything.
 :func:`augment` adds measurements to what was measured already (the adaptive mode: measure,
-re-identify, add the stops that most reduce the predicted error).
+re-identify, add the stops that most reduce the predicted error), and :class:`Adaptive`
+decides the rounds of that mode for every machine.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -177,3 +179,57 @@ def predicted_errors(covariance: np.ndarray, working: np.ndarray) -> np.ndarray:
     """1-sigma error per working pose and output row (W, q) from the parameter
     ``covariance`` (p, p) and the working sensitivities (W, q, p)."""
     return np.sqrt(np.einsum('wqp,ps,wqs->wq', working, covariance, working))
+
+
+@dataclass
+class Adaptive:
+    """The adaptive mode's rounds, the same for every machine: after each identification
+    the machine predicts its error at the working poses (RMS, m) about what it identified;
+    while that is above ``target_error``, it adds the ``step`` measurements that lower it
+    most, up to ``max_count`` in all. It stops, saying so, when even ``max_count``
+    measurements are predicted to miss the target (before measuring more in vain).
+
+    ``what`` names the measurements in the report (stops, poses); ``limited_by`` says what
+    sets the floor when the target cannot be met (the noise, the strokes)."""
+
+    target_error: float
+    max_count: int
+    step: int
+    what: str = 'stops'
+    limited_by: str = ''
+    rounds: list = field(default_factory=list)
+    stopped: str = ''
+
+    def __post_init__(self):
+        if not (isinstance(self.target_error, (int, float)) and np.isfinite(self.target_error)
+                and 0 < self.target_error < 1e-3):
+            raise InvalidInputError(f'target_error must be an error in m, above 0 and below '
+                                    f'1 mm, not {self.target_error!r}')
+
+    def more(self, predicted: float, count: int, extend: Callable):
+        """The measurements to add after a round that gave ``predicted`` (m) from ``count``
+        measurements, or None when the rounds are over (:attr:`stopped` says why).
+        ``extend(room)`` returns the ``room`` best further measurements, best first (a
+        greedy choice: its first ``step`` are the best ``step``), and the RMS predicted with
+        all of them."""
+        self.rounds.append({self.what: int(count), 'predicted_rms_m': float(predicted)})
+        limit = f'max_{self.what} = {self.max_count}'
+        if predicted <= self.target_error:
+            return self._stop('target met')
+        room = self.max_count - count
+        if room <= 0:
+            return self._stop(f'target not met within {limit}')
+        added, floor = extend(room)
+        if floor > self.target_error:
+            self.rounds[-1][f'best_at_max_{self.what}_m'] = float(floor)
+            return self._stop(f'target cannot be met within {limit}: {floor * 1e6:.2f} um '
+                              f'predicted with all of them{self.limited_by}')
+        return added[:self.step]
+
+    def _stop(self, why: str):
+        self.stopped = why
+        return None
+
+    def report(self) -> dict:
+        return {'target_m': self.target_error, f'max_{self.what}': self.max_count,
+                'step': self.step, 'rounds': self.rounds, 'stopped': self.stopped}

@@ -29,7 +29,7 @@ import numpy as np
 
 from calib_core.checks import whole_number
 from calib_core.errors import InvalidInputError
-from calib_core.planning import CRITERIA, augment, information, predicted_errors
+from calib_core.planning import CRITERIA, Adaptive, augment, information, predicted_errors
 from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.data import DOT_RADIUS, board_points, check_poses
 from dispenser_calib.core.iso230 import iso230_7_report
@@ -398,12 +398,12 @@ def extend_five_axis(model: DispenserModel, measured: np.ndarray, count: int, im
 @dataclass
 class AdaptivePlan:
     """The adaptive mode (the calibrator's plan keys ``target_error``, ``max_stops``,
-    ``step``): after the planned stops are imaged, calibrate and predict the part's
-    placement error about the calibration so far; while it is above ``target_error`` (m,
-    RMS at the working poses), add the ``step`` stops that lower it most, image them and
-    calibrate again, up to ``max_stops``. It stops, saying so, when even ``max_stops``
-    stops are predicted to miss the target. Called with the images so far, it returns the
-    stops to image next (none when done); ``rounds`` and ``stopped`` say what happened."""
+    ``step``; its rounds decided by :class:`calib_core.planning.Adaptive`): after the
+    planned stops are imaged, calibrate and predict the part's placement error about the
+    calibration so far; while it is above ``target_error`` (m, RMS at the working poses),
+    add the ``step`` stops that lower it most, image them and calibrate again, up to
+    ``max_stops``. Called with the images so far, it returns the stops to image next (none
+    when done); :meth:`report` says what happened."""
 
     image_size: tuple
     target_error: float
@@ -412,17 +412,12 @@ class AdaptivePlan:
     criterion: str = 'I'
     noise_px: float = NOISE_PX
     seed: int = 0
-    rounds: list | None = None
-    stopped: str = ''
 
     def __post_init__(self):
-        if not (isinstance(self.target_error, (int, float)) and np.isfinite(self.target_error)
-                and 0 < self.target_error < 1e-3):
-            raise InvalidInputError(f'target_error must be a placement error in m, above 0 and '
-                                    f'below 1 mm, not {self.target_error!r}')
         self.max_stops = whole_number(self.max_stops, 'max_stops', sum(n for _, n in RESERVED))
         self.step = whole_number(self.step, 'step', 1)
-        self.rounds = []
+        self._adaptive = Adaptive(self.target_error, self.max_stops, self.step, 'stops',
+                               ' (the detection noise and the strokes decide it)')
 
     def __call__(self, images: list) -> np.ndarray:
         # The calibration (not only its prediction) comes first: the Jacobian is taken
@@ -430,28 +425,13 @@ class AdaptivePlan:
         _, result = calibrate(images, self.image_size)
         measured = np.array([im.pose for im in images])
         now = predict(result.model, measured, self.image_size, self.noise_px, self.seed)
-        rms = now['working_error_m']['rms']
-        self.rounds.append({'stops': len(measured), 'predicted_rms_m': rms})
-        if rms <= self.target_error:
-            return self._stop('target met')
-        room = self.max_stops - len(measured)
-        if room <= 0:
-            return self._stop(f'target not met within max_stops = {self.max_stops}')
-        # Greedy: the first ``step`` of the best ``room`` stops are the best ``step``.
-        more, best = extend_five_axis(result.model, measured, room, self.image_size,
-                                      self.criterion, self.noise_px, self.seed)
-        floor = best['working_error_m']['rms']
-        if floor > self.target_error:
-            return self._stop(f'target cannot be met within max_stops = {self.max_stops}: '
-                              f'{floor * 1e6:.2f} um predicted with all of them (the detection '
-                              'noise and the strokes decide it)', best_at_max_stops_m=floor)
-        return more[:self.step]
 
-    def _stop(self, why: str, **detail) -> np.ndarray:
-        self.stopped = why
-        self.rounds[-1].update(detail)
-        return np.zeros((0, 5))
+        def extend(room):
+            more, best = extend_five_axis(result.model, measured, room, self.image_size,
+                                          self.criterion, self.noise_px, self.seed)
+            return more, best['working_error_m']['rms']
+        more = self._adaptive.more(now['working_error_m']['rms'], len(measured), extend)
+        return np.zeros((0, 5)) if more is None else more
 
     def report(self) -> dict:
-        return {'target_m': self.target_error, 'max_stops': self.max_stops, 'step': self.step,
-                'rounds': self.rounds, 'stopped': self.stopped}
+        return self._adaptive.report()

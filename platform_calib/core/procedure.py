@@ -11,6 +11,7 @@ import numpy as np
 
 from calib_core.checks import whole_number
 from calib_core.errors import InvalidInputError
+from calib_core.planning import Adaptive
 from platform_calib.core.compensation import composite_error
 from platform_calib.core.geometry import PlatformGeometry
 from platform_calib.core.identification import (
@@ -174,38 +175,26 @@ def run_platform_calibration(plan: PlatformPlan, nominal: PlatformGeometry,
 
 def _adapt(plan: PlatformPlan, nominal: PlatformGeometry, result: Identification, stop,
            stops: list, progress) -> tuple[Identification, dict]:
-    """The adaptive rounds of :class:`PlatformPlan`: (the last identification, the rounds
-    with their predictions and why it stopped)."""
+    """The adaptive rounds of :class:`PlatformPlan` (decided by
+    :class:`calib_core.planning.Adaptive`): (the last identification, the rounds with their
+    predictions and why it stopped)."""
     criterion = 'I' if plan.design == 'random' else plan.design
-    target, rounds = plan.target_error, []
-
-    def measured():
-        return np.array([s.measured for s in stops if s.phase == 'identify'])
+    rounds = Adaptive(plan.target_error, plan.max_poses, plan.step, 'poses',
+                      ' (the tracker and feed noise and the span decide it)')
     while True:
-        poses = measured()
+        poses = np.array([s.measured for s in stops if s.phase == 'identify'])
         now = predict_platform(result.geometry, poses, span=plan.span, seed=plan.seed)
         rms = now.report()['predicted_mark_error_m']['rms']
-        rounds.append({'poses': len(poses), 'predicted_rms_m': rms})
         progress(len(stops), len(stops), f'adaptive: {len(poses)} poses, mark error predicted '
-                 f'{rms * 1e6:.2f} um RMS (target {target * 1e6:.2f} um)')
-        if rms <= target:
-            return result, {'target_m': target, 'rounds': rounds, 'stopped': 'target met'}
-        room = plan.max_poses - len(poses)
-        if room <= 0:
-            return result, {'target_m': target, 'rounds': rounds,
-                            'stopped': f'target not met within max_poses = {plan.max_poses}'}
-        best = extend_platform(result.geometry, nominal, poses, room, criterion=criterion,
-                               span=plan.span, seed=plan.seed)
-        floor = best.report()['predicted_mark_error_m']['rms']
-        if floor > target:
-            return result, {'target_m': target, 'rounds': rounds, 'best_at_max_poses_m': floor,
-                            'stopped': (f'target cannot be met within max_poses = '
-                                        f'{plan.max_poses}: {floor * 1e6:.2f} um predicted '
-                                        f'with all of them (the tracker and feed noise and '
-                                        f'the span decide it)')}
-        more = extend_platform(result.geometry, nominal, poses, min(plan.step, room),
-                               criterion=criterion, span=plan.span, seed=plan.seed)
-        added = more.poses[len(poses):]
+                 f'{rms * 1e6:.2f} um RMS (target {plan.target_error * 1e6:.2f} um)')
+
+        def extend(room, poses=poses):
+            best = extend_platform(result.geometry, nominal, poses, room, criterion=criterion,
+                                   span=plan.span, seed=plan.seed)
+            return best.poses[len(poses):], best.report()['predicted_mark_error_m']['rms']
+        added = rounds.more(rms, len(poses), extend)
+        if added is None:
+            return result, rounds.report()
         for target_pose, feeds in zip(added, inverse(nominal, added)):
             stop('identify', target_pose, feeds)
         result = identify(data_of([s for s in stops if s.phase == 'identify']), nominal)
