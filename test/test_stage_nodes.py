@@ -123,15 +123,21 @@ def test_calibration_replay_alignment_and_closed_loop(graph):
 
 def test_calibration_and_alignment_triggered_from_the_command_line(graph):
     """A run the calibrator plans itself (the sweeps of 3 and 8 chosen stops, as short as
-    the test's grid run), its prediction stated in the calibration it puts in force."""
+    the test's grid run), its prediction stated in the calibration it puts in force; the
+    adaptive mode, asked for 0.1 um within 40 stops, says the limits cannot give it
+    before measuring more (the rounds themselves: test/test_stage_planning.py)."""
     running, node, out = graph
     done = machine_align(DOMAIN, 'call', 'stage_calibrator/calibrate',
-                         'design: I\nstops: 8\nsweep_points: 3\n')
+                         'design: I\nstops: 8\nsweep_points: 3\ntarget_error: 1.0e-7\n'
+                         'max_stops: 40\n')
     assert done.returncode == 0, done.stderr
     assert 'stage calibration, version' in done.stdout and 'lead1' in done.stdout
-    prediction = read_calibration(out / 'calibration', 'stage')['report']['plan_prediction']
+    report = read_calibration(out / 'calibration', 'stage')['report']
+    prediction, adaptive = report['plan_prediction'], report['adaptive']
     assert prediction['stops'] == 27 and prediction['planned_stops'] == 8
     assert 0.3e-6 < prediction['predicted_rms_m'] < 2e-6
+    assert adaptive['stopped'].startswith('target cannot be met within max_stops = 40')
+    assert [r['stops'] for r in adaptive['rounds']] == [27]
     aligned = machine_align(DOMAIN, 'call', 'aligner/align', 'parametric')
     assert aligned.returncode == 0, aligned.stderr
     assert 'aligned:' in aligned.stdout

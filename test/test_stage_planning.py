@@ -5,13 +5,16 @@ import numpy as np
 import pytest
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
+from calib_core.planning import Adaptive
 from machine_alignment.cli import main
 from printer_alignment.core.stage import NOMINAL_STAGE, STROKE, StageGeometry
 from printer_alignment.core.stage_calibration import (
     StagePlan, calibrate_stage, mark_names, predict_marks, read_stage_plan, write_stage_plan)
 from printer_alignment.core.stage_planning import (
     default_working, plan_stage, platform_marks, predict_stage_plan, visiting_directions)
-from printer_alignment.sim.stage import CALIBRATION_MARKS, TRUE_STAGE, simulate_calibration_run
+from printer_alignment.core.stage_procedure import run_stage_calibration
+from printer_alignment.sim.stage import (
+    CALIBRATION_MARKS, TRUE_STAGE, StageSim, measure_marks, simulate_calibration_run)
 
 # realised / predicted RMS over the repeated runs: the runs' own scatter (24 runs) and the
 # first-order model at the nominal geometry, not the truth's
@@ -101,3 +104,41 @@ def test_cli_plans_simulates_and_calibrates_a_planned_run(tmp_path, capsys):
     assert main(['simulate', 'stage', '--plan', str(plan), '--out', str(data)]) == 0
     assert main(['calibrate', 'stage', '--data', str(data)]) == 0
     assert 'Traceback' not in capsys.readouterr().err
+
+
+def _adaptive_run(target: float, max_stops: int, seed: int = 3):
+    """A planned 12-stop run on the simulated stage, then adaptive rounds of 8 stops."""
+    stage = StageSim(seed=seed)
+    rng = np.random.default_rng(seed)
+
+    def move(q):
+        stage.move(q)
+        return stage.q.copy(), stage.directions.copy()
+    home = stage.true_points(CALIBRATION_MARKS)
+    first = plan_stage(NOMINAL_STAGE, CALIBRATION_MARKS, 12)
+    rounds = Adaptive(target, max_stops, 8)
+    data, _, report = run_stage_calibration(
+        StagePlan(stops=first.targets), home, move,
+        lambda expected: measure_marks(stage, CALIBRATION_MARKS, 0.3e-6, rng), adaptive=rounds)
+    return data, report
+
+
+def test_adaptive_stage_adds_stops_until_the_predicted_error_meets_the_target():
+    """From 31 stops (12 planned) to a predicted 0.45 um: rounds of 8 stops about the
+    calibration so far, each predicting less, the last at or below the target; the
+    stage back at home and every stop in the data."""
+    data, report = _adaptive_run(0.45e-6, 100)
+    adaptive = report['adaptive']
+    assert adaptive['stopped'] == 'target met'
+    counts = [r['stops'] for r in adaptive['rounds']]
+    assert counts == list(range(31, len(data) + 1, 8)) and len(counts) > 1
+    predicted = [r['predicted_rms_m'] for r in adaptive['rounds']]
+    assert all(b < a for a, b in zip(predicted, predicted[1:]))
+    assert predicted[-1] <= 0.45e-6 < predicted[-2]
+
+
+def test_adaptive_stage_says_when_the_limits_cannot_meet_the_target():
+    data, report = _adaptive_run(0.2e-6, 60)
+    adaptive = report['adaptive']
+    assert adaptive['stopped'].startswith('target cannot be met within max_stops = 60')
+    assert adaptive['rounds'][-1]['best_at_max_stops_m'] > 0.2e-6 and len(data) == 31

@@ -180,25 +180,84 @@ def route(stops: np.ndarray, start: np.ndarray) -> np.ndarray:
     return stops[order]
 
 
+def _design(parameters: ParameterSet, q, directions, working, criterion: str,
+            candidates: int, planned: int, **noise) -> StageDesign:
+    rows = whitened_rows(parameters, q, directions, **noise)
+    covariance = np.linalg.pinv(information(rows, np.arange(len(rows))))
+    sensitivity = mark_jacobian(parameters, working, np.ones_like(working))
+    errors = predicted_errors(covariance, sensitivity.reshape(-1, 2, covariance.shape[0]))
+    per_mark = np.linalg.norm(errors.reshape(len(working), 2, 2), axis=2)
+    sigma = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    return StageDesign(np.asarray(q, dtype=float), planned,
+                       dict(zip(parameters.free_names, map(float, sigma))),
+                       float(np.sqrt(np.mean(per_mark ** 2))), float(per_mark.max()),
+                       criterion, candidates)
+
+
 def predict_stage_plan(geometry: StageGeometry, marks, targets, working=None,
                        criterion: str = 'I', candidates: int = 0, planned: int = 0,
                        **noise) -> StageDesign:
     """What the calibration run ``targets`` (n, 3) m, visited in that order, is predicted to
     give: each free parameter's 1-sigma and the Marks' error at the ``working`` inputs."""
     targets = check_stroke(np.asarray(targets, dtype=float))
-    parameters = free_parameters(geometry, marks)
-    rows = whitened_rows(parameters, targets, visiting_directions(targets), **noise)
-    covariance = np.linalg.pinv(information(rows, np.arange(len(rows))))
     working = default_working() if working is None else np.asarray(working, dtype=float)
+    return _design(free_parameters(geometry, marks), targets, visiting_directions(targets),
+                   working, criterion, candidates, planned, **noise)
+
+
+def predict_stage_run(geometry: StageGeometry, marks, q, directions, working=None,
+                      **noise) -> StageDesign:
+    """The same for stops measured already, ``q`` (n, 3) m with the ``directions`` (n, 3)
+    the stage reported, about ``geometry`` and ``marks`` (the ones identified so far)."""
+    working = default_working() if working is None else np.asarray(working, dtype=float)
+    return _design(free_parameters(geometry, marks), q, directions, working, 'I', 0, 0,
+                   **noise)
+
+
+def identified(report: dict) -> tuple[StageGeometry, np.ndarray]:
+    """The parametric calibration's geometry and the Marks' platform positions (2, 2) m
+    from ``calibrate_stage``'s report."""
+    values = report['parametric']['parameters']
+    return (StageGeometry.from_parameters(values),
+            np.array([values[n] for n in mark_names()]).reshape(2, 2))
+
+
+def _choose(parameters: ParameterSet, q, directions, count: int, working, criterion: str,
+            per_axis: int, **noise) -> tuple[np.ndarray, int]:
+    """The ``count`` candidates (count, 3) m that, added one by one to the stops ``q``
+    (with their ``directions``), most lower the criterion (greedy: the first k are the
+    best k), and how many candidates there were."""
+    if criterion not in CRITERIA:
+        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
+                                f'{criterion}')
+    pool = candidate_inputs(per_axis)
+    measured = whitened_rows(parameters, q, directions, **noise)
+    # The candidates' directions are those of a stop reached from home, which the route
+    # later replaces by its own: the backlash terms are small beside the geometry's.
+    rows = whitened_rows(parameters, pool, np.sign(pool + 1e-15), **noise)
     sensitivity = mark_jacobian(parameters, working, np.ones_like(working))
-    errors = predicted_errors(covariance, sensitivity.reshape(-1, 2, covariance.shape[0]))
-    sigma = np.sqrt(np.clip(np.diag(covariance), 0, None))
-    return StageDesign(targets, planned, dict(zip(parameters.free_names, map(float, sigma))),
-                       float(np.sqrt(np.mean(np.sum(errors.reshape(len(working), 2, 2) ** 2,
-                                                     axis=2)))),
-                       float(np.max(np.linalg.norm(errors.reshape(len(working), 2, 2),
-                                                   axis=2))),
-                       criterion, candidates)
+    chosen = augment(rows, information(measured, np.arange(len(measured))),
+                     min(count, len(pool)), criterion,
+                     sensitivity if criterion == 'I' else None)
+    return pool[chosen], len(pool)
+
+
+def extend_stage(geometry: StageGeometry, marks, q, directions, count: int, working=None,
+                 criterion: str = 'I', per_axis: int = 9,
+                 **noise) -> tuple[np.ndarray, StageDesign]:
+    """The ``count`` candidate stops (count, 3) m that, added one by one to the measured
+    ones (``q``, ``directions``), most lower the criterion about ``geometry`` and ``marks``
+    (the ones identified so far; greedy: the first k are the best k), and the prediction
+    with all of them, visited nearest first from home after the measured ones."""
+    parameters = free_parameters(geometry, marks)
+    working = default_working() if working is None else np.asarray(working, dtype=float)
+    chosen, candidates = _choose(parameters, q, directions, count, working, criterion,
+                                 per_axis, **noise)
+    added = np.vstack([np.zeros((1, 3)), route(chosen, np.zeros(3))])
+    every = np.vstack([q, added[1:]])
+    after = np.vstack([directions, visiting_directions(added)[1:]])
+    return chosen, _design(parameters, every, after, working, criterion, candidates,
+                           len(chosen), **noise)
 
 
 def plan_stage(geometry: StageGeometry, marks, stops: int, sweep_points: int = 3,
@@ -221,24 +280,15 @@ def plan_stage(geometry: StageGeometry, marks, stops: int, sweep_points: int = 3
     Raises
     ------
     InvalidInputError
-        Fewer than one stop, an unknown criterion, or more stops than candidates.
+        Fewer than one stop or an unknown criterion.
     """
-    if criterion not in CRITERIA:
-        raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
-                                f'{criterion}')
     if not 1 <= stops:
         raise InvalidInputError(f'plan at least one stop beside the sweeps, not {stops}')
     sweeps = StagePlan(sweep_points=sweep_points).sweeps()
-    parameters = free_parameters(geometry, marks)
-    prior_rows = whitened_rows(parameters, sweeps, visiting_directions(sweeps), **noise)
-    pool = candidate_inputs(per_axis)
-    # The candidates' directions are those of a stop reached from home, which the route
-    # later replaces by its own: the backlash terms are small beside the geometry's.
-    rows = whitened_rows(parameters, pool, np.sign(pool + 1e-15), **noise)
     working = default_working() if working is None else np.asarray(working, dtype=float)
-    sensitivity = mark_jacobian(parameters, working, np.ones_like(working))
-    chosen = augment(rows, information(prior_rows, np.arange(len(prior_rows))), stops,
-                     criterion, sensitivity if criterion == 'I' else None)
-    targets = np.vstack([sweeps, route(pool[chosen], sweeps[-1])])
-    return predict_stage_plan(geometry, marks, targets, working, criterion, len(pool),
-                              stops, **noise)
+    chosen, candidates = _choose(free_parameters(geometry, marks), sweeps,
+                                 visiting_directions(sweeps), stops, working, criterion,
+                                 per_axis, **noise)
+    targets = np.vstack([sweeps, route(chosen, sweeps[-1])])
+    return predict_stage_plan(geometry, marks, targets, working, criterion, candidates,
+                              len(chosen), **noise)

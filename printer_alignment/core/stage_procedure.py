@@ -13,9 +13,12 @@ from typing import Callable
 
 import numpy as np
 
+from calib_core.planning import Adaptive
 from printer_alignment.core.geometry import rotate_points
 from printer_alignment.core.stage import NOMINAL_STAGE, landing_path
 from printer_alignment.core.stage_calibration import StageData, StagePlan, calibrate_stage
+from printer_alignment.core.stage_planning import (
+    extend_stage, identified, predict_stage_run, route)
 
 
 def expected_marks(q, home_marks) -> np.ndarray:
@@ -25,6 +28,36 @@ def expected_marks(q, home_marks) -> np.ndarray:
     pose = NOMINAL_STAGE.forward(np.asarray(q, dtype=float)[None])[0]
     stage_home = NOMINAL_STAGE.stage2plate[:2]
     return rotate_points(pose[2], np.asarray(home_marks) - stage_home) + stage_home + pose[:2]
+
+
+def _visit(targets, home, move: Callable, measure_marks: Callable, progress, record,
+           first: int = 0, total: int | None = None) -> tuple[np.ndarray, list]:
+    """Land on each of ``targets`` in turn and measure the Marks where the nominal
+    kinematics expects them from ``home``; the stops (q, direction, marks) and ``home``,
+    replaced by the first stop's Marks when ``first`` is 0 (the run's home stop)."""
+    q_now, direction = move(targets[0])
+    stops = []
+    for k, q in enumerate(targets):
+        for waypoint in landing_path(q_now, q, direction):
+            q_now, direction = move(waypoint)
+        marks = measure_marks(expected_marks(q, home))
+        if first + k == 0:
+            home = marks
+        stops.append((np.asarray(q_now, dtype=float), np.asarray(direction, dtype=float),
+                      np.asarray(marks, dtype=float)))
+        if record is not None:
+            record(*stops[-1])
+        if progress is not None:
+            count = total or first + len(targets)
+            progress(first + k + 1, count + 1, f'stop {first + k + 1}/{count}: q = '
+                     + ', '.join(f'{v * 1e3:+.3f}' for v in q) + ' mm')
+    move(np.zeros(3))
+    return home, stops
+
+
+def _data(stops: list) -> StageData:
+    q, directions, marks = (np.array(column) for column in zip(*stops))
+    return StageData(q, directions, marks)
 
 
 def measure_stage_run(plan: StagePlan, home_marks, move: Callable, measure_marks: Callable,
@@ -47,33 +80,41 @@ def measure_stage_run(plan: StagePlan, home_marks, move: Callable, measure_marks
     record : callable (q, direction, marks), optional
         Called for every stop, e.g. to publish it and write it to a bag.
     """
-    targets = plan.targets()
-    home = np.asarray(home_marks, dtype=float)
-    q_now, direction = move(targets[0])
-    stops = []
-    for k, q in enumerate(targets):
-        for waypoint in landing_path(q_now, q, direction):
-            q_now, direction = move(waypoint)
-        marks = measure_marks(expected_marks(q, home))
-        if k == 0:
-            home = marks
-        stops.append((np.asarray(q_now, dtype=float), np.asarray(direction, dtype=float),
-                      np.asarray(marks, dtype=float)))
-        if record is not None:
-            record(*stops[-1])
-        if progress is not None:
-            progress(k + 1, len(targets) + 1, f'stop {k + 1}/{len(targets)}: q = '
-                     + ', '.join(f'{v * 1e3:+.3f}' for v in q) + ' mm')
-    move(np.zeros(3))
-    q, directions, marks = (np.array(column) for column in zip(*stops))
-    return StageData(q, directions, marks)
+    _, stops = _visit(plan.targets(), np.asarray(home_marks, dtype=float), move,
+                      measure_marks, progress, record)
+    return _data(stops)
 
 
 def run_stage_calibration(plan: StagePlan, home_marks, move: Callable,
                           measure_marks: Callable, progress: Callable | None = None,
-                          record: Callable | None = None) -> tuple[StageData, dict, dict]:
+                          record: Callable | None = None,
+                          adaptive: Adaptive | None = None) -> tuple[StageData, dict, dict]:
     """:func:`measure_stage_run`, then the stepwise and the parametric calibration:
-    (the measurements, the models by name, the report)."""
-    data = measure_stage_run(plan, home_marks, move, measure_marks, progress, record)
+    (the measurements, the models by name, the report).
+
+    With ``adaptive`` (its target an RMS error of the Marks at the working inputs, m), the
+    rounds follow: the error predicted about the parametric calibration so far; while it
+    is above the target, the stops that lower it most are measured (nearest first from
+    home) and both calibrations run again on every stop (``report['adaptive']``)."""
+    targets = plan.targets()
+    home, stops = _visit(targets, np.asarray(home_marks, dtype=float), move, measure_marks,
+                         progress, record)
+    data = _data(stops)
     models, report = calibrate_stage(data)
+    while adaptive is not None:
+        geometry, marks = identified(report)
+        now = predict_stage_run(geometry, marks, data.q, data.directions)
+
+        def extend(room, geometry=geometry, marks=marks, data=data):
+            chosen, best = extend_stage(geometry, marks, data.q, data.directions, room)
+            return chosen, best.predicted_rms_m
+        more = adaptive.more(now.predicted_rms_m, len(data), extend)
+        if more is None:
+            report['adaptive'] = adaptive.report()
+            break
+        _, added = _visit(route(more, np.zeros(3)), home, move, measure_marks, progress,
+                          record, first=len(stops))
+        stops += added
+        data = _data(stops)
+        models, report = calibrate_stage(data)
     return data, models, report

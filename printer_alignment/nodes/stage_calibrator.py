@@ -16,7 +16,9 @@ Plan keys (``overrides_json``): ``sweep_points``, ``grid``, ``span`` (today's ru
 (``grid``; ``I`` or ``D``: the sweeps and ``stops`` stops chosen by
 :mod:`printer_alignment.core.stage_planning`, planned here), ``targets`` (a planned run,
 [[q1, q2, q3], ...] m, home first, as ``machine-align plan stage`` writes it); a planned
-run's prediction is in the report (``plan_prediction``).
+run's prediction is in the report (``plan_prediction``); ``target_error`` (m, the Marks'
+RMS error predicted at the working inputs) with ``max_stops`` and ``step`` adds stops in
+rounds after the run until it is met or cannot be (``adaptive`` in the report).
 
 Service ``stage_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
 the last run's measurements with the error model without backlash as the base model.
@@ -38,6 +40,7 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
+from calib_core.planning import Adaptive
 from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC)
@@ -50,7 +53,8 @@ from printer_alignment.core.stage_procedure import run_stage_calibration
 from printer_alignment.nodes.mark_locator import MarkLocator
 
 ANALYSIS_TOPIC = '/stage_calibrator/analysis'
-PLAN_KEYS = ('sweep_points', 'grid', 'span', 'design', 'stops', 'targets')
+PLAN_KEYS = ('sweep_points', 'grid', 'span', 'design', 'stops', 'targets', 'target_error',
+             'max_stops', 'step')
 DESIGNS = ('grid', 'I', 'D')
 
 
@@ -96,11 +100,25 @@ class StageCalibratorNode(Node):
                                             ANALYSIS_TOPIC, self._header),
                             callback_group=group)
 
-    def _plan(self, overrides: dict) -> tuple[StagePlan, dict | None]:
-        """The run to measure and, for a planned one, what it is predicted to give."""
+    def _plan(self, overrides: dict) -> tuple[StagePlan, dict | None, Adaptive | None]:
+        """The run to measure, for a planned one what it is predicted to give, and the
+        adaptive rounds that follow it if a ``target_error`` is given."""
         unknown = set(overrides) - set(PLAN_KEYS)
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
+        adaptive = None
+        if 'target_error' in overrides:
+            adaptive = Adaptive(overrides['target_error'],
+                                whole_number(overrides.get('max_stops', 100), 'max_stops', 1),
+                                whole_number(overrides.get('step', 8), 'step', 1), 'stops',
+                                ' (the landing and camera noise decide it)')
+        elif {'max_stops', 'step'} & set(overrides):
+            raise InvalidInputError('max_stops and step belong to the adaptive mode: give a '
+                                    'target_error (m) too')
+        return (*self._run_plan(overrides), adaptive)
+
+    def _run_plan(self, overrides: dict) -> tuple[StagePlan, dict | None]:
+        """Today's sweeps and grid, a run planned here, or the planned ``targets``."""
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
         design = g('design')
         if design not in DESIGNS:
@@ -141,7 +159,8 @@ class StageCalibratorNode(Node):
         run.record_frames([('plate', f'mark{k + 1}', *planar(x, y, 0.0))
                            for k, (x, y) in enumerate(marks)])
 
-    def _run(self, plan: StagePlan, prediction: dict | None) -> CalibrationResult:
+    def _run(self, plan: StagePlan, prediction: dict | None,
+             adaptive: Adaptive | None) -> CalibrationResult:
         self.locator.vision   # fails early without a vision calibration
         with RecordedRun(self, 'stage', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/StageObservation',
@@ -150,7 +169,7 @@ class StageCalibratorNode(Node):
             data, models, report = run_stage_calibration(
                 plan, self.home_marks, self._move,
                 lambda expected: self.locator.measure(expected, 'circle'), self._progress,
-                lambda *stop: self._record_stop(run, *stop))
+                lambda *stop: self._record_stop(run, *stop), adaptive)
             check_stage_calibration(report)   # else nothing is put in force
             if prediction is not None:
                 report['plan_prediction'] = prediction
