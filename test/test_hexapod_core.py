@@ -1,4 +1,5 @@
 """Hexapod kinematics, identification and the calibration run on the simulator (no ROS)."""
+import dataclasses
 import re
 
 import numpy as np
@@ -212,3 +213,44 @@ def test_pose_errors_measure_displacement_and_angle():
     displacement, angle = pose_errors(target, actual)
     assert displacement[0] == pytest.approx(5e-6)
     assert angle[0] == pytest.approx(1e-4)
+
+
+def _adaptive_run(target: float, max_poses: int):
+    """13 greedy poses measured twice, then adaptive rounds of 4 on a hexapod without play
+    (the effect the 42 parameters lack is the closed loop's)."""
+    truth = dataclasses.replace(HexapodTruth.default(NOMINAL, seed=2), leg_play=np.zeros(6))
+    sim, sensor = HexapodSim(truth, seed=4), PoseSensorSim(seed=5)
+    records = []
+    calibration = run_hexapod_calibration(
+        HexapodPlan(num_poses=13, num_evaluation=10, target_error=target, max_poses=max_poses),
+        NOMINAL, sim.move_legs, lambda: sensor.measure(sim.pose),
+        record=lambda *r: records.append(r))
+    return calibration, records
+
+
+def test_adaptive_rounds_add_poses_until_the_predicted_displacement_meets_the_target():
+    """From 26 pose measurements predicted 1.27 um to 1.2 um: rounds of 4 new poses of the
+    box, each predicting less, recorded as further rounds of the iteration, which the
+    replay of the records identifies to the same geometry."""
+    calibration, records = _adaptive_run(1.2e-6, 80)
+    adaptive = calibration.report['adaptive']
+    assert adaptive['stopped'] == 'target met'
+    counts = [r['poses'] for r in adaptive['rounds']]
+    assert counts[0] == 26 and np.all(np.diff(counts) == 4) and len(counts) > 1
+    predicted = [r['predicted_rms_m'] for r in adaptive['rounds']]
+    assert all(b < a for a, b in zip(predicted, predicted[1:]))
+    assert predicted[-1] <= 1.2e-6 < predicted[-2]
+    assert len({tuple(r[1]) for r in records if r[0].startswith('identify_')}) == counts[-1] - 13
+    replayed, _ = identify_from_records(records, NOMINAL)
+    assert replayed.geometry.parameters().as_dict() == \
+        calibration.report['identification']['parameters']
+
+
+def test_adaptive_rounds_say_when_the_box_cannot_meet_the_target():
+    calibration, _ = _adaptive_run(0.5e-6, 60)
+    adaptive = calibration.report['adaptive']
+    assert adaptive['stopped'].startswith('target cannot be met within max_poses = 60')
+    assert adaptive['rounds'][-1]['best_at_max_poses_m'] > 0.5e-6
+    assert [r['poses'] for r in adaptive['rounds']] == [26]
+    with pytest.raises(InvalidInputError, match='target_error'):
+        HexapodPlan(target_error=5.0)

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from calib_core.planning import exchange, predicted_errors, sandwich_covariance
+from calib_core.planning import (
+    augment, exchange, information, predicted_errors, sandwich_covariance)
 from hexapod_calib.core.calibration import PoseData, identification_jacobian
 from hexapod_calib.core.geometry import HexapodGeometry
 from hexapod_calib.core.kinematics import inverse_kinematics, jacobian
@@ -45,23 +46,50 @@ def _leg_noise(geometry: HexapodGeometry, poses, position_noise: float, angle_no
         + actuator_noise ** 2 * np.eye(6)
 
 
+def _whitened(geometry: HexapodGeometry, poses, position_noise: float, angle_noise: float,
+              actuator_noise: float) -> np.ndarray:
+    """Each pose's six rows whitened by their correlated noise (:func:`_leg_noise`)."""
+    factor = np.linalg.cholesky(_leg_noise(geometry, poses, position_noise, angle_noise,
+                                           actuator_noise))
+    return np.linalg.solve(factor, _rows(geometry, poses))
+
+
+def _working_sensitivity(geometry: HexapodGeometry, working) -> np.ndarray:
+    """The pose error at the ``working`` poses by parameter, a rotation weighed at
+    :data:`LEVER` (W, 6, 42)."""
+    sensitivity = np.linalg.solve(jacobian(geometry, working), _rows(geometry, working))
+    return sensitivity * np.array([1.0] * 3 + [LEVER] * 3)[None, :, None]
+
+
 def exchange_poses(geometry: HexapodGeometry, candidates, count: int, criterion: str,
                    working, position_noise: float = POSITION_NOISE,
                    angle_noise: float = ANGLE_NOISE,
                    actuator_noise: float = ACTUATOR_NOISE) -> np.ndarray:
-    """Indices of ``count`` of the ``candidates`` (M, 6) chosen by the shared exchange:
-    each pose's six rows whitened by their correlated noise (:func:`_leg_noise`); for
-    ``criterion`` 'I' the least mean squared pose error at the ``working`` poses (W, 6),
-    a rotation weighed at :data:`LEVER`; 'D' the largest information determinant."""
-    rows = _rows(geometry, candidates)
-    factor = np.linalg.cholesky(_leg_noise(geometry, candidates, position_noise, angle_noise,
-                                           actuator_noise))
-    whitened = np.linalg.solve(factor, rows)
-    sensitivity = None
-    if criterion == 'I':
-        sensitivity = np.linalg.solve(jacobian(geometry, working), _rows(geometry, working))
-        sensitivity = sensitivity * np.array([1.0] * 3 + [LEVER] * 3)[None, :, None]
+    """Indices of ``count`` of the ``candidates`` (M, 6) chosen by the shared exchange on
+    their whitened rows; for ``criterion`` 'I' the least mean squared pose error at the
+    ``working`` poses (W, 6), a rotation weighed at :data:`LEVER`; 'D' the largest
+    information determinant."""
+    whitened = _whitened(geometry, candidates, position_noise, angle_noise, actuator_noise)
+    sensitivity = _working_sensitivity(geometry, working) if criterion == 'I' else None
     return exchange(whitened, count, criterion, sensitivity).chosen
+
+
+def extend_poses(geometry: HexapodGeometry, measured, candidates, count: int, working,
+                 criterion: str = 'I', position_noise: float = POSITION_NOISE,
+                 angle_noise: float = ANGLE_NOISE,
+                 actuator_noise: float = ACTUATOR_NOISE) -> tuple[np.ndarray, dict]:
+    """The ``count`` of the ``candidates`` (M, 6) that, added one by one to the poses
+    ``measured`` (n, 6; repeats counted), most lower the criterion about ``geometry`` (the
+    one identified so far; greedy: the first k are the best k), and :func:`predict` for
+    all of them at the ``working`` poses."""
+    noise = (position_noise, angle_noise, actuator_noise)
+    prior_rows = _whitened(geometry, measured, *noise)
+    chosen = augment(_whitened(geometry, candidates, *noise),
+                     information(prior_rows, np.arange(len(prior_rows))),
+                     min(count, len(candidates)), criterion,
+                     _working_sensitivity(geometry, working) if criterion == 'I' else None)
+    added = np.asarray(candidates)[chosen]
+    return added, predict(geometry, np.vstack([measured, added]), working, *noise)
 
 
 def predict(geometry: HexapodGeometry, poses, working, position_noise: float = POSITION_NOISE,

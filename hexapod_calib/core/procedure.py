@@ -14,12 +14,13 @@ import numpy as np
 
 from calib_core.checks import MAX_POSITION_M, whole_number
 from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.planning import Adaptive
 from hexapod_calib.core.calibration import (
     Identification, PoseData, compensate, identifiability, identify, select_poses,
     summarise_pose_errors)
 from hexapod_calib.core.geometry import HexapodGeometry, as_poses
 from hexapod_calib.core.kinematics import MAX_CONDITION, condition_numbers, inverse_kinematics
-from hexapod_calib.core.planning import exchange_poses
+from hexapod_calib.core.planning import exchange_poses, extend_poses, predict
 
 IDENTIFY_PHASE = 'identify_{}'
 EVALUATE_NOMINAL = 'evaluate_nominal'
@@ -40,7 +41,13 @@ class HexapodPlan:
     whitened by the pose sensor's and actuators' noise, 'I' for the least pose error over
     the box), ``num_evaluation`` others are kept for evaluation only. ``targets`` (n, 6;
     m, rad), when given, are a planned set measured instead (e.g. the CSV of
-    ``machine-align plan hexapod``); ``num_poses`` is then their number."""
+    ``machine-align plan hexapod``); ``num_poses`` is then their number.
+
+    Adaptive with ``target_error`` > 0 (m, the predicted RMS displacement at working poses
+    of the box): after the iterations, poses of the box are added ``step`` at a time (the
+    ones that lower the prediction most about the geometry identified so far, measured as
+    a further round of the iteration) up to ``max_poses`` pose measurements in all
+    (repeats of a pose in later rounds count)."""
 
     num_poses: int = 30
     num_candidates: int = 400
@@ -54,6 +61,9 @@ class HexapodPlan:
     margin: float = 0.002
     targets: tuple = ()
     design: str = 'greedy'
+    target_error: float = 0.0
+    max_poses: int = 60
+    step: int = 4
 
     def __post_init__(self):
         if self.design not in DESIGNS:
@@ -68,7 +78,12 @@ class HexapodPlan:
                                         'degrees?)')
             object.__setattr__(self, 'targets', tuple(map(tuple, targets.tolist())))
             object.__setattr__(self, 'num_poses', len(targets))
-        for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations', 'seed'):
+        if not (isinstance(self.target_error, (int, float)) and np.isfinite(self.target_error)
+                and 0 <= self.target_error < 1e-3):
+            raise InvalidInputError(f'target_error must be a displacement in m (0 for none, '
+                                    f'below 1 mm), not {self.target_error!r}')
+        for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations', 'seed',
+                     'max_poses', 'step'):
             object.__setattr__(self, name, whole_number(getattr(self, name), name,
                                                         0 if name == 'seed' else 1))
         if not (isinstance(self.margin, (int, float)) and np.isfinite(self.margin)
@@ -102,14 +117,7 @@ class HexapodPlan:
             Too few poses of the box lie inside the stroke.
         CalibrationError
             The chosen poses cannot determine the 42 parameters (e.g. they coincide)."""
-        rng = np.random.default_rng(self.seed)
-        half = np.array(self.translation + self.rotation)
-        candidates = np.array(self.home) + rng.uniform(-1, 1, (4 * self.num_candidates, 6)) * half
-        legs = inverse_kinematics(nominal, candidates)
-        ok = (np.all(legs >= self.stroke[0] + self.margin, axis=1)
-              & np.all(legs <= self.stroke[1] - self.margin, axis=1)
-              & (condition_numbers(nominal, candidates) < MAX_CONDITION / 10))
-        candidates = candidates[ok][:self.num_candidates]
+        rng, candidates = self._candidates(nominal)
         planned = len(self.targets) > 0
         if len(candidates) < (0 if planned else self.num_poses) + self.num_evaluation:
             raise InvalidInputError(f'only {len(candidates)} poses of the box lie inside the '
@@ -126,16 +134,40 @@ class HexapodPlan:
             if self.design == 'greedy':
                 chosen = select_poses(nominal, candidates, self.num_poses)
             else:
-                # The working sample from its own generator: the plan's draws stay as they are.
-                working = np.random.default_rng(self.seed + 1).choice(
-                    len(candidates), min(WORKING_SAMPLE, len(candidates)), replace=False)
                 chosen = exchange_poses(nominal, candidates, self.num_poses, self.design,
-                                        candidates[working])
+                                        self._working(candidates))
             identification = candidates[chosen]
             rest = np.setdiff1d(np.arange(len(candidates)), chosen)
         # Poses that cannot determine the parameters fail here, before anything moves.
         identifiability(nominal, identification)
         return identification, candidates[rng.choice(rest, self.num_evaluation, replace=False)]
+
+    def _candidates(self, nominal: HexapodGeometry) -> tuple[np.random.Generator, np.ndarray]:
+        """The box's poses inside the stroke and well conditioned (num_candidates, 6), and
+        the generator that drew them (the evaluation poses are drawn from it next)."""
+        rng = np.random.default_rng(self.seed)
+        half = np.array(self.translation + self.rotation)
+        candidates = np.array(self.home) + rng.uniform(-1, 1, (4 * self.num_candidates, 6)) * half
+        legs = inverse_kinematics(nominal, candidates)
+        ok = (np.all(legs >= self.stroke[0] + self.margin, axis=1)
+              & np.all(legs <= self.stroke[1] - self.margin, axis=1)
+              & (condition_numbers(nominal, candidates) < MAX_CONDITION / 10))
+        return rng, candidates[ok][:self.num_candidates]
+
+    def _working(self, candidates: np.ndarray) -> np.ndarray:
+        """The candidates that stand for the box in the I criterion, drawn from their own
+        generator so the plan's draws stay as they are."""
+        return candidates[np.random.default_rng(self.seed + 1).choice(
+            len(candidates), min(WORKING_SAMPLE, len(candidates)), replace=False)]
+
+    def extension(self, nominal: HexapodGeometry, taken) -> tuple[np.ndarray, np.ndarray]:
+        """What the adaptive rounds choose from and aim at: the box's candidates other than
+        the ``taken`` poses (identification and evaluation), and the working poses."""
+        _, candidates = self._candidates(nominal)
+        taken = np.asarray(taken, dtype=float)
+        free = ~np.any(np.all(np.abs(candidates[:, None] - taken[None]) < 1e-12, axis=2),
+                       axis=1)
+        return candidates[free], self._working(candidates)
 
 
 @dataclass
@@ -222,7 +254,30 @@ def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
         identification, entry = _identify_round(rounds, geometry)
         history.append(entry)
         geometry = identification.geometry
-    step = plan.iterations * len(targets)
+    adaptive = None
+    if plan.target_error > 0:
+        adaptive = Adaptive(plan.target_error, plan.max_poses, plan.step, 'poses',
+                            ' (the pose sensor\'s and actuators\' noise and the box decide it)')
+        pool, working = plan.extension(nominal, np.vstack([targets, evaluation]))
+    while adaptive is not None:
+        measured = PoseData.concatenate(rounds).commanded
+        now = predict(geometry, measured, working)['predicted_displacement_m']['rms']
+
+        def extend(room, measured=measured, geometry=geometry):
+            added, best = extend_poses(geometry, measured, pool, room, working)
+            return added, best['predicted_displacement_m']['rms']
+        more = adaptive.more(now, len(measured), extend)
+        if more is None:
+            break
+        rounds.append(measure_poses(more, compensate(geometry, more), move_legs, measure,
+                                    IDENTIFY_PHASE.format(len(rounds)), record, progress,
+                                    len(measured), len(measured) + len(more) + 2 * len(evaluation)))
+        identification, entry = _identify_round(rounds, geometry)
+        history.append(entry)
+        geometry = identification.geometry
+        pool = pool[~np.any(np.all(np.abs(pool[:, None] - more[None]) < 1e-12, axis=2), axis=1)]
+    step = sum(len(r) for r in rounds)
+    total = step + 2 * len(evaluation)
     before = measure_poses(evaluation, inverse_kinematics(nominal, evaluation), move_legs, measure,
                            EVALUATE_NOMINAL, record, progress, step, total)
     after = measure_poses(evaluation, compensate(geometry, evaluation), move_legs, measure,
@@ -231,6 +286,7 @@ def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
         'nominal_geometry': nominal.as_dict(),
         'identification': identification.report(),
         'iterations': history,
+        **({'adaptive': adaptive.report()} if adaptive is not None else {}),
         'evaluation': {'note': 'poses not used for fitting, measured by the pose sensor',
                        'before': summarise_pose_errors(before.commanded, before.measured),
                        'after': summarise_pose_errors(after.commanded, after.measured)},
