@@ -73,6 +73,8 @@ def _files(tmp_path: Path, rng) -> dict:
              {name: lambda v, k: repr(float(v) * 1e3) for name in 'xyz'})
     (mm / 'five_axis_plan.csv').write_text('stop,x_m,y_m,z_m,a_rad,c_rad\n'
                                            'linear_01,6.0,5.0,0.0,0.0,0.0\n')
+    (mm / 'stage_plan.csv').write_text('q1,q2,q3\n0,0,0\n4.75,0,0\n')
+    (mm / 'stage_plan_away.csv').write_text('q1,q2,q3\n0.001,0,0\n0,0,0\n')
     rotary = REAL_POSES.read_text().splitlines()
     (mm / 'rotary_degrees.csv').write_text('\n'.join([rotary[0]] + [
         ','.join(str(float(np.degrees(float(c)))) if j in (1, 2) else c
@@ -189,6 +191,12 @@ CASES = {
     'payload centre in mm': (['analyze', 'hexapod', '--data', '{hx}/calibration.csv',
                               '--geometry', '{hx}/nominal.yaml', '--payload', '25', '30',
                               '-20', '80'], 'look like mm'),
+    'stage plan in mm': (['simulate', 'stage', '--plan', '{mm}/stage_plan.csv', '--out',
+                          '{dir}/stage.csv'], 'mm'),
+    'stage plan not from home': (['simulate', 'stage', '--plan', '{mm}/stage_plan_away.csv',
+                                  '--out', '{dir}/stage.csv'], 'starts at home'),
+    'plan stage --stops 0': (['plan', 'stage', '--stops', '0', '--out', '{dir}/plan.csv'],
+                             '--stops'),
 }
 
 
