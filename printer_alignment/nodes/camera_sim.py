@@ -84,6 +84,7 @@ class CameraSimNode(Node):
         self._position = None
         self._pending = None          # a grid placement asked for, not yet made
         self._stamps = {}      # truth source -> stamp of its latest state
+        self._rendered = (None, None)      # the last frame's state and its pixels
         self._lock = threading.Lock()
         self.image_pub = self.create_publisher(Image, 'camera/image_raw', qos_profile_sensor_data)
         self.info_pub = self.create_publisher(CameraInfo, 'camera/camera_info', qos_profile_sensor_data)
@@ -167,11 +168,12 @@ class CameraSimNode(Node):
         self.get_logger().info(f'grid plate placed: region {msg.region}, {msg.placement}')
         self.confirm_client.call_async(Trigger.Request())
 
-    def _frame_noise(self, position) -> np.random.Generator:
-        """The noise of a frame, drawn from what it shows (gantry position, stage pose and
-        view, to 1 nm / 1 nrad) rather than from how many frames the free-running timer
-        rendered before: every frame of one state is the same image, so a run of the graph
-        gives the same numbers however its processes are scheduled (lock held)."""
+    def _frame_state(self, position) -> tuple:
+        """What a frame shows: gantry position, stage pose and view, the plate's pose, to
+        1 nm / 1 nrad (lock held). The frame's noise is drawn from it rather than from how
+        many frames the free-running timer rendered before: every frame of one state is
+        the same image, so a run of the graph gives the same numbers however its
+        processes are scheduled, and a state already rendered need not be again."""
         state = list(np.round(np.asarray(position) * 1e9).astype(np.int64))
         scene = self.camera.scene
         if isinstance(scene, StageScene):
@@ -179,13 +181,13 @@ class CameraSimNode(Node):
             state.append(0 if scene.view == 'substrate' else 1)
         if isinstance(scene, PlacedPlate):
             state += list(np.round(np.asarray(scene.pose) * 1e9).astype(np.int64))
-        return np.random.default_rng([self.seed, *(int(v) & 0xFFFFFFFFFFFF for v in state)])
+        return tuple(int(v) & 0xFFFFFFFFFFFF for v in state)
 
     def capture(self):
         with self._lock:
             position = self._position
             stamp = self._frame_stamp()
-            noise = None if position is None else self._frame_noise(position)
+            state = None if position is None else self._frame_state(position)
         if position is None:
             return  # no gantry yet: a real camera would see nothing useful either
         # Stamped with the time the rendered position was true, not with the capture time:
@@ -193,7 +195,12 @@ class CameraSimNode(Node):
         # the old position with a new stamp, which a detector waiting for a frame newer than
         # the move accepts (a few um of error after a 1 mm pre-positioning move).
         header = Header(stamp=stamp, frame_id='camera')
-        pixels = self.camera.capture(position, noise)
+        if self._rendered[0] != state:
+            # A machine at rest shows the same frame: rendering it again (20-40 ms) would
+            # only spend the CPU the rest of the graph runs on.
+            noise = np.random.default_rng([self.seed, *state])
+            self._rendered = (state, self.camera.capture(position, noise))
+        pixels = self._rendered[1]
         self.image_pub.publish(image_as_message(pixels, header))
         o = self.camera.optics
         info = CameraInfo(header=header, height=o.height, width=o.width,
