@@ -46,7 +46,7 @@ demo: setup
 # threads spinning against each other made the camera fits 2-10x slower.
 test: setup
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \
-	  $(BIN)/python -m pytest -q -rs -n 2 --dist loadfile --durations=15 test
+	  $(BIN)/python -m pytest -q -rs -n 2 --dist loadfile --no-loadscope-reorder --durations=15 test
 
 bench: setup
 	$(BIN)/python -m machine_alignment.bench.vision --out bench_results

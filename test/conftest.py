@@ -17,3 +17,11 @@ def rng():
 @pytest.fixture
 def real_data():
     return REAL_DATA
+
+
+def pytest_collection_modifyitems(items):
+    """The modules that start a node graph over DDS (they set their ``DOMAIN``) first: they
+    are the longest and hold few tests, so scheduled last (pytest-xdist's default puts the
+    modules with most tests first) they left one worker running them alone at the end.
+    ``make test`` keeps this order (``--no-loadscope-reorder``)."""
+    items.sort(key=lambda item: not hasattr(item.module, 'DOMAIN'))
