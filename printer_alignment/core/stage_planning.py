@@ -10,8 +10,10 @@ chosen from candidates inside the stroke (:func:`candidate_inputs`) with the sha
 Rows: per stop, the parametric model's Jacobian of the two calibration Marks' plate
 positions (4 rows) by its free parameters (the gauge of
 :data:`~printer_alignment.core.stage_calibration.parametric.PARAMETRIC_GAUGE` fixed, the
-Marks' platform positions free), whitened by the stop's noise: the camera's on each
-coordinate and each chain's landing through the kinematics. The I criterion: the mean
+Marks' platform positions free), whitened by the stop's noise (the camera's on each
+coordinate and each chain's landing through the kinematics) to choose; the prediction is
+the covariance of the ordinary least squares the calibration runs (the sandwich with that
+noise). The I criterion: the mean
 squared error of the two Marks' predicted plate positions at working inputs approached
 from below, as the aligner moves (default: random inputs within 80 % of the stroke, as the
 paper's evaluation). Directions of approach follow from the order the stops are visited
@@ -182,8 +184,12 @@ def route(stops: np.ndarray, start: np.ndarray) -> np.ndarray:
 
 def _design(parameters: ParameterSet, q, directions, working, criterion: str,
             candidates: int, planned: int, **noise) -> StageDesign:
-    rows = whitened_rows(parameters, q, directions, **noise)
-    covariance = np.linalg.pinv(information(rows, np.arange(len(rows))))
+    # The covariance of the fit the suite runs: ordinary least squares on the Marks, whose
+    # noise is correlated within a stop (the landing moves both Marks): the sandwich.
+    rows = mark_jacobian(parameters, q, directions)
+    spread = stop_noise(parameters, q, directions, **noise)
+    inverse = np.linalg.pinv(information(rows, np.arange(len(rows))))
+    covariance = inverse @ np.einsum('kip,kij,kjq->pq', rows, spread, rows) @ inverse
     sensitivity = mark_jacobian(parameters, working, np.ones_like(working))
     errors = predicted_errors(covariance, sensitivity.reshape(-1, 2, covariance.shape[0]))
     per_mark = np.linalg.norm(errors.reshape(len(working), 2, 2), axis=2)
