@@ -72,7 +72,8 @@ class RotaryLoopModel(MachineModel):
         # expect that. Once, at the base model on every pose: it moves with the base only
         # to second order, and only the screen reads it.
         every = np.arange(len(poses))
-        jacobian = self._channel_jacobian(self.initial(), np.zeros((len(poses), 8)), every)[1]
+        zero = np.zeros((len(poses), len(self.channels)))
+        jacobian = self._channel_jacobian(self.initial(), zero, every)[1]
         self._seen = -np.einsum('nck,nkd->ncd', self.to_channels(jacobian), jacobian)
 
     def __len__(self):
