@@ -12,7 +12,7 @@ versioned calibration file ``stage`` and published latched on
 shared file system). Progress on ``/stage_calibrator/progress``. One run at a time; a
 failed or interrupted run leaves the previous calibration in force.
 
-Plan keys (``overrides_json``): ``sweep_points``, ``grid``, ``span`` (today's run), ``design``
+Plan keys (``plan_yaml``): ``sweep_points``, ``grid``, ``span`` (today's run), ``design``
 (``grid``; ``I`` or ``D``: the sweeps and ``stops`` stops chosen by
 :mod:`printer_alignment.core.stage_planning`, planned here), ``targets`` (a planned run,
 [[q1, q2, q3], ...] m, home first, as ``machine-align plan stage`` writes it); a planned
@@ -125,8 +125,7 @@ class StageCalibratorNode(Node):
             raise InvalidInputError(f'design must be one of {", ".join(DESIGNS)}, not {design!r}')
         marks = platform_marks(self.home_marks)
         if 'targets' in overrides:
-            targets = np.asarray(overrides['targets'], dtype=float)
-            plan = StagePlan(stops=targets)    # checks the shape, home first and the stroke
+            plan = StagePlan(stops=overrides['targets'])   # checks shape, home first, stroke
             return plan, predict_stage_plan(NOMINAL_STAGE, marks, plan.targets()).report()
         if design != 'grid':
             planned = plan_stage(NOMINAL_STAGE, marks, whole_number(g('stops'), 'stops', 1),

@@ -106,7 +106,11 @@ class StagePlan:
 
     def __post_init__(self):
         if self.stops is not None:
-            stops = np.asarray(self.stops, dtype=float)
+            try:
+                stops = np.asarray(self.stops, dtype=float)
+            except (TypeError, ValueError):
+                raise InvalidInputError('stops must be rows of three chain inputs in m '
+                                        '(q1, q2, q3)') from None
             if stops.ndim != 2 or stops.shape[1] != 3 or not len(stops):
                 raise InvalidInputError(f'stops must be (n, 3) chain inputs in m, not shape '
                                         f'{stops.shape}')
