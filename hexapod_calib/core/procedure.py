@@ -164,10 +164,13 @@ class HexapodPlan:
         """What the adaptive rounds choose from and aim at: the box's candidates other than
         the ``taken`` poses (identification and evaluation), and the working poses."""
         _, candidates = self._candidates(nominal)
-        taken = np.asarray(taken, dtype=float)
-        free = ~np.any(np.all(np.abs(candidates[:, None] - taken[None]) < 1e-12, axis=2),
-                       axis=1)
-        return candidates[free], self._working(candidates)
+        return other_than(candidates, taken), self._working(candidates)
+
+
+def other_than(poses: np.ndarray, taken) -> np.ndarray:
+    """``poses`` (n, 6) without those equal to one of ``taken`` (k, 6)."""
+    taken = np.asarray(taken, dtype=float)
+    return poses[~np.any(np.all(np.abs(poses[:, None] - taken[None]) < 1e-12, axis=2), axis=1)]
 
 
 @dataclass
@@ -275,7 +278,7 @@ def run_hexapod_calibration(plan: HexapodPlan, nominal: HexapodGeometry,
         identification, entry = _identify_round(rounds, geometry)
         history.append(entry)
         geometry = identification.geometry
-        pool = pool[~np.any(np.all(np.abs(pool[:, None] - more[None]) < 1e-12, axis=2), axis=1)]
+        pool = other_than(pool, more)
     step = sum(len(r) for r in rounds)
     total = step + 2 * len(evaluation)
     before = measure_poses(evaluation, inverse_kinematics(nominal, evaluation), move_legs, measure,
