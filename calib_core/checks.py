@@ -1,5 +1,5 @@
 """Checks shared by every machine: lengths that only a file in mm would have, and the
-counts and sizes of a plan, refused with the reason before anything moves."""
+counts, sizes and rows of a plan, refused with the reason before anything moves."""
 from __future__ import annotations
 
 import numpy as np
@@ -57,3 +57,22 @@ def positive_length(value, name: str, limit_m: float = MAX_POSITION_M) -> float:
         raise InvalidInputError(f'{name} must be a positive length (m), not {value!r}')
     check_metres(value, name, 'the plan', limit_m)
     return value
+
+
+def plan_rows(values, columns: str, name: str) -> np.ndarray:
+    """``values`` as a float array (n, k) of at least one row of the k ``columns`` (a
+    sentence naming them with their units, e.g. ``'q1, q2, q3 (m)'``).
+
+    Raises
+    ------
+    InvalidInputError
+        Not a list of rows of k numbers, or none."""
+    width = len(columns.split('(')[0].split(','))
+    try:
+        rows = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f'{name} must be a list of [{columns}] rows') from None
+    if rows.ndim != 2 or rows.shape[1] != width or not len(rows):
+        raise InvalidInputError(f'{name} must be a list of [{columns}] rows, got shape '
+                                f'{rows.shape}')
+    return rows

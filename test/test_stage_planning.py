@@ -78,12 +78,9 @@ def test_plan_refusals():
         StagePlan(stops=[[1e-3, 0, 0], [0, 0, 0]])
     with pytest.raises(OutOfTravelError, match='outside the stroke'):
         StagePlan(stops=[[0, 0, 0], [6e-3, 0, 0]])
-    with pytest.raises(InvalidInputError, match=r'\(n, 3\)'):
-        StagePlan(stops=[[0, 0], [1e-3, 0]])
-    with pytest.raises(InvalidInputError, match='rows of three'):
-        StagePlan(stops=[[0, 0, 0], [1e-3, 0]])
-    with pytest.raises(InvalidInputError, match='rows of three'):
-        StagePlan(stops=[[0, 0, 0], ['a', 0, 0]])
+    for bad in ([[0, 0], [1e-3, 0]], [[0, 0, 0], [1e-3, 0]], [[0, 0, 0], ['a', 0, 0]], []):
+        with pytest.raises(InvalidInputError, match=r'\[q1, q2, q3 \(m\)\] rows'):
+            StagePlan(stops=bad)
     with pytest.raises(InvalidInputError, match='criterion'):
         plan_stage(NOMINAL_STAGE, CALIBRATION_MARKS, 5, criterion='A')
     with pytest.raises(InvalidInputError, match='at least one stop'):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_core.checks import whole_number
+from calib_core.checks import plan_rows, whole_number
 from calib_core.errors import InvalidInputError
 from calib_core.planning import CRITERIA, Adaptive, augment, information, predicted_errors
 from dispenser_calib.core.calibration import calibrate
@@ -358,14 +358,7 @@ def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
         raise InvalidInputError('max_stops and step belong to the adaptive mode: give '
                                 'target_error (m) with them')
     if 'targets' in options:
-        try:
-            targets = np.array(options['targets'], dtype=float)
-        except (TypeError, ValueError):
-            raise InvalidInputError('targets must be a list of [x, y, z, a, c] stops (m, '
-                                    'rad)') from None
-        if targets.ndim != 2 or targets.shape[1] != 5 or not len(targets):
-            raise InvalidInputError(f'targets must be a list of [x, y, z, a, c] stops (m, rad), '
-                                    f'got shape {targets.shape}')
+        targets = plan_rows(options['targets'], 'x, y, z, a, c (m, rad)', 'targets')
         check_poses(targets, 'targets')
         for pose in targets:
             check_stroke(pose)

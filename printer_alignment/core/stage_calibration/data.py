@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib_core.checks import MAX_POSITION_M, whole_number
+from calib_core.checks import MAX_POSITION_M, plan_rows, whole_number
 from calib_core.datasets import directions_from_order, read_columns, write_columns
 from calib_core.errors import InvalidInputError
 from calib_core.schema import Column, Schema
@@ -106,14 +106,7 @@ class StagePlan:
 
     def __post_init__(self):
         if self.stops is not None:
-            try:
-                stops = np.asarray(self.stops, dtype=float)
-            except (TypeError, ValueError):
-                raise InvalidInputError('stops must be rows of three chain inputs in m '
-                                        '(q1, q2, q3)') from None
-            if stops.ndim != 2 or stops.shape[1] != 3 or not len(stops):
-                raise InvalidInputError(f'stops must be (n, 3) chain inputs in m, not shape '
-                                        f'{stops.shape}')
+            stops = plan_rows(self.stops, 'q1, q2, q3 (m)', 'stops')
             if np.any(stops[0] != 0):
                 raise InvalidInputError('a planned run starts at home (0, 0, 0): the Marks '
                                         'measured there are the reference of every other stop')
