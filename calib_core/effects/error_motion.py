@@ -72,7 +72,7 @@ class ErrorMotion(Effect):
                                           self.max_orders)
                 groups.append((p, i, group, components, orders))
         # The group that stands out most passes the screen; every other one (another
-        # axis, the axial beside the radial) must pass the loop's own level on its own.
+        # axis, the axial or the tilt beside the radial) must pass the loop's own level.
         groups.sort(key=lambda g: g[0])
         layout = []
         for rank, (p, i, group, components, orders) in enumerate(groups):
