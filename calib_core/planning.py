@@ -166,13 +166,20 @@ def augment(jacobians, prior: np.ndarray, count: int, criterion: str = 'I', work
     return np.array(chosen, dtype=int)
 
 
-def sandwich_covariance(jacobian: np.ndarray, noise: np.ndarray) -> np.ndarray:
+def whiten(rows: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """Each measurement's rows (M, r, p) divided by the Cholesky factor of its noise
+    covariance (M, r, r): the rows a fit weighted by the noise would see, as the design
+    criteria take them."""
+    return np.linalg.solve(np.linalg.cholesky(noise), rows)
+
+
+def sandwich_covariance(rows: np.ndarray, noise: np.ndarray) -> np.ndarray:
     """Covariance (p, p) of the ordinary least-squares estimate from unweighted rows
-    ``jacobian`` (m, p) whose residual noise has covariance ``noise`` (m, m):
-    ``(J^T J)^-1 J^T N J (J^T J)^-1``. What the identification actually does when the
-    noise of its rows is correlated or unequal."""
-    inverse = np.linalg.pinv(jacobian.T @ jacobian)
-    return inverse @ jacobian.T @ noise @ jacobian @ inverse
+    (M, r, p), r per measurement, whose noise has covariance ``noise`` (M, r, r) within
+    a measurement and none between them: ``(J^T J)^-1 J^T N J (J^T J)^-1``. What the
+    identification actually does when the noise of its rows is correlated or unequal."""
+    inverse = np.linalg.pinv(information(rows, np.arange(len(rows))))
+    return inverse @ np.einsum('kip,kij,kjq->pq', rows, noise, rows) @ inverse
 
 
 def predicted_errors(covariance: np.ndarray, working: np.ndarray) -> np.ndarray:

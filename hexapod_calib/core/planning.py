@@ -12,10 +12,9 @@ pose error is ``J^-1 dL/de (e_hat - e)`` with J the leg-length Jacobian.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from calib_core.planning import (
-    augment, exchange, information, predicted_errors, sandwich_covariance)
+    augment, exchange, information, predicted_errors, sandwich_covariance, whiten)
 from hexapod_calib.core.calibration import PoseData, identification_jacobian
 from hexapod_calib.core.geometry import HexapodGeometry
 from hexapod_calib.core.kinematics import inverse_kinematics, jacobian
@@ -49,9 +48,8 @@ def _leg_noise(geometry: HexapodGeometry, poses, position_noise: float, angle_no
 def _whitened(geometry: HexapodGeometry, poses, position_noise: float, angle_noise: float,
               actuator_noise: float) -> np.ndarray:
     """Each pose's six rows whitened by their correlated noise (:func:`_leg_noise`)."""
-    factor = np.linalg.cholesky(_leg_noise(geometry, poses, position_noise, angle_noise,
-                                           actuator_noise))
-    return np.linalg.solve(factor, _rows(geometry, poses))
+    return whiten(_rows(geometry, poses),
+                  _leg_noise(geometry, poses, position_noise, angle_noise, actuator_noise))
 
 
 def _working_sensitivity(geometry: HexapodGeometry, working) -> np.ndarray:
@@ -101,8 +99,7 @@ def predict(geometry: HexapodGeometry, poses, working, position_noise: float = P
     share and the actuators' repeatability together)."""
     rows = _rows(geometry, poses)
     noise = _leg_noise(geometry, poses, position_noise, angle_noise, actuator_noise)
-    covariance = sandwich_covariance(rows.reshape(-1, rows.shape[-1]),
-                                     scipy.linalg.block_diag(*noise))
+    covariance = sandwich_covariance(rows, noise)
     at_work = jacobian(geometry, working)
     sensitivity = np.linalg.solve(at_work, _rows(geometry, working))
     # The actuators' repeatability moves the platform at a working pose too.

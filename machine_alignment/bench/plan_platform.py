@@ -20,7 +20,6 @@ from platform_calib.core.planning import (
 from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
 from calib_core.planning import predicted_errors, sandwich_covariance
 
-import scipy.linalg
 
 NOMINAL = nominal_geometry()
 PLATFORMS = 20
@@ -31,7 +30,7 @@ WORKING = np.random.default_rng(2032).uniform(-1, 1, (200, 3)) * np.asarray(WORK
 def _predicted(poses) -> tuple[np.ndarray, np.ndarray]:
     """Parameter sigmas (18,) and per-mark 1-sigma errors (200, 2) for ``poses``."""
     rows, noise = identification_rows(NOMINAL, poses)
-    covariance = sandwich_covariance(rows.reshape(-1, 18), scipy.linalg.block_diag(*noise))
+    covariance = sandwich_covariance(rows, noise)
     per_row = predicted_errors(covariance, working_sensitivity(NOMINAL, WORKING))
     return np.sqrt(np.diag(covariance)), np.sqrt(np.sum(per_row.reshape(-1, 2, 2) ** 2, -1))
 

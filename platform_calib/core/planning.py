@@ -19,10 +19,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from calib_core.errors import InvalidInputError
-from calib_core.planning import augment, exchange, predicted_errors, sandwich_covariance
+from calib_core.planning import (
+    augment, exchange, information, predicted_errors, sandwich_covariance, whiten)
 from platform_calib.core.compensation import SCREEN
 from platform_calib.core.geometry import PlatformGeometry, parameter_names
 from platform_calib.core.kinematics import inverse, pose_jacobians, rotation
@@ -135,7 +135,7 @@ def plan_platform(nominal: PlatformGeometry, count: int, working=None,
     working = default_working(span, seed) if working is None else working
     sensitivity = working_sensitivity(nominal, working)
     rows, noise = identification_rows(nominal, pool, tracker_noise, feed_noise)
-    design = exchange(_whitened(rows, noise), count, criterion, sensitivity)
+    design = exchange(whiten(rows, noise), count, criterion, sensitivity)
     return _predicted(pool[design.chosen], rows[design.chosen], noise[design.chosen],
                       sensitivity, criterion, len(pool))
 
@@ -145,18 +145,10 @@ def default_working(span=WORKING_SPAN, seed: int = 0) -> np.ndarray:
     return np.random.default_rng(seed + 92).uniform(-1, 1, (200, 3)) * np.asarray(span)
 
 
-def _whitened(rows: np.ndarray, noise: np.ndarray) -> np.ndarray:
-    """Each pose's closure rows whitened by its noise: the information a fit weighted by
-    the noise would have."""
-    factor = np.linalg.cholesky(noise)
-    return np.stack([scipy.linalg.solve_triangular(f, r, lower=True)
-                     for f, r in zip(factor, rows)])
-
-
 def _predicted(poses, rows, noise, sensitivity, criterion: str, candidates: int) -> PoseDesign:
     """The prediction for identifying from ``poses`` (their rows (n, 3, 18) and noise
     (n, 3, 3)) with the fit the suite runs."""
-    covariance = sandwich_covariance(rows.reshape(-1, 18), scipy.linalg.block_diag(*noise))
+    covariance = sandwich_covariance(rows, noise)
     per_row = predicted_errors(covariance, sensitivity).reshape(len(sensitivity), 2, 2)
     return PoseDesign(np.asarray(poses), criterion, np.sqrt(np.diag(covariance)),
                       np.sqrt(np.sum(per_row ** 2, -1)), candidates)
@@ -189,8 +181,8 @@ def extend_platform(geometry: PlatformGeometry, nominal: PlatformGeometry, measu
     sensitivity = working_sensitivity(geometry, working)
     rows, noise = identification_rows(geometry, np.vstack([measured, pool]), tracker_noise,
                                       feed_noise)
-    whitened = _whitened(rows, noise)
-    prior = np.einsum('krp,krq->pq', whitened[:len(measured)], whitened[:len(measured)])
+    whitened = whiten(rows, noise)
+    prior = information(whitened, np.arange(len(measured)))
     added = augment(whitened[len(measured):], prior, count, criterion, sensitivity)
     keep = np.r_[np.arange(len(measured)), len(measured) + added]
     return _predicted(np.vstack([measured, pool[added]]), rows[keep], noise[keep],

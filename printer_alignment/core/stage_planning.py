@@ -28,7 +28,8 @@ import numpy as np
 
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
-from calib_core.planning import CRITERIA, augment, information, predicted_errors
+from calib_core.planning import (
+    CRITERIA, augment, information, predicted_errors, sandwich_covariance, whiten)
 from printer_alignment.core.geometry import rotate_points
 from printer_alignment.core.stage import NOMINAL_STAGE, STROKE, StageGeometry, check_stroke
 from printer_alignment.core.stage_calibration.data import StagePlan
@@ -134,8 +135,8 @@ def stop_noise(parameters: ParameterSet, q, directions, landing_sigma: float = L
 
 def whitened_rows(parameters: ParameterSet, q, directions, **noise) -> np.ndarray:
     """Each stop's Jacobian divided by its noise's Cholesky factor, (n, 4, p)."""
-    factor = np.linalg.cholesky(stop_noise(parameters, q, directions, **noise))
-    return np.linalg.solve(factor, mark_jacobian(parameters, q, directions))
+    return whiten(mark_jacobian(parameters, q, directions),
+                  stop_noise(parameters, q, directions, **noise))
 
 
 def candidate_inputs(per_axis: int = 9, span: float = StagePlan.span) -> np.ndarray:
@@ -186,10 +187,8 @@ def _design(parameters: ParameterSet, q, directions, working, criterion: str,
             candidates: int, planned: int, **noise) -> StageDesign:
     # The covariance of the fit the suite runs: ordinary least squares on the Marks, whose
     # noise is correlated within a stop (the landing moves both Marks): the sandwich.
-    rows = mark_jacobian(parameters, q, directions)
-    spread = stop_noise(parameters, q, directions, **noise)
-    inverse = np.linalg.pinv(information(rows, np.arange(len(rows))))
-    covariance = inverse @ np.einsum('kip,kij,kjq->pq', rows, spread, rows) @ inverse
+    covariance = sandwich_covariance(mark_jacobian(parameters, q, directions),
+                                     stop_noise(parameters, q, directions, **noise))
     sensitivity = mark_jacobian(parameters, working, np.ones_like(working))
     errors = predicted_errors(covariance, sensitivity.reshape(-1, 2, covariance.shape[0]))
     per_mark = np.linalg.norm(errors.reshape(len(working), 2, 2), axis=2)
