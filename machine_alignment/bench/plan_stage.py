@@ -11,7 +11,6 @@ of the mean squared error), which is what it predicts. Writes
 bench_results/plan_stage.{md,json}."""
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 
@@ -23,26 +22,12 @@ from printer_alignment.core.stage_calibration import StagePlan, calibrate_stage
 from printer_alignment.core.stage_calibration.parametric import mark_names, predict_marks
 from printer_alignment.core.stage_planning import (
     candidate_inputs, default_working, plan_stage, predict_stage_plan, route)
-from printer_alignment.sim.stage import CALIBRATION_MARKS, TRUE_STAGE, simulate_calibration_run
+from printer_alignment.sim.stage import CALIBRATION_MARKS, random_stage, simulate_calibration_run
 
 MACHINES = 40
 COUNTS = (12, 20, 40)
 SWEEP_POINTS = 3
 WORKING = default_working(100, seed=99)     # held out: not the planner's working set
-
-
-def true_stage(seed: int) -> StageGeometry:
-    """The sim's stage with its errors drawn afresh (sizes like TRUE_STAGE's)."""
-    rng = np.random.default_rng(1000 + seed)
-    t = TRUE_STAGE
-    return dataclasses.replace(
-        t, lead=tuple(2e-3 * (1 + rng.normal(0, 2e-3, 3))),
-        input_offset=tuple(rng.normal(0, 40e-6, 3)),
-        d=tuple(np.asarray(NOMINAL_STAGE.d) + rng.normal(0, 1e-3, 3)),
-        link_difference=float(rng.normal(0, 60e-6)), beta=tuple(rng.normal(0, 1e-3, 3)),
-        alpha1=float(np.pi / 2 + rng.normal(0, 2e-3)), alpha2=float(rng.normal(0, 0.5e-3)),
-        backlash=tuple(rng.uniform(1e-6, 5e-6, 3)),
-        stage2plate=tuple(np.asarray(t.stage2plate) + rng.normal(0, [3e-3, 3e-3, 3e-3])))
 
 
 def model_error(report: dict, truth: StageGeometry) -> np.ndarray:
@@ -82,7 +67,7 @@ def run(out: Path) -> dict:
         plan = StagePlan(stops=targets)
         rms, worst = [], []
         for seed in range(MACHINES):
-            truth = true_stage(seed)
+            truth = random_stage(seed)
             data = simulate_calibration_run(truth, plan=plan, seed=seed)
             error = model_error(calibrate_stage(data)[1], truth)
             rms.append(float(np.sqrt(np.mean(error ** 2))))

@@ -9,6 +9,8 @@ where the drawing puts it: together about 100-200 um of alignment error uncalibr
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from calib_core.errors import InvalidInputError, OutOfTravelError
@@ -16,7 +18,7 @@ from calib_core.iso9283 import multidirectional_variation, pose_repeatability
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
 from calib_core.marks import detect_marks
 from printer_alignment.core.stage import (
-    NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, path_from_below,
+    NOMINAL_D, NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, path_from_below,
     platform_points_in_plate)
 from printer_alignment.core.stage_calibration import StageData, StagePlan
 from printer_alignment.sim.camera import CameraSim
@@ -31,6 +33,21 @@ TRUE_STAGE = StageGeometry(
     d=(0.2688, 0.0387, 0.4326), link_difference=60e-6, beta=(1.2e-3, -0.6e-3, 0.9e-3),
     alpha1=np.deg2rad(89.867), alpha2=0.5e-3, backlash=(3.0e-6, 4.0e-6, 2.5e-6),
     stage2plate=(-0.1436, -0.0517, np.deg2rad(0.30)))
+
+
+def random_stage(seed: int) -> StageGeometry:
+    """A stage with its errors drawn afresh (sizes like TRUE_STAGE's): leads 0.2 %,
+    offsets 40 um, guide places 1 mm, angles 0.5-2 mrad, backlash 1-5 um, mounting 3 mm
+    and 3 mrad (1 sigma, or the range)."""
+    rng = np.random.default_rng(1000 + seed)
+    return replace(
+        TRUE_STAGE, lead=tuple(NOMINAL_LEAD * (1 + rng.normal(0, 2e-3, 3))),
+        input_offset=tuple(rng.normal(0, 40e-6, 3)),
+        d=tuple(np.asarray(NOMINAL_D) + rng.normal(0, 1e-3, 3)),
+        link_difference=float(rng.normal(0, 60e-6)), beta=tuple(rng.normal(0, 1e-3, 3)),
+        alpha1=float(np.pi / 2 + rng.normal(0, 2e-3)), alpha2=float(rng.normal(0, 0.5e-3)),
+        backlash=tuple(rng.uniform(1e-6, 5e-6, 3)),
+        stage2plate=tuple(np.asarray(TRUE_STAGE.stage2plate) + rng.normal(0, 3e-3, 3)))
 
 
 class StageSim:
