@@ -72,12 +72,17 @@ def landing_path(q_now, q_target, directions, approach: float = APPROACH) -> np.
     approach, hence backlash, is what the plan says. The pre-position is clipped to the
     stroke.
     """
-    q_now = np.asarray(q_now, dtype=float)
     q_target = np.asarray(q_target, dtype=float)
-    step = q_target - q_now
-    travel = np.where(step != 0, np.sign(step), np.asarray(directions, dtype=float))
+    travel = landing_directions(q_now, q_target, directions)
     before = np.clip(q_target - approach * travel, -STROKE, STROKE)
     return np.array([before, q_target])
+
+
+def landing_directions(q_now, q_target, directions) -> np.ndarray:
+    """Each chain's direction (3,) as it lands on ``q_target`` from ``q_now`` (m): +1 rising,
+    -1 falling, its last direction (``directions``) if it does not travel."""
+    step = np.asarray(q_target, dtype=float) - np.asarray(q_now, dtype=float)
+    return np.where(step != 0, np.sign(step), np.asarray(directions, dtype=float))
 
 
 def path_from_below(q_target, approach: float = APPROACH) -> np.ndarray:

@@ -31,7 +31,8 @@ from calib_core.parameters import Parameter, ParameterSet
 from calib_core.planning import (
     CRITERIA, augment, information, predicted_errors, sandwich_covariance, whiten)
 from printer_alignment.core.geometry import rotate_points
-from printer_alignment.core.stage import NOMINAL_STAGE, STROKE, StageGeometry, check_stroke
+from printer_alignment.core.stage import (
+    NOMINAL_STAGE, STROKE, StageGeometry, check_stroke, landing_directions)
 from printer_alignment.core.stage_calibration.data import StagePlan
 from printer_alignment.core.stage_calibration.parametric import (
     PARAMETRIC_GAUGE, mark_names, predict_marks)
@@ -160,14 +161,13 @@ def default_working(count: int = 40, seed: int = 0) -> np.ndarray:
 
 def visiting_directions(targets: np.ndarray) -> np.ndarray:
     """Each chain's direction of its last motion (n, 3) when ``targets`` (n, 3) m are
-    visited in order from home: +1 where it rose to the stop, -1 where it fell, the
-    previous direction where it did not move (the stage starts with +1)."""
+    visited in order from home, as :func:`landing_directions` lands them (the stage starts
+    with +1)."""
     directions = np.ones_like(targets)
     previous, now = np.ones(3), np.zeros(3)
     for k, q in enumerate(targets):
-        moved = np.sign(q - now)
-        previous = np.where(moved != 0, moved, previous)
-        directions[k], now = previous, q
+        previous = directions[k] = landing_directions(now, q, previous)
+        now = q
     return directions
 
 
