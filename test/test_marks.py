@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib_core.errors import DetectionError, InvalidInputError
-from calib_core.marks.intensity import dot_edge_model
+from calib_core.marks.dot_fit import dot_edge_model
 from calib_core.marks import detect_marks
 from calib_core.sim.render import MarkShape, coverage, render
 

@@ -4,8 +4,8 @@ Segmentation finds candidates: the frame is smoothed, a robust quadratic illumin
 surface is taken off, and the connected components below (above) a threshold are the
 dark (bright) candidates; the threshold is Otsu's unless that splits the background's
 noise. Each candidate is refined by fitting an intensity model to the raw pixels by
-Levenberg-Marquardt (circles: a small solver on the normal equations that fits all of a
-frame's circles at once, for speed; crosses: scipy.optimize.least_squares). A circular
+Levenberg-Marquardt (circles: a compiled solver that sums each dot's normal equations
+pixel by pixel, for speed; crosses: scipy.optimize.least_squares). A circular
 dot seen at an angle is an ellipse; a blob shaped like one (by its second moments) is
 fitted with the ellipse's two shape parameters added, and reported as a circle of its
 mean radius. Under
@@ -16,9 +16,9 @@ Jacobian and residual variance.
 Pixels follow OpenCV's convention: the centre of the top-left pixel is (0, 0).
 
 Modules: ``config`` (settings and result types), ``segmentation`` (candidates),
-``intensity`` (the blurred Marks' intensity models), ``circle`` and ``cross`` (the
-sub-pixel fits), ``pixels`` (shared helpers), ``detect`` (:func:`detect_marks`); the
-batched Levenberg-Marquardt solver is ``calib_core.least_squares``.
+``intensity`` (the cross's intensity model), ``dot_fit`` (the dot's model and its
+compiled solver), ``circle`` and ``cross`` (the sub-pixel fits), ``pixels`` (shared
+helpers), ``detect`` (:func:`detect_marks`).
 """
 from calib_core.marks.config import SHAPES, Detection, DetectorConfig, Mark
 from calib_core.marks.detect import detect_marks

@@ -1,7 +1,6 @@
-"""Sub-pixel fit of circular dots (and dots seen at an angle, as ellipses): the edge-band
-pixels of every dot candidate of a frame are fitted together by a batched
-Levenberg-Marquardt solver, because per-dot solver runs cost mostly the interpreter's
-overhead."""
+"""Sub-pixel fit of circular dots (and dots seen at an angle, as ellipses): each dot
+candidate's edge band and starting values, and the fit of all of a frame's dots in one
+compiled run (dot_fit)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,13 +9,11 @@ import cv2
 import numpy as np
 
 from calib_core.errors import DetectionError
-from calib_core.least_squares import batched_levenberg_marquardt
-from calib_core.marks.intensity import (
-    PIXEL_APERTURE_VARIANCE, dot_edge_model, ellipse_edge_distance)
-from calib_core.marks.config import (
-    DEGENERATE_FIT, EDGE_BAND_PX, MIN_BAND_PX, ONE_STEP_ABOVE_PX, ROUGH_FIT_PX, Mark)
+from calib_core.marks.config import DEGENERATE_FIT, EDGE_BAND_PX, MIN_BAND_PX, Mark
+from calib_core.marks.dot_fit import fit_dots
+from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE, ellipse_edge_distance
 from calib_core.marks.pixels import (
-    centre_covariances, check_saturation, clipped_window, residual_variance, upper_median)
+    centre_covariances, check_saturation, clipped_window, upper_median)
 from calib_core.marks.segmentation import MomentShape
 
 
@@ -27,15 +24,10 @@ class CircleStart:
     u: np.ndarray
     v: np.ndarray
     z: np.ndarray
-    part: np.ndarray | slice  # the pixels of the first, rough fit (see circle_start)
     # dot_edge_model's: (cu, cv, radius, blur, contrast, background, grad_u, grad_v), and
     # for an ellipse its shape (a, b).
     x: np.ndarray
     radius0: float  # from the candidate's area, px
-
-    @property
-    def one_step(self) -> bool:
-        return not isinstance(self.part, slice)
 
 
 def circle_start(pixels, x0, y0, w, h, area, centroid, polarity, full,
@@ -82,35 +74,28 @@ def circle_start(pixels, x0, y0, w, h, area, centroid, polarity, full,
     u, v = cols.astype(np.float64), rows.astype(np.float64)
     z = pixels[rows, cols].astype(np.float64)
     check_saturation(z, full)
-    # Large Marks: converge roughly on every k-th diagonal of the band (about ROUGH_FIT_PX
-    # pixels), then one Gauss-Newton step on all of it. One Newton step from an estimate
-    # within the noise of the optimum is as efficient as the full fit (Le Cam's one-step
-    # estimator), at a fraction of the cost.
-    part = ((rows + cols) % max(2, z.size // ROUGH_FIT_PX) == 0 if z.size > ONE_STEP_ABOVE_PX
-            else slice(None))
-    z_part, distance = z[part], distance[part]
-    # Starting intensities from the part's pixels clearly inside and outside the edge.
-    in_mark = z_part[distance < -1.5]
-    outside = z_part[distance > 1.5]
-    background = upper_median(outside if outside.size else z_part)
+    # Starting intensities from the pixels clearly inside and outside the edge.
+    in_mark = z[distance < -1.5]
+    outside = z[distance > 1.5]
+    background = upper_median(outside if outside.size else z)
     level = (upper_median(in_mark) if in_mark.size
-             else float(z_part.min() if polarity == 'dark' else z_part.max()))
+             else float(z.min() if polarity == 'dark' else z.max()))
     if level == background:
         raise DetectionError('no contrast between the Mark and its surroundings')
     # Starting radius and edge sigma from the band's intensities as fractions of the way
     # from background to Mark. Blur conserves area, so the fractions sum to the Mark's
     # area inside the band; and for an erf edge those between 16 and 84 % lie within one
     # sigma of the edge, a share sigma / EDGE_BAND_PX of the band's radial width.
-    fraction = (z_part - background) / (level - background)
+    fraction = (z - background) / (level - background)
     inner_axes = np.maximum(semi_axes - EDGE_BAND_PX, 0.0)
-    area = float(np.sum(fraction)) * z.size / z_part.size
+    area = float(np.sum(fraction))
     radius_init = np.sqrt(max(area / np.pi + inner_axes[0] * inner_axes[1], radius0 ** 2 / 4))
-    transition = np.count_nonzero((fraction > 0.16) & (fraction < 0.84)) / z_part.size
+    transition = np.count_nonzero((fraction > 0.16) & (fraction < 0.84)) / z.size
     sigma0 = float(np.clip(EDGE_BAND_PX * transition, 0.3, 3.0))
     blur0 = np.sqrt(max(sigma0 ** 2 - PIXEL_APERTURE_VARIANCE, 0.1 ** 2))
     x = [cu0, cv0, radius_init * scale, blur0, level - background, background, 0.0, 0.0]
-    return CircleStart(u, v, z, part, np.array(x + list(shape) if ellipse is not None else x),
-                        float(radius0))
+    return CircleStart(u, v, z, np.array(x + list(shape) if ellipse is not None else x),
+                       float(radius0))
 
 
 def _clear_of_neighbours(segmentation, r0, r1, c0, c1):
@@ -133,85 +118,45 @@ def _clear_of_neighbours(segmentation, r0, r1, c0, c1):
     return to_own <= to_others
 
 
-def _stack(arrays):
-    """1-D arrays padded with zeros to one (k, n) array, and where it holds data."""
-    stacked = np.zeros((len(arrays), max(a.size for a in arrays)))
-    valid = np.zeros(stacked.shape, dtype=bool)
-    for row, a in enumerate(arrays):
-        stacked[row, :a.size] = a
-        valid[row, :a.size] = True
-    return stacked, valid
-
-
 def fit_circles(starts: list[CircleStart]) -> list[Mark | DetectionError]:
     """The circles' fits, in the order of ``starts``: a Mark, or why there is none.
 
-    Candidates are fitted in groups of one model (disk or ellipse) and similar pixel
-    counts, so that little of the solver's work goes on the padding."""
+    The disks are fitted in one compiled run, the ellipses in another."""
     results: list = [None] * len(starts)
-    if not starts:
-        return results
-    models = np.array([s.x.size for s in starts])
-    sizes = np.array([s.z[s.part].size for s in starts])
-    order = np.lexsort((sizes, models))
-    models, sizes = models[order], sizes[order]
-    group_start = 0
-    for end in range(1, len(order) + 1):
-        if (end == len(order) or models[end] != models[group_start]
-                or sizes[end] > 2 * sizes[group_start]):
-            group = order[group_start:end]
-            for index, mark in zip(group, _fit_circle_group([starts[i] for i in group])):
+    for width in (8, 10):
+        group = [k for k, start in enumerate(starts) if start.x.size == width]
+        if group:
+            for index, mark in zip(group, _fit_circle_group([starts[k] for k in group])):
                 results[index] = mark
-            group_start = end
     return results
 
 
 def _fit_circle_group(starts: list[CircleStart]) -> list[Mark | DetectionError]:
-    u, valid = _stack([s.u[s.part] for s in starts])
-    v, _ = _stack([s.v[s.part] for s in starts])
-    z, _ = _stack([s.z[s.part] for s in starts])
-    x_init = np.array([s.x for s in starts])
-    reference = x_init[:, :2]
-    tolerance = np.array([1e-4 if s.one_step else 1e-6 for s in starts])
-    x, residuals, normals, converged = batched_levenberg_marquardt(
-        lambda p, rows: dot_edge_model(p, u[rows], v[rows], reference[rows]),
-        z, valid, x_init, tolerance)
-    fits = []
-    for k, start in enumerate(starts):
-        ok, xk = bool(converged[k]), x[k]
-        if start.one_step:
-            values, jac_k = dot_edge_model(xk[None], start.u[None], start.v[None],
-                                           reference[k:k + 1])
-            jac_k = jac_k[0]
-            residuals_k = values[0] - start.z
-            normal = jac_k @ jac_k.T
-            try:
-                step = np.linalg.solve(normal, -jac_k @ residuals_k)
-            except np.linalg.LinAlgError:
-                ok = False
-            else:
-                xk, residuals_k = xk + step, residuals_k + step @ jac_k
-        else:
-            residuals_k, normal = residuals[k, :start.z.size], normals[k]
-        fits.append((ok, xk, residuals_k, normal))
+    """The fits of circles of one model (all disks or all ellipses)."""
+    x = np.array([s.x for s in starts])
+    reference = x[:, :2].copy()
+    offsets = np.cumsum([0] + [s.z.size for s in starts])
+    normals, costs, converged = fit_dots(
+        x, np.concatenate([s.u for s in starts]), np.concatenate([s.v for s in starts]),
+        np.concatenate([s.z for s in starts]), offsets, reference, 1e-6)
+    counts = np.diff(offsets)
     covariances, determined = centre_covariances(
-        np.array([normal for *_, normal in fits]),
-        np.array([residual_variance(r, x.shape[1]) for _, _, r, _ in fits]))
+        normals, costs / np.maximum(counts - x.shape[1], 1))
     results: list[Mark | DetectionError] = []
-    for k, (ok, xk, residuals_k, _) in enumerate(fits):
+    for k, xk in enumerate(x):
         cu, cv, radius, sigma, contrast = xk[:5]
         # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and
         # the edge no ellipse.
         e = float(np.hypot(*xk[8:])) if xk.size > 8 else 0.0
         if e < 1:
             radius /= (1 - e * e) ** 0.25
-        if (not ok or e >= 1 or abs(sigma) > radius or radius <= 0
+        if (not converged[k] or e >= 1 or abs(sigma) > radius or radius <= 0
                 or np.hypot(cu - reference[k, 0], cv - reference[k, 1]) > 0.5 * starts[k].radius0):
             results.append(DetectionError('circle fit did not converge'))
         elif not determined[k]:
             results.append(DetectionError(DEGENERATE_FIT))
         else:
-            rms = float(np.sqrt(np.mean(residuals_k ** 2)))
+            rms = float(np.sqrt(costs[k] / counts[k]))
             results.append(Mark('circle', float(cu), float(cv), covariances[k], float(radius),
                                 float(contrast), float(np.clip(1 - rms / abs(contrast), 0, 1))))
     return results
