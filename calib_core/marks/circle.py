@@ -10,11 +10,13 @@ import numpy as np
 
 from calib_core.errors import DetectionError
 from calib_core.marks.config import DEGENERATE_FIT, EDGE_BAND_PX, MIN_BAND_PX, Mark
-from calib_core.marks.dot_fit import fit_dots
-from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE, ellipse_edge_distance
-from calib_core.marks.pixels import (
-    centre_covariances, check_saturation, clipped_window, upper_median)
+from calib_core.marks.dot_fit import band_levels, edge_band, fit_dots
+from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
+from calib_core.marks.pixels import centre_covariances, check_saturation, clipped_window
 from calib_core.marks.segmentation import MomentShape
+
+# edge_band's ``clear`` that keeps every pixel.
+_EVERYWHERE = np.zeros((0, 0), dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -45,55 +47,26 @@ def circle_start(pixels, x0, y0, w, h, area, centroid, polarity, full,
     semi_axes = radius0 * scale / np.sqrt([1 + e, 1 - e])
     pad = int(np.ceil(4 + 0.15 * semi_axes[1]))
     r0, r1, c0, c1 = clipped_window(pixels.shape, x0, y0, w, h, pad)
-    cu0, cv0 = centroid
-    # The centre is in the edge; the flat interior adds nothing but time. The norm's
-    # gradient is between sqrt(1 - e) and sqrt(1 + e) long, which bounds the band in
-    # squared norms, so that the distance is taken only near the edge.
-    du, dv = np.arange(c0, c1) - cu0, np.arange(r0, r1) - cv0
-    a, b = shape
-    norm2 = np.add.outer((1 - a) * dv * dv, (1 + a) * du * du)
-    if b:
-        norm2 += 2 * b * np.outer(dv, du)
-    radius, reach = radius0 * scale, EDGE_BAND_PX * np.sqrt(1 + e)
-    inner = (radius - reach) ** 2 if radius > reach else -1.0
-    rows, cols = np.nonzero((norm2 > inner) & (norm2 < (radius + reach) ** 2))
-    if ellipse is None:
-        distance = np.sqrt(norm2[rows, cols]) - radius
-    else:
-        distance = ellipse_edge_distance(du[cols], dv[rows], radius, shape)
-        band = np.abs(distance) < EDGE_BAND_PX
-        rows, cols, distance = rows[band], cols[band], distance[band]
+    radius = radius0 * scale
     clear = _clear_of_neighbours(segmentation, r0, r1, c0, c1)
-    if clear is not None:
-        keep = clear[rows, cols]
-        if np.count_nonzero(keep) < MIN_BAND_PX:
-            raise DetectionError('crowded: other blobs are nearer than it to most of its edge')
-        rows, cols, distance = rows[keep], cols[keep], distance[keep]
-    rows += r0
-    cols += c0
-    u, v = cols.astype(np.float64), rows.astype(np.float64)
-    z = pixels[rows, cols].astype(np.float64)
+    # The centre is in the edge; the flat interior adds nothing but time.
+    u, v, z, distance = edge_band(pixels, r0, r1, c0, c1, centroid, radius, shape,
+                                  EDGE_BAND_PX, _EVERYWHERE if clear is None else clear)
+    if clear is not None and z.size < MIN_BAND_PX:
+        raise DetectionError('crowded: other blobs are nearer than it to most of its edge')
     check_saturation(z, full)
-    # Starting intensities from the pixels clearly inside and outside the edge.
-    in_mark = z[distance < -1.5]
-    outside = z[distance > 1.5]
-    background = upper_median(outside if outside.size else z)
-    level = (upper_median(in_mark) if in_mark.size
-             else float(z.min() if polarity == 'dark' else z.max()))
+    background, level, area, transition = band_levels(z, distance, polarity == 'dark')
     if level == background:
         raise DetectionError('no contrast between the Mark and its surroundings')
     # Starting radius and edge sigma from the band's intensities as fractions of the way
     # from background to Mark. Blur conserves area, so the fractions sum to the Mark's
     # area inside the band; and for an erf edge those between 16 and 84 % lie within one
     # sigma of the edge, a share sigma / EDGE_BAND_PX of the band's radial width.
-    fraction = (z - background) / (level - background)
     inner_axes = np.maximum(semi_axes - EDGE_BAND_PX, 0.0)
-    area = float(np.sum(fraction))
     radius_init = np.sqrt(max(area / np.pi + inner_axes[0] * inner_axes[1], radius0 ** 2 / 4))
-    transition = np.count_nonzero((fraction > 0.16) & (fraction < 0.84)) / z.size
-    sigma0 = float(np.clip(EDGE_BAND_PX * transition, 0.3, 3.0))
+    sigma0 = float(np.clip(EDGE_BAND_PX * transition / z.size, 0.3, 3.0))
     blur0 = np.sqrt(max(sigma0 ** 2 - PIXEL_APERTURE_VARIANCE, 0.1 ** 2))
-    x = [cu0, cv0, radius_init * scale, blur0, level - background, background, 0.0, 0.0]
+    x = [*centroid, radius_init * scale, blur0, level - background, background, 0.0, 0.0]
     return CircleStart(u, v, z, np.array(x + list(shape) if ellipse is not None else x),
                        float(radius0))
 

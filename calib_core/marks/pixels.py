@@ -26,7 +26,8 @@ def check_image(image) -> np.ndarray:
         raise InvalidInputError('image contains NaN or infinite values')
     if image.dtype.kind not in 'uif':
         raise InvalidInputError(f'unsupported pixel type {image.dtype}')
-    return image
+    # The compiled fits read pixels in the machine's byte order only.
+    return image if image.dtype.isnative else image.astype(image.dtype.newbyteorder('='))
 
 
 def candidate_depth(flat, x0, y0, w, h, polarity):
