@@ -1,6 +1,5 @@
-"""Intensity models of blurred Marks used by the detector's sub-pixel fits: the cross's,
-and the edge distance of a dot seen at an angle (the dot's model is compiled, in
-dot_fit)."""
+"""The blurred cross's intensity model, and the pixel aperture both Mark models fold into
+the edge blur (the dot's model is compiled, in dot_fit)."""
 from __future__ import annotations
 
 import numpy as np
@@ -35,20 +34,3 @@ def cross_coverage(du: np.ndarray, dv: np.ndarray, angle: float, half_length: fl
     long_x, long_y = blurred_bar(x, half_length, sigma), blurred_bar(y, half_length, sigma)
     thin_x, thin_y = blurred_bar(x, width / 2, sigma), blurred_bar(y, width / 2, sigma)
     return long_x * thin_y + thin_x * long_y - thin_x * thin_y
-
-
-def _ellipse_norm(du, dv, a, b):
-    """``P d`` (two arrays), the norm ``n = sqrt(d^T P d)`` and ``W = |P d| = n |grad n|``
-    at offsets ``d = (du, dv)`` (px) for ``P = [[1 + a, b], [b, 1 - a]]``; n and W are
-    held off zero, so that at the centre the distance below is -radius."""
-    w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
-    norm = np.sqrt(np.maximum(du * w_u + dv * w_v, 1e-18))
-    slope_norm = np.sqrt(np.maximum(w_u * w_u + w_v * w_v, 1e-18))
-    return w_u, w_v, norm, slope_norm
-
-
-def ellipse_edge_distance(du, dv, radius, shape):
-    """Sampson's distance (px, negative inside) from the edge of dot_edge_model's ellipse
-    of ``radius`` (px) and ``shape`` (a, b), centred at 0, at offsets ``du``, ``dv`` (px)."""
-    _, _, norm, slope_norm = _ellipse_norm(du, dv, *shape)
-    return (norm - radius) * norm / slope_norm
