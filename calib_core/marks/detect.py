@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import DetectionError, InvalidInputError
-from calib_core.marks.circle import CircleStart, circle_start, fit_circles
+from calib_core.marks.circle import DotCandidate, fit_circles
 from calib_core.marks.config import (
     ELLIPSE_ABOVE_ASPECT, ELLIPSE_MIN_FILL, MAX_ASPECT, MAX_ELLIPSE_ASPECT, MAX_SIGMA_OF_SIZE,
     MIN_ELLIPSE_OVERLAP, MIN_FILL, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark)
@@ -55,7 +55,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     height, width = image.shape
     marks: list[Mark] = []
     rejected: list[str] = []
-    circles: list[tuple[CircleStart, str]] = []
+    circles: list[tuple[DotCandidate, str]] = []
 
     def accept(mark, kind, where):
         if abs(mark.contrast) < config.min_snr * noise:
@@ -109,19 +109,17 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         # least half of it; a noise speck does not, and is dropped before a costly fit.
         if candidate_depth(flat, x0, y0, w, h, polarity) < 0.5 * config.min_snr * noise_scaled:
             continue
+        if kind == 'circle':
+            circles.append((DotCandidate((x0, y0, w, h), area, centroid, ellipse, label), where))
+            continue
         try:
-            if kind == 'circle':
-                circles.append((circle_start(image, x0, y0, w, h, area, centroid,
-                                              polarity, full, ellipse, (labels, label)),
-                                where))
-            else:
-                accept(fit_cross(image, x0, y0, component, area, polarity, noise, full),
-                       kind, where)
+            accept(fit_cross(image, x0, y0, component, area, polarity, noise, full), kind, where)
         except DetectionError as exc:
             rejected.append(f'{exc} {where}')
-    # The circles are fitted together: one solver run for all costs little more than
-    # for one, where per-Mark runs cost mostly the interpreter's overhead.
-    for fitted, (_, where) in zip(fit_circles([start for start, _ in circles]), circles):
+    # The dots are fitted together: one compiled run for all costs little more than for
+    # one, where per-dot calls cost mostly the interpreter's overhead.
+    for fitted, (_, where) in zip(fit_circles(image, [dot for dot, _ in circles], labels,
+                                              polarity, full), circles):
         if isinstance(fitted, Mark):
             accept(fitted, 'circle', where)
         else:

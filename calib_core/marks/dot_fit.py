@@ -46,43 +46,86 @@ _ERFC = _scaled_erfc_coefficients()
 
 
 @njit(cache=True)
-def edge_band(pixels, r0, r1, c0, c1, centre, radius, shape, reach, clear):
-    """A dot's edge band: the pixels of the window rows r0:r1, columns c0:c1 within
-    ``reach`` (px) of the edge of dot_edge_model's ellipse of ``radius`` (px) and
-    ``shape`` (a, b) at ``centre`` (u, v; px), by Sampson's distance, and where ``clear``
-    (window-shaped bool; or shape (0, 0): everywhere) holds.
+def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_first):
+    """The dots' edge bands: for dot k, the pixels of its window (rows r0:r1, columns
+    c0:c1) within ``reach`` (px) of the edge of dot_edge_model's ellipse of its radius
+    (px) and shape (a, b) at its centre (u, v; px), by Sampson's distance, and where its
+    ``clear`` mask holds.
 
     The norm's gradient is between sqrt(1 - e) and sqrt(1 + e) long (e = |(a, b)|),
     which bounds the band in squared norms, so the distance is taken only near the edge.
 
+    Parameters
+    ----------
+    pixels : ndarray, shape (H, W)
+    windows : ndarray of int, shape (k, 4)
+        r0, r1, c0, c1 per dot.
+    centres : ndarray, shape (k, 2)
+    radii : ndarray, shape (k,)
+    shapes : ndarray, shape (k, 2)
+    reach : float
+    clear : ndarray of bool, shape (c,)
+        The masks of the dots that have one, each window-shaped and flattened, one after
+        another.
+    clear_first : ndarray of int, shape (k,)
+        Where dot k's mask begins in ``clear``; -1 for none (every pixel is clear).
+
     Returns
     -------
     u, v, z, distance : ndarray, shape (n,)
-        The band's pixels (px, in the frame), intensities and signed distances from the
-        edge (px, negative inside), row by row.
+        The bands' pixels (px, in the frame), intensities and signed distances from the
+        edge (px, negative inside), dot after dot, row by row.
+    spans : ndarray of int, shape (k, 2)
+        Dot k's band is ``spans[k, 0]:spans[k, 1]`` of them.
     """
-    a, b = shape
-    slack = reach * math.sqrt(1.0 + math.hypot(a, b))
-    inner = (radius - slack) ** 2 if radius > slack else -1.0
-    outer = (radius + slack) ** 2
-    size = (r1 - r0) * (c1 - c0)
+    size = 0
+    for r0, r1, c0, c1 in windows:
+        size += (r1 - r0) * (c1 - c0)
     u, v, z, distance = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    spans = np.empty((len(windows), 2), dtype=np.int64)
     count = 0
-    for row in range(r0, r1):
-        dv = row - centre[1]
-        for col in range(c0, c1):
-            du = col - centre[0]
-            w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
-            norm2 = du * w_u + dv * w_v
-            if not inner < norm2 < outer or (clear.shape[0] and not clear[row - r0, col - c0]):
-                continue
-            norm = math.sqrt(max(norm2, 1e-18))
-            gap = (norm - radius) * norm / math.sqrt(max(w_u * w_u + w_v * w_v, 1e-18))
-            if abs(gap) >= reach:
-                continue
-            u[count], v[count], z[count], distance[count] = col, row, pixels[row, col], gap
-            count += 1
-    return u[:count], v[:count], z[:count], distance[:count]
+    for k in range(len(windows)):
+        r0, r1, c0, c1 = windows[k]
+        a, b = shapes[k]
+        radius, first = radii[k], clear_first[k]
+        slack = reach * math.sqrt(1.0 + math.hypot(a, b))
+        inner = (radius - slack) ** 2 if radius > slack else -1.0
+        outer = (radius + slack) ** 2
+        spans[k, 0] = count
+        for row in range(r0, r1):
+            dv = row - centres[k, 1]
+            for col in range(c0, c1):
+                du = col - centres[k, 0]
+                w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
+                norm2 = du * w_u + dv * w_v
+                if not inner < norm2 < outer or (
+                        first >= 0 and not clear[first + (row - r0) * (c1 - c0) + col - c0]):
+                    continue
+                norm = math.sqrt(max(norm2, 1e-18))
+                gap = (norm - radius) * norm / math.sqrt(max(w_u * w_u + w_v * w_v, 1e-18))
+                if abs(gap) >= reach:
+                    continue
+                u[count], v[count], z[count], distance[count] = col, row, pixels[row, col], gap
+                count += 1
+        spans[k, 1] = count
+    return u[:count], v[:count], z[:count], distance[:count], spans
+
+
+@njit(cache=True)
+def crowded_windows(labels, windows, own):
+    """Whether each window (k, 4: r0, r1, c0, c1) of the frame's blob ``labels`` holds a
+    blob other than its own (``own``, k)."""
+    crowded = np.zeros(len(windows), dtype=np.bool_)
+    for k in range(len(windows)):
+        r0, r1, c0, c1 = windows[k]
+        for row in range(r0, r1):
+            for col in range(c0, c1):
+                if labels[row, col] != 0 and labels[row, col] != own[k]:
+                    crowded[k] = True
+                    break
+            if crowded[k]:
+                break
+    return crowded
 
 
 @njit(cache=True)
@@ -92,25 +135,38 @@ def _upper_median(values):
 
 
 @njit(cache=True)
-def band_levels(z, distance, dark):
-    """Starting intensities of a dot from its edge band (z: intensities, distance: px from
-    the edge, negative inside): the background (the median outside 1.5 px), the Mark's
-    level (the median inside 1.5 px, or the band's extreme: its minimum if ``dark``), the
-    sum of the band's fractions of the way from background to Mark, and how many of
-    those fractions lie between 16 and 84 %."""
-    outside, in_mark = z[distance > 1.5], z[distance < -1.5]
-    background = _upper_median(outside if outside.size else z)
-    if in_mark.size:
-        level = _upper_median(in_mark)
-    else:
-        level = z.min() if dark else z.max()
-    total, transition = 0.0, 0
-    if level != background:
-        for value in z:
-            fraction = (value - background) / (level - background)
-            total += fraction
-            transition += 0.16 < fraction < 0.84
-    return background, level, total, transition
+def band_levels(z, distance, spans, dark, full):
+    """Starting intensities of dots from their edge bands (see edge_bands).
+
+    Returns
+    -------
+    levels : ndarray, shape (k, 5)
+        Per dot: the background (the median outside 1.5 px of the edge), the Mark's level
+        (the median inside 1.5 px, or the band's extreme: its minimum if ``dark``), the
+        sum of the band's fractions of the way from background to Mark, how many of
+        those fractions lie between 16 and 84 %, and how many pixels are at ``full``
+        scale or above (clipped).
+    """
+    levels = np.zeros((len(spans), 5))
+    for k in range(len(spans)):
+        band, gaps = z[spans[k, 0]:spans[k, 1]], distance[spans[k, 0]:spans[k, 1]]
+        if not band.size:
+            continue
+        outside, in_mark = band[gaps > 1.5], band[gaps < -1.5]
+        background = _upper_median(outside if outside.size else band)
+        if in_mark.size:
+            level = _upper_median(in_mark)
+        else:
+            level = band.min() if dark else band.max()
+        total, transition = 0.0, 0
+        if level != background:
+            for value in band:
+                fraction = (value - background) / (level - background)
+                total += fraction
+                transition += 0.16 < fraction < 0.84
+        levels[k, 0], levels[k, 1], levels[k, 2] = background, level, total
+        levels[k, 3], levels[k, 4] = transition, np.count_nonzero(band >= full)
+    return levels
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -343,7 +399,7 @@ def _one_step(current, u, v, z, u0, v0, normal, room):
 
 
 @njit(cache=True)
-def fit_dots(x, u, v, z, offsets, reference, tolerance, max_iterations=100):
+def fit_dots(x, u, v, z, spans, reference, tolerance, max_iterations=100):
     """Least squares of dot_edge_model against each dot's pixels, one dot after another.
 
     A dot of more than 2 ROUGH_FIT_PX pixels is fitted by Levenberg-Marquardt on about
@@ -364,8 +420,8 @@ def fit_dots(x, u, v, z, offsets, reference, tolerance, max_iterations=100):
         Starting parameters (p = 8 or 10, see dot_edge_model); overwritten by the fits.
     u, v, z : ndarray, shape (n,)
         Every dot's pixels (px) and intensities, one dot after another.
-    offsets : ndarray of int, shape (m + 1,)
-        Dot k's pixels are ``offsets[k]:offsets[k + 1]``.
+    spans : ndarray of int, shape (m, 2)
+        Dot k's pixels are ``spans[k, 0]:spans[k, 1]``.
     reference : ndarray, shape (m, 2)
         Each dot's point where the illumination factor is 1, px.
     tolerance : float
@@ -385,10 +441,10 @@ def fit_dots(x, u, v, z, offsets, reference, tolerance, max_iterations=100):
     converged = np.zeros(marks, dtype=np.bool_)
     # Scratch for the largest dot's Jacobian columns and residuals; each dot's are a
     # C-contiguous prefix of it, so that the compiled sums are vectorised.
-    room = np.empty((width + 1) * (np.max(np.diff(offsets)) if marks else 0))
+    room = np.empty((width + 1) * (np.max(spans[:, 1] - spans[:, 0]) if marks else 0))
     start = np.empty(width)
     for k in range(marks):
-        first, end = offsets[k], offsets[k + 1]
+        first, end = spans[k]
         pu, pv, pz = u[first:end], v[first:end], z[first:end]
         u0, v0 = reference[k, 0], reference[k, 1]
         start[:] = x[k]
