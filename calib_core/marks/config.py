@@ -108,7 +108,10 @@ class Mark:
     @property
     def sigma_px(self) -> float:
         """Largest 1-sigma axis of the centre uncertainty, px."""
-        return float(np.sqrt(np.max(np.linalg.eigvalsh(self.covariance))))
+        # The larger eigenvalue of the 2x2 covariance, in closed form: eigvalsh costs
+        # 10 us a call, as much as a dot's fit.
+        (uu, uv), (_, vv) = self.covariance
+        return float(np.sqrt(0.5 * (uu + vv) + np.hypot(0.5 * (uu - vv), uv)))
 
 
 @dataclass

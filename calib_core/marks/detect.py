@@ -11,8 +11,8 @@ from calib_core.marks.config import (
     ELLIPSE_ABOVE_ASPECT, ELLIPSE_MIN_FILL, MAX_ASPECT, MAX_ELLIPSE_ASPECT, MAX_SIGMA_OF_SIZE,
     MIN_ELLIPSE_OVERLAP, MIN_FILL, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark)
 from calib_core.marks.cross import fit_cross
-from calib_core.marks.pixels import candidate_depth, check_image, full_scale
-from calib_core.marks.segmentation import estimate_noise, moment_shape, segment
+from calib_core.marks.pixels import check_image, full_scale
+from calib_core.marks.segmentation import MomentShape, blob_statistics, estimate_noise, segment
 
 
 def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',
@@ -69,16 +69,13 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         else:
             marks.append(mark)
 
-    for (x0, y0, w, h), (seed_u, seed_v) in zip(boxes, seeds):
+    statistics = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark')
+    for (x0, y0, w, h), (label, area, *moments, depth) in zip(boxes, statistics):
+        label = int(label)
         half = max(w, h) / 2.0
-        if half < config.min_size_px * SIZE_SLACK[0]:
+        if half < config.min_size_px * SIZE_SLACK[0] or area < 4:
             continue  # noise speck
-        label = labels[seed_v, seed_u]
-        component = labels[y0:y0 + h, x0:x0 + w] == label
-        moments = moment_shape(component)
-        area = moments.area
-        if area < 4:
-            continue
+        moments = MomentShape(area, *moments)
         centroid = (x0 + moments.cu, y0 + moments.cv)
         where = f'near ({centroid[0]:.0f}, {centroid[1]:.0f}) px'
         if half > config.max_size_px * SIZE_SLACK[1]:
@@ -95,7 +92,8 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         if fill > 0.62 and aspect < MAX_ASPECT and moments.aspect < ELLIPSE_ABOVE_ASPECT:
             kind = 'circle'
         elif (fill > ELLIPSE_MIN_FILL and moments.aspect <= MAX_ELLIPSE_ASPECT
-              and moments.overlap(component) >= MIN_ELLIPSE_OVERLAP):
+              and moments.overlap(_component(labels, x0, y0, w, h, label))
+              >= MIN_ELLIPSE_OVERLAP):
             kind, ellipse = 'circle', moments
         elif aspect < MAX_ASPECT and MIN_FILL < fill < 0.6:
             kind = 'cross'
@@ -107,13 +105,14 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             continue
         # A Mark at the lowest accepted contrast stands out of the smoothed frame by at
         # least half of it; a noise speck does not, and is dropped before a costly fit.
-        if candidate_depth(flat, x0, y0, w, h, polarity) < 0.5 * config.min_snr * noise_scaled:
+        if depth < 0.5 * config.min_snr * noise_scaled:
             continue
         if kind == 'circle':
             circles.append((DotCandidate((x0, y0, w, h), area, centroid, ellipse, label), where))
             continue
         try:
-            accept(fit_cross(image, x0, y0, component, area, polarity, noise, full), kind, where)
+            accept(fit_cross(image, x0, y0, _component(labels, x0, y0, w, h, label), area,
+                             polarity, noise, full), kind, where)
         except DetectionError as exc:
             rejected.append(f'{exc} {where}')
     # The dots are fitted together: one compiled run for all costs little more than for
@@ -134,3 +133,9 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         raise DetectionError(f'expected {expected_count} Mark(s), found {len(marks)}: ambiguous'
                              f'{detail}')
     return Detection(marks=marks, rejected=rejected, noise_sigma=noise)
+
+
+def _component(labels, x0, y0, w, h, label):
+    """A blob's pixels in its box x0, y0, w, h (boolean, C-contiguous): for the shapes
+    that need more than its moments."""
+    return labels[y0:y0 + h, x0:x0 + w] == label

@@ -30,15 +30,6 @@ def check_image(image) -> np.ndarray:
     return image if image.dtype.isnative else image.astype(image.dtype.newbyteorder('='))
 
 
-def candidate_depth(flat, x0, y0, w, h, polarity):
-    """How far the component's extreme in the flattened frame lies from the median of a
-    2 px ring around its box (smoothed, scaled units)."""
-    r0, r1, c0, c1 = clipped_window(flat.shape, x0, y0, w, h, 2)
-    patch = flat[r0:r1, c0:c1]
-    level = upper_median(outer_ring(patch))
-    return level - float(patch.min()) if polarity == 'dark' else float(patch.max()) - level
-
-
 def upper_median(values) -> float:
     """The median of a 1-D array of odd size; of even size, the upper of the two middle
     values. For starting values and ring levels, at a tenth of np.median's call cost."""

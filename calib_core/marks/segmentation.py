@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from calib_core.marks.config import (
     EXTREME_PIXELS, MAX_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN,
@@ -205,11 +206,57 @@ class MomentShape:
         return common / (np.count_nonzero(inside) + self.area - common)
 
 
-def moment_shape(component) -> MomentShape:
-    """The moments of a blob, ``component`` its boolean box (C-contiguous). It holds at
-    least its seed, a pixel of the blob's contour."""
-    m = cv2.moments(component.view(np.uint8), binaryImage=True)
-    area = m['m00']
-    pixel = 1.0 / 12.0
-    return MomentShape(area, m['m10'] / area, m['m01'] / area, m['mu20'] / area + pixel,
-                        m['mu11'] / area, m['mu02'] / area + pixel)
+@njit(cache=True)
+def blob_statistics(labels, boxes, seeds, flat, dark):
+    """Per blob (its bounding box and one pixel of it, see segment): its label, its
+    moments and how far it stands out of the flattened frame.
+
+    Returns
+    -------
+    statistics : ndarray, shape (k, 8)
+        The label; the area (px^2); the centroid (px, in the box); the second central
+        moments uu, uv, vv (px^2, with the pixel's own 1/12 px^2 added), which
+        MomentShape takes; and the depth: how far the blob's extreme in ``flat`` (uint8)
+        lies from the median of a 2 px ring around its box (smoothed, scaled units).
+    """
+    height, width = labels.shape
+    statistics = np.zeros((len(boxes), 8))
+    counts = np.zeros(256, dtype=np.int64)
+    for k in range(len(boxes)):
+        x0, y0, w, h = boxes[k]
+        label = labels[seeds[k, 1], seeds[k, 0]]
+        area = su = sv = suu = suv = svv = 0.0
+        for row in range(h):
+            for col in range(w):
+                if labels[y0 + row, x0 + col] == label:
+                    area += 1.0
+                    su += col
+                    sv += row
+                    suu += col * col
+                    suv += col * row
+                    svv += row * row
+        cu, cv = su / area, sv / area
+        statistics[k, 0], statistics[k, 1], statistics[k, 2], statistics[k, 3] = (
+            label, area, cu, cv)
+        statistics[k, 4] = suu / area - cu * cu + 1.0 / 12.0
+        statistics[k, 5] = suv / area - cu * cv
+        statistics[k, 6] = svv / area - cv * cv + 1.0 / 12.0
+        r0, r1 = max(y0 - 2, 0), min(y0 + h + 2, height)
+        c0, c1 = max(x0 - 2, 0), min(x0 + w + 2, width)
+        counts[:] = 0
+        extreme = 255 if dark else 0
+        for row in range(r0, r1):
+            for col in range(c0, c1):
+                value = flat[row, col]
+                extreme = min(extreme, value) if dark else max(extreme, value)
+                # The ring: the outermost rows and columns (corners in both).
+                counts[value] += ((row == r0) + (row == r1 - 1) + (col == c0)
+                                  + (col == c1 - 1))
+        # The ring's upper median, from its histogram.
+        middle, seen, level = (np.sum(counts) // 2), 0, 0
+        for level in range(256):
+            seen += counts[level]
+            if seen > middle:
+                break
+        statistics[k, 7] = level - extreme if dark else extreme - level
+    return statistics
