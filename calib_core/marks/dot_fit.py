@@ -22,10 +22,13 @@ _DAMPING_START, _DAMPING_MAX, _DAMPING_MIN = 1e-3, 1e12, 1e-12
 # Dots with more edge pixels than twice this are first fitted on about this many (see
 # fit_dots): enough for the 8 or 10 parameters many times over.
 ROUGH_FIT_PX = 200
-# The one Gauss-Newton step on all pixels after the rough fit is taken if it moves the fit
-# by at most this many standard deviations (Mahalanobis): the rough fit's noise is
-# sqrt(k) times the full fit's, so a step beyond it means the rough fit went astray.
-ONE_STEP_SIGMAS = 10.0
+# The one Gauss-Newton step on all pixels after a rough fit on every k-th pixel is taken
+# if its squared Mahalanobis length (in the full fit's covariance) is at most this many
+# times (k - 1) p: the rough fit lies off the full fit by (k - 1) times the full fit's
+# covariance, so that length is (k - 1) chi-squared with p degrees of freedom, of mean
+# (k - 1) p; 4 times the mean is exceeded with odds 1e-4 (p = 8). A longer step means
+# the rough fit went astray.
+ONE_STEP_LIMIT = 4.0
 # Reassociation lets the compiler vectorise the normal equations' sums; NaN and infinity
 # keep their meaning, because a diverging trial is refused by its cost not being finite.
 _FAST = {'reassoc', 'contract', 'nsz', 'arcp'}
@@ -383,11 +386,11 @@ def _levenberg_marquardt(current, u, v, z, u0, v0, tolerance, max_iterations, no
 
 
 @njit(cache=True)
-def _one_step(current, u, v, z, u0, v0, normal, room):
-    """One Gauss-Newton step of one dot from ``current`` (overwritten) on all its pixels,
-    taken if it moves the fit by at most ONE_STEP_SIGMAS of its uncertainty; returns the
-    predicted cost after it, or -1 where it was not taken. ``normal``, ``room``: as in
-    _levenberg_marquardt."""
+def _one_step(current, u, v, z, u0, v0, stride, normal, room):
+    """One Gauss-Newton step of one dot from ``current`` (overwritten), a fit on every
+    ``stride``-th of its pixels, on all of them; taken if no longer than that rough fit's
+    noise explains (ONE_STEP_LIMIT). Returns the predicted cost after it, or -1 where it
+    was not taken. ``normal``, ``room``: as in _levenberg_marquardt."""
     width = current.size
     columns = room[:(width + 1) * z.size].reshape(width + 1, z.size)
     gradient, step = np.empty(width), np.empty(width)
@@ -395,7 +398,9 @@ def _one_step(current, u, v, z, u0, v0, normal, room):
     if not _solve_positive(normal, -gradient, step):
         return -1.0
     decrease = -np.dot(gradient, step)  # of the quadratic model, for the Gauss-Newton step
-    if not decrease <= ONE_STEP_SIGMAS ** 2 * cost / max(z.size - width, 1):
+    # The decrease is the step's squared Mahalanobis length times the noise variance.
+    limit = ONE_STEP_LIMIT * (stride - 1) * width * cost / max(z.size - width, 1)
+    if not decrease <= limit:
         return -1.0
     current += step
     return cost - decrease
@@ -458,7 +463,7 @@ def fit_dots(x, u, v, z, spans, reference, tolerance, max_iterations=100):
                 x[k], pu[rough], pv[rough], pz[rough], u0, v0, tolerance, max_iterations,
                 normal[k], room)
             if converged[k]:
-                cost[k] = _one_step(x[k], pu, pv, pz, u0, v0, normal[k], room)
+                cost[k] = _one_step(x[k], pu, pv, pz, u0, v0, stride, normal[k], room)
                 if cost[k] >= 0.0:
                     continue
             x[k] = start
