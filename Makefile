@@ -10,7 +10,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 .PHONY: setup demo test bench clean
 
-setup: $(VENV)/.stamp-package
+setup: $(VENV)/.stamp-compiled
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' || { \
@@ -36,6 +36,11 @@ $(VENV)/.stamp-msgs: $(VENV)/.stamp-deps $(MSG_SOURCES)
 
 $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg
 	$(BIN)/pip install --quiet --no-build-isolation --no-deps -e .
+	touch $@
+
+# The detector's compiled (numba) code, into its on-disk cache: 15-20 s, once.
+$(VENV)/.stamp-compiled: $(VENV)/.stamp-package $(wildcard calib_core/marks/*.py)
+	$(BIN)/python -m calib_core.marks.precompile
 	touch $@
 
 demo: setup
