@@ -4,7 +4,8 @@
          |
     <machine>/nodes              thin ROS nodes (rclpy, messages)
     <machine>/sim                simulated hardware
-    <machine>/core               models, identification, procedures (numpy/scipy/OpenCV)
+    <machine>/core               models, identification, procedures (numpy/scipy/OpenCV;
+                                 numba for the Mark detector's fit in calib_core/marks)
          |
     calib_core                   shared bottom layer; calib_core/nodes: shared node helpers,
                                  calib_core/sim: shared simulated hardware (the axis)

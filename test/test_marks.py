@@ -8,8 +8,8 @@ from scipy.special import erfc
 
 from calib_core.errors import DetectionError, InvalidInputError
 from calib_core.marks import detect_marks
-from calib_core.marks.dot_fit import (
-    ROUGH_FIT_PX, _levenberg_marquardt, dot_edge_model, edge_bands, fit_dots)
+from calib_core.marks.bands import edge_bands
+from calib_core.marks.dot_fit import ROUGH_FIT_PX, _levenberg_marquardt, dot_edge_model, fit_dots
 from calib_core.marks.intensity import edge_sigma
 from calib_core.marks.precompile import PIXEL_TYPES, dot_frame
 from calib_core.sim.render import MarkShape, coverage, render

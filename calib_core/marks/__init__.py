@@ -16,9 +16,11 @@ Jacobian and residual variance.
 Pixels follow OpenCV's convention: the centre of the top-left pixel is (0, 0).
 
 Modules: ``config`` (settings and result types), ``segmentation`` (candidates),
-``intensity`` (the cross's intensity model), ``dot_fit`` (the dot's model and its
-compiled solver), ``circle`` and ``cross`` (the sub-pixel fits), ``pixels`` (shared
-helpers), ``detect`` (:func:`detect_marks`).
+``intensity`` (the cross's intensity model), ``bands`` (blob moments, edge bands and
+starting levels, compiled), ``dot_fit`` (the dot's model and its compiled solver),
+``circle`` and ``cross`` (the sub-pixel fits), ``pixels`` (shared helpers), ``detect``
+(:func:`detect_marks`), ``precompile`` (fills numba's cache at set-up). numba is imported
+with the first frame detected.
 """
 from calib_core.marks.config import SHAPES, Detection, DetectorConfig, Mark
 from calib_core.marks.detect import detect_marks

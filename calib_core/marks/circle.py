@@ -10,8 +10,8 @@ import numpy as np
 
 from calib_core.errors import DetectionError
 from calib_core.marks.config import DEGENERATE_FIT, EDGE_BAND_PX, MIN_BAND_PX, Mark
-from calib_core.marks.dot_fit import (
-    band_levels, crowded_windows, edge_bands, fit_dots)
+from calib_core.marks.bands import band_levels, crowded_windows, edge_bands
+from calib_core.marks.dot_fit import fit_dots
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 from calib_core.marks.pixels import centre_covariances
 from calib_core.marks.segmentation import MomentShape

@@ -6,13 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import DetectionError, InvalidInputError
-from calib_core.marks.circle import DotCandidate, fit_circles
 from calib_core.marks.config import (
     ELLIPSE_ABOVE_ASPECT, ELLIPSE_MIN_FILL, MAX_ASPECT, MAX_ELLIPSE_ASPECT, MAX_SIGMA_OF_SIZE,
     MIN_ELLIPSE_OVERLAP, MIN_FILL, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark)
 from calib_core.marks.cross import fit_cross
 from calib_core.marks.pixels import check_image, full_scale
-from calib_core.marks.segmentation import MomentShape, blob_statistics, estimate_noise, segment
+from calib_core.marks.segmentation import MomentShape, estimate_noise, segment
 
 
 def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',
@@ -35,6 +34,11 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     InvalidInputError
         Not a single-channel finite image.
     """
+    # The compiled code, and numba (80 MiB, 0.1 s), load with the first frame, not with
+    # every process that imports this package.
+    from calib_core.marks.bands import blob_statistics
+    from calib_core.marks.circle import DotCandidate, fit_circles
+
     if shape not in ('',) + SHAPES:
         raise InvalidInputError(f'shape must be "circle", "cross" or "", not {shape!r}')
     image = check_image(image)

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
 from calib_core.marks.config import (
     EXTREME_PIXELS, MAX_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN,
@@ -216,59 +215,3 @@ class MomentShape:
         inside = form <= 4.0
         common = np.count_nonzero(inside[1:-1, 1:-1] & component)
         return common / (np.count_nonzero(inside) + self.area - common)
-
-
-@njit(cache=True)
-def blob_statistics(labels, boxes, seeds, flat, dark):
-    """Per blob (its bounding box and one pixel of it, see segment): its label, its
-    moments and how far it stands out of the flattened frame.
-
-    Returns
-    -------
-    statistics : ndarray, shape (k, 8)
-        The label; the area (px^2); the centroid (px, in the box); the second central
-        moments uu, uv, vv (px^2, with the pixel's own 1/12 px^2 added), which
-        MomentShape takes; and the depth: how far the blob's extreme in ``flat`` (uint8)
-        lies from the median of a 2 px ring around its box (smoothed, scaled units).
-    """
-    height, width = labels.shape
-    statistics = np.zeros((len(boxes), 8))
-    counts = np.zeros(256, dtype=np.int64)
-    for k in range(len(boxes)):
-        x0, y0, w, h = boxes[k]
-        label = labels[seeds[k, 1], seeds[k, 0]]
-        area = su = sv = suu = suv = svv = 0.0
-        for row in range(h):
-            for col in range(w):
-                if labels[y0 + row, x0 + col] == label:
-                    area += 1.0
-                    su += col
-                    sv += row
-                    suu += col * col
-                    suv += col * row
-                    svv += row * row
-        cu, cv = su / area, sv / area
-        statistics[k, 0], statistics[k, 1], statistics[k, 2], statistics[k, 3] = (
-            label, area, cu, cv)
-        statistics[k, 4] = suu / area - cu * cu + 1.0 / 12.0
-        statistics[k, 5] = suv / area - cu * cv
-        statistics[k, 6] = svv / area - cv * cv + 1.0 / 12.0
-        r0, r1 = max(y0 - 2, 0), min(y0 + h + 2, height)
-        c0, c1 = max(x0 - 2, 0), min(x0 + w + 2, width)
-        counts[:] = 0
-        extreme = 255 if dark else 0
-        for row in range(r0, r1):
-            for col in range(c0, c1):
-                value = flat[row, col]
-                extreme = min(extreme, value) if dark else max(extreme, value)
-                # The ring: the outermost rows and columns (corners in both).
-                counts[value] += ((row == r0) + (row == r1 - 1) + (col == c0)
-                                  + (col == c1 - 1))
-        # The ring's upper median, from its histogram.
-        middle, seen, level = (np.sum(counts) // 2), 0, 0
-        for level in range(256):
-            seen += counts[level]
-            if seen > middle:
-                break
-        statistics[k, 7] = level - extreme if dark else extreme - level
-    return statistics

@@ -1,0 +1,192 @@
+"""The compiled (numba) work on a frame's blobs and dot candidates: each blob's moments and
+depth, each dot's edge band and starting levels, one call for all of a frame's. Per-blob
+numpy calls had cost 30-100 us a blob, mostly the interpreter's."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def blob_statistics(labels, boxes, seeds, flat, dark):
+    """Per blob (its bounding box and one pixel of it, see segment): its label, its
+    moments and how far it stands out of the flattened frame.
+
+    Returns
+    -------
+    statistics : ndarray, shape (k, 8)
+        The label; the area (px^2); the centroid (px, in the box); the second central
+        moments uu, uv, vv (px^2, with the pixel's own 1/12 px^2 added), which
+        MomentShape takes; and the depth: how far the blob's extreme in ``flat`` (uint8)
+        lies from the median of a 2 px ring around its box (smoothed, scaled units).
+    """
+    height, width = labels.shape
+    statistics = np.zeros((len(boxes), 8))
+    counts = np.zeros(256, dtype=np.int64)
+    for k in range(len(boxes)):
+        x0, y0, w, h = boxes[k]
+        label = labels[seeds[k, 1], seeds[k, 0]]
+        area = su = sv = suu = suv = svv = 0.0
+        for row in range(h):
+            for col in range(w):
+                if labels[y0 + row, x0 + col] == label:
+                    area += 1.0
+                    su += col
+                    sv += row
+                    suu += col * col
+                    suv += col * row
+                    svv += row * row
+        cu, cv = su / area, sv / area
+        statistics[k, 0], statistics[k, 1], statistics[k, 2], statistics[k, 3] = (
+            label, area, cu, cv)
+        statistics[k, 4] = suu / area - cu * cu + 1.0 / 12.0
+        statistics[k, 5] = suv / area - cu * cv
+        statistics[k, 6] = svv / area - cv * cv + 1.0 / 12.0
+        r0, r1 = max(y0 - 2, 0), min(y0 + h + 2, height)
+        c0, c1 = max(x0 - 2, 0), min(x0 + w + 2, width)
+        counts[:] = 0
+        extreme = 255 if dark else 0
+        for row in range(r0, r1):
+            for col in range(c0, c1):
+                value = flat[row, col]
+                extreme = min(extreme, value) if dark else max(extreme, value)
+                # The ring: the outermost rows and columns (corners in both).
+                counts[value] += ((row == r0) + (row == r1 - 1) + (col == c0)
+                                  + (col == c1 - 1))
+        # The ring's upper median, from its histogram.
+        middle, seen, level = (np.sum(counts) // 2), 0, 0
+        for level in range(256):
+            seen += counts[level]
+            if seen > middle:
+                break
+        statistics[k, 7] = level - extreme if dark else extreme - level
+    return statistics
+
+
+@njit(cache=True)
+def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_first):
+    """The dots' edge bands: for dot k, the pixels of its window (rows r0:r1, columns
+    c0:c1) within ``reach`` (px) of the edge of dot_edge_model's ellipse of its radius
+    (px) and shape (a, b) at its centre (u, v; px), by Sampson's distance, and where its
+    ``clear`` mask holds.
+
+    The norm's gradient is between sqrt(1 - e) and sqrt(1 + e) long (e = |(a, b)|),
+    which bounds the band in squared norms, so the distance is taken only near the edge.
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (H, W)
+    windows : ndarray of int, shape (k, 4)
+        r0, r1, c0, c1 per dot.
+    centres : ndarray, shape (k, 2)
+    radii : ndarray, shape (k,)
+    shapes : ndarray, shape (k, 2)
+    reach : float
+    clear : ndarray of bool, shape (c,)
+        The masks of the dots that have one, each window-shaped and flattened, one after
+        another.
+    clear_first : ndarray of int, shape (k,)
+        Where dot k's mask begins in ``clear``; -1 for none (every pixel is clear).
+
+    Returns
+    -------
+    u, v, z, distance : ndarray, shape (n,)
+        The bands' pixels (px, in the frame), intensities and signed distances from the
+        edge (px, negative inside), dot after dot, row by row.
+    spans : ndarray of int, shape (k, 2)
+        Dot k's band is ``spans[k, 0]:spans[k, 1]`` of them.
+    """
+    size = 0
+    for r0, r1, c0, c1 in windows:
+        size += (r1 - r0) * (c1 - c0)
+    u, v, z, distance = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    spans = np.empty((len(windows), 2), dtype=np.int64)
+    count = 0
+    for k in range(len(windows)):
+        r0, r1, c0, c1 = windows[k]
+        a, b = shapes[k]
+        radius, first = radii[k], clear_first[k]
+        slack = reach * math.sqrt(1.0 + math.hypot(a, b))
+        inner = (radius - slack) ** 2 if radius > slack else -1.0
+        outer = (radius + slack) ** 2
+        spans[k, 0] = count
+        for row in range(r0, r1):
+            dv = row - centres[k, 1]
+            for col in range(c0, c1):
+                du = col - centres[k, 0]
+                w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
+                norm2 = du * w_u + dv * w_v
+                if not inner < norm2 < outer or (
+                        first >= 0 and not clear[first + (row - r0) * (c1 - c0) + col - c0]):
+                    continue
+                norm = math.sqrt(max(norm2, 1e-18))
+                gap = (norm - radius) * norm / math.sqrt(max(w_u * w_u + w_v * w_v, 1e-18))
+                if abs(gap) >= reach:
+                    continue
+                u[count], v[count], z[count], distance[count] = col, row, pixels[row, col], gap
+                count += 1
+        spans[k, 1] = count
+    return u[:count], v[:count], z[:count], distance[:count], spans
+
+
+@njit(cache=True)
+def crowded_windows(labels, windows, own):
+    """Whether each window (k, 4: r0, r1, c0, c1) of the frame's blob ``labels`` holds a
+    blob other than its own (``own``, k)."""
+    crowded = np.zeros(len(windows), dtype=np.bool_)
+    for k in range(len(windows)):
+        r0, r1, c0, c1 = windows[k]
+        for row in range(r0, r1):
+            for col in range(c0, c1):
+                if labels[row, col] != 0 and labels[row, col] != own[k]:
+                    crowded[k] = True
+                    break
+            if crowded[k]:
+                break
+    return crowded
+
+
+@njit(cache=True)
+def band_levels(z, distance, spans, dark, full):
+    """Starting intensities of dots from their edge bands (see edge_bands). Means, not
+    medians: a start only has to lie in the fit's basin, and a median (quickselect on
+    noisy values) cost 8 us a dot, more than the rest of the start.
+
+    Returns
+    -------
+    levels : ndarray, shape (k, 5)
+        Per dot: the background (the mean outside 1.5 px of the edge), the Mark's level
+        (the mean inside 1.5 px, or the band's extreme: its minimum if ``dark``), the
+        sum of the band's fractions of the way from background to Mark, how many of
+        those fractions lie between 16 and 84 %, and how many pixels are at ``full``
+        scale or above (clipped).
+    """
+    levels = np.zeros((len(spans), 5))
+    for k in range(len(spans)):
+        first, end = spans[k]
+        outside = in_mark = 0
+        outside_sum = in_mark_sum = 0.0
+        extreme = np.inf if dark else -np.inf
+        for i in range(first, end):
+            if distance[i] > 1.5:
+                outside += 1
+                outside_sum += z[i]
+            elif distance[i] < -1.5:
+                in_mark += 1
+                in_mark_sum += z[i]
+            extreme = min(extreme, z[i]) if dark else max(extreme, z[i])
+        if end == first:
+            continue
+        background = outside_sum / outside if outside else np.mean(z[first:end])
+        level = in_mark_sum / in_mark if in_mark else extreme
+        total, transition = 0.0, 0
+        if level != background:
+            for i in range(first, end):
+                fraction = (z[i] - background) / (level - background)
+                total += fraction
+                transition += 0.16 < fraction < 0.84
+        levels[k, 0], levels[k, 1], levels[k, 2] = background, level, total
+        levels[k, 3], levels[k, 4] = transition, np.count_nonzero(z[first:end] >= full)
+    return levels
