@@ -80,9 +80,9 @@ def _fit_group(pixels, candidates, labels, polarity, full) -> list[Mark | Detect
                                      radius0 ** 2 / 4))
     sigma0 = np.clip(EDGE_BAND_PX * transition / np.maximum(band, 1), 0.3, 3.0)
     blur0 = np.sqrt(np.maximum(sigma0 ** 2 - PIXEL_APERTURE_VARIANCE, 0.1 ** 2))
-    flat = np.zeros((len(candidates), 2))  # the illumination gradient
+    even_light = np.zeros((len(candidates), 2))  # the starting illumination gradient
     x = np.column_stack([centres, radius_init * scale, blur0, level - background, background,
-                         flat] + ([shapes] if ellipses else []))
+                         even_light] + ([shapes] if ellipses else []))
     problems = [_band_problem(*values) for values in
                 zip(clear_first >= 0, band, clipped, level == background)]
     fitted = np.flatnonzero([problem is None for problem in problems])
@@ -112,13 +112,13 @@ def _fit_group(pixels, candidates, labels, polarity, full) -> list[Mark | Detect
     return results
 
 
-def _band_problem(crowded, size, clipped, flat) -> str | None:
+def _band_problem(crowded, size, clipped, no_contrast) -> str | None:
     """Why a dot's edge band cannot be fitted, or None."""
     if crowded and size < MIN_BAND_PX:
         return 'crowded: other blobs are nearer than it to most of its edge'
     if clipped > 0.01 * size:
         return 'saturated Mark (clipped intensities bias the centre)'
-    if flat:
+    if no_contrast:
         return 'no contrast between the Mark and its surroundings'
     return None
 

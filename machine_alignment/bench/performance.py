@@ -280,10 +280,11 @@ JOBS = {
 }
 
 
-def _timed(work: Callable, budget: float = 1.0, repeats: int = 5):
+def _timed(work: Callable, budget: float = 1.0, repeats: int = 50):
     """Wall time (s) of ``work`` and its result: one run, or for a job under ``budget``
-    seconds the shortest of up to ``repeats`` (the run least disturbed by the machine);
-    CPU time (s) of the first run."""
+    seconds the shortest of up to ``repeats`` within it (the run least disturbed by the
+    machine: a few ms job varies by 1.5x between runs of 5); CPU time (s) of the first
+    run."""
     start, cpu = time.perf_counter(), time.process_time()
     result = work()
     best, cpu = time.perf_counter() - start, time.process_time() - cpu
@@ -341,8 +342,9 @@ def run(out: Path) -> list:
         rows.append({'job': name, 'what': job.what, 'unit': job.unit, 'baseline': job.baseline,
                      'results': results, 'growth_exponent': growth})
     lines = ['Each job at one to three sizes, each size in a fresh process on this 2-core '
-             'machine: wall time of the job alone (the shortest of up to 5 runs for jobs under '
-             '1 s), the peak resident memory of the process (in brackets: before the job, the '
+             'machine: wall time of the job alone (for jobs under 1 s the shortest of up to 50 '
+             'runs within 1 s), the peak resident memory of the process (in brackets: before '
+             'the job, the '
              'imports and the data), the growth (exponent of time against size, first to last '
              'size), and the baseline timed in the same process on the same data, with both '
              'results\' error against the truth where the job has one.', '',
