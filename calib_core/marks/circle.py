@@ -3,6 +3,7 @@ and starting values of all of a frame's dot candidates, then their fits, each in
 compiled run (dot_fit)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -96,19 +97,20 @@ def _fit_group(pixels, candidates, labels, polarity, full) -> list[Mark | Detect
         cu, cv, radius, sigma, contrast = x_fit[k, :5]
         # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and
         # the edge no ellipse.
-        e = float(np.hypot(*x_fit[k, 8:])) if ellipses else 0.0
+        e = math.hypot(*x_fit[k, 8:]) if ellipses else 0.0
         if e < 1:
             radius /= (1 - e * e) ** 0.25
         if (not converged[k] or e >= 1 or abs(sigma) > radius or radius <= 0
-                or np.hypot(cu - centres[index, 0], cv - centres[index, 1])
+                or math.hypot(cu - centres[index, 0], cv - centres[index, 1])
                 > 0.5 * radius0[index]):
             results[index] = DetectionError('circle fit did not converge')
         elif not determined[k]:
             results[index] = DetectionError(DEGENERATE_FIT)
         else:
-            rms = float(np.sqrt(costs[k] / counts[k]))
+            # Scalars by math, not numpy: numpy's call on a scalar costs 5 us a Mark.
+            quality = min(max(1 - math.sqrt(costs[k] / counts[k]) / abs(contrast), 0.0), 1.0)
             results[index] = Mark('circle', float(cu), float(cv), covariances[k], float(radius),
-                                  float(contrast), float(np.clip(1 - rms / abs(contrast), 0, 1)))
+                                  float(contrast), float(quality))
     return results
 
 

@@ -4,6 +4,7 @@ dark (bright) candidates; the threshold is Otsu's unless that splits the backgro
 noise. Each candidate's shape is summarised by its second moments."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -20,8 +21,27 @@ def estimate_noise(image: np.ndarray) -> float:
     About 10000 differences (every k-th row) give sigma to about 1.3 % (the MAD's
     efficiency is 37 %), and keep the two medians cheap on full frames."""
     step = max(1, int(np.ceil(image.size / 10000)))
-    diff = np.diff(image[::step].astype(np.float64), axis=1).ravel()
-    return float(np.median(np.abs(diff - np.median(diff))) / 0.6745 / np.sqrt(2.0))
+    rows = image[::step]
+    if rows.dtype.kind in 'ui' and rows.size and int(rows.max()) - int(rows.min()) < 1 << 16:
+        # Integer pixels: both medians from histograms, a quarter of np.median's time.
+        diff = np.diff(rows.astype(np.int64), axis=1).ravel()
+        twice_centre = round(2 * _integer_median(diff))
+        mad = _integer_median(np.abs(2 * diff - twice_centre)) / 2
+    else:
+        diff = np.diff(rows.astype(np.float64), axis=1).ravel()
+        mad = np.median(np.abs(diff - np.median(diff)))
+    return float(mad / 0.6745 / np.sqrt(2.0))
+
+
+def _integer_median(values: np.ndarray) -> float:
+    """np.median of integer values (1-D, not empty), from their histogram."""
+    low = int(values.min())
+    cumulative = np.cumsum(np.bincount(values - low))
+    middle = values.size // 2
+    upper = int(np.searchsorted(cumulative, middle, side='right'))
+    if values.size % 2:
+        return low + upper
+    return low + (int(np.searchsorted(cumulative, middle - 1, side='right')) + upper) / 2
 
 
 def _least_squares(design, values):
@@ -190,13 +210,13 @@ class MomentShape:
     @property
     def eccentricity(self) -> float:
         """(l1 - l2) / (l1 + l2) of the moments' eigenvalues: 0 for a disk."""
-        return float(np.hypot(self.uu - self.vv, 2 * self.uv) / (self.uu + self.vv))
+        return math.hypot(self.uu - self.vv, 2 * self.uv) / (self.uu + self.vv)
 
     @property
     def aspect(self) -> float:
         """Axis ratio, >= 1."""
         e = self.eccentricity
-        return float(np.sqrt((1 + e) / max(1 - e, 1e-12)))
+        return math.sqrt((1 + e) / max(1 - e, 1e-12))
 
     @property
     def shape(self) -> tuple[float, float]:
