@@ -280,40 +280,64 @@ JOBS = {
 }
 
 
-def _timed(work: Callable, budget: float = 1.0, repeats: int = 50):
-    """Wall time (s) of ``work`` and its result: one run, or for a job under ``budget``
-    seconds the shortest of up to ``repeats`` within it (the run least disturbed by the
-    machine: a few ms job varies by 1.5x between runs of 5); CPU time (s) of the first
-    run."""
-    start, cpu = time.perf_counter(), time.process_time()
-    result = work()
-    best, cpu = time.perf_counter() - start, time.process_time() - cpu
-    spent = best
+def _peak_mib() -> float:
+    """This process's peak resident memory so far, MiB."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _timed(works: list[Callable], budget: float = 1.0, repeats: int = 50):
+    """Wall time (s) of each of ``works``: one run, or for a work under ``budget`` seconds
+    the shortest of up to ``repeats`` within it, the run least disturbed by the machine.
+    The works take turns, so that a slower spell of the machine reaches the job and its
+    baseline alike: timed one after the other, a 1 ms baseline once read 2.3 ms, the job's
+    ratio to it half its usual.
+
+    Returns
+    -------
+    best, cpu : list of float
+        Each work's shortest wall time and its first run's CPU time, s.
+    results : list
+        Each work's result.
+    peak : float
+        Peak resident memory (MiB) after the first work's first run, before the others.
+    """
+    best, cpu, results, spent, peak = [], [], [], [], None
+    for work in works:
+        start, start_cpu = time.perf_counter(), time.process_time()
+        results.append(work())
+        best.append(time.perf_counter() - start)
+        cpu.append(time.process_time() - start_cpu)
+        spent.append(best[-1])
+        peak = _peak_mib() if peak is None else peak
     for _ in range(repeats - 1):
-        if spent > budget:
+        turns = [k for k in range(len(works)) if spent[k] <= budget]
+        if not turns:
             break
-        start = time.perf_counter()
-        work()
-        took = time.perf_counter() - start
-        best, spent = min(best, took), spent + took
-    return best, cpu, result
+        for k in turns:
+            start = time.perf_counter()
+            works[k]()
+            took = time.perf_counter() - start
+            best[k], spent[k] = min(best[k], took), spent[k] + took
+    return best, cpu, results, peak
 
 
 def measure(job: str, size: int) -> dict:
-    """In this process: build the job at ``size``, time it and then its baseline on the same
-    data; peak resident memory (MiB) before the job and after it (before the baseline)."""
+    """In this process: build the job at ``size``, time it and its baseline on the same
+    data, in turns; peak resident memory (MiB) before the job and after its first run
+    (before the baseline's)."""
     work = JOBS[job].build(size)
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    seconds, cpu, result = _timed(work.job)
-    row = {'seconds': seconds, 'cpu_seconds': cpu, 'peak_mib_before': before,
-           'peak_mib': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    before = _peak_mib()
+    works = [work.job] + ([work.baseline] if work.baseline is not None else [])
+    best, cpu, results, peak = _timed(works)
+    row = {'seconds': best[0], 'cpu_seconds': cpu[0], 'peak_mib_before': before,
+           'peak_mib': peak}
     if work.error is not None:
-        row['error'], row['error_unit'] = work.error(result), work.error_unit
+        row['error'], row['error_unit'] = work.error(results[0]), work.error_unit
     if work.baseline is not None:
-        row['baseline_seconds'], _, baseline = _timed(work.baseline)
-        row['ratio_to_baseline'] = seconds / row['baseline_seconds']
+        row['baseline_seconds'] = best[1]
+        row['ratio_to_baseline'] = best[0] / best[1]
         if work.error is not None:
-            row['baseline_error'] = work.error(baseline)
+            row['baseline_error'] = work.error(results[1])
     return row
 
 
@@ -343,9 +367,9 @@ def run(out: Path) -> list:
                      'results': results, 'growth_exponent': growth})
     lines = ['Each job at one to three sizes, each size in a fresh process on this 2-core '
              'machine: wall time of the job alone (for jobs under 1 s the shortest of up to 50 '
-             'runs within 1 s), the peak resident memory of the process (in brackets: before '
-             'the job, the '
-             'imports and the data), the growth (exponent of time against size, first to last '
+             'runs within 1 s, taking turns with the baseline), the peak resident memory of '
+             'the process (in brackets: before the job, the imports and the data), the growth '
+             '(exponent of time against size, first to last '
              'size), and the baseline timed in the same process on the same data, with both '
              'results\' error against the truth where the job has one.', '',
              '| job | what | size | time | peak memory (before) | growth | baseline | '
