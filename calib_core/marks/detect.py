@@ -34,7 +34,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     InvalidInputError
         Not a single-channel finite image.
     """
-    # The compiled code and numba (115 MiB, 0.35 s) load with the first frame, not with
+    # The compiled code and numba (105 MiB, 0.4 s) load with the first frame, not with
     # every process that imports this package.
     from calib_core.marks.bands import blob_statistics
     from calib_core.marks.circle import DotCandidate, fit_circles
