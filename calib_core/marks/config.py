@@ -13,9 +13,6 @@ SHAPES = ('circle', 'cross')
 # Half-width of the ring of pixels around a circle's edge used by the fit, px: covers the
 # edge blur (sigma up to 1.5 px) to 4 sigma.
 EDGE_BAND_PX = 6.0
-# Edge bands with more pixels than this are fitted in two steps (see circle_start).
-ONE_STEP_ABOVE_PX = 1500
-ROUGH_FIT_PX = 750
 # Segmentation: the illumination surface is fitted to means of blocks this wide (px),
 # with this many rounds of outlier rejection.
 TREND_BLOCK_PX = 16

@@ -20,16 +20,11 @@ _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 # Marquardt's damping: its start, and the bounds beyond which a dot's fit gives up or
 # the damping stops shrinking.
 _DAMPING_START, _DAMPING_MAX, _DAMPING_MIN = 1e-3, 1e12, 1e-12
-# Dots with more edge pixels than twice this are first fitted on about this many (see
-# fit_dots): enough for the 8 or 10 parameters many times over.
-ROUGH_FIT_PX = 200
-# The one Gauss-Newton step on all pixels after a rough fit on every k-th pixel is taken
-# if its squared Mahalanobis length (in the full fit's covariance) is at most this many
-# times (k - 1) p: the rough fit lies off the full fit by (k - 1) times the full fit's
-# covariance, so that length is (k - 1) chi-squared with p degrees of freedom, of mean
-# (k - 1) p; 4 times the mean is exceeded with odds 1e-4 (p = 8). A longer step means
-# the rough fit went astray.
-ONE_STEP_LIMIT = 4.0
+# A fit stops, taking its last step unevaluated, when that step would move it by less
+# than this share of its 1-sigma uncertainty (squared Mahalanobis length): what remains
+# after it is second order in it, and another evaluation of all pixels would cost as much
+# as an iteration.
+STOP_SIGMAS = 0.1
 # Reassociation lets the compiler vectorise the normal equations' sums; NaN and infinity
 # keep their meaning, because a diverging trial is refused by its cost not being finite.
 _FAST = {'reassoc', 'contract', 'nsz', 'arcp'}
@@ -226,11 +221,12 @@ def _levenberg_marquardt(current, u, v, z, u0, v0, tolerance, max_iterations, no
             if damping > _DAMPING_MAX:
                 return cost, False
             continue
-        # A nearly Gauss-Newton step whose predicted decrease of the quadratic model is
-        # below the tolerance is taken without evaluating it: it would stop the fit
-        # anyway, and an evaluation is most of an iteration's time.
+        # The predicted decrease of the quadratic model is the step's squared Mahalanobis
+        # length times the noise variance; a nearly Gauss-Newton step within STOP_SIGMAS
+        # is taken without evaluating it, and the fit ends.
         predicted = -2.0 * np.dot(gradient, step) - np.dot(step, normal @ step)
-        if damping <= _DAMPING_START and predicted <= tolerance * cost:
+        variance = cost / max(z.size - width, 1)
+        if damping <= _DAMPING_START and predicted <= STOP_SIGMAS ** 2 * variance:
             current += step
             return cost - max(predicted, 0.0), True
         trial[:] = current + step
@@ -260,41 +256,17 @@ def _levenberg_marquardt(current, u, v, z, u0, v0, tolerance, max_iterations, no
 
 
 @njit(cache=True)
-def _one_step(current, u, v, z, u0, v0, stride, normal, room):
-    """One Gauss-Newton step of one dot from ``current`` (overwritten), a fit on every
-    ``stride``-th of its pixels, on all of them; taken if no longer than that rough fit's
-    noise explains (ONE_STEP_LIMIT). Returns the predicted cost after it, or -1 where it
-    was not taken. ``normal``, ``room``: as in _levenberg_marquardt."""
-    width = current.size
-    columns = room[:(width + 1) * z.size].reshape(width + 1, z.size)
-    gradient, step = np.empty(width), np.empty(width)
-    cost = _normal_equations(current, u, v, z, u0, v0, normal, gradient, columns)
-    if not _solve_positive(normal, -gradient, step):
-        return -1.0
-    decrease = -np.dot(gradient, step)  # of the quadratic model, for the Gauss-Newton step
-    # The decrease is the step's squared Mahalanobis length times the noise variance.
-    limit = ONE_STEP_LIMIT * (stride - 1) * width * cost / max(z.size - width, 1)
-    if not decrease <= limit:
-        return -1.0
-    current += step
-    return cost - decrease
-
-
-@njit(cache=True)
 def fit_dots(x, u, v, z, spans, reference, tolerance, max_iterations=100):
     """Least squares of dot_edge_model against each dot's pixels, one dot after another.
 
-    A dot of more than 2 ROUGH_FIT_PX pixels is fitted by Levenberg-Marquardt on about
-    ROUGH_FIT_PX of them (every k-th diagonal), then by one Gauss-Newton step on all. One
-    Newton step from an estimate within the noise of the optimum is as efficient as the
-    full fit (Le Cam's one-step estimator) at a fraction of its cost. Where that step
-    would move the fit farther than the rough fit's noise explains, the dot is fitted on
-    all its pixels from its start.
-
-    Levenberg-Marquardt stops when the cost fell, or a nearly Gauss-Newton step would
-    lower it, by less than ``tolerance`` relatively, the step, scaled by the Jacobian's
-    column norms as MINPACK does, is below ``tolerance`` of x, or the residual is
-    orthogonal to the Jacobian.
+    Levenberg-Marquardt (Marquardt's diagonal scaling) stops when a nearly Gauss-Newton
+    step would move the fit by less than STOP_SIGMAS of its uncertainty (the step is
+    taken), the cost fell by less than ``tolerance`` relatively, the step, scaled by the
+    Jacobian's column norms as MINPACK does, is below ``tolerance`` of x, or the residual
+    is orthogonal to the Jacobian. (A rough fit on a subset of the pixels and one
+    Gauss-Newton step on all, Le Cam's one-step estimator, was as fast and is not used: on
+    dots seen at a steep angle, whose centres the pixels determine poorly, it left up to
+    twice the full fit's error.)
 
     Parameters
     ----------
@@ -324,23 +296,9 @@ def fit_dots(x, u, v, z, spans, reference, tolerance, max_iterations=100):
     # Scratch for the largest dot's Jacobian columns and residuals; each dot's are a
     # C-contiguous prefix of it, so that the compiled sums are vectorised.
     room = np.empty((width + 1) * (np.max(spans[:, 1] - spans[:, 0]) if marks else 0))
-    start = np.empty(width)
     for k in range(marks):
         first, end = spans[k]
-        pu, pv, pz = u[first:end], v[first:end], z[first:end]
-        u0, v0 = reference[k, 0], reference[k, 1]
-        start[:] = x[k]
-        stride = pz.size // ROUGH_FIT_PX
-        if stride >= 2:
-            rough = (pu + pv) % stride == 0
-            cost[k], converged[k] = _levenberg_marquardt(
-                x[k], pu[rough], pv[rough], pz[rough], u0, v0, tolerance, max_iterations,
-                normal[k], room)
-            if converged[k]:
-                cost[k] = _one_step(x[k], pu, pv, pz, u0, v0, stride, normal[k], room)
-                if cost[k] >= 0.0:
-                    continue
-            x[k] = start
         cost[k], converged[k] = _levenberg_marquardt(
-            x[k], pu, pv, pz, u0, v0, tolerance, max_iterations, normal[k], room)
+            x[k], u[first:end], v[first:end], z[first:end], reference[k, 0], reference[k, 1],
+            tolerance, max_iterations, normal[k], room)
     return normal, cost, converged
