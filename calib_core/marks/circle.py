@@ -14,7 +14,7 @@ from calib_core.marks.config import DEGENERATE_FIT, EDGE_BAND_PX, MIN_BAND_PX, M
 from calib_core.marks.bands import band_levels, crowded_windows, edge_bands
 from calib_core.marks.dot_fit import fit_dots
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
-from calib_core.marks.pixels import centre_covariances
+from calib_core.marks.pixels import centre_covariances, clipped_window
 from calib_core.marks.segmentation import MomentShape
 
 
@@ -60,10 +60,7 @@ def _fit_group(pixels, candidates, labels, polarity, full) -> list[Mark | Detect
     scale = (1 - e * e) ** 0.25
     semi_axes = (radius0 * scale)[:, None] / np.sqrt(1 + np.outer(e, [1.0, -1.0]))
     pad = np.ceil(4 + 0.15 * semi_axes[:, 1]).astype(int)
-    height, width = pixels.shape
-    x0, y0, w, h = boxes.T
-    windows = np.column_stack([np.maximum(y0 - pad, 0), np.minimum(y0 + h + pad, height),
-                               np.maximum(x0 - pad, 0), np.minimum(x0 + w + pad, width)])
+    windows = np.column_stack(clipped_window(pixels.shape, *boxes.T, pad))
     own = np.array([c.label for c in candidates])
     clear, clear_first = _clear_masks(labels, windows, own)
     # The centre is in the edge; the flat interior adds nothing but time.

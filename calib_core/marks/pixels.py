@@ -1,6 +1,5 @@
-"""Pixel helpers the segmentation and the circle and cross fits share: windows and
-patches clipped to the frame, robust levels, saturation checks, and the centre
-covariance of a fit."""
+"""Pixel helpers of the Mark fits: the frame's checks, windows and patches clipped to the
+frame, robust levels, saturation checks, and the centre covariance of a fit."""
 from __future__ import annotations
 
 import numpy as np
@@ -43,10 +42,11 @@ def outer_ring(patch):
 
 
 def clipped_window(shape, x0, y0, w, h, pad):
-    """Rows r0:r1 and columns c0:c1 of the bounding box grown by ``pad``, inside the image."""
+    """Rows r0:r1 and columns c0:c1 of the bounding box grown by ``pad``, inside the image;
+    of one box (ints) or of many (arrays of the same length, each r0 etc. an array)."""
     height, width = shape
-    return (max(y0 - pad, 0), min(y0 + h + pad, height),
-            max(x0 - pad, 0), min(x0 + w + pad, width))
+    return (np.maximum(y0 - pad, 0), np.minimum(y0 + h + pad, height),
+            np.maximum(x0 - pad, 0), np.minimum(x0 + w + pad, width))
 
 
 def pixel_patch(pixels, x0, y0, w, h, pad):
