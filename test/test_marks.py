@@ -13,6 +13,7 @@ from calib_core.marks.dot_fit import dot_edge_model, fit_dots
 from calib_core.marks.intensity import edge_sigma
 from calib_core.marks.precompile import PIXEL_TYPES, dot_frame
 from calib_core.sim.render import MarkShape, coverage, render
+from machine_alignment.bench.vision import cramer_rao
 
 
 def _frame(rng, kind, size, blur, noise_fraction, contrast=-150.0, n=1):
@@ -36,8 +37,6 @@ def test_centre_error_below_one_fiftieth_pixel(rng, kind, size, blur):
     assert mark.shape == kind
 
 
-# Radius 40 px takes the two-step fit (rough fit on part of the edge band, one
-# Gauss-Newton step on all of it); its covariance comes from the full band.
 @pytest.mark.parametrize('size,blur,noise', [(10, 1.0, 0.05), (40, 1.5, 0.05)])
 def test_reported_covariance_matches_scatter(rng, size, blur, noise):
     errors, sigmas, radii = [], [], []
@@ -265,11 +264,12 @@ def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur):
         centre = np.array([[truth.u + 0.3, truth.v - 0.2]])
         reach = int(radius * np.sqrt(aspect)) + 10
         windows = np.array([[240 - reach, 240 + reach, 320 - reach, 320 + reach]])
-        u, v, z, _, spans = edge_bands(image, windows, centre, np.array([norm_radius]),
-                                       shape[None], 6.0, np.zeros(0, bool), np.array([-1]))
+        u, v, z, _, spans, _ = edge_bands(image, windows, centre, np.array([norm_radius]),
+                                          shape[None], 6.0, np.zeros(0, bool), np.array([-1]))
         start = np.array([[*centre[0], norm_radius, blur, -150.0, 200.0, 0.0, 0.0, *shape]])
         x = start if aspect != 1.0 else start[:, :8].copy()
-        normal, cost, converged = fit_dots(x, u, v, z, spans, centre, 1e-6)
+        normal, cost, converged = fit_dots(x, u, v, z, spans, np.zeros((1, 2, 10)), centre,
+                                           1e-6)
         assert converged[0]
 
         def residual(p):
@@ -283,6 +283,52 @@ def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur):
         covariance = np.linalg.inv(jacobian(converged_fit.x).T @ jacobian(converged_fit.x))
         sigma = np.sqrt(np.diag(covariance)[:2] * 2 * converged_fit.cost / (z.size - x.shape[1]))
         assert np.all(np.abs(x[0, :2] - converged_fit.x[:2]) < 0.05 * sigma)
+
+
+def test_flat_pixels_by_their_moments_as_by_their_model(rng):
+    """A 25 px dot, lit unevenly, fitted on its 6 px edge band with the window's other
+    pixels by their moments, and on a band wide enough to hold them all: the same fit
+    (centre to 1e-6 px, cost to 1e-6 relative), where the model beyond 6 px (5.8 sigma)
+    is flat to 1e-8 of the contrast."""
+    truth = MarkShape('circle', 100.4, 99.7, 25.0)
+    image = (render([truth], 200, 200, 1.0, 200.0, -150.0, gradient=(2e-3, -1e-3))
+             + rng.normal(0, 3.0, (200, 200)))
+    centre = np.array([[100.2, 99.9]])
+    windows = np.array([[60, 140, 60, 140]])
+    start = np.array([[*centre[0], 25.3, 0.8, -140.0, 195.0, 0.0, 0.0]])
+    fits = []
+    for reach in (6.0, 60.0):
+        u, v, z, _, spans, flat = edge_bands(image, windows, centre, np.array([25.0]),
+                                             np.zeros((1, 2)), reach, np.zeros(0, bool),
+                                             np.array([-1]))
+        assert (flat[0, :, 0].sum() > 0) == (reach == 6.0)
+        assert z.size + flat[0, :, 0].sum() == 80 * 80
+        x = start.copy()
+        normal, cost, converged = fit_dots(x, u, v, z, spans, flat, centre, 1e-10)
+        assert converged[0]
+        fits.append((x[0], cost[0], normal[0]))
+    (x_moments, cost_moments, normal_moments), (x_all, cost_all, normal_all) = fits
+    assert np.max(np.abs(x_moments[:2] - x_all[:2])) < 1e-6
+    assert abs(cost_moments - cost_all) < 1e-6 * cost_all
+    assert np.allclose(normal_moments, normal_all, rtol=1e-6, atol=1e-9 * normal_all.max())
+
+
+@pytest.mark.parametrize('size', [20, 40])
+def test_centre_sigma_reaches_the_cramer_rao_bound(rng, size):
+    """A blurred dot (1.5 px) in a uniformly lit frame: the reported centre sigma within
+    4 % of the Cramer-Rao bound of every pixel around it (the exact rendering model, the
+    gradient free), 5 frames. On the edge band alone the fit confused the gradient with
+    a shift of the centre and reported 8-11 % more; test_reported_covariance_matches_scatter
+    holds the reported sigma to the scatter."""
+    ratios = []
+    for _ in range(5):
+        truth = MarkShape('circle', 100 + rng.uniform(-0.5, 0.5), 100 + rng.uniform(-0.5, 0.5),
+                          float(size))
+        image = render([truth], 200, 200, 1.5, 200.0, -150.0) + rng.normal(0, 1.5, (200, 200))
+        mark = detect_marks(image, expected_count=1).marks[0]
+        ratios.append(np.sqrt(np.trace(mark.covariance) / 2)
+                      / cramer_rao(truth, 1.5, 1.5, gradient=True))
+    assert 0.96 < np.mean(ratios) < 1.04
 
 
 @pytest.mark.parametrize('dtype', PIXEL_TYPES + ('>u2',), ids=lambda d: np.dtype(d).str)

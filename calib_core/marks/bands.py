@@ -70,7 +70,9 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
     """The dots' edge bands: for dot k, the pixels of its window (rows r0:r1, columns
     c0:c1) within ``reach`` (px) of the edge of dot_edge_model's ellipse of its radius
     (px) and shape (a, b) at its centre (u, v; px), by Sampson's distance, and where its
-    ``clear`` mask holds.
+    ``clear`` mask holds; and the moments of the window's other clear pixels, outside the
+    band and inside it, where the dot's model is flat: they tell the illumination
+    gradient apart from a shift of the centre at the cost of a few sums.
 
     The norm's gradient is between sqrt(1 - e) and sqrt(1 + e) long (e = |(a, b)|),
     which bounds the band in squared norms, so the distance is taken only near the edge.
@@ -81,6 +83,7 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
     windows : ndarray of int, shape (k, 4)
         r0, r1, c0, c1 per dot.
     centres : ndarray, shape (k, 2)
+        Also each dot's reference point of the flat moments.
     radii : ndarray, shape (k,)
     shapes : ndarray, shape (k, 2)
     reach : float
@@ -97,12 +100,18 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
         edge (px, negative inside), dot after dot, row by row.
     spans : ndarray of int, shape (k, 2)
         Dot k's band is ``spans[k, 0]:spans[k, 1]`` of them.
+    flat : ndarray, shape (k, 2, 10)
+        Per dot, of its clear pixels beyond the band outside the edge ([k, 0]) and inside
+        it ([k, 1]), with (eu, ev) their offsets from the centre (px) and z their
+        intensities: the count and the sums of eu, ev, eu^2, eu ev, ev^2, z, z eu, z ev
+        and z^2.
     """
     size = 0
     for r0, r1, c0, c1 in windows:
         size += (r1 - r0) * (c1 - c0)
     u, v, z, distance = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
     spans = np.empty((len(windows), 2), dtype=np.int64)
+    flat = np.zeros((len(windows), 2, 10))
     count = 0
     for k in range(len(windows)):
         r0, r1, c0, c1 = windows[k]
@@ -115,20 +124,33 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
         for row in range(r0, r1):
             dv = row - centres[k, 1]
             for col in range(c0, c1):
+                if first >= 0 and not clear[first + (row - r0) * (c1 - c0) + col - c0]:
+                    continue
                 du = col - centres[k, 0]
                 w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
                 norm2 = du * w_u + dv * w_v
-                if not inner < norm2 < outer or (
-                        first >= 0 and not clear[first + (row - r0) * (c1 - c0) + col - c0]):
-                    continue
-                norm = math.sqrt(max(norm2, 1e-18))
-                gap = (norm - radius) * norm / math.sqrt(max(w_u * w_u + w_v * w_v, 1e-18))
-                if abs(gap) >= reach:
-                    continue
-                u[count], v[count], z[count], distance[count] = col, row, pixels[row, col], gap
-                count += 1
+                value = float(pixels[row, col])
+                gap = reach if norm2 >= outer else -reach
+                if inner < norm2 < outer:
+                    norm = math.sqrt(max(norm2, 1e-18))
+                    gap = (norm - radius) * norm / math.sqrt(max(w_u * w_u + w_v * w_v, 1e-18))
+                    if abs(gap) < reach:
+                        u[count], v[count], z[count], distance[count] = col, row, value, gap
+                        count += 1
+                        continue
+                moments = flat[k, 0] if gap > 0 else flat[k, 1]
+                moments[0] += 1.0
+                moments[1] += du
+                moments[2] += dv
+                moments[3] += du * du
+                moments[4] += du * dv
+                moments[5] += dv * dv
+                moments[6] += value
+                moments[7] += value * du
+                moments[8] += value * dv
+                moments[9] += value * value
         spans[k, 1] = count
-    return u[:count], v[:count], z[:count], distance[:count], spans
+    return u[:count], v[:count], z[:count], distance[:count], spans, flat
 
 
 @njit(cache=True)

@@ -149,10 +149,11 @@ def dot_edge_model(params, u, v, reference):
 
 
 @njit(cache=True, fastmath=_FAST)
-def _normal_equations(params, u, v, z, u0, v0, normal, gradient, columns):
+def _normal_equations(params, u, v, z, flat, u0, v0, normal, gradient, columns):
     """The normal matrix J^T J and gradient J^T r of one dot's pixels at ``params``, into
-    ``normal`` and ``gradient``, with ``columns`` (p + 1, n) as room; returns the cost
-    r^T r (r: model less ``z``)."""
+    ``normal`` and ``gradient``, with ``columns`` (p + 1, n) as room: its edge band's
+    (u, v, z: n) and its flat pixels' (``flat``: their moments, see _flat_terms). Returns
+    the cost r^T r (r: model less intensity)."""
     width = params.size
     _edge_columns(params, u, v, u0, v0, columns)
     cost = 0.0
@@ -169,6 +170,47 @@ def _normal_equations(params, u, v, z, u0, v0, normal, gradient, columns):
                 gradient[b] = total
             else:
                 cost = total
+    return cost + _flat_terms(params, flat, normal, gradient)
+
+
+@njit(cache=True)
+def _flat_terms(params, flat, normal, gradient):
+    """Adds to ``normal`` and ``gradient`` the share of a dot's pixels beyond its edge
+    band, where its model is flat: ``level * (1 + g . e)``, with the level the
+    background outside and background + contrast inside, g the illumination gradient and
+    e the pixel's offset from the reference point. Their sums are polynomials in the
+    parameters and the pixels' moments (``flat``, (2, 10), outside and inside: see
+    bands.edge_bands), so they cost the same for any number of pixels. Returns their
+    cost."""
+    contrast, background, grad_u, grad_v = params[4], params[5], params[6], params[7]
+    cost = 0.0
+    for region in range(2):
+        count, s_u, s_v, s_uu, s_uv, s_vv, s_z, s_zu, s_zv, s_zz = flat[region]
+        if count == 0.0:
+            continue
+        level = background + contrast * region
+        # With f = 1 + g . e per pixel: the sums of f^2, f e and z f.
+        see_g_u, see_g_v = s_uu * grad_u + s_uv * grad_v, s_uv * grad_u + s_vv * grad_v
+        sum_ff = count + 2.0 * (grad_u * s_u + grad_v * s_v) + grad_u * see_g_u + grad_v * see_g_v
+        sum_fu, sum_fv = s_u + see_g_u, s_v + see_g_v
+        sum_zf = s_z + grad_u * s_zu + grad_v * s_zv
+        cost += level * level * sum_ff - 2.0 * level * sum_zf + s_zz
+        # The model's derivatives: f by the level, level e by the gradient.
+        gradient[6] += level * (level * sum_fu - s_zu)
+        gradient[7] += level * (level * sum_fv - s_zv)
+        normal[6, 6] += level * level * s_uu
+        normal[6, 7] += level * level * s_uv
+        normal[7, 6] += level * level * s_uv
+        normal[7, 7] += level * level * s_vv
+        # The level is the background's (column 5) and, inside, the contrast's (4).
+        for i in range(5 - region, 6):
+            gradient[i] += level * sum_ff - sum_zf
+            normal[i, 6] += level * sum_fu
+            normal[6, i] += level * sum_fu
+            normal[i, 7] += level * sum_fv
+            normal[7, i] += level * sum_fv
+            for j in range(5 - region, 6):
+                normal[i, j] += sum_ff
     return cost
 
 
@@ -192,9 +234,11 @@ def _solve_positive(matrix, rhs, out):
 
 
 @njit(cache=True)
-def _levenberg_marquardt(current, u, v, z, u0, v0, tolerance, max_iterations, normal, room):
+def _levenberg_marquardt(current, u, v, z, flat, u0, v0, tolerance, max_iterations, normal,
+                         room):
     """Levenberg-Marquardt (Marquardt's diagonal scaling) of one dot from ``current``
-    (p,), which it overwrites, against its pixels u, v, z (n,); ``normal`` (p, p) receives
+    (p,), which it overwrites, against its band's pixels u, v, z (n,) and its flat
+    pixels' moments (``flat``, see _flat_terms); ``normal`` (p, p) receives
     J^T J at the end, ``room`` is scratch of at least (p + 1) n. Returns the cost there
     and whether the fit converged (see fit_dots)."""
     width = current.size
@@ -202,7 +246,8 @@ def _levenberg_marquardt(current, u, v, z, u0, v0, tolerance, max_iterations, no
     gradient, step, trial = np.empty(width), np.empty(width), np.empty(width)
     trial_normal, trial_gradient = np.empty((width, width)), np.empty(width)
     damped = np.empty((width, width))
-    cost = _normal_equations(current, u, v, z, u0, v0, normal, gradient, columns)
+    cost = _normal_equations(current, u, v, z, flat, u0, v0, normal, gradient, columns)
+    degrees_of_freedom = max(z.size + flat[0, 0] + flat[1, 0] - width, 1.0)
     damping = _DAMPING_START
     for _ in range(max_iterations):
         # At the optimum the residual is orthogonal to every Jacobian column (MINPACK's
@@ -225,13 +270,13 @@ def _levenberg_marquardt(current, u, v, z, u0, v0, tolerance, max_iterations, no
         # length times the noise variance; a nearly Gauss-Newton step within STOP_SIGMAS
         # is taken without evaluating it, and the fit ends.
         predicted = -2.0 * np.dot(gradient, step) - np.dot(step, normal @ step)
-        variance = cost / max(z.size - width, 1)
+        variance = cost / degrees_of_freedom
         if damping <= _DAMPING_START and predicted <= STOP_SIGMAS ** 2 * variance:
             current += step
             return cost - max(predicted, 0.0), True
         trial[:] = current + step
-        trial_cost = _normal_equations(trial, u, v, z, u0, v0, trial_normal, trial_gradient,
-                                       columns)
+        trial_cost = _normal_equations(trial, u, v, z, flat, u0, v0, trial_normal,
+                                       trial_gradient, columns)
         if not trial_cost <= cost:  # also when not finite
             # A step that raised the cost is tried again, shorter, from the same point.
             damping *= 10.0
@@ -256,8 +301,9 @@ def _levenberg_marquardt(current, u, v, z, u0, v0, tolerance, max_iterations, no
 
 
 @njit(cache=True)
-def fit_dots(x, u, v, z, spans, reference, tolerance, max_iterations=100):
-    """Least squares of dot_edge_model against each dot's pixels, one dot after another.
+def fit_dots(x, u, v, z, spans, flat, reference, tolerance, max_iterations=100):
+    """Least squares of dot_edge_model against each dot's pixels, one dot after another:
+    its edge band's, and by their moments those beyond it, where the model is flat.
 
     Levenberg-Marquardt (Marquardt's diagonal scaling) stops when a nearly Gauss-Newton
     step would move the fit by less than STOP_SIGMAS of its uncertainty (the step is
@@ -273,9 +319,12 @@ def fit_dots(x, u, v, z, spans, reference, tolerance, max_iterations=100):
     x : ndarray, shape (m, p)
         Starting parameters (p = 8 or 10, see dot_edge_model); overwritten by the fits.
     u, v, z : ndarray, shape (n,)
-        Every dot's pixels (px) and intensities, one dot after another.
+        Every dot's band pixels (px) and intensities, one dot after another.
     spans : ndarray of int, shape (m, 2)
-        Dot k's pixels are ``spans[k, 0]:spans[k, 1]``.
+        Dot k's band pixels are ``spans[k, 0]:spans[k, 1]``.
+    flat : ndarray, shape (m, 2, 10)
+        Each dot's flat pixels' moments about its reference point (bands.edge_bands);
+        zeros where only the band is fitted.
     reference : ndarray, shape (m, 2)
         Each dot's point where the illumination factor is 1, px.
     tolerance : float
@@ -299,6 +348,6 @@ def fit_dots(x, u, v, z, spans, reference, tolerance, max_iterations=100):
     for k in range(marks):
         first, end = spans[k]
         cost[k], converged[k] = _levenberg_marquardt(
-            x[k], u[first:end], v[first:end], z[first:end], reference[k, 0], reference[k, 1],
-            tolerance, max_iterations, normal[k], room)
+            x[k], u[first:end], v[first:end], z[first:end], flat[k], reference[k, 0],
+            reference[k, 1], tolerance, max_iterations, normal[k], room)
     return normal, cost, converged
