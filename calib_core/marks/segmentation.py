@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 
 from calib_core.marks.config import (
-    EXTREME_PIXELS, MAX_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN,
-    SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
+    EXTREME_PIXELS, MAX_ELLIPSE_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK,
+    SMOOTHING_NOISE_GAIN, SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
 
 
 def estimate_noise(image: np.ndarray) -> float:
@@ -119,7 +119,7 @@ def segment(image, noise_scaled, config):
     masks = {p: _mask(flat, histogram, otsu, guard, p) for p in polarities}
     blobs = {p: _blobs(masks[p]) for p in polarities}
     # Ties go to dark Marks, the first.
-    polarity = (max(polarities, key=lambda p: _mark_shaped(*blobs[p], config))
+    polarity = (max(polarities, key=lambda p: _mark_shaped(*blobs[p], flat.shape, config))
                 if len(polarities) > 1 else polarities[0])
     labels = cv2.connectedComponents(masks[polarity], connectivity=8)[1]
     contours, boxes = blobs[polarity]
@@ -178,20 +178,27 @@ def _blobs(mask):
     return contours, np.array([cv2.boundingRect(c) for c in contours], dtype=int).reshape(-1, 4)
 
 
-def _mark_shaped(contours, boxes, config) -> int:
-    """How many of the blobs (outer contours and bounding boxes) have a Mark's size,
-    aspect and fill."""
+def _mark_shaped(contours, boxes, shape, config) -> int:
+    """How many of the blobs (outer contours and bounding boxes) in a frame of ``shape``
+    have a Mark's size, aspect (a dot seen at an angle's too) and fill, clear of the
+    frame's border. A blob at the border is refused as clipped, and the background of a
+    frame with one small Mark is such a blob: counted, it outvoted a dot seen at an angle."""
     if not contours:
         return 0
+    x, y = boxes[:, 0], boxes[:, 1]
     w, h = boxes[:, 2].astype(float), boxes[:, 3].astype(float)
     # A contour's polygon runs through the boundary pixels' centres, so it encloses about
     # half a pixel less than the blob all round.
     area = np.array([cv2.contourArea(c) for c in contours]) + (w + h)
     half = np.maximum(w, h) / 2.0
     fill = area / (w * h)
+    margin = config.border_margin_px
+    inside = ((x >= margin) & (y >= margin) & (x + w <= shape[1] - margin)
+              & (y + h <= shape[0] - margin))
     return int(np.count_nonzero(
-        (half >= SIZE_SLACK[0] * config.min_size_px) & (half <= SIZE_SLACK[1] * config.max_size_px)
-        & (np.maximum(w, h) < MAX_ASPECT * np.minimum(w, h)) & (fill > MIN_FILL)))
+        inside & (half >= SIZE_SLACK[0] * config.min_size_px)
+        & (half <= SIZE_SLACK[1] * config.max_size_px)
+        & (np.maximum(w, h) < MAX_ELLIPSE_ASPECT * np.minimum(w, h)) & (fill > MIN_FILL)))
 
 
 @dataclass(frozen=True)
