@@ -7,12 +7,12 @@ from scipy.optimize import least_squares
 from scipy.special import erfc
 
 from calib_core.errors import DetectionError, InvalidInputError
-from calib_core.marks import detect_marks, estimate_noise
+from calib_core.marks import DetectorConfig, detect_marks, estimate_noise
 from calib_core.marks.bands import edge_bands
 from calib_core.marks.dot_fit import dot_edge_model, fit_dots
 from calib_core.marks.intensity import edge_sigma
 from calib_core.marks.precompile import PIXEL_TYPES, dot_frame
-from calib_core.sim.render import MarkShape, coverage, render
+from calib_core.sim.render import MarkShape, coverage, render, render_through_box
 from machine_alignment.bench.vision import cramer_rao
 
 
@@ -207,27 +207,34 @@ def test_bad_arrays_are_refused():
         detect_marks(np.zeros((50, 50)), shape='square')
 
 
+@pytest.mark.parametrize('box', [False, True], ids=['gaussian-aperture', 'box-aperture'])
 @pytest.mark.parametrize('shape', [(), (0.35, -0.2)], ids=['disk', 'ellipse'])
-def test_dot_model_jacobian_matches_finite_differences(rng, shape):
+def test_dot_model_jacobian_matches_finite_differences(rng, shape, box):
     """Two Marks evaluated as one stack, one of them nearly as sharp as a pixel sees
     (blur 0.05 px) and lit unevenly, as disks and as ellipses (aspect 1.5): every
     analytic derivative within 1e-6 of the central difference, relative to the
-    column's size."""
+    column's size (1e-5 through the box, whose differences of antiderivatives round
+    more). Through the box, the centre's and the shape's derivatives leave out how the
+    profile changes with the edge's direction: within 2 % at blur 0.05 px, 0.1 % at
+    1.3 px."""
     params = np.array([[20.3, 19.8, 8.2, 0.05, -120.0, 190.0, 2e-3, -1e-3, *shape],
                        [50.1, 20.4, 12.7, 1.3, 90.0, 60.0, -4e-3, 3e-3, *shape[::-1]]])
     u = rng.uniform(5, 65, (2, 400))
     v = rng.uniform(5, 35, (2, 400))
     reference = params[:, :2] + 0.5
-    _, jac = dot_edge_model(params, u, v, reference)
+    _, jac = dot_edge_model(params, u, v, reference, box)
     steps = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-5, 1e-5, 1e-9, 1e-9, 1e-7, 1e-7])
     for k, step in enumerate(steps[:params.shape[1]]):
         plus, minus = params.copy(), params.copy()
         plus[:, k] += step
         minus[:, k] -= step
-        numeric = (dot_edge_model(plus, u, v, reference)[0]
-                   - dot_edge_model(minus, u, v, reference)[0]) / (2 * step)
+        numeric = (dot_edge_model(plus, u, v, reference, box)[0]
+                   - dot_edge_model(minus, u, v, reference, box)[0]) / (2 * step)
         scale = np.max(np.abs(numeric), axis=1, keepdims=True)
-        assert np.max(np.abs(jac[:, k] - numeric) / scale) < 1e-6, k
+        error = np.max(np.abs(jac[:, k] - numeric) / scale, axis=1)
+        direction_left_out = box and k in (0, 1, 8, 9)
+        limits = [2e-2, 1e-3] if direction_left_out else [1e-5 if box else 1e-6] * 2
+        assert np.all(error < limits), (k, error)
 
 
 def test_dot_model_edge_is_erfc():
@@ -241,14 +248,17 @@ def test_dot_model_edge_is_erfc():
     assert np.max(np.abs(intensity[0] - exact)) < 1e-9
 
 
-@pytest.mark.parametrize('radius,aspect,blur', [(10.0, 1.0, 1.0), (23.0, 2.4, 1.5)],
-                         ids=['disk', 'steep-ellipse'])
-def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur):
+@pytest.mark.parametrize('radius,aspect,blur,box', [(10.0, 1.0, 1.0, False),
+                                                    (23.0, 2.4, 1.5, False),
+                                                    (10.0, 1.0, 0.2, True)],
+                         ids=['disk', 'steep-ellipse', 'sharp-disk-through-the-box'])
+def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur, box):
     """The compiled fit of a dot's edge band, from a start 0.3 px off, ends within 0.05 of
     its 1-sigma of scipy's least_squares run to convergence on the same pixels and model:
-    a disk, and a dot seen at a steep angle (aspect 2.4), whose centre the pixels
-    determine poorly. A rough fit on every 10th pixel and one Gauss-Newton step on all
-    (Le Cam's one-step) ended 0.3-0.8 sigma off on such dots; 4 frames each, 2 % noise."""
+    a disk, a dot seen at a steep angle (aspect 2.4), whose centre the pixels determine
+    poorly, and a sharp disk with the box aperture. A rough fit on every 10th pixel and
+    one Gauss-Newton step on all (Le Cam's one-step) ended 0.3-0.8 sigma off on such
+    dots; 4 frames each, 2 % noise."""
     angle = rng.uniform(0, np.pi)
     # dot_edge_model's ellipse: the norm's matrix P, trace 2, and its radius in that norm.
     rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
@@ -268,15 +278,15 @@ def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur):
                                           shape[None], 6.0, np.zeros(0, bool), np.array([-1]))
         start = np.array([[*centre[0], norm_radius, blur, -150.0, 200.0, 0.0, 0.0, *shape]])
         x = start if aspect != 1.0 else start[:, :8].copy()
-        normal, cost, converged = fit_dots(x, u, v, z, spans, np.zeros((1, 2, 10)), centre,
-                                           1e-6)
+        normal, cost, converged = fit_dots(x, u, v, z, spans, np.zeros((1, 2, 10)),
+                                           np.array([box]), centre, 1e-6)
         assert converged[0]
 
         def residual(p):
-            return dot_edge_model(p[None], u[None], v[None], centre)[0][0] - z
+            return dot_edge_model(p[None], u[None], v[None], centre, box)[0][0] - z
 
         def jacobian(p):
-            return dot_edge_model(p[None], u[None], v[None], centre)[1][0].T
+            return dot_edge_model(p[None], u[None], v[None], centre, box)[1][0].T
 
         converged_fit = least_squares(residual, x[0], jacobian, method='lm', xtol=1e-15,
                                       ftol=1e-15, gtol=1e-15)
@@ -304,13 +314,34 @@ def test_flat_pixels_by_their_moments_as_by_their_model(rng):
         assert (flat[0, :, 0].sum() > 0) == (reach == 6.0)
         assert z.size + flat[0, :, 0].sum() == 80 * 80
         x = start.copy()
-        normal, cost, converged = fit_dots(x, u, v, z, spans, flat, centre, 1e-10)
+        normal, cost, converged = fit_dots(x, u, v, z, spans, flat, np.array([False]),
+                                           centre, 1e-10)
         assert converged[0]
         fits.append((x[0], cost[0], normal[0]))
     (x_moments, cost_moments, normal_moments), (x_all, cost_all, normal_all) = fits
     assert np.max(np.abs(x_moments[:2] - x_all[:2])) < 1e-6
     assert abs(cost_moments - cost_all) < 1e-6 * cost_all
     assert np.allclose(normal_moments, normal_all, rtol=1e-6, atol=1e-9 * normal_all.max())
+
+
+@pytest.mark.parametrize('blur,limit', [(0.0, 1.5e-3), (0.3, 5e-4)])
+def test_sharp_dots_seen_through_the_pixel_box(rng, blur, limit):
+    """Disks and ellipses (4 and 10 px, aspect 1 and 1.7) rendered exactly through the
+    pixel's 1 px box and sharp optics, without noise: the centres within 1.5e-3 px at
+    blur 0 and 5e-4 px at 0.3 px (the straight-edge model's curvature remains). With the
+    box folded into the blur as a Gaussian (box_aperture_below_blur_px 0), as before,
+    they were off by up to 0.012 and 0.0024 px."""
+    folded = DetectorConfig(box_aperture_below_blur_px=0.0)
+    errors, folded_errors = [], []
+    for size, aspect in [(4.0, 1.0), (10.0, 1.0), (10.0, 1.7)]:
+        truth = MarkShape('circle', 40 + rng.uniform(-0.5, 0.5), 40 + rng.uniform(-0.5, 0.5),
+                          size, angle=rng.uniform(0, np.pi), aspect=aspect)
+        image = render_through_box([truth], 80, 80, blur, 200.0, -150.0)
+        for config, found in ((DetectorConfig(), errors), (folded, folded_errors)):
+            mark = detect_marks(image, config, expected_count=1).marks[0]
+            found.append(np.hypot(mark.u - truth.u, mark.v - truth.v))
+    assert max(errors) < limit
+    assert max(folded_errors) > 3 * limit
 
 
 @pytest.mark.parametrize('size', [20, 40])

@@ -32,22 +32,26 @@ class DotCandidate:
 
 
 def fit_circles(pixels, candidates: list[DotCandidate], labels, polarity: str,
-                full: float | None) -> list[Mark | DetectionError]:
+                full: float | None, box_below: float) -> list[Mark | DetectionError]:
     """The dots' fits, in the order of ``candidates``: a Mark, or why there is none.
 
     ``labels``: the frame's segmentation, to keep other blobs out of each dot's band;
-    ``full``: the frame's full scale where some pixels reach it, else None."""
+    ``full``: the frame's full scale where some pixels reach it, else None;
+    ``box_below``: the starting blur (px) below which a dot's model sees the pixel's
+    box as it is (DetectorConfig.box_aperture_below_blur_px)."""
     results: list = [None] * len(candidates)
     for ellipses in (False, True):
         group = [k for k, c in enumerate(candidates) if (c.ellipse is not None) == ellipses]
         if group:
-            fits = _fit_group(pixels, [candidates[k] for k in group], labels, polarity, full)
+            fits = _fit_group(pixels, [candidates[k] for k in group], labels, polarity, full,
+                              box_below)
             for index, fit in zip(group, fits):
                 results[index] = fit
     return results
 
 
-def _fit_group(pixels, candidates, labels, polarity, full) -> list[Mark | DetectionError]:
+def _fit_group(pixels, candidates, labels, polarity, full,
+               box_below) -> list[Mark | DetectionError]:
     """The fits of dots of one model: all disks, or all ellipses."""
     ellipses = candidates[0].ellipse is not None
     boxes = np.array([c.box for c in candidates])
@@ -91,7 +95,8 @@ def _fit_group(pixels, candidates, labels, polarity, full) -> list[Mark | Detect
                 zip(clear_first >= 0, band, clipped, level == background)]
     fitted = np.flatnonzero([problem is None for problem in problems])
     x_fit = x[fitted]
-    normals, costs, converged = fit_dots(x_fit, u, v, z, spans[fitted], flat[fitted],
+    box = blur0[fitted] < box_below
+    normals, costs, converged = fit_dots(x_fit, u, v, z, spans[fitted], flat[fitted], box,
                                          centres[fitted], 1e-6)
     counts = band[fitted] + flat[fitted, :, 0].sum(axis=1)
     covariances, determined = centre_covariances(

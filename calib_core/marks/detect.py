@@ -121,8 +121,9 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             rejected.append(f'{exc} {where}')
     # The dots are fitted together: one compiled run for all costs little more than for
     # one, where per-dot calls cost mostly the interpreter's overhead.
-    for fitted, (_, where) in zip(fit_circles(image, [dot for dot, _ in circles], labels,
-                                              polarity, full), circles):
+    dots = fit_circles(image, [dot for dot, _ in circles], labels, polarity, full,
+                       config.box_aperture_below_blur_px)
+    for fitted, (_, where) in zip(dots, circles):
         if isinstance(fitted, Mark):
             accept(fitted, 'circle', where)
         else:
