@@ -1,5 +1,7 @@
 """Mark detection on rendered images with known true centres, on real photos of dot
 plates, and its failure modes."""
+import multiprocessing
+
 import cv2
 import numpy as np
 import pytest
@@ -7,7 +9,7 @@ from scipy.optimize import least_squares
 from scipy.special import erfc
 
 from calib_core.errors import DetectionError, InvalidInputError
-from calib_core.marks import DetectorConfig, detect_marks, estimate_noise
+from calib_core.marks import DetectorConfig, detect_marks, dot_fit, estimate_noise
 from calib_core.marks.bands import edge_bands
 from calib_core.marks.dot_fit import dot_edge_model, fit_dots
 from calib_core.marks.intensity import edge_sigma
@@ -489,3 +491,33 @@ def test_touching_ellipses_stay_ambiguous(rng):
     image = render(marks, 640, 480, 1.0, 200.0, -150.0) + rng.normal(0, 2, (480, 640))
     with pytest.raises(DetectionError, match='ambiguous'):
         detect_marks(image)
+
+
+def test_threaded_fit_equals_one_thread(rng, monkeypatch):
+    """A frame of 16 dots fitted in two threads (half of the dots each) and in one: the
+    same centres and covariances, to the last bit."""
+    truth = [MarkShape('circle', 60 + 80 * (k % 4) + rng.uniform(-0.5, 0.5),
+                       60 + 80 * (k // 4) + rng.uniform(-0.5, 0.5), 12.0) for k in range(16)]
+    image = render(truth, 360, 360, 1.0, 200.0, -150.0) + rng.normal(0, 3.0, (360, 360))
+    threaded = detect_marks(image, expected_count=16).marks
+    monkeypatch.setattr(dot_fit, 'PARALLEL_ABOVE_PX', np.inf)
+    alone = detect_marks(image, expected_count=16).marks
+    assert [(m.u, m.v) for m in threaded] == [(m.u, m.v) for m in alone]
+    assert all(np.array_equal(a.covariance, b.covariance) for a, b in zip(threaded, alone))
+
+
+def test_a_process_forked_after_detecting_detects(rng):
+    """A child forked after its parent fitted dots in two threads (as multiprocessing's
+    fork does) gets no thread behind the parent's executor; it makes its own and detects
+    the same frame, within 60 s."""
+    truth = [MarkShape('circle', 60 + 80 * (k % 4), 60 + 80 * (k // 4), 12.0)
+             for k in range(16)]
+    image = render(truth, 360, 360, 1.0, 200.0, -150.0) + rng.normal(0, 3.0, (360, 360))
+    expected = [(m.u, m.v) for m in detect_marks(image).marks]
+    with multiprocessing.get_context('fork').Pool(1) as pool:
+        found = pool.apply_async(_centres, (image,)).get(timeout=60)
+    assert found == expected
+
+
+def _centres(image):
+    return [(m.u, m.v) for m in detect_marks(image).marks]

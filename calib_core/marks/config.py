@@ -74,11 +74,13 @@ class DetectorConfig:
     border_margin_px : float
         A candidate closer than this to the image border is reported as clipped.
     box_aperture_below_blur_px : float
-        Dots whose edge reads sharper than this (the starting optical blur sigma, px) are
-        fitted with the pixel's 1 px box as it is, at about 3 times the fit's cost a
-        pixel; blurrier dots with the box folded into the blur as a Gaussian, which errs
-        by less than 1e-4 px from 0.6 px blur on and by up to 0.017 px at blur 0 (see
-        dot_fit.dot_edge_model). ``inf``: always the box; 0: never.
+        Dots whose edge reads sharper than this (the starting optical blur sigma, px,
+        which reads a 0.3 px blur as 0.1-0.35 and a 0.5 px one as 0.43-0.61) are fitted
+        with the pixel's 1 px box as it is, at about 3 times the fit's cost a pixel;
+        blurrier dots with the box folded into the blur as a Gaussian. The fold moves a
+        centre by up to 0.016 px at blur 0, 0.003 px at 0.3 px, 8e-4 px at 0.5 px and
+        3.5e-4 px at 0.7 px, where the box model errs as much
+        (bench_results/results.md, third table). ``inf``: always the box; 0: never.
     """
 
     min_size_px: float = 2.5
@@ -86,7 +88,7 @@ class DetectorConfig:
     polarity: str = 'auto'
     min_snr: float = 6.0
     border_margin_px: float = 1.0
-    box_aperture_below_blur_px: float = 0.65
+    box_aperture_below_blur_px: float = 0.4
 
     def __post_init__(self):
         if not 0 < self.min_size_px < self.max_size_px:

@@ -7,7 +7,10 @@ padded every dot to the largest one's pixels; here a pixel costs a square root, 
 all, and each dot stops on its own."""
 from __future__ import annotations
 
+import functools
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
@@ -35,6 +38,9 @@ ALIGNED_EDGE = 1e-4
 # sigma) stays defined at blur 0, where the profile is the box's alone.
 SHARPEST_BLUR = 1e-3
 _FLAT_SIGMAS = 6.0
+# Band pixels of a frame's dots (weighted by their cost) above which a second thread fits
+# half of the dots: handing it the work costs about 50 us, a band pixel's fit about 80 ns.
+PARALLEL_ABOVE_PX = 2000
 
 
 def _scaled_erfc_coefficients(degree=12):
@@ -201,13 +207,13 @@ def dot_edge_model(params, u, v, reference, box=False):
 
     The edge's profile is the Gaussian blur's and the pixel's aperture's. Folding the
     1 px box into the blur as a Gaussian of its variance (erfc of the distance over
-    ``edge_sigma``) errs where the optics are sharp: a disk rendered exactly through
-    the box moved the fitted centre by up to 0.017 px at blur 0, 0.003 px at 0.3 px and
-    3e-5 px at 1 px. With ``box`` the profile is the box's exactly, seen across the edge
-    at its direction (see _box_edge); it costs about 2.5 times as much a pixel. Its
-    derivatives leave out how the profile changes with the edge's direction, a change
-    of shape, not of position: noise-free fits still end on the truth, and the centre's
-    derivatives err by a share of order 1 / radius of their size at blur 0.
+    ``edge_sigma``) errs where the optics are sharp: dots rendered exactly through the
+    box moved the fitted centre by up to 0.016 px at blur 0, 0.003 px at 0.3 px and
+    3e-5 px at 1 px. With ``box`` the profile is the box's, seen across the edge at its
+    direction (see _box_edge); it costs about 3 times as much a pixel. Its derivatives
+    leave out how the profile changes with the edge's direction, a change of shape, not
+    of position: noise-free fits still end on the truth, and the centre's derivatives
+    err by up to 2 % at blur 0.05 px (test_dot_model_jacobian_matches_finite_differences).
 
     Parameters
     ----------
@@ -390,10 +396,30 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
     return cost, False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
+def _fit_dot_range(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations, dots,
+                   normal, cost, converged):
+    """fit_dots' work on the dots of indices ``dots``, into their rows of ``x``,
+    ``normal``, ``cost`` and ``converged``; without the GIL."""
+    width = x.shape[1]
+    largest = 0
+    for k in dots:
+        largest = max(largest, spans[k, 1] - spans[k, 0])
+    # Scratch for the largest dot's Jacobian columns and residuals; each dot's are a
+    # C-contiguous prefix of it, so that the compiled sums are vectorised.
+    room = np.empty((width + 1) * largest)
+    for k in dots:
+        first, end = spans[k]
+        cost[k], converged[k] = _levenberg_marquardt(
+            x[k], u[first:end], v[first:end], z[first:end], flat[k], reference[k, 0],
+            reference[k, 1], box[k], tolerance, max_iterations, normal[k], room)
+
+
 def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations=100):
     """Least squares of dot_edge_model against each dot's pixels, one dot after another:
     its edge band's, and by their moments those beyond it, where the model is flat.
+    Where there is more than one core and enough pixels (PARALLEL_ABOVE_PX), a second
+    thread fits half of the dots (the compiled fit releases the GIL).
 
     Levenberg-Marquardt (Marquardt's diagonal scaling) stops when a nearly Gauss-Newton
     step would move the fit by less than STOP_SIGMAS of its uncertainty (the step is
@@ -435,12 +461,24 @@ def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations=
     normal = np.zeros((marks, width, width))
     cost = np.zeros(marks)
     converged = np.zeros(marks, dtype=np.bool_)
-    # Scratch for the largest dot's Jacobian columns and residuals; each dot's are a
-    # C-contiguous prefix of it, so that the compiled sums are vectorised.
-    room = np.empty((width + 1) * (np.max(spans[:, 1] - spans[:, 0]) if marks else 0))
-    for k in range(marks):
-        first, end = spans[k]
-        cost[k], converged[k] = _levenberg_marquardt(
-            x[k], u[first:end], v[first:end], z[first:end], flat[k], reference[k, 0],
-            reference[k, 1], box[k], tolerance, max_iterations, normal[k], room)
+    work = (x, u, v, z, spans, flat, box, reference, tolerance, max_iterations)
+    outputs = (normal, cost, converged)
+    # A pixel through the box costs about 3 times one through the Gaussian fold.
+    load = np.cumsum((spans[:, 1] - spans[:, 0]) * np.where(box, 3, 1))
+    helper = _helper(os.getpid())
+    if marks < 2 or load[-1] < PARALLEL_ABOVE_PX or helper is None:
+        _fit_dot_range(*work, np.arange(marks), *outputs)
+        return normal, cost, converged
+    half = int(np.searchsorted(load, load[-1] / 2)) + 1
+    other = helper.submit(_fit_dot_range, *work, np.arange(half, marks), *outputs)
+    _fit_dot_range(*work, np.arange(half), *outputs)
+    other.result()
     return normal, cost, converged
+
+
+@functools.cache
+def _helper(process: int) -> ThreadPoolExecutor | None:
+    """The one thread that fits half of a frame's dots, made on first use in each
+    ``process`` (a child forked after it was made has the executor but not its thread);
+    None on a single core."""
+    return ThreadPoolExecutor(1, 'dot_fit') if len(os.sched_getaffinity(0)) > 1 else None
