@@ -37,6 +37,7 @@ ALIGNED_EDGE = 1e-4
 # ... and the optical blur it takes at least (px, added in quadrature), so that Phi(t /
 # sigma) stays defined at blur 0, where the profile is the box's alone.
 SHARPEST_BLUR = 1e-3
+# ... and beyond this many sigma of the box it is 0 or 1 (to 1e-9 of the contrast).
 _FLAT_SIGMAS = 6.0
 # Band pixels of a frame's dots (weighted by their cost) above which a second thread fits
 # half of the dots: handing it the work costs about 50 us, a band pixel's fit about 80 ns.
