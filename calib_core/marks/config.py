@@ -74,10 +74,10 @@ class DetectorConfig:
     border_margin_px : float
         A candidate closer than this to the image border is reported as clipped.
     box_aperture_below_blur_px : float
-        Dots whose edge reads sharper than this (the starting optical blur sigma, px,
-        which reads a 0.3 px blur as 0.1-0.35 and a 0.5 px one as 0.43-0.61) are fitted
-        with the pixel's 1 px box as it is, at about 3 times the fit's cost a pixel;
-        blurrier dots with the box folded into the blur as a Gaussian. The fold moves a
+        Dots whose optical blur sigma (px) is under this, as their start reads it or
+        their fit through the fold finds it (then fitted again), are fitted with the
+        pixel's 1 px box as it is, at about 3 times the fit's cost a pixel; blurrier
+        dots with the box folded into the blur as a Gaussian. The fold moves a
         centre by up to 0.016 px at blur 0, 0.003 px at 0.3 px, 8e-4 px at 0.5 px and
         3.5e-4 px at 0.7 px, where the box model errs as much
         (bench_results/results.md, third table). ``inf``: always the box; 0: never.
