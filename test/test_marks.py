@@ -369,6 +369,23 @@ def test_wide_blur_under_uneven_light_is_not_biased(rng, size):
     assert np.hypot(mark.u - truth.u, mark.v - truth.v) < 1e-4
 
 
+def test_a_highlight_inside_a_dot_leaves_its_centre(rng):
+    """A 30 px dark dot with a highlight inside it, 12 px off its centre (120 DN, most of
+    the 150 DN contrast; a reflection on a glossy dot), 8 frames at 2 DN noise: the mean
+    error of the centre within 0.002 px. Fitted as flat, the highlight pulled the
+    gradient and with it the centre by 0.0065 px; such a dot is fitted on its band."""
+    errors = []
+    for _ in range(8):
+        truth = MarkShape('circle', 100 + rng.uniform(-0.5, 0.5), 100 + rng.uniform(-0.5, 0.5),
+                          30.0)
+        image = render([truth], 200, 200, 1.0, 200.0, -150.0)
+        rows, cols = np.mgrid[0:200, 0:200]
+        image += 120.0 * np.exp(-((cols - truth.u - 12) ** 2 + (rows - truth.v) ** 2) / 32.0)
+        mark = detect_marks(image + rng.normal(0, 2.0, image.shape), expected_count=1).marks[0]
+        errors.append([mark.u - truth.u, mark.v - truth.v])
+    assert np.all(np.abs(np.mean(errors, axis=0)) < 0.002)
+
+
 @pytest.mark.parametrize('size', [20, 40])
 def test_centre_sigma_reaches_the_cramer_rao_bound(rng, size):
     """A blurred dot (1.5 px) in a uniformly lit frame: the reported centre sigma within
@@ -520,15 +537,27 @@ def test_threaded_fit_equals_one_thread(rng, monkeypatch):
 def test_a_process_forked_after_detecting_detects(rng):
     """A child forked after its parent fitted dots in two threads (as multiprocessing's
     fork does) gets no thread behind the parent's executor; it makes its own and detects
-    the same frame, within 60 s."""
+    the same frame, within 60 s. The child is stopped by SIGKILL if it outlives its
+    answer: a SIGTERM handler the parent installed (node tests earlier in the same
+    worker install some) is inherited and kept a Pool's SIGTERM from stopping it, which
+    hung the suite once."""
     truth = [MarkShape('circle', 60 + 80 * (k % 4), 60 + 80 * (k // 4), 12.0)
              for k in range(16)]
     image = render(truth, 360, 360, 1.0, 200.0, -150.0) + rng.normal(0, 3.0, (360, 360))
     expected = [(m.u, m.v) for m in detect_marks(image).marks]
-    with multiprocessing.get_context('fork').Pool(1) as pool:
-        found = pool.apply_async(_centres, (image,)).get(timeout=60)
-    assert found == expected
+    context = multiprocessing.get_context('fork')
+    receiver, sender = context.Pipe(duplex=False)
+    child = context.Process(target=_send_centres, args=(image, sender))
+    child.start()
+    try:
+        assert receiver.poll(60), 'the forked child gave no centres within 60 s'
+        assert receiver.recv() == expected
+    finally:
+        child.join(5)
+        if child.is_alive():
+            child.kill()
+            child.join()
 
 
-def _centres(image):
-    return [(m.u, m.v) for m in detect_marks(image).marks]
+def _send_centres(image, sender):
+    sender.send([(m.u, m.v) for m in detect_marks(image).marks])

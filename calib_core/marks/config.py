@@ -42,6 +42,10 @@ ELLIPSE_MIN_FILL = 0.9 * np.pi * MAX_ELLIPSE_ASPECT / (2 * (1 + MAX_ELLIPSE_ASPE
 MIN_ELLIPSE_OVERLAP = 0.9
 # A dot's fit needs at least this many band pixels nearer to it than to other blobs.
 MIN_BAND_PX = 40
+# The pixels beyond a dot's edge band join its fit where their mean squared residual is
+# within this factor of the band's: both are the noise's where the model holds (to
+# about 15 % with a few hundred pixels).
+FLAT_MISFIT = 4.0
 # The cross fit gives up after this many model evaluations (see fit_cross).
 CROSS_MAX_EVALUATIONS = 40
 # A cross's blob overlaps itself turned by 90 degrees by at least this share (intersection

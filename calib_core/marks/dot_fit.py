@@ -312,6 +312,18 @@ def _flat_terms(params, flat, normal, gradient):
 
 
 @njit(cache=True)
+def flat_costs(x, flat):
+    """Each dot's flat pixels' sum of squared residuals at its parameters ``x`` (m, p)
+    (see _flat_terms; ``flat``: (m, 2, 10))."""
+    marks, width = x.shape
+    normal, gradient = np.zeros((width, width)), np.zeros(width)
+    costs = np.zeros(marks)
+    for k in range(marks):
+        costs[k] = _flat_terms(x[k], flat[k], normal, gradient)
+    return costs
+
+
+@njit(cache=True)
 def _solve_positive(matrix, rhs, out):
     """``out`` = matrix^-1 rhs by Cholesky; False if the matrix is not positive definite."""
     n = rhs.size
