@@ -97,34 +97,37 @@ def _fit_group(pixels, candidates, labels, polarity, full,
     fitted = np.flatnonzero([problem is None for problem in problems])
     x_fit = x[fitted]
     box = blur0[fitted] < box_below
-    normals, costs, converged = fit_dots(x_fit, u, v, z, spans[fitted], flat[fitted], box,
+    flat_fit = flat[fitted]
+    normals, costs, converged = fit_dots(x_fit, u, v, z, spans[fitted], flat_fit, box,
                                          centres[fitted], 1e-6)
+
+    def fit_again(dots):
+        """Fits the dots of indices ``dots`` (into ``fitted``) again, from where they are,
+        with their ``box`` and ``flat_fit`` as they are now."""
+        start = x_fit[dots]
+        normals[dots], costs[dots], converged[dots] = fit_dots(
+            start, u, v, z, spans[fitted[dots]], flat_fit[dots], box[dots],
+            centres[fitted[dots]], 1e-6)
+        x_fit[dots] = start
+
     # The start's blur is rough (a 0.3 px blur reads 0.1-0.35 px on disks, more on
     # ellipses): a dot fitted through the Gaussian fold whose fitted blur is under the
     # limit is fitted again through the box, from there.
     again = np.flatnonzero(~box & (np.abs(x_fit[:, 3]) < box_below))
     if again.size:
-        refit = x_fit[again]
-        normals[again], costs[again], converged[again] = fit_dots(
-            refit, u, v, z, spans[fitted[again]], flat[fitted[again]],
-            np.ones(again.size, dtype=bool), centres[fitted[again]], 1e-6)
-        x_fit[again], box[again] = refit, True
+        box[again] = True
+        fit_again(again)
     # The flat pixels are trusted where they are flat: a dot whose flat pixels leave a
     # mean squared residual over FLAT_MISFIT times its band's (a highlight or texture
     # inside it, a neighbour's halo around it) is fitted again on its band alone. A
     # highlight of half the contrast inside a 30 px dot had moved it by 0.0065 px.
-    counts = band[fitted] + flat[fitted, :, 0].sum(axis=1)
-    flat_cost = flat_costs(x_fit, flat[fitted])
-    flat_count = counts - band[fitted]
-    rough = np.flatnonzero(flat_cost * band[fitted]
-                           > FLAT_MISFIT * np.maximum(costs - flat_cost, 0.0) * flat_count)
+    flat_cost = flat_costs(x_fit, flat_fit)
+    rough = np.flatnonzero(flat_cost * band[fitted] > FLAT_MISFIT
+                           * np.maximum(costs - flat_cost, 0.0) * flat_fit[:, :, 0].sum(axis=1))
     if rough.size:
-        refit = x_fit[rough]
-        normals[rough], costs[rough], converged[rough] = fit_dots(
-            refit, u, v, z, spans[fitted[rough]], np.zeros((rough.size, 2, 10)),
-            box[rough], centres[fitted[rough]], 1e-6)
-        x_fit[rough] = refit
-        counts[rough] = band[fitted[rough]]
+        flat_fit[rough] = 0.0
+        fit_again(rough)
+    counts = band[fitted] + flat_fit[:, :, 0].sum(axis=1)
     covariances, determined = centre_covariances(
         normals, costs / np.maximum(counts - x.shape[1], 1))
     results: list[Mark | DetectionError] = [DetectionError(p) if p else None for p in problems]
