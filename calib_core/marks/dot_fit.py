@@ -2,9 +2,11 @@
 Levenberg-Marquardt solver per dot that sums the normal equations pixel by pixel.
 
 Numpy spent 70-80 ns a pixel on the model's two dozen temporaries, and a batched solver
-padded every dot to the largest one's pixels; here a pixel costs a square root, one exp
-(which the edge's erfc shares with its slope) and the products of its Jacobian, 26 ns in
-all, and each dot stops on its own."""
+padded every dot to the largest one's pixels; here a pixel costs a square root, a
+division, two polynomials (the edge's erfc and the Gaussian it shares with its slope) and
+the products of its Jacobian, and each dot stops on its own. Written without libm calls
+and without division checks, the pixel loop is vectorised by the compiler: 6-7 ns a pixel
+(27 with libm's exp, which kept it scalar)."""
 from __future__ import annotations
 
 import functools
@@ -31,6 +33,9 @@ STOP_SIGMAS = 0.1
 # Reassociation lets the compiler vectorise the normal equations' sums; NaN and infinity
 # keep their meaning, because a diverging trial is refused by its cost not being finite.
 _FAST = {'reassoc', 'contract', 'nsz', 'arcp'}
+# Numpy's error model: a division by zero gives infinity or NaN (refused as above) instead
+# of a check and a raise on every division, which keeps the pixel loops from vectorising.
+_VECTOR = {'fastmath': _FAST, 'error_model': 'numpy'}
 # The box-aperture profile: an edge whose normal is within this (px, the narrower of the
 # box's two widths across it) of a pixel axis is taken along it; the error is its square.
 ALIGNED_EDGE = 1e-4
@@ -40,8 +45,32 @@ SHARPEST_BLUR = 1e-3
 # ... and beyond this many sigma of the box it is 0 or 1 (to 1e-9 of the contrast).
 _FLAT_SIGMAS = 6.0
 # Band pixels of a frame's dots (weighted by their cost) above which a second thread fits
-# half of the dots: handing it the work costs about 50 us, a band pixel's fit about 80 ns.
-PARALLEL_ABOVE_PX = 2000
+# half of the dots: handing it the work costs about 50 us, a band pixel's fit about 27 ns
+# (three evaluations), and the thread saves half of that.
+PARALLEL_ABOVE_PX = 4000
+# A pixel through the box costs about 6 times one through the Gaussian fold (59 and 9 ns
+# an evaluation with its normal equations): its branches keep its loop scalar.
+BOX_PIXEL_COST = 6
+
+
+# The Gaussian exp(-x^2 / 2) is taken at |x| <= this: beyond, its value there (2e-16),
+# and Phi's tails under 1e-17, are zero to the model. The bound lets a polynomial stand for
+# exp: (p(y / 2^k))^(2^k), with y / 2^k in [-1.13, 0] for k = _EXP_HALVINGS.
+_GAUSS_CLAMP = 8.5
+_EXP_HALVINGS = 5
+
+
+def _exp_coefficients(degree=11):
+    """Power-series coefficients (highest first) of exp(y) for y in [-c^2 / 2^(k + 1), 0]
+    (c = _GAUSS_CLAMP, k = _EXP_HALVINGS): a least-squares fit at Chebyshev nodes, within
+    4e-15 relatively, so the 2^k-th power of it is within 1e-13 of exp(-x^2 / 2)."""
+    low = -0.5 * _GAUSS_CLAMP ** 2 / 2 ** _EXP_HALVINGS
+    y = 0.5 * low * (1.0 - np.cos(np.pi * (np.arange(200) + 0.5) / 200))
+    series = np.polynomial.Polynomial.fit(y, np.exp(y), degree, domain=[low, 0.0])
+    return tuple(series.convert().coef[::-1].tolist())
+
+
+_EXP = _exp_coefficients()
 
 
 def _scaled_erfc_coefficients(degree=12):
@@ -58,10 +87,25 @@ def _scaled_erfc_coefficients(degree=12):
 _ERFC = _scaled_erfc_coefficients()
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, **_VECTOR)
+def _gauss(x):
+    """exp(-x^2 / 2) within 1e-13 relatively, for |x| <= _GAUSS_CLAMP (its value there
+    beyond): a polynomial and squarings, which the compiler vectorises (libm's exp it
+    calls one pixel at a time)."""
+    y = -0.5 * min(x * x, _GAUSS_CLAMP * _GAUSS_CLAMP) * (0.5 ** _EXP_HALVINGS)
+    value = 0.0
+    for c in _EXP:
+        value = value * y + c
+    for _ in range(_EXP_HALVINGS):
+        value *= value
+    return value
+
+
+@njit(cache=True, **_VECTOR)
 def _normal_cdf_pdf(x):
-    """Phi(x) and phi(x) of the standard normal; Phi from the erfc fit sharing the exp."""
-    gauss = math.exp(-0.5 * x * x)
+    """Phi(x) and phi(x) of the standard normal; Phi from the erfc fit sharing the
+    Gaussian (see _gauss: within 2e-16 of 0 and 1 beyond its clamp)."""
+    gauss = _gauss(x)
     t = 1.0 / (1.0 + 0.5 * _SQRT_HALF * abs(x))
     s = 2.0 * t - 1.0
     series = 0.0
@@ -71,7 +115,7 @@ def _normal_cdf_pdf(x):
     return (tail if x < 0.0 else 1.0 - tail), gauss * _INV_SQRT_2PI
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, **_VECTOR)
 def _antiderivatives(t, sigma):
     """Of Phi(t / sigma) by t: its first antiderivative G1 = t Phi + sigma phi and second
     G2 = ((t^2 + sigma^2) Phi + t sigma phi) / 2 (both from -infinity), with Phi and phi;
@@ -81,7 +125,7 @@ def _antiderivatives(t, sigma):
     return 0.5 * ((t * t + sigma * sigma) * cdf + t * sigma * pdf), first, cdf, pdf
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, **_VECTOR)
 def _box_edge(distance, n_u, n_v, sigma):
     """A straight edge seen through the pixel's 1 px box and a Gaussian blur of ``sigma``
     (px): the share of the pixel's light from inside the edge at signed ``distance`` (px,
@@ -120,72 +164,95 @@ def _box_edge(distance, n_u, n_v, sigma):
     return share, density, -sigma * (g_a[2] - g_b[2] - g_c[2] + g_d[2]) * scale
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, **_VECTOR)
 def _edge_columns(params, u, v, u0, v0, box, out):
     """Intensities of the pixels at (u, v) (n,), px, under ``params`` (see dot_edge_model)
     with the illumination factor 1 at (u0, v0) (px), into ``out[p]``; their derivatives by
     each parameter into ``out[:p]`` (p, n). ``box``: the pixel's aperture as its box, not
     as a Gaussian of its variance."""
-    cu, cv, radius, blur = params[0], params[1], params[2], params[3]
-    contrast, background, grad_u, grad_v = params[4], params[5], params[6], params[7]
-    width = params.size
-    a = b = 0.0
-    if width > 8:
-        a, b = params[8], params[9]
-    total = math.sqrt(blur * blur + PIXEL_APERTURE_VARIANCE)
-    inverse_total = 1.0 / total
-    optical = math.sqrt(blur * blur + SHARPEST_BLUR * SHARPEST_BLUR)
-    for i in range(u.size):
-        du, dv = u[i] - cu, v[i] - cv
-        if width == 8:
-            rho = math.sqrt(du * du + dv * dv)
-            inverse = 1.0 / max(rho, 1e-9)
-            distance = rho - radius
-            # The derivatives of -distance by cu, cv, radius.
-            d_u, d_v, d_radius = du * inverse, dv * inverse, 1.0
-            d_a = d_b = 0.0
-        else:
-            w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
-            norm = math.sqrt(max(du * w_u + dv * w_v, 1e-18))
-            slope_norm = math.sqrt(max(w_u * w_u + w_v * w_v, 1e-18))
-            distance = (norm - radius) * norm / slope_norm
-            # d distance = ((2 n - radius) dn - n d radius) / W - distance dW / W, with W
-            # the slope_norm; dn and dW by each parameter from n^2 = d^T P d and
-            # W^2 = |P d|^2.
-            along = (2.0 * norm - radius) / (norm * slope_norm)
-            across = distance / (slope_norm * slope_norm)
-            pw_u, pw_v = (1.0 + a) * w_u + b * w_v, b * w_u + (1.0 - a) * w_v  # P^2 d
-            d_u, d_v = along * w_u - across * pw_u, along * w_v - across * pw_v
-            d_radius = norm / slope_norm
-            d_a = across * (w_u * du - w_v * dv) - along * 0.5 * (du * du - dv * dv)
-            d_b = across * (w_u * dv + w_v * du) - along * du * dv
-        eu, ev = u[i] - u0, v[i] - v0
-        light = 1.0 + grad_u * eu + grad_v * ev
-        if box:
-            # The edge's normal: along the distance's gradient. How the profile changes
-            # with the normal's direction is left out of the derivatives (see
-            # dot_edge_model).
-            if width == 8:
-                n_u, n_v = du * inverse, dv * inverse
-            else:
-                n_u, n_v = w_u / slope_norm, w_v / slope_norm
-            cover, density, d_cover_d_sigma = _box_edge(distance, n_u, n_v, optical)
-            slope = contrast * density * light
-            d_blur = contrast * light * d_cover_d_sigma * (blur / optical)
-        else:
-            z = distance * inverse_total
-            cdf, pdf = _normal_cdf_pdf(z)
-            cover = 1.0 - cdf
-            slope = pdf * (contrast * inverse_total) * light
-            d_blur = slope * z * (blur * inverse_total)
-        lit = background + contrast * cover
-        out[0, i], out[1, i], out[2, i] = d_u * slope, d_v * slope, d_radius * slope
-        out[3, i] = d_blur
-        out[4, i], out[5, i] = cover * light, light
-        out[6, i], out[7, i] = eu * lit, ev * lit
-        if width > 8:
-            out[8, i], out[9, i] = d_a * slope, d_b * slope
-        out[width, i] = lit * light
+    ellipse = params.size > 8
+    shape = (params[8], params[9]) if ellipse else (0.0, 0.0)
+    # The parameters as scalars, and each case its own loop with its flags constant in
+    # it: so the compiler vectorises the loops through the Gaussian fold (the box's
+    # branches keep its loops scalar).
+    values = (params[0], params[1], params[2], params[3], params[4], params[5], params[6],
+              params[7], shape[0], shape[1], u0, v0)
+    if box and ellipse:
+        for i in range(u.size):
+            _store(out, i, _pixel_columns(values, u[i], v[i], True, True), True)
+    elif box:
+        for i in range(u.size):
+            _store(out, i, _pixel_columns(values, u[i], v[i], True, False), False)
+    elif ellipse:
+        for i in range(u.size):
+            _store(out, i, _pixel_columns(values, u[i], v[i], False, True), True)
+    else:
+        for i in range(u.size):
+            _store(out, i, _pixel_columns(values, u[i], v[i], False, False), False)
+
+
+@njit(cache=True, inline='always', **_VECTOR)
+def _pixel_columns(values, u, v, box, ellipse):
+    """_edge_columns' work on one pixel at (u, v), px, with ``values`` its parameters
+    (the ellipse's a, b zero for a disk) and reference point: its derivatives by cu, cv,
+    radius, blur, contrast, background, grad_u, grad_v, a and b, and its intensity."""
+    cu, cv, radius, blur, contrast, background, grad_u, grad_v, a, b, u0, v0 = values
+    du, dv = u - cu, v - cv
+    if not ellipse:
+        rho = math.sqrt(du * du + dv * dv)
+        inverse = 1.0 / max(rho, 1e-9)
+        distance = rho - radius
+        # The derivatives of -distance by cu, cv, radius; and the edge's unit normal.
+        d_u, d_v, d_radius = du * inverse, dv * inverse, 1.0
+        d_a = d_b = 0.0
+        n_u, n_v = d_u, d_v
+    else:
+        w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
+        norm = math.sqrt(max(du * w_u + dv * w_v, 1e-18))
+        slope_norm = math.sqrt(max(w_u * w_u + w_v * w_v, 1e-18))
+        distance = (norm - radius) * norm / slope_norm
+        # d distance = ((2 n - radius) dn - n d radius) / W - distance dW / W, with W
+        # the slope_norm; dn and dW by each parameter from n^2 = d^T P d and
+        # W^2 = |P d|^2.
+        along = (2.0 * norm - radius) / (norm * slope_norm)
+        across = distance / (slope_norm * slope_norm)
+        pw_u, pw_v = (1.0 + a) * w_u + b * w_v, b * w_u + (1.0 - a) * w_v  # P^2 d
+        d_u, d_v = along * w_u - across * pw_u, along * w_v - across * pw_v
+        d_radius = norm / slope_norm
+        d_a = across * (w_u * du - w_v * dv) - along * 0.5 * (du * du - dv * dv)
+        d_b = across * (w_u * dv + w_v * du) - along * du * dv
+        n_u, n_v = w_u / slope_norm, w_v / slope_norm
+    eu, ev = u - u0, v - v0
+    light = 1.0 + grad_u * eu + grad_v * ev
+    if box:
+        # The edge's normal: along the distance's gradient. How the profile changes
+        # with the normal's direction is left out of the derivatives (see
+        # dot_edge_model).
+        optical = math.sqrt(blur * blur + SHARPEST_BLUR * SHARPEST_BLUR)
+        cover, density, d_cover_d_sigma = _box_edge(distance, n_u, n_v, optical)
+        slope = contrast * density * light
+        d_blur = contrast * light * d_cover_d_sigma * (blur / optical)
+    else:
+        inverse_total = 1.0 / math.sqrt(blur * blur + PIXEL_APERTURE_VARIANCE)
+        z = distance * inverse_total
+        cdf, pdf = _normal_cdf_pdf(z)
+        cover = 1.0 - cdf
+        slope = pdf * (contrast * inverse_total) * light
+        d_blur = slope * z * (blur * inverse_total)
+    lit = background + contrast * cover
+    return (d_u * slope, d_v * slope, d_radius * slope, d_blur, cover * light, light,
+            eu * lit, ev * lit, d_a * slope, d_b * slope, lit * light)
+
+
+@njit(cache=True, inline='always', **_VECTOR)
+def _store(out, i, columns, ellipse):
+    """A pixel's columns (see _pixel_columns) into ``out[:, i]``, a disk's without a, b."""
+    for row in range(8):
+        out[row, i] = columns[row]
+    if ellipse:
+        out[8, i], out[9, i], out[10, i] = columns[8], columns[9], columns[10]
+    else:
+        out[8, i] = columns[10]
 
 
 @njit(cache=True)
@@ -245,7 +312,7 @@ def dot_edge_model(params, u, v, reference, box=False):
     return columns[:, width], columns[:, :width]
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, **_VECTOR)
 def _normal_equations(params, u, v, z, flat, u0, v0, box, normal, gradient, columns):
     """The normal matrix J^T J and gradient J^T r of one dot's pixels at ``params``, into
     ``normal`` and ``gradient``, with ``columns`` (p + 1, n) as room: its edge band's
@@ -476,8 +543,7 @@ def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations=
     converged = np.zeros(marks, dtype=np.bool_)
     work = (x, u, v, z, spans, flat, box, reference, tolerance, max_iterations)
     outputs = (normal, cost, converged)
-    # A pixel through the box costs about 3 times one through the Gaussian fold.
-    load = np.cumsum((spans[:, 1] - spans[:, 0]) * np.where(box, 3, 1))
+    load = np.cumsum((spans[:, 1] - spans[:, 0]) * np.where(box, BOX_PIXEL_COST, 1))
     helper = _helper(os.getpid())
     if marks < 2 or load[-1] < PARALLEL_ABOVE_PX or helper is None:
         _fit_dot_range(*work, np.arange(marks), *outputs)
