@@ -80,11 +80,12 @@ class DetectorConfig:
     box_aperture_below_blur_px : float
         Dots whose optical blur sigma (px) is under this, as their start reads it or
         their fit through the fold finds it (then fitted again), are fitted with the
-        pixel's 1 px box as it is, at about 3 times the fit's cost a pixel; blurrier
-        dots with the box folded into the blur as a Gaussian. The fold moves a
-        centre by up to 0.016 px at blur 0, 0.003 px at 0.3 px, 8e-4 px at 0.5 px and
-        3.5e-4 px at 0.7 px, where the box model errs as much
-        (bench_results/results.md, third table). ``inf``: always the box; 0: never.
+        pixel's 1 px box as it is, at about 1.3 times the fit's cost a pixel (11 against
+        9 ns); blurrier dots with the box folded into the blur as a Gaussian. The fold
+        moves a centre by up to 0.016 px at blur 0, 0.003 px at 0.3 px, 8e-4 px at
+        0.5 px and 3.5e-4 px at 0.7 px, where the box model errs as much (the straight
+        edge's curvature on small ellipses; bench_results/results.md, third table).
+        ``inf``: always the box; 0: never.
     """
 
     min_size_px: float = 2.5
@@ -92,7 +93,7 @@ class DetectorConfig:
     polarity: str = 'auto'
     min_snr: float = 6.0
     border_margin_px: float = 1.0
-    box_aperture_below_blur_px: float = 0.4
+    box_aperture_below_blur_px: float = 0.65
 
     def __post_init__(self):
         if not 0 < self.min_size_px < self.max_size_px:

@@ -36,21 +36,24 @@ _FAST = {'reassoc', 'contract', 'nsz', 'arcp'}
 # Numpy's error model: a division by zero gives infinity or NaN (refused as above) instead
 # of a check and a raise on every division, which keeps the pixel loops from vectorising.
 _VECTOR = {'fastmath': _FAST, 'error_model': 'numpy'}
-# The box-aperture profile: an edge whose normal is within this (px, the narrower of the
-# box's two widths across it) of a pixel axis is taken along it; the error is its square.
+# The box-aperture profile: the narrower of the box's two widths across an edge (px) is
+# taken as at least this, where the profile's second differences over it would divide by
+# zero (an edge along a pixel axis); the error is its square, the rounding 1e-11.
 ALIGNED_EDGE = 1e-4
 # ... and the optical blur it takes at least (px, added in quadrature), so that Phi(t /
 # sigma) stays defined at blur 0, where the profile is the box's alone.
 SHARPEST_BLUR = 1e-3
-# ... and beyond this many sigma of the box it is 0 or 1 (to 1e-9 of the contrast).
+# ... and beyond this many sigma of the box it is 0 or 1 (to 1e-9 of the contrast), taken
+# so: there the differences, of antiderivatives that grow as the distance squared, would
+# leave their rounding (1e-11 at 30 px).
 _FLAT_SIGMAS = 6.0
 # Band pixels of a frame's dots (weighted by their cost) above which a second thread fits
 # half of the dots: handing it the work costs about 50 us, a band pixel's fit about 27 ns
 # (three evaluations), and the thread saves half of that.
 PARALLEL_ABOVE_PX = 4000
-# A pixel through the box costs about 6 times one through the Gaussian fold (59 and 9 ns
-# an evaluation with its normal equations): its branches keep its loop scalar.
-BOX_PIXEL_COST = 6
+# A pixel through the box costs about 1.3 times one through the Gaussian fold (11 and 9 ns
+# an evaluation with its normal equations).
+BOX_PIXEL_COST = 1.3
 
 
 # The Gaussian exp(-x^2 / 2) is taken at |x| <= this: beyond, its value there (2e-16),
@@ -78,10 +81,14 @@ def _scaled_erfc_coefficients(degree=12):
     ``erfc(x) = t exp(-x^2) sum_k c_k s^k`` for x >= 0: a Chebyshev fit of scipy's
     erfcx(x) / t, within 1e-9 of erfc everywhere. The pixel model shares exp(-x^2) with
     its slope, so the edge's coverage costs a division and a polynomial, not a libm erfc
-    (15 ns a call)."""
+    (15 ns a call). The series is made exactly 1 at x = 0 (s = 1), so Phi has no step
+    there: the box profile's second differences over 1e-4 px would make a 1e-9 step one
+    of 4e-6."""
     t = 0.5 * (1.0 - np.cos(np.pi * (np.arange(400) + 0.5) / 400))
     series = np.polynomial.chebyshev.chebfit(2 * t - 1, erfcx(2 / t - 2) / t, degree)
-    return tuple(np.polynomial.chebyshev.cheb2poly(series)[::-1].tolist())
+    power = np.polynomial.chebyshev.cheb2poly(series)
+    power[0] += 1.0 - power.sum()
+    return tuple(power[::-1].tolist())
 
 
 _ERFC = _scaled_erfc_coefficients()
@@ -115,7 +122,7 @@ def _normal_cdf_pdf(x):
     return (tail if x < 0.0 else 1.0 - tail), gauss * _INV_SQRT_2PI
 
 
-@njit(cache=True, **_VECTOR)
+@njit(cache=True, inline='always', **_VECTOR)
 def _antiderivatives(t, sigma):
     """Of Phi(t / sigma) by t: its first antiderivative G1 = t Phi + sigma phi and second
     G2 = ((t^2 + sigma^2) Phi + t sigma phi) / 2 (both from -infinity), with Phi and phi;
@@ -125,7 +132,7 @@ def _antiderivatives(t, sigma):
     return 0.5 * ((t * t + sigma * sigma) * cdf + t * sigma * pdf), first, cdf, pdf
 
 
-@njit(cache=True, **_VECTOR)
+@njit(cache=True, inline='always', **_VECTOR)
 def _box_edge(distance, n_u, n_v, sigma):
     """A straight edge seen through the pixel's 1 px box and a Gaussian blur of ``sigma``
     (px): the share of the pixel's light from inside the edge at signed ``distance`` (px,
@@ -134,25 +141,15 @@ def _box_edge(distance, n_u, n_v, sigma):
 
     Seen across the edge, the box is the sum of two uniforms |n_u| and |n_v| px wide, so
     the share is 1 - E Phi((distance + x + y) / sigma) over them: second differences of
-    Phi's second antiderivative over their widths. An edge along a pixel axis (the
-    narrower width under ALIGNED_EDGE px) sees one uniform: first differences of the
-    first antiderivative; the narrower width enters the share squared."""
+    Phi's second antiderivative over their widths (the narrower at least ALIGNED_EDGE).
+    Without branches (the flat regions are selected, not returned early), so that the
+    compiler vectorises it."""
     wide, narrow = max(abs(n_u), abs(n_v)), min(abs(n_u), abs(n_v))
-    if wide < 0.5:
-        # No direction (a pixel on the centre, a radius inside the edge; a unit
-        # normal's wider part is at least sqrt(1/2)): any will do.
-        wide, narrow = 1.0, 0.0
-    # Beyond 6 sigma of the box the share is 0 or 1 to 1e-9: taken so, it is exact where
-    # the differences would cancel to rounding, and costs nothing.
-    if distance - 0.5 * (wide + narrow) > _FLAT_SIGMAS * sigma:
-        return 0.0, 0.0, 0.0
-    if distance + 0.5 * (wide + narrow) < -_FLAT_SIGMAS * sigma:
-        return 1.0, 0.0, 0.0
-    if narrow < ALIGNED_EDGE:
-        high = _antiderivatives(distance + 0.5 * wide, sigma)
-        low = _antiderivatives(distance - 0.5 * wide, sigma)
-        return (1.0 - (high[1] - low[1]) / wide, (high[2] - low[2]) / wide,
-                -(high[3] - low[3]) / wide)
+    # No direction (a pixel on the centre, a radius inside the edge; a unit normal's
+    # wider part is at least sqrt(1/2)): any will do.
+    directed = wide >= 0.5
+    wide = wide if directed else 1.0
+    narrow = max(narrow if directed else 0.0, ALIGNED_EDGE)
     outer, inner = 0.5 * (wide + narrow), 0.5 * (wide - narrow)
     g_a = _antiderivatives(distance + outer, sigma)
     g_b = _antiderivatives(distance + inner, sigma)
@@ -161,7 +158,10 @@ def _box_edge(distance, n_u, n_v, sigma):
     scale = 1.0 / (wide * narrow)
     share = 1.0 - (g_a[0] - g_b[0] - g_c[0] + g_d[0]) * scale
     density = (g_a[1] - g_b[1] - g_c[1] + g_d[1]) * scale
-    return share, density, -sigma * (g_a[2] - g_b[2] - g_c[2] + g_d[2]) * scale
+    d_sigma = -sigma * (g_a[2] - g_b[2] - g_c[2] + g_d[2]) * scale
+    flat = abs(distance) - outer > _FLAT_SIGMAS * sigma
+    return ((0.0 if distance > 0.0 else 1.0) if flat else share, 0.0 if flat else density,
+            0.0 if flat else d_sigma)
 
 
 @njit(cache=True, **_VECTOR)
@@ -278,7 +278,7 @@ def dot_edge_model(params, u, v, reference, box=False):
     ``edge_sigma``) errs where the optics are sharp: dots rendered exactly through the
     box moved the fitted centre by up to 0.016 px at blur 0, 0.003 px at 0.3 px and
     3e-5 px at 1 px. With ``box`` the profile is the box's, seen across the edge at its
-    direction (see _box_edge); it costs about 3 times as much a pixel. Its derivatives
+    direction (see _box_edge); it costs about 1.3 times as much a pixel. Its derivatives
     leave out how the profile changes with the edge's direction, a change of shape, not
     of position: noise-free fits still end on the truth, and the centre's derivatives
     err by up to 2 % at blur 0.05 px (test_dot_model_jacobian_matches_finite_differences).
