@@ -3,8 +3,7 @@ and starting values of all of a frame's dot candidates, then their fits, each in
 compiled run (dot_fit)."""
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
@@ -16,23 +15,29 @@ from calib_core.marks.bands import band_levels, crowded_windows, edge_bands
 from calib_core.marks.dot_fit import fit_dots, flat_costs
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 from calib_core.marks.pixels import centre_covariances, clipped_window
-from calib_core.marks.segmentation import MomentShape
 
 
 @dataclass(frozen=True)
-class DotCandidate:
-    """A blob taken for a dot: its bounding box (x0, y0, width, height; px), area (px^2)
-    and centroid (u, v; px), the ellipse of its moments where it is fitted as one (a dot
-    seen at an angle), and its label in the frame's segmentation."""
+class DotCandidates:
+    """A frame's blobs taken for dots, as arrays of m rows: their indices among the
+    frame's blobs, bounding boxes (x0, y0, width, height; px), areas (px^2) and centroids
+    (u, v; px); the shape (a, b) of their moments' ellipse (see dot_edge_model), where
+    ``ellipse`` says they are fitted as ellipses (dots seen at an angle), else 0; and
+    their labels in the frame's segmentation."""
 
-    box: tuple[int, int, int, int]
-    area: float
-    centroid: tuple[float, float]
-    ellipse: MomentShape | None
-    label: int
+    index: np.ndarray
+    box: np.ndarray
+    area: np.ndarray
+    centroid: np.ndarray
+    shape: np.ndarray
+    ellipse: np.ndarray
+    label: np.ndarray
+
+    def subset(self, rows) -> DotCandidates:
+        return DotCandidates(*(getattr(self, f.name)[rows] for f in fields(self)))
 
 
-def fit_circles(pixels, candidates: list[DotCandidate], labels, polarity: str,
+def fit_circles(pixels, candidates: DotCandidates, labels, polarity: str,
                 full: float | None, box_below: float) -> list[Mark | DetectionError]:
     """The dots' fits, in the order of ``candidates``: a Mark, or why there is none.
 
@@ -40,25 +45,24 @@ def fit_circles(pixels, candidates: list[DotCandidate], labels, polarity: str,
     ``full``: the frame's full scale where some pixels reach it, else None;
     ``box_below``: the starting blur (px) below which a dot's model sees the pixel's
     box as it is (DetectorConfig.box_aperture_below_blur_px)."""
-    results: list = [None] * len(candidates)
+    results: list = [None] * len(candidates.index)
     for ellipses in (False, True):
-        group = [k for k, c in enumerate(candidates) if (c.ellipse is not None) == ellipses]
-        if group:
-            fits = _fit_group(pixels, [candidates[k] for k in group], labels, polarity, full,
-                              box_below)
-            for index, fit in zip(group, fits):
+        group = np.flatnonzero(candidates.ellipse == ellipses)
+        if group.size:
+            fits = _fit_group(pixels, candidates.subset(group), ellipses, labels, polarity,
+                              full, box_below)
+            for index, fit in zip(group.tolist(), fits):
                 results[index] = fit
     return results
 
 
-def _fit_group(pixels, candidates, labels, polarity, full,
+def _fit_group(pixels, candidates, ellipses, labels, polarity, full,
                box_below) -> list[Mark | DetectionError]:
-    """The fits of dots of one model: all disks, or all ellipses."""
-    ellipses = candidates[0].ellipse is not None
-    boxes = np.array([c.box for c in candidates])
-    centres = np.array([c.centroid for c in candidates], dtype=float)
-    radius0 = np.sqrt(np.array([c.area for c in candidates]) / np.pi)
-    shapes = np.array([c.ellipse.shape if ellipses else (0.0, 0.0) for c in candidates])
+    """The fits of dots of one model: all disks, or all ellipses (``ellipses``)."""
+    boxes = candidates.box
+    centres = candidates.centroid.astype(float)
+    radius0 = np.sqrt(candidates.area / np.pi)
+    shapes = candidates.shape.astype(float)
     # The ellipse's semi-axes are scale / sqrt(1 +- e), its mean radius radius0, and in
     # dot_edge_model's norm its radius is radius0 * scale.
     e = np.hypot(shapes[:, 0], shapes[:, 1])
@@ -66,7 +70,7 @@ def _fit_group(pixels, candidates, labels, polarity, full,
     semi_axes = (radius0 * scale)[:, None] / np.sqrt(1 + np.outer(e, [1.0, -1.0]))
     pad = np.ceil(4 + 0.15 * semi_axes[:, 1]).astype(int)
     windows = np.column_stack(clipped_window(pixels.shape, *boxes.T, pad))
-    own = np.array([c.label for c in candidates])
+    own = candidates.label
     clear, clear_first = _clear_masks(labels, windows, own)
     # The model is evaluated on the edge band; the flat pixels beyond it enter the fit by
     # their moments: they pin the illumination gradient, which the band alone confuses
@@ -89,7 +93,7 @@ def _fit_group(pixels, candidates, labels, polarity, full,
     # a wider edge's tails there would tilt the fit under uneven light (7e-4 px at 3 px
     # blur), so such dots are fitted on their band alone.
     flat[sigma0 > EDGE_BAND_PX / 4] = 0.0
-    even_light = np.zeros((len(candidates), 2))  # the starting illumination gradient
+    even_light = np.zeros((len(boxes), 2))  # the starting illumination gradient
     x = np.column_stack([centres, radius_init * scale, blur0, level - background, background,
                          even_light] + ([shapes] if ellipses else []))
     problems = [_band_problem(*values) for values in
@@ -130,25 +134,28 @@ def _fit_group(pixels, candidates, labels, polarity, full,
     counts = band[fitted] + flat_fit[:, :, 0].sum(axis=1)
     covariances, determined = centre_covariances(
         normals, costs / np.maximum(counts - x.shape[1], 1))
+    cu, cv, radius, sigma, contrast = x_fit[:, :5].T
+    # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and the
+    # edge no ellipse.
+    e = np.hypot(x_fit[:, 8], x_fit[:, 9]) if ellipses else np.zeros(len(fitted))
+    radius = np.where(e < 1, radius / np.sqrt(np.sqrt(np.abs(1 - e * e))), radius)
+    with np.errstate(invalid='ignore'):
+        failed = (~converged | (e >= 1) | (np.abs(sigma) > radius) | (radius <= 0)
+                  | (np.hypot(cu - centres[fitted, 0], cv - centres[fitted, 1])
+                     > 0.5 * radius0[fitted]))
+        quality = np.clip(1 - np.sqrt(costs / counts) / np.abs(contrast), 0.0, 1.0)
     results: list[Mark | DetectionError] = [DetectionError(p) if p else None for p in problems]
-    for k, index in enumerate(fitted):
-        cu, cv, radius, sigma, contrast = x_fit[k, :5]
-        # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and
-        # the edge no ellipse.
-        e = math.hypot(*x_fit[k, 8:]) if ellipses else 0.0
-        if e < 1:
-            radius /= (1 - e * e) ** 0.25
-        if (not converged[k] or e >= 1 or abs(sigma) > radius or radius <= 0
-                or math.hypot(cu - centres[index, 0], cv - centres[index, 1])
-                > 0.5 * radius0[index]):
+    # Python floats, not numpy scalars: numpy's call on a scalar costs 5 us a Mark.
+    marks = zip(cu.tolist(), cv.tolist(), covariances, radius.tolist(), contrast.tolist(),
+                quality.tolist())
+    for index, fit_failed, fit_determined, mark in zip(fitted.tolist(), failed.tolist(),
+                                                       determined.tolist(), marks):
+        if fit_failed:
             results[index] = DetectionError('circle fit did not converge')
-        elif not determined[k]:
+        elif not fit_determined:
             results[index] = DetectionError(DEGENERATE_FIT)
         else:
-            # Scalars by math, not numpy: numpy's call on a scalar costs 5 us a Mark.
-            quality = min(max(1 - math.sqrt(costs[k] / counts[k]) / abs(contrast), 0.0), 1.0)
-            results[index] = Mark('circle', float(cu), float(cv), covariances[k], float(radius),
-                                  float(contrast), float(quality))
+            results[index] = Mark('circle', *mark)
     return results
 
 

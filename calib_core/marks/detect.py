@@ -8,10 +8,12 @@ import numpy as np
 from calib_core.errors import DetectionError, InvalidInputError
 from calib_core.marks.config import (
     ELLIPSE_ABOVE_ASPECT, ELLIPSE_MIN_FILL, MAX_ASPECT, MAX_ELLIPSE_ASPECT, MAX_SIGMA_OF_SIZE,
-    MIN_ELLIPSE_OVERLAP, MIN_FILL, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark)
+    MIN_ELLIPSE_OVERLAP, MIN_FILL, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark,
+    largest_sigma)
 from calib_core.marks.cross import fit_cross
 from calib_core.marks.pixels import check_image, full_scale
-from calib_core.marks.segmentation import MomentShape, estimate_noise, segment
+from calib_core.marks.segmentation import (
+    estimate_noise, moment_aspects, moment_overlap, moment_shapes, segment)
 
 
 def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',
@@ -37,7 +39,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     # The compiled code and numba (105 MiB, 0.4 s) load with the first frame, not with
     # every process that imports this package.
     from calib_core.marks.bands import blob_statistics
-    from calib_core.marks.circle import DotCandidate, fit_circles
+    from calib_core.marks.circle import fit_circles
 
     if shape not in ('',) + SHAPES:
         raise InvalidInputError(f'shape must be "circle", "cross" or "", not {shape!r}')
@@ -55,89 +57,117 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
 
     noise_scaled = noise * 255.0 / (high - low)
     polarity, labels, boxes, seeds, flat = segment(image, noise_scaled, config)
-
-    height, width = image.shape
-    marks: list[Mark] = []
-    rejected: list[str] = []
-    circles: list[tuple[DotCandidate, str]] = []
-
-    def accept(mark, kind, where):
-        if abs(mark.contrast) < config.min_snr * noise:
-            rejected.append(f'contrast {abs(mark.contrast):.3g} below {config.min_snr} x noise {where}')
-        elif not config.min_size_px <= mark.size <= config.max_size_px:
-            rejected.append(f'{kind} of size {mark.size:.1f} px outside '
-                            f'[{config.min_size_px}, {config.max_size_px}] {where}')
-        elif mark.sigma_px > MAX_SIGMA_OF_SIZE * mark.size:
-            rejected.append(f'{kind} centre not determined (1-sigma {mark.sigma_px:.2g} px for a '
-                            f'{mark.size:.1f} px Mark) {where}')
-        else:
-            marks.append(mark)
-
-    statistics = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark')
-    for (x0, y0, w, h), (label, area, *moments, depth) in zip(boxes, statistics):
-        label = int(label)
-        half = max(w, h) / 2.0
-        if half < config.min_size_px * SIZE_SLACK[0] or area < 4:
-            continue  # noise speck
-        moments = MomentShape(area, *moments)
-        centroid = (x0 + moments.cu, y0 + moments.cv)
-        where = f'near ({centroid[0]:.0f}, {centroid[1]:.0f}) px'
-        if half > config.max_size_px * SIZE_SLACK[1]:
-            rejected.append(f'too large ({half:.0f} px) {where}')
-            continue
-        if (x0 < config.border_margin_px or y0 < config.border_margin_px
-                or x0 + w > width - config.border_margin_px
-                or y0 + h > height - config.border_margin_px):
-            rejected.append(f'clipped at the image border {where}')
-            continue
-        aspect = max(w, h) / max(min(w, h), 1)
-        fill = area / float(w * h)
-        ellipse = None
-        if fill > 0.62 and aspect < MAX_ASPECT and moments.aspect < ELLIPSE_ABOVE_ASPECT:
-            kind = 'circle'
-        elif (fill > ELLIPSE_MIN_FILL and moments.aspect <= MAX_ELLIPSE_ASPECT
-              and moments.overlap(_component(labels, x0, y0, w, h, label))
-              >= MIN_ELLIPSE_OVERLAP):
-            kind, ellipse = 'circle', moments
-        elif aspect < MAX_ASPECT and MIN_FILL < fill < 0.6:
-            kind = 'cross'
-        else:
-            rejected.append(f'ambiguous shape (aspect {aspect:.2f}, fill {fill:.2f}; '
-                            f'touching Marks or debris?) {where}')
-            continue
-        if shape and kind != shape:
-            continue
-        # A Mark at the lowest accepted contrast stands out of the smoothed frame by at
-        # least half of it; a noise speck does not, and is dropped before a costly fit.
-        if depth < 0.5 * config.min_snr * noise_scaled:
-            continue
-        if kind == 'circle':
-            circles.append((DotCandidate((x0, y0, w, h), area, centroid, ellipse, label), where))
-            continue
+    blobs = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark')
+    circles, crosses, rejected = _classify(boxes, blobs, labels, image.shape, config, shape,
+                                           noise_scaled)
+    found: list[tuple[int, Mark]] = []
+    for index in crosses:
+        (x0, y0, w, h), label, area = boxes[index], int(blobs[index, 0]), blobs[index, 1]
         try:
-            accept(fit_cross(image, x0, y0, _component(labels, x0, y0, w, h, label), area,
-                             polarity, noise, full), kind, where)
+            found.append((index, fit_cross(image, x0, y0, _component(labels, x0, y0, w, h, label),
+                                           area, polarity, noise, full)))
         except DetectionError as exc:
-            rejected.append(f'{exc} {where}')
+            rejected.append((index, str(exc)))
     # The dots are fitted together: one compiled run for all costs little more than for
     # one, where per-dot calls cost mostly the interpreter's overhead.
-    dots = fit_circles(image, [dot for dot, _ in circles], labels, polarity, full,
-                       config.box_aperture_below_blur_px)
-    for fitted, (_, where) in zip(dots, circles):
+    fits = fit_circles(image, circles, labels, polarity, full, config.box_aperture_below_blur_px)
+    for index, fitted in zip(circles.index, fits):
         if isinstance(fitted, Mark):
-            accept(fitted, 'circle', where)
+            found.append((index, fitted))
         else:
-            rejected.append(f'{fitted} {where}')
-
+            rejected.append((index, str(fitted)))
+    marks = []
+    for (index, mark), why in zip(found, _refusals([m for _, m in found], noise, config)):
+        if why:
+            rejected.append((index, why))
+        else:
+            marks.append(mark)
     marks.sort(key=lambda m: (round(m.v), m.u))
+    # Reasons in the blobs' order, each with where its blob is.
+    reasons = [f'{why} {_where(blobs[index], boxes[index])}' for index, why in sorted(rejected)]
     if not marks:
-        detail = f' ({"; ".join(rejected)})' if rejected else ''
+        detail = f' ({"; ".join(reasons)})' if reasons else ''
         raise DetectionError(f'no {shape or "Mark"} found in the image{detail}')
     if expected_count and len(marks) != expected_count:
-        detail = f'; rejected: {"; ".join(rejected)}' if rejected else ''
+        detail = f'; rejected: {"; ".join(reasons)}' if reasons else ''
         raise DetectionError(f'expected {expected_count} Mark(s), found {len(marks)}: ambiguous'
                              f'{detail}')
-    return Detection(marks=marks, rejected=rejected, noise_sigma=noise)
+    return Detection(marks=marks, rejected=reasons, noise_sigma=noise)
+
+
+def _classify(boxes, blobs, labels, frame_shape, config, shape, noise_scaled):
+    """The blobs taken for dots (DotCandidates) and for crosses (their indices), and the
+    others' reasons (index, why); noise specks and faint blobs are dropped without one.
+
+    ``blobs``: bands.blob_statistics' table (label, area, centroid in the box, moments,
+    depth) of the blobs whose boxes (k, 4: x0, y0, width, height; px) are ``boxes``."""
+    from calib_core.marks.circle import DotCandidates
+    height, width = frame_shape
+    x0, y0, w, h = boxes.T
+    area, uu, uv, vv, depth = blobs[:, 1], blobs[:, 4], blobs[:, 5], blobs[:, 6], blobs[:, 7]
+    half = np.maximum(w, h) / 2.0
+    aspect = np.maximum(w, h) / np.maximum(np.minimum(w, h), 1)
+    fill = area / (w * h)
+    moment_aspect = moment_aspects(uu, uv, vv)
+    margin = config.border_margin_px
+    rejected = []
+
+    def refuse(where, why):
+        rejected.extend((int(k), why(k)) for k in np.flatnonzero(where))
+
+    alive = (half >= config.min_size_px * SIZE_SLACK[0]) & (area >= 4)  # else a noise speck
+    large = alive & (half > config.max_size_px * SIZE_SLACK[1])
+    refuse(large, lambda k: f'too large ({half[k]:.0f} px)')
+    clipped = alive & ~large & ((x0 < margin) | (y0 < margin) | (x0 + w > width - margin)
+                                | (y0 + h > height - margin))
+    refuse(clipped, lambda k: 'clipped at the image border')
+    alive &= ~large & ~clipped
+    circle = alive & (fill > 0.62) & (aspect < MAX_ASPECT) & (moment_aspect < ELLIPSE_ABOVE_ASPECT)
+    ellipse = alive & ~circle & (fill > ELLIPSE_MIN_FILL) & (moment_aspect <= MAX_ELLIPSE_ASPECT)
+    for k in np.flatnonzero(ellipse):
+        component = _component(labels, x0[k], y0[k], w[k], h[k], int(blobs[k, 0]))
+        ellipse[k] = moment_overlap(component, *blobs[k, 1:7]) >= MIN_ELLIPSE_OVERLAP
+    cross = alive & ~circle & ~ellipse & (aspect < MAX_ASPECT) & (MIN_FILL < fill) & (fill < 0.6)
+    refuse(alive & ~circle & ~ellipse & ~cross,
+           lambda k: f'ambiguous shape (aspect {aspect[k]:.2f}, fill {fill[k]:.2f}; '
+                     'touching Marks or debris?)')
+    # A Mark at the lowest accepted contrast stands out of the smoothed frame by at
+    # least half of it; a noise speck does not, and is dropped before a costly fit.
+    deep = depth >= 0.5 * config.min_snr * noise_scaled
+    dots = np.flatnonzero((circle | ellipse) & deep & (shape in ('', 'circle')))
+    shapes = np.where(ellipse[dots, None], moment_shapes(uu[dots], uv[dots], vv[dots]), 0.0)
+    candidates = DotCandidates(dots, boxes[dots], area[dots],
+                               boxes[dots, :2] + blobs[dots, 2:4], shapes, ellipse[dots],
+                               blobs[dots, 0].astype(int))
+    return candidates, np.flatnonzero(cross & deep & (shape in ('', 'cross'))), rejected
+
+
+def _refusals(marks, noise, config) -> list[str | None]:
+    """Why each fitted Mark is not accepted (its contrast, size or centre's uncertainty
+    makes no sense), or None."""
+    if not marks:
+        return []
+    contrast = np.abs([m.contrast for m in marks])
+    size = np.array([m.size for m in marks])
+    sigma = largest_sigma(np.array([m.covariance for m in marks]))
+    reasons = []
+    for m, c, z, s in zip(marks, contrast.tolist(), size.tolist(), sigma.tolist()):
+        if c < config.min_snr * noise:
+            reasons.append(f'contrast {c:.3g} below {config.min_snr} x noise')
+        elif not config.min_size_px <= z <= config.max_size_px:
+            reasons.append(f'{m.shape} of size {z:.1f} px outside '
+                           f'[{config.min_size_px}, {config.max_size_px}]')
+        elif s > MAX_SIGMA_OF_SIZE * z:
+            reasons.append(f'{m.shape} centre not determined (1-sigma {s:.2g} px for a '
+                           f'{z:.1f} px Mark)')
+        else:
+            reasons.append(None)
+    return reasons
+
+
+def _where(blob, box) -> str:
+    """Where a blob (its row of blob_statistics and its box) is, for a reason."""
+    return f'near ({box[0] + blob[2]:.0f}, {box[1] + blob[3]:.0f}) px'
 
 
 def _component(labels, x0, y0, w, h, label):

@@ -13,13 +13,14 @@ PIXEL_TYPES = (np.uint8, np.uint16, np.float32, np.float64)
 
 def dot_frame(dtype) -> np.ndarray:
     """A 120 x 160 frame of 4 dark dots of 10 px radius with a 1 px edge on a bright
-    background, in ``dtype`` (half full scale for the integer types)."""
+    background lit unevenly (so that the illumination trend is fitted), in ``dtype``
+    (half full scale for the integer types)."""
     v, u = np.mgrid[:120, :160].astype(float)
     frame = np.ones((120, 160))
     for cu, cv in ((45.3, 35.6), (115.1, 34.8), (44.7, 85.2), (114.9, 84.6)):
         frame = np.minimum(frame, np.clip(np.hypot(u - cu, v - cv) - 9.5, 0.0, 1.0))
     scale = np.iinfo(dtype).max / 2 if np.issubdtype(dtype, np.integer) else 1.0
-    return ((0.2 + 0.6 * frame) * scale).astype(dtype)
+    return ((0.2 + 0.6 * frame) * (0.8 + 0.2 * u / 160) * scale).astype(dtype)
 
 
 def main() -> None:

@@ -4,9 +4,6 @@ dark (bright) candidates; the threshold is Otsu's unless that splits the backgro
 noise. Each candidate's shape is summarised by its second moments."""
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
@@ -44,17 +41,6 @@ def _integer_median(values: np.ndarray) -> float:
     return low + (int(np.searchsorted(cumulative, middle - 1, side='right')) + upper) / 2
 
 
-def _least_squares(design, values):
-    """Least-squares coefficients of ``design`` (n, p) for ``values`` (n,): by the normal
-    equations (a fifth of lstsq's time), or by lstsq where the kept rows do not pin every
-    term (the normal matrix near singular)."""
-    normal = design.T @ design
-    eigenvalues = np.linalg.eigvalsh(normal)
-    if eigenvalues[0] > 1e-9 * eigenvalues[-1]:
-        return np.linalg.solve(normal, design.T @ values)
-    return np.linalg.lstsq(design, values, rcond=None)[0]
-
-
 def _flatten(smoothed, tolerance):
     """``smoothed`` (uint8) less a robust quadratic illumination surface, at 128 (uint8).
 
@@ -71,21 +57,8 @@ def _flatten(smoothed, tolerance):
     low, high = np.partition(means, tenth)[tenth]
     if high - low < tolerance:
         return smoothed
-    y, x = np.divmod(np.arange(rows * cols), cols)
-    # Block centres in full-frame px, scaled to [-1, 1] for conditioning.
-    x = ((x + 0.5) * width / cols - 0.5) / width * 2 - 1
-    y = ((y + 0.5) * height / rows - 0.5) / height * 2 - 1
-    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
-    keep = np.ones(means.size, dtype=bool)
-    for _ in range(TREND_ITERATIONS):
-        coef = _least_squares(design[keep], means[keep])
-        residual = means - design @ coef
-        centre = np.median(residual[keep])
-        spread = 1.4826 * np.median(np.abs(residual[keep] - centre))
-        keep_next = np.abs(residual - centre) < max(3 * spread, 1.0)
-        if np.count_nonzero(keep_next) < 2 * design.shape[1]:
-            break
-        keep = keep_next
+    from calib_core.marks.trend import robust_quadratic  # numba loads with the first frame
+    coef = robust_quadratic(means.reshape(rows, cols), width, height, TREND_ITERATIONS)
     # The surface is evaluated every SURFACE_STEP_PX px and interpolated up: cv2.resize
     # puts the coarse sample j at full-frame px SURFACE_STEP_PX * j + (SURFACE_STEP_PX - 1) / 2.
     step = SURFACE_STEP_PX
@@ -201,44 +174,30 @@ def _mark_shaped(contours, boxes, shape, config) -> int:
         & (np.maximum(w, h) < MAX_ELLIPSE_ASPECT * np.minimum(w, h)) & (fill > MIN_FILL)))
 
 
-@dataclass(frozen=True)
-class MomentShape:
-    """A blob's area (px^2), centroid (px, in its box) and second central moments (px^2,
-    with the pixel's own 1/12 px^2 added), seen as the ellipse of the same moments:
-    ``{d : d^T C^-1 d <= 4}``, which is the blob itself for a filled ellipse."""
+def moment_aspects(uu, uv, vv):
+    """Axis ratios (>= 1) of the ellipses of blobs' second central moments uu, uv, vv
+    (px^2, arrays): sqrt((1 + e) / (1 - e)), with e = (l1 - l2) / (l1 + l2) of the
+    moments' eigenvalues, 0 for a disk."""
+    e = np.hypot(uu - vv, 2 * uv) / (uu + vv)
+    return np.sqrt((1 + e) / np.maximum(1 - e, 1e-12))
 
-    area: float
-    cu: float
-    cv: float
-    uu: float
-    uv: float
-    vv: float
 
-    @property
-    def eccentricity(self) -> float:
-        """(l1 - l2) / (l1 + l2) of the moments' eigenvalues: 0 for a disk."""
-        return math.hypot(self.uu - self.vv, 2 * self.uv) / (self.uu + self.vv)
+def moment_shapes(uu, uv, vv):
+    """The shapes (a, b) of dot_edge_model (m, 2) of the ellipses of blobs' second central
+    moments (px^2, arrays): its P is C^-1 scaled to a trace of 2."""
+    return np.column_stack([(vv - uu) / (uu + vv), -2 * uv / (uu + vv)])
 
-    @property
-    def aspect(self) -> float:
-        """Axis ratio, >= 1."""
-        e = self.eccentricity
-        return math.sqrt((1 + e) / max(1 - e, 1e-12))
 
-    @property
-    def shape(self) -> tuple[float, float]:
-        """(a, b) of dot_edge_model: its P is C^-1 scaled to a trace of 2."""
-        return ((self.vv - self.uu) / (self.uu + self.vv), -2 * self.uv / (self.uu + self.vv))
-
-    def overlap(self, component) -> float:
-        """Intersection over union of the blob (``component``, its boolean box) and its
-        moment ellipse."""
-        h, w = component.shape
-        dv = np.arange(-1, h + 1) - self.cv
-        du = np.arange(-1, w + 1) - self.cu
-        det = self.uu * self.vv - self.uv * self.uv
-        form = (np.add.outer(self.uu * dv * dv, self.vv * du * du)
-                - 2 * self.uv * np.outer(dv, du)) / det
-        inside = form <= 4.0
-        common = np.count_nonzero(inside[1:-1, 1:-1] & component)
-        return common / (np.count_nonzero(inside) + self.area - common)
+def moment_overlap(component, area, cu, cv, uu, uv, vv) -> float:
+    """Intersection over union of a blob (``component``, its boolean box) and the ellipse
+    of its second moments, ``{d : d^T C^-1 d <= 4}`` (the blob itself for a filled
+    ellipse); ``area`` (px^2), centroid ``cu``, ``cv`` (px, in the box) and moments as
+    blob_statistics gives them."""
+    h, w = component.shape
+    dv = np.arange(-1, h + 1) - cv
+    du = np.arange(-1, w + 1) - cu
+    det = uu * vv - uv * uv
+    form = (np.add.outer(uu * dv * dv, vv * du * du) - 2 * uv * np.outer(dv, du)) / det
+    inside = form <= 4.0
+    common = np.count_nonzero(inside[1:-1, 1:-1] & component)
+    return common / (np.count_nonzero(inside) + area - common)
