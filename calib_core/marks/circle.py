@@ -96,8 +96,7 @@ def _fit_group(pixels, candidates, ellipses, labels, polarity, full,
     even_light = np.zeros((len(boxes), 2))  # the starting illumination gradient
     x = np.column_stack([centres, radius_init * scale, blur0, level - background, background,
                          even_light] + ([shapes] if ellipses else []))
-    problems = [_band_problem(*values) for values in
-                zip(clear_first >= 0, band, clipped, level == background)]
+    problems = _band_problems(clear_first >= 0, band, clipped, level == background)
     fitted = np.flatnonzero([problem is None for problem in problems])
     x_fit = x[fitted]
     box = blur0[fitted] < box_below
@@ -159,15 +158,14 @@ def _fit_group(pixels, candidates, ellipses, labels, polarity, full,
     return results
 
 
-def _band_problem(crowded, size, clipped, no_contrast) -> str | None:
-    """Why a dot's edge band cannot be fitted, or None."""
-    if crowded and size < MIN_BAND_PX:
-        return 'crowded: other blobs are nearer than it to most of its edge'
-    if clipped > 0.01 * size:
-        return 'saturated Mark (clipped intensities bias the centre)'
-    if no_contrast:
-        return 'no contrast between the Mark and its surroundings'
-    return None
+def _band_problems(crowded, size, clipped, no_contrast) -> list[str | None]:
+    """Why each dot's edge band cannot be fitted, or None (arrays of its crowding, band
+    size, clipped pixels and whether it shows no contrast)."""
+    why = np.select([crowded & (size < MIN_BAND_PX), clipped > 0.01 * size, no_contrast],
+                    ['crowded: other blobs are nearer than it to most of its edge',
+                     'saturated Mark (clipped intensities bias the centre)',
+                     'no contrast between the Mark and its surroundings'], '')
+    return [reason or None for reason in why.tolist()]
 
 
 def _clear_masks(labels, windows, own):
