@@ -15,7 +15,8 @@ Jacobian and residual variance.
 
 Pixels follow OpenCV's convention: the centre of the top-left pixel is (0, 0).
 
-Modules: ``config`` (settings and result types), ``segmentation`` (candidates),
+Modules: ``config`` (settings and result types), ``segmentation`` (candidates; with
+``trend``, the illumination trend's robust fit, compiled),
 ``intensity`` (the cross's intensity model), ``bands`` (blob moments, edge bands and
 starting levels, compiled), ``dot_fit`` (the dot's model and its compiled solver),
 ``circle`` and ``cross`` (the sub-pixel fits), ``pixels`` (shared helpers), ``detect``

@@ -19,8 +19,9 @@ def blob_statistics(labels, boxes, seeds, flat, dark):
     statistics : ndarray, shape (k, 8)
         The label; the area (px^2); the centroid (px, in the box); the second central
         moments uu, uv, vv (px^2, with the pixel's own 1/12 px^2 added), which
-        MomentShape takes; and the depth: how far the blob's extreme in ``flat`` (uint8)
-        lies from the median of a 2 px ring around its box (smoothed, scaled units).
+        segmentation's moment_aspects, moment_shapes and moment_overlap take; and the
+        depth: how far the blob's extreme in ``flat`` (uint8) lies from the median of a
+        2 px ring around its box (smoothed, scaled units).
     """
     height, width = labels.shape
     statistics = np.zeros((len(boxes), 8))
