@@ -122,12 +122,28 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
         inner = (radius - slack) ** 2 if radius > slack else -1.0
         outer = (radius + slack) ** 2
         spans[k, 0] = count
+        cu = centres[k, 0]
         for row in range(r0, r1):
             dv = row - centres[k, 1]
-            for col in range(c0, c1):
+            # Without a mask, the columns certainly beyond the outer bound or within the
+            # inner one (the row's roots, a pixel to spare) are flat, and summed as runs;
+            # the others are taken one by one. Only for dots wider than twice the band's
+            # reach: on smaller ones the window is mostly band, and the roots cost more
+            # than they save (trial: 5-10 px dots 5-25 % slower; 20 px dots 1.25x and
+            # 40 px 1.8x faster).
+            low, high, inside_low, inside_high = c0, c1, c0, c0
+            if first < 0 and radius > 2.0 * slack:
+                low, high = _row_span(a, b, dv, outer, cu, c0, c1, 1.0)
+                inside_low, inside_high = _row_span(a, b, dv, inner, cu, low, high, -1.0)
+                _add_flat_run(pixels, row, c0, low, cu, dv, flat[k, 0])
+                _add_flat_run(pixels, row, high, c1, cu, dv, flat[k, 0])
+                _add_flat_run(pixels, row, inside_low, inside_high, cu, dv, flat[k, 1])
+            for col in range(low, high):
+                if inside_low <= col < inside_high:
+                    continue
                 if first >= 0 and not clear[first + (row - r0) * (c1 - c0) + col - c0]:
                     continue
-                du = col - centres[k, 0]
+                du = col - cu
                 w_u, w_v = (1.0 + a) * du + b * dv, b * du + (1.0 - a) * dv
                 norm2 = du * w_u + dv * w_v
                 value = float(pixels[row, col])
@@ -152,6 +168,51 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
                 moments[9] += value * value
         spans[k, 1] = count
     return u[:count], v[:count], z[:count], distance[:count], spans, flat
+
+
+@njit(cache=True)
+def _row_span(a, b, dv, bound, cu, c0, c1, spare):
+    """The columns [low, high) within [c0, c1) of a row ``dv`` (px from the centre) where
+    ``d^T P d < bound`` (see edge_bands) could hold, widened by a pixel (``spare`` 1), or
+    where it certainly holds, narrowed by one (``spare`` -1); ``cu``: the centre's
+    column (px). An empty span is (c0, c0)."""
+    # d^T P d = (1 + a) du^2 + 2 b dv du + (1 - a) dv^2, with 1 + a > 0.
+    half_b = b * dv
+    discriminant = half_b * half_b - (1.0 + a) * ((1.0 - a) * dv * dv - bound)
+    if discriminant <= 0.0:
+        return c0, c0
+    root = math.sqrt(discriminant)
+    low = math.floor(cu + (-half_b - root) / (1.0 + a) - spare) + 1
+    high = math.ceil(cu + (-half_b + root) / (1.0 + a) + spare)
+    low, high = min(max(low, c0), c1), min(max(high, c0), c1)
+    return (low, high) if low < high else (c0, c0)
+
+
+@njit(cache=True, fastmath={'reassoc', 'contract', 'nsz'}, error_model='numpy')
+def _add_flat_run(pixels, row, start, end, cu, dv, moments):
+    """Adds the pixels of ``row``, columns [start, end), to a dot's flat ``moments`` (see
+    edge_bands), with ``cu`` its centre's column and ``dv`` the row's offset (px). The
+    row's offset is one number, so six sums serve the ten."""
+    count = s_u = s_uu = s_z = s_zu = s_zz = 0.0
+    for col in range(start, end):
+        du = col - cu
+        value = float(pixels[row, col])
+        count += 1.0
+        s_u += du
+        s_uu += du * du
+        s_z += value
+        s_zu += value * du
+        s_zz += value * value
+    moments[0] += count
+    moments[1] += s_u
+    moments[2] += count * dv
+    moments[3] += s_uu
+    moments[4] += s_u * dv
+    moments[5] += count * dv * dv
+    moments[6] += s_z
+    moments[7] += s_zu
+    moments[8] += s_z * dv
+    moments[9] += s_zz
 
 
 @njit(cache=True)
