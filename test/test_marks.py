@@ -10,7 +10,7 @@ from scipy.special import erfc
 
 from calib_core.errors import DetectionError, InvalidInputError
 from calib_core.marks import DetectorConfig, detect_marks, dot_fit, estimate_noise
-from calib_core.marks.bands import edge_bands
+from calib_core.marks.bands import blob_statistics, edge_bands
 from calib_core.marks.dot_fit import dot_edge_model, fit_dots
 from calib_core.marks.intensity import edge_sigma
 from calib_core.marks.precompile import PIXEL_TYPES, dot_frame
@@ -318,6 +318,34 @@ def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur, box)
         covariance = np.linalg.inv(jacobian(converged_fit.x).T @ jacobian(converged_fit.x))
         sigma = np.sqrt(np.diag(covariance)[:2] * 2 * converged_fit.cost / (z.size - x.shape[1]))
         assert np.all(np.abs(x[0, :2] - converged_fit.x[:2]) < 0.05 * sigma)
+
+
+def test_blob_statistics_as_numpy_counts_them(rng):
+    """Each blob's label, area, centroid and second moments (+1/12 px^2), and its depth
+    (its extreme in the flattened frame against the upper median of the 2 px ring around
+    its box, corners counted twice), as numpy computes them, on random masks."""
+    for _ in range(30):
+        mask = (rng.random((120, 160)) < rng.uniform(0.05, 0.5)).astype(np.uint8)
+        flat = rng.integers(0, 256, mask.shape).astype(np.uint8)
+        contours = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0]
+        boxes = np.array([cv2.boundingRect(c) for c in contours]).reshape(-1, 4)
+        seeds = np.array([c[0, 0] for c in contours]).reshape(-1, 2)
+        labels = cv2.connectedComponents(mask, connectivity=8)[1]
+        dark = bool(rng.random() < 0.5)
+        statistics = blob_statistics(labels, boxes, seeds, flat, dark)
+        for (x0, y0, w, h), (u, v), row in zip(boxes, seeds, statistics):
+            rows, cols = np.nonzero(labels[y0:y0 + h, x0:x0 + w] == labels[v, u])
+            r0, r1 = max(y0 - 2, 0), min(y0 + h + 2, 120)
+            c0, c1 = max(x0 - 2, 0), min(x0 + w + 2, 160)
+            region = flat[r0:r1, c0:c1]
+            ring = np.sort(np.concatenate([region[0], region[-1], region[:, 0],
+                                           region[:, -1]]))
+            level = int(ring[ring.size // 2])
+            depth = level - int(region.min()) if dark else int(region.max()) - level
+            expected = [labels[v, u], rows.size, cols.mean(), rows.mean(),
+                        cols.var() + 1 / 12, np.mean((cols - cols.mean()) * (rows - rows.mean())),
+                        rows.var() + 1 / 12, depth]
+            assert np.allclose(row, expected, rtol=1e-12, atol=1e-9)
 
 
 def test_flat_runs_give_the_bands_pixel_by_pixel(rng):
