@@ -8,6 +8,10 @@ import math
 import numpy as np
 from numba import njit
 
+# Reassociation lets the compiler vectorise a loop's sums (their order changes their last
+# bits only); numpy's error model, a division without a check that would keep it scalar.
+_SUMS = {'reassoc', 'contract', 'nsz'}
+
 
 @njit(cache=True)
 def blob_statistics(labels, boxes, seeds, flat, dark):
@@ -58,7 +62,7 @@ def blob_statistics(labels, boxes, seeds, flat, dark):
     return statistics
 
 
-@njit(cache=True, fastmath={'reassoc', 'contract', 'nsz'})
+@njit(cache=True, fastmath=_SUMS)
 def _label_moments(labels, x0, y0, w, h, label):
     """The count and the sums of col, row, col^2, col row and row^2 (px, in the box) of
     the pixels of ``label`` in the box x0, y0, w, h of ``labels``: without branches, so
@@ -202,7 +206,7 @@ def _row_span(a, b, dv, bound, cu, c0, c1, spare):
     return (low, high) if low < high else (c0, c0)
 
 
-@njit(cache=True, fastmath={'reassoc', 'contract', 'nsz'}, error_model='numpy')
+@njit(cache=True, fastmath=_SUMS, error_model='numpy')
 def _add_flat_run(pixels, row, start, end, cu, dv, moments):
     """Adds the pixels of ``row``, columns [start, end), to a dot's flat ``moments`` (see
     edge_bands), with ``cu`` its centre's column and ``dv`` the row's offset (px). The
@@ -237,16 +241,18 @@ def crowded_windows(labels, windows, own):
     for k in range(len(windows)):
         r0, r1, c0, c1 = windows[k]
         for row in range(r0, r1):
+            # A row's count without branches, which the compiler vectorises.
+            others = 0
             for col in range(c0, c1):
-                if labels[row, col] != 0 and labels[row, col] != own[k]:
-                    crowded[k] = True
-                    break
-            if crowded[k]:
+                label = labels[row, col]
+                others += (label != 0) & (label != own[k])
+            if others:
+                crowded[k] = True
                 break
     return crowded
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_SUMS, error_model='numpy')
 def band_levels(z, distance, spans, dark, full):
     """Starting intensities of dots from their edge bands (see edge_bands). Means, not
     medians: a start only has to lie in the fit's basin, and a median (quickselect on
@@ -264,27 +270,30 @@ def band_levels(z, distance, spans, dark, full):
     levels = np.zeros((len(spans), 5))
     for k in range(len(spans)):
         first, end = spans[k]
-        outside = in_mark = 0
+        if end == first:
+            continue
+        # Sums and counts by selection, not branches, so that the compiler vectorises
+        # the two passes.
+        outside = in_mark = 0.0
         outside_sum = in_mark_sum = 0.0
         extreme = np.inf if dark else -np.inf
         for i in range(first, end):
-            if distance[i] > 1.5:
-                outside += 1
-                outside_sum += z[i]
-            elif distance[i] < -1.5:
-                in_mark += 1
-                in_mark_sum += z[i]
+            beyond, within = distance[i] > 1.5, distance[i] < -1.5
+            outside += beyond
+            outside_sum += z[i] if beyond else 0.0
+            in_mark += within
+            in_mark_sum += z[i] if within else 0.0
             extreme = min(extreme, z[i]) if dark else max(extreme, z[i])
-        if end == first:
-            continue
         background = outside_sum / outside if outside else np.mean(z[first:end])
         level = in_mark_sum / in_mark if in_mark else extreme
-        total, transition = 0.0, 0
-        if level != background:
-            for i in range(first, end):
-                fraction = (z[i] - background) / (level - background)
-                total += fraction
-                transition += 0.16 < fraction < 0.84
-        levels[k, 0], levels[k, 1], levels[k, 2] = background, level, total
-        levels[k, 3], levels[k, 4] = transition, np.count_nonzero(z[first:end] >= full)
+        span = level - background
+        total = transition = clipped = 0.0
+        for i in range(first, end):
+            fraction = (z[i] - background) / span  # not kept where the span is 0
+            total += fraction
+            transition += (fraction > 0.16) & (fraction < 0.84)
+            clipped += z[i] >= full
+        levels[k, 0], levels[k, 1], levels[k, 4] = background, level, clipped
+        if span != 0.0:
+            levels[k, 2], levels[k, 3] = total, transition
     return levels
