@@ -151,15 +151,16 @@ def _refusals(marks, noise, config) -> list[str | None]:
     size = np.array([m.size for m in marks])
     sigma = largest_sigma(np.array([m.covariance for m in marks]))
     reasons = []
-    for m, c, z, s in zip(marks, contrast.tolist(), size.tolist(), sigma.tolist()):
-        if c < config.min_snr * noise:
-            reasons.append(f'contrast {c:.3g} below {config.min_snr} x noise')
-        elif not config.min_size_px <= z <= config.max_size_px:
-            reasons.append(f'{m.shape} of size {z:.1f} px outside '
+    for mark, level, size_px, sigma_px in zip(marks, contrast.tolist(), size.tolist(),
+                                              sigma.tolist()):
+        if level < config.min_snr * noise:
+            reasons.append(f'contrast {level:.3g} below {config.min_snr} x noise')
+        elif not config.min_size_px <= size_px <= config.max_size_px:
+            reasons.append(f'{mark.shape} of size {size_px:.1f} px outside '
                            f'[{config.min_size_px}, {config.max_size_px}]')
-        elif s > MAX_SIGMA_OF_SIZE * z:
-            reasons.append(f'{m.shape} centre not determined (1-sigma {s:.2g} px for a '
-                           f'{z:.1f} px Mark)')
+        elif sigma_px > MAX_SIGMA_OF_SIZE * size_px:
+            reasons.append(f'{mark.shape} centre not determined (1-sigma {sigma_px:.2g} px '
+                           f'for a {size_px:.1f} px Mark)')
         else:
             reasons.append(None)
     return reasons
