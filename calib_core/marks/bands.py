@@ -10,7 +10,7 @@ from numba import njit
 
 # Reassociation lets the compiler vectorise a loop's sums (their order changes their last
 # bits only); numpy's error model, a division without a check that would keep it scalar.
-_SUMS = {'reassoc', 'contract', 'nsz'}
+_SUMS = {'fastmath': {'reassoc', 'contract', 'nsz'}, 'error_model': 'numpy'}
 
 
 @njit(cache=True)
@@ -62,7 +62,7 @@ def blob_statistics(labels, boxes, seeds, flat, dark):
     return statistics
 
 
-@njit(cache=True, fastmath=_SUMS)
+@njit(cache=True, **_SUMS)
 def _label_moments(labels, x0, y0, w, h, label):
     """The count and the sums of col, row, col^2, col row and row^2 (px, in the box) of
     the pixels of ``label`` in the box x0, y0, w, h of ``labels``: without branches, so
@@ -206,7 +206,7 @@ def _row_span(a, b, dv, bound, cu, c0, c1, spare):
     return (low, high) if low < high else (c0, c0)
 
 
-@njit(cache=True, fastmath=_SUMS, error_model='numpy')
+@njit(cache=True, **_SUMS)
 def _add_flat_run(pixels, row, start, end, cu, dv, moments):
     """Adds the pixels of ``row``, columns [start, end), to a dot's flat ``moments`` (see
     edge_bands), with ``cu`` its centre's column and ``dv`` the row's offset (px). The
@@ -252,7 +252,7 @@ def crowded_windows(labels, windows, own):
     return crowded
 
 
-@njit(cache=True, fastmath=_SUMS, error_model='numpy')
+@njit(cache=True, **_SUMS)
 def band_levels(z, distance, spans, dark, full):
     """Starting intensities of dots from their edge bands (see edge_bands). Means, not
     medians: a start only has to lie in the fit's basin, and a median (quickselect on

@@ -45,7 +45,7 @@ def robust_quadratic(means, width, height, iterations):
         centre = np.median(residual[keep])
         spread = 1.4826 * np.median(np.abs(residual[keep] - centre))
         keep_next = np.abs(residual - centre) < max(3.0 * spread, 1.0)
-        if np.count_nonzero(keep_next) < 12:
+        if np.count_nonzero(keep_next) < 2 * design.shape[1]:
             break
         keep = keep_next
     return coefficients
