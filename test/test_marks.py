@@ -1,6 +1,7 @@
 """Mark detection on rendered images with known true centres, on real photos of dot
 plates, and its failure modes."""
 import multiprocessing
+import os
 
 import cv2
 import numpy as np
@@ -12,6 +13,7 @@ from calib_core.errors import DetectionError, InvalidInputError
 from calib_core.marks import DetectorConfig, detect_marks, dot_fit, estimate_noise
 from calib_core.marks.bands import blob_statistics, edge_bands
 from calib_core.marks.dot_fit import dot_edge_model, fit_dots
+from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import edge_sigma
 from calib_core.marks.precompile import PIXEL_TYPES, dot_frame
 from calib_core.sim.render import MarkShape, coverage, render, render_through_box
@@ -301,6 +303,7 @@ def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur, box)
         windows = np.array([[240 - reach, 240 + reach, 320 - reach, 320 + reach]])
         u, v, z, _, spans, _ = edge_bands(image, windows, centre, np.array([norm_radius]),
                                           shape[None], 6.0, np.zeros(0, bool), np.array([-1]))
+        u, v, z = (values[:spans[0, 1]] for values in (u, v, z))
         start = np.array([[*centre[0], norm_radius, blur, -150.0, 200.0, 0.0, 0.0, *shape]])
         x = start if aspect != 1.0 else start[:, :8].copy()
         normal, cost, converged = fit_dots(x, u, v, z, spans, np.zeros((1, 2, 10)),
@@ -348,6 +351,26 @@ def test_blob_statistics_as_numpy_counts_them(rng):
             assert np.allclose(row, expected, rtol=1e-12, atol=1e-9)
 
 
+def test_run_in_halves_passes_each_item_once():
+    """Above its load, the work is split by load into two calls (on two threads where
+    there are two cores), which together pass every index once; below it, and where one
+    item outweighs the rest, one call passes them all."""
+    import threading
+    calls = []
+
+    def work(indices):
+        calls.append((threading.get_ident(), indices.tolist()))
+
+    run_in_halves(work, np.array([1.0, 3.0, 1.0, 1.0, 2.0]), 5.0)
+    assert sorted(i for _, indices in calls for i in indices) == [0, 1, 2, 3, 4]
+    assert [indices for _, indices in sorted(calls, key=lambda c: c[1])] == [[0, 1], [2, 3, 4]]
+    assert len({thread for thread, _ in calls}) == 2 or len(os.sched_getaffinity(0)) == 1
+    for load, above in (([1.0, 3.0, 1.0, 1.0, 2.0], 8.0), ([1.0, 1.0, 9.0], 5.0)):
+        calls.clear()
+        run_in_halves(work, np.array(load), above)
+        assert calls == [(threading.get_ident(), list(range(len(load))))]
+
+
 def test_flat_runs_give_the_bands_pixel_by_pixel(rng):
     """edge_bands sums the rows' certainly flat runs of large dots without a mask; with a
     mask that clears every pixel it takes them one by one. Both give the same band
@@ -366,8 +389,10 @@ def test_flat_runs_give_the_bands_pixel_by_pixel(rng):
                   np.array([[e * np.cos(angle), e * np.sin(angle)]]), 6.0)
         runs = edge_bands(*common, np.zeros(0, bool), np.array([-1]))
         one_by_one = edge_bands(*common, np.ones((r1 - r0) * (c1 - c0), bool), np.array([0]))
-        for by_runs, by_pixels in zip(runs[:5], one_by_one[:5]):
-            assert np.array_equal(by_runs, by_pixels)
+        assert np.array_equal(runs[4], one_by_one[4])
+        band = slice(*runs[4][0])
+        for by_runs, by_pixels in zip(runs[:4], one_by_one[:4]):
+            assert np.array_equal(by_runs[band], by_pixels[band])
         assert np.allclose(runs[5], one_by_one[5], rtol=1e-8, atol=1e-8 * np.abs(
             one_by_one[5]).max())
 
@@ -389,7 +414,7 @@ def test_flat_pixels_by_their_moments_as_by_their_model(rng):
                                              np.zeros((1, 2)), reach, np.zeros(0, bool),
                                              np.array([-1]))
         assert (flat[0, :, 0].sum() > 0) == (reach == 6.0)
-        assert z.size + flat[0, :, 0].sum() == 80 * 80
+        assert spans[0, 1] - spans[0, 0] + flat[0, :, 0].sum() == 80 * 80
         x = start.copy()
         normal, cost, converged = fit_dots(x, u, v, z, spans, flat, np.array([False]),
                                            centre, 1e-10)

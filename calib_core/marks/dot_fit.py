@@ -10,15 +10,13 @@ costs 3 ns a pixel, 9 ns with its normal equations (19 and 27 ns with libm's exp
 kept them scalar)."""
 from __future__ import annotations
 
-import functools
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
 from scipy.special import erfcx
 
+from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 
 _SQRT_HALF = math.sqrt(0.5)
@@ -542,23 +540,9 @@ def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations=
     normal = np.zeros((marks, width, width))
     cost = np.zeros(marks)
     converged = np.zeros(marks, dtype=np.bool_)
-    work = (x, u, v, z, spans, flat, box, reference, tolerance, max_iterations)
-    outputs = (normal, cost, converged)
-    load = np.cumsum((spans[:, 1] - spans[:, 0]) * np.where(box, BOX_PIXEL_COST, 1))
-    helper = _helper(os.getpid())
-    if marks < 2 or load[-1] < PARALLEL_ABOVE_PX or helper is None:
-        _fit_dot_range(*work, np.arange(marks), *outputs)
-        return normal, cost, converged
-    half = int(np.searchsorted(load, load[-1] / 2)) + 1
-    other = helper.submit(_fit_dot_range, *work, np.arange(half, marks), *outputs)
-    _fit_dot_range(*work, np.arange(half), *outputs)
-    other.result()
+    load = (spans[:, 1] - spans[:, 0]) * np.where(box, BOX_PIXEL_COST, 1)
+    run_in_halves(lambda dots: _fit_dot_range(x, u, v, z, spans, flat, box, reference,
+                                              tolerance, max_iterations, dots, normal, cost,
+                                              converged),
+                  load, PARALLEL_ABOVE_PX)
     return normal, cost, converged
-
-
-@functools.cache
-def _helper(process: int) -> ThreadPoolExecutor | None:
-    """The one thread that fits half of a frame's dots, made on first use in each
-    ``process`` (a child forked after it was made has the executor but not its thread);
-    None on a single core."""
-    return ThreadPoolExecutor(1, 'dot_fit') if len(os.sched_getaffinity(0)) > 1 else None
