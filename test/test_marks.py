@@ -72,6 +72,34 @@ def test_single_mark_under_illumination_falloff(rng, size, contrast):
     assert np.sign(mark.contrast) == np.sign(contrast)
 
 
+def test_flattening_only_where_the_light_is_uneven(rng):
+    """81 dots of 10 px darken a tail of the frame's block means whatever the light; only
+    a fall-off of the light (32 % across the frame) also spreads the other, and only then
+    is a surface taken off. The background (10 px clear of every dot) then spans 5 grey
+    levels or less from its 5th to its 95th percentile (its noise 4, of the scaled and
+    smoothed frame), as on the even background, where it spanned over 30."""
+    from calib_core.marks.config import SMOOTHING_NOISE_GAIN
+    from calib_core.marks.segmentation import _flatten
+    centres = [(u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5))
+               for v in np.linspace(45, 435, 9) for u in np.linspace(45, 595, 9)]
+    marks = [MarkShape('circle', u, v, 10.0) for u, v in centres]
+    v, u = np.mgrid[:480, :640]
+    clear = np.min([np.hypot(u - cu, v - cv) for cu, cv in centres], axis=0) > 20
+    for gradient in ((0.0, 0.0), (5e-4, 0.0)):
+        image = render(marks, 640, 480, 1.0, 200.0, -150.0, gradient=gradient)
+        image = np.clip(np.round(image + rng.normal(0, 3, image.shape)), 0, 255).astype(np.uint8)
+        scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+        smoothed = cv2.GaussianBlur(scaled, (5, 5), 1.0)
+        noise = estimate_noise(image) * 255 / (int(image.max()) - int(image.min()))
+        flat = _flatten(smoothed, SMOOTHING_NOISE_GAIN * noise)
+        assert (flat is smoothed) == (gradient == (0.0, 0.0))
+        low, high = np.percentile(flat[clear], [5, 95])
+        assert high - low <= 5
+        if flat is not smoothed:
+            low, high = np.percentile(smoothed[clear], [5, 95])
+            assert high - low > 30
+
+
 def test_large_mark_under_strong_falloff_is_not_biased(rng):
     """64 % less light across the frame multiplies the Mark as well as the background;
     with an additive background slope the fit was off by 0.028 px at radius 40 px."""

@@ -47,15 +47,18 @@ def _flatten(smoothed, tolerance):
     The surface is fitted by least squares to block means of the frame, dropping blocks
     more than 3 robust sigma off it (the Marks, and in photos the scene around the plate),
     so a fall-off of light across the frame does not split the background in two at the
-    threshold. Frames whose block means (10th to 90th percentile) vary less than
-    ``tolerance`` are returned unchanged."""
+    threshold. Frames whose block means vary less than ``tolerance`` from their median
+    to their 10th percentile, or to their 90th, are returned unchanged: the Marks darken
+    (brighten) one tail of the blocks, uneven light spreads both, and an even background
+    gains nothing from the fit (dense dots had it fitted in every frame: 0.3 ms)."""
     height, width = smoothed.shape
     rows, cols = max(height // TREND_BLOCK_PX, 3), max(width // TREND_BLOCK_PX, 3)
     means = cv2.resize(smoothed, (cols, rows), interpolation=cv2.INTER_AREA).ravel().astype(np.float64)
-    # The 10th and 90th percentiles, as order statistics (np.percentile costs 5x more).
-    tenth = [means.size // 10, means.size - 1 - means.size // 10]
-    low, high = np.partition(means, tenth)[tenth]
-    if high - low < tolerance:
+    # The 10th, 50th and 90th percentiles, as order statistics (np.percentile costs 5x
+    # more).
+    tenths = [means.size // 10, means.size // 2, means.size - 1 - means.size // 10]
+    low, middle, high = np.partition(means, tenths)[tenths]
+    if min(middle - low, high - middle) < tolerance:
         return smoothed
     from calib_core.marks.trend import robust_quadratic  # numba loads with the first frame
     coef = robust_quadratic(means.reshape(rows, cols), width, height, TREND_ITERATIONS)
