@@ -399,6 +399,40 @@ def test_run_in_halves_passes_each_item_once():
         assert calls == [(threading.get_ident(), list(range(len(load))))]
 
 
+def test_clear_of_neighbours_by_whole_squared_distances(rng, monkeypatch):
+    """A window's pixel is kept for its dot where it is no farther from the dot than from
+    any other blob (ties the dot's), by whole squared distances: also where the distance
+    transform's float32 roots are an ulp off, as they are from one process to the next
+    (which had moved centres by up to 0.0003 px between runs)."""
+    from calib_core.marks.circle import _clear_of_neighbours
+    exact_transform = cv2.distanceTransform
+
+    def an_ulp_off(source, *args):
+        distance = exact_transform(source, *args)
+        return np.nextafter(distance, np.where(rng.random(distance.shape) < 0.5, np.inf,
+                                               -np.inf).astype(np.float32))
+
+    monkeypatch.setattr(cv2, 'distanceTransform', an_ulp_off)
+    rows, cols = np.mgrid[:25, :25]
+    for _ in range(20):
+        window = np.zeros((25, 25), dtype=np.int32)
+        for label in (1, 2, 3):
+            row, col, radius = *rng.integers(3, 22, 2), rng.integers(1, 4)
+            window[(rows - row) ** 2 + (cols - col) ** 2 <= radius ** 2] = label
+        if not (window == 1).any():
+            continue
+        pixels = np.column_stack([rows.ravel(), cols.ravel()])
+
+        def nearest(mask):
+            blob = np.argwhere(mask)
+            if not blob.size:
+                return np.full(pixels.shape[0], np.inf)
+            return (((pixels[:, None] - blob[None]) ** 2).sum(axis=2)).min(axis=1)
+
+        expected = nearest(window == 1) <= nearest((window != 0) & (window != 1))
+        assert np.array_equal(_clear_of_neighbours(window, 1).ravel(), expected)
+
+
 def test_flat_runs_give_the_bands_pixel_by_pixel(rng):
     """edge_bands sums the rows' certainly flat runs of large dots without a mask; with a
     mask that clears every pixel it takes them one by one. Both give the same band
