@@ -399,6 +399,29 @@ def test_run_in_halves_passes_each_item_once():
         assert calls == [(threading.get_ident(), list(range(len(load))))]
 
 
+def test_crowded_windows_as_a_search_of_every_window(rng):
+    """A window is crowded where it holds a pixel of another blob than its own: searched
+    only where another blob's bounding box overlaps it, it is the same as searching every
+    window (random blobs and windows, 30 frames)."""
+    from calib_core.marks.bands import crowded_windows
+    from calib_core.marks.segmentation import _blobs
+    for _ in range(30):
+        mask = (cv2.GaussianBlur(rng.random((120, 160)), (0, 0), 3) > 0.52).astype(np.uint8)
+        labels = cv2.connectedComponents(mask, connectivity=8)[1]
+        contours, boxes = _blobs(mask)
+        if len(boxes) < 2:
+            continue
+        own_box = rng.integers(0, len(boxes), 20)
+        x0, y0, w, h = boxes[own_box].T
+        pad = rng.integers(0, 12, (4, 20))
+        windows = np.column_stack([np.maximum(y0 - pad[0], 0), np.minimum(y0 + h + pad[1], 120),
+                                   np.maximum(x0 - pad[2], 0), np.minimum(x0 + w + pad[3], 160)])
+        own = np.array([labels[contours[j][0, 0, 1], contours[j][0, 0, 0]] for j in own_box])
+        searched = [np.any((labels[r0:r1, c0:c1] != 0) & (labels[r0:r1, c0:c1] != label))
+                    for (r0, r1, c0, c1), label in zip(windows, own)]
+        assert np.array_equal(crowded_windows(labels, windows, own, boxes, own_box), searched)
+
+
 def test_clear_of_neighbours_by_whole_squared_distances(rng, monkeypatch):
     """A window's pixel is kept for its dot where it is no farther from the dot than from
     any other blob (ties the dot's), by whole squared distances: also where the distance

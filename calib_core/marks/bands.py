@@ -253,12 +253,22 @@ def _add_flat_run(pixels, row, start, end, cu, dv, moments):
 
 
 @njit(cache=True)
-def crowded_windows(labels, windows, own):
+def crowded_windows(labels, windows, own, boxes, own_box):
     """Whether each window (k, 4: r0, r1, c0, c1) of the frame's blob ``labels`` holds a
-    blob other than its own (``own``, k)."""
+    blob other than its own (``own``, k). Only a window that another blob's bounding box
+    (``boxes``, b, 4: x0, y0, width, height, px; the window's own is ``boxes[own_box]``)
+    overlaps is searched."""
     crowded = np.zeros(len(windows), dtype=np.bool_)
     for k in range(len(windows)):
         r0, r1, c0, c1 = windows[k]
+        overlapped = False
+        for j in range(len(boxes)):
+            x0, y0, w, h = boxes[j]
+            if j != own_box[k] and x0 < c1 and x0 + w > c0 and y0 < r1 and y0 + h > r0:
+                overlapped = True
+                break
+        if not overlapped:
+            continue
         for row in range(r0, r1):
             # A row's count without branches, which the compiler vectorises.
             others = 0

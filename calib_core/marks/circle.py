@@ -37,11 +37,13 @@ class DotCandidates:
         return DotCandidates(*(getattr(self, f.name)[rows] for f in fields(self)))
 
 
-def fit_circles(pixels, candidates: DotCandidates, labels, polarity: str,
+def fit_circles(pixels, candidates: DotCandidates, labels, blob_boxes, polarity: str,
                 full: float | None, box_below: float) -> list[Mark | DetectionError]:
     """The dots' fits, in the order of ``candidates``: a Mark, or why there is none.
 
-    ``labels``: the frame's segmentation, to keep other blobs out of each dot's band;
+    ``labels`` and ``blob_boxes``: the frame's segmentation and its blobs' bounding boxes
+    (b, 4: x0, y0, width, height; px; the candidates' are ``blob_boxes[candidates.index]``),
+    to keep other blobs out of each dot's band;
     ``full``: the frame's full scale where some pixels reach it, else None;
     ``box_below``: the starting blur (px) below which a dot's model sees the pixel's
     box as it is (DetectorConfig.box_aperture_below_blur_px)."""
@@ -49,14 +51,14 @@ def fit_circles(pixels, candidates: DotCandidates, labels, polarity: str,
     for ellipses in (False, True):
         group = np.flatnonzero(candidates.ellipse == ellipses)
         if group.size:
-            fits = _fit_group(pixels, candidates.subset(group), ellipses, labels, polarity,
-                              full, box_below)
+            fits = _fit_group(pixels, candidates.subset(group), ellipses, labels, blob_boxes,
+                              polarity, full, box_below)
             for index, fit in zip(group.tolist(), fits):
                 results[index] = fit
     return results
 
 
-def _fit_group(pixels, candidates, ellipses, labels, polarity, full,
+def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
                box_below) -> list[Mark | DetectionError]:
     """The fits of dots of one model: all disks, or all ellipses (``ellipses``)."""
     boxes = candidates.box
@@ -71,7 +73,7 @@ def _fit_group(pixels, candidates, ellipses, labels, polarity, full,
     pad = np.ceil(4 + 0.15 * semi_axes[:, 1]).astype(int)
     windows = np.column_stack(clipped_window(pixels.shape, *boxes.T, pad))
     own = candidates.label
-    clear, clear_first = _clear_masks(labels, windows, own)
+    clear, clear_first = _clear_masks(labels, blob_boxes, windows, own, candidates.index)
     # The model is evaluated on the edge band; the flat pixels beyond it enter the fit by
     # their moments: they pin the illumination gradient, which the band alone confuses
     # with a shift of the centre (10 % of the centre's error on 20-40 px dots).
@@ -168,11 +170,12 @@ def _band_problems(crowded, size, clipped, no_contrast) -> list[str | None]:
     return [reason or None for reason in why.tolist()]
 
 
-def _clear_masks(labels, windows, own):
+def _clear_masks(labels, blob_boxes, windows, own, own_box):
     """edge_bands' ``clear`` and ``clear_first``: masks for the dots whose windows (k, 4)
-    hold other blobs than their own (``own``: labels, k)."""
+    hold other blobs than their own (``own``: labels, k; ``own_box``: their indices into
+    the frame's ``blob_boxes``)."""
     masks, first, start = [], np.full(len(windows), -1), 0
-    for k in np.flatnonzero(crowded_windows(labels, windows, own)):
+    for k in np.flatnonzero(crowded_windows(labels, windows, own, blob_boxes, own_box)):
         mask = _clear_of_neighbours(labels[slice(*windows[k, :2]), slice(*windows[k, 2:])],
                                     own[k])
         masks.append(mask.ravel())

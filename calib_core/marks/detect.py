@@ -70,7 +70,8 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             rejected.append((index, str(exc)))
     # The dots are fitted together: one compiled run for all costs little more than for
     # one, where per-dot calls cost mostly the interpreter's overhead.
-    fits = fit_circles(image, circles, labels, polarity, full, config.box_aperture_below_blur_px)
+    fits = fit_circles(image, circles, labels, boxes, polarity, full,
+                       config.box_aperture_below_blur_px)
     for index, fitted in zip(circles.index, fits):
         if isinstance(fitted, Mark):
             found.append((index, fitted))
