@@ -10,14 +10,40 @@ from scipy.optimize import least_squares
 from scipy.special import erfc
 
 from calib_core.errors import DetectionError, InvalidInputError
-from calib_core.marks import DetectorConfig, detect_marks, dot_fit, estimate_noise
-from calib_core.marks.bands import blob_statistics, edge_bands
-from calib_core.marks.dot_fit import dot_edge_model, fit_dots
+from calib_core.marks import DetectorConfig, detect_marks, dot_fit, dot_run, estimate_noise
+from calib_core.marks.bands import blob_statistics, edge_bands_range
+from calib_core.marks.dot_fit import dot_edge_model, fit_dot_range
 from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import edge_sigma
 from calib_core.marks.precompile import PIXEL_TYPES, dot_frame
 from calib_core.sim.render import MarkShape, coverage, render, render_through_box
 from machine_alignment.bench.vision import cramer_rao
+
+
+def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_first):
+    """bands.edge_bands_range on every dot, its band compacted to the front of u, v, z
+    and distance (as dot_run does it, from each window's offset)."""
+    area = (windows[:, 1] - windows[:, 0]) * (windows[:, 3] - windows[:, 2])
+    starts = np.concatenate([[0], np.cumsum(area)[:-1]]).astype(np.int64)
+    u, v, z, distance = (np.empty(int(area.sum())) for _ in range(4))
+    spans = np.empty((len(windows), 2), dtype=np.int64)
+    flat = np.zeros((len(windows), 2, 10))
+    edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clear_first,
+                     np.arange(len(windows)), starts, u, v, z, distance, spans, flat)
+    band = np.concatenate([np.arange(*span) for span in spans]).astype(int)
+    ends = np.cumsum(spans[:, 1] - spans[:, 0])
+    return (u[band], v[band], z[band], distance[band],
+            np.column_stack([ends - (spans[:, 1] - spans[:, 0]), ends]), flat)
+
+
+def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance):
+    """dot_fit.fit_dot_range on every dot: its normal matrices, costs and convergence."""
+    marks, width = x.shape
+    normal, cost = np.zeros((marks, width, width)), np.zeros(marks)
+    converged = np.zeros(marks, dtype=bool)
+    fit_dot_range(x, u, v, z, spans, flat, box, reference, tolerance, 100, np.arange(marks),
+                  normal, cost, converged)
+    return normal, cost, converged
 
 
 def _frame(rng, kind, size, blur, noise_fraction, contrast=-150.0, n=1):
@@ -331,7 +357,6 @@ def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur, box)
         windows = np.array([[240 - reach, 240 + reach, 320 - reach, 320 + reach]])
         u, v, z, _, spans, _ = edge_bands(image, windows, centre, np.array([norm_radius]),
                                           shape[None], 6.0, np.zeros(0, bool), np.array([-1]))
-        u, v, z = (values[:spans[0, 1]] for values in (u, v, z))
         start = np.array([[*centre[0], norm_radius, blur, -150.0, 200.0, 0.0, 0.0, *shape]])
         x = start if aspect != 1.0 else start[:, :8].copy()
         normal, cost, converged = fit_dots(x, u, v, z, spans, np.zeros((1, 2, 10)),
@@ -474,10 +499,8 @@ def test_flat_runs_give_the_bands_pixel_by_pixel(rng):
                   np.array([[e * np.cos(angle), e * np.sin(angle)]]), 6.0)
         runs = edge_bands(*common, np.zeros(0, bool), np.array([-1]))
         one_by_one = edge_bands(*common, np.ones((r1 - r0) * (c1 - c0), bool), np.array([0]))
-        assert np.array_equal(runs[4], one_by_one[4])
-        band = slice(*runs[4][0])
-        for by_runs, by_pixels in zip(runs[:4], one_by_one[:4]):
-            assert np.array_equal(by_runs[band], by_pixels[band])
+        for by_runs, by_pixels in zip(runs[:5], one_by_one[:5]):
+            assert np.array_equal(by_runs, by_pixels)
         assert np.allclose(runs[5], one_by_one[5], rtol=1e-8, atol=1e-8 * np.abs(
             one_by_one[5]).max())
 
@@ -499,7 +522,7 @@ def test_flat_pixels_by_their_moments_as_by_their_model(rng):
                                              np.zeros((1, 2)), reach, np.zeros(0, bool),
                                              np.array([-1]))
         assert (flat[0, :, 0].sum() > 0) == (reach == 6.0)
-        assert spans[0, 1] - spans[0, 0] + flat[0, :, 0].sum() == 80 * 80
+        assert z.size + flat[0, :, 0].sum() == 80 * 80
         x = start.copy()
         normal, cost, converged = fit_dots(x, u, v, z, spans, flat, np.array([False]),
                                            centre, 1e-10)
@@ -713,7 +736,7 @@ def test_threaded_fit_equals_one_thread(rng, monkeypatch):
                        60 + 80 * (k // 4) + rng.uniform(-0.5, 0.5), 12.0) for k in range(16)]
     image = render(truth, 360, 360, 1.0, 200.0, -150.0) + rng.normal(0, 3.0, (360, 360))
     threaded = detect_marks(image, expected_count=16).marks
-    monkeypatch.setattr(dot_fit, 'PARALLEL_ABOVE_PX', np.inf)
+    monkeypatch.setattr(dot_run, 'PARALLEL_ABOVE_WINDOW_PX', np.inf)
     alone = detect_marks(image, expected_count=16).marks
     assert [(m.u, m.v) for m in threaded] == [(m.u, m.v) for m in alone]
     assert all(np.array_equal(a.covariance, b.covariance) for a, b in zip(threaded, alone))

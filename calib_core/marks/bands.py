@@ -8,15 +8,9 @@ import math
 import numpy as np
 from numba import njit
 
-from calib_core.marks.halves import run_in_halves
-
 # Reassociation lets the compiler vectorise a loop's sums (their order changes their last
 # bits only); numpy's error model, a division without a check that would keep it scalar.
 _SUMS = {'fastmath': {'reassoc', 'contract', 'nsz'}, 'error_model': 'numpy'}
-# Window pixels of a frame's dots above which a second thread takes half of their edge
-# bands: handing it the work costs about 50 us, a window pixel about 7 ns, and the
-# thread saves half of that.
-PARALLEL_ABOVE_WINDOW_PX = 15000
 
 
 @njit(cache=True)
@@ -90,18 +84,20 @@ def _label_moments(labels, x0, y0, w, h, label):
     return area, su, sv, suu, suv, svv
 
 
-def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_first):
-    """The dots' edge bands: for dot k, the pixels of its window (rows r0:r1, columns
-    c0:c1) within ``reach`` (px) of the edge of dot_edge_model's ellipse of its radius
-    (px) and shape (a, b) at its centre (u, v; px), by Sampson's distance, and where its
-    ``clear`` mask holds; and the moments of the window's other clear pixels, outside the
-    band and inside it, where the dot's model is flat: they tell the illumination
-    gradient apart from a shift of the centre at the cost of a few sums.
+@njit(cache=True, nogil=True)
+def edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clear_first,
+                     dots, starts, u, v, z, distance, spans, flat):
+    """The edge bands of the dots of indices ``dots``: for dot k, the pixels of its
+    window (rows r0:r1, columns c0:c1) within ``reach`` (px) of the edge of
+    dot_edge_model's ellipse of its radius (px) and shape (a, b) at its centre (u, v;
+    px), by Sampson's distance, and where its ``clear`` mask holds; and the moments of
+    the window's other clear pixels, outside the band and inside it, where the dot's
+    model is flat: they tell the illumination gradient apart from a shift of the centre
+    at the cost of a few sums. Without the GIL: each dot writes only its own rows and
+    its band from ``starts[k]`` on, so two threads can take the dots in two halves.
 
     The norm's gradient is between sqrt(1 - e) and sqrt(1 + e) long (e = |(a, b)|),
     which bounds the band in squared norms, so the distance is taken only near the edge.
-    Each dot's band is written from where its window's pixels would begin, so that the
-    dots can be taken in two halves at once (halves.run_in_halves).
 
     Parameters
     ----------
@@ -118,39 +114,24 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
         another.
     clear_first : ndarray of int, shape (k,)
         Where dot k's mask begins in ``clear``; -1 for none (every pixel is clear).
+    dots : ndarray of int
+    starts : ndarray of int, shape (k,)
+        Where dot k's band may begin in u, v, z and distance: room for its window's
+        pixels from there on.
 
-    Returns
+    Outputs
     -------
     u, v, z, distance : ndarray, shape (n,)
         The bands' pixels (px, in the frame), intensities and signed distances from the
-        edge (px, negative inside), dot after dot, row by row; with room left over after
-        each dot's (n is the windows' pixels).
+        edge (px, negative inside), row by row.
     spans : ndarray of int, shape (k, 2)
         Dot k's band is ``spans[k, 0]:spans[k, 1]`` of them.
-    flat : ndarray, shape (k, 2, 10)
+    flat : ndarray, shape (k, 2, 10), zeros on entry
         Per dot, of its clear pixels beyond the band outside the edge ([k, 0]) and inside
         it ([k, 1]), with (eu, ev) their offsets from the centre (px) and z their
         intensities: the count and the sums of eu, ev, eu^2, eu ev, ev^2, z, z eu, z ev
         and z^2.
     """
-    area = (windows[:, 1] - windows[:, 0]) * (windows[:, 3] - windows[:, 2])
-    starts = np.concatenate([[0], np.cumsum(area)[:-1]]).astype(np.int64)
-    size = int(area.sum())
-    u, v, z, distance = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
-    spans = np.empty((len(windows), 2), dtype=np.int64)
-    flat = np.zeros((len(windows), 2, 10))
-    run_in_halves(lambda dots: _edge_bands_range(pixels, windows, centres, radii, shapes,
-                                                 reach, clear, clear_first, dots, starts, u,
-                                                 v, z, distance, spans, flat),
-                  area, PARALLEL_ABOVE_WINDOW_PX)
-    return u, v, z, distance, spans, flat
-
-
-@njit(cache=True, nogil=True)
-def _edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clear_first,
-                      dots, starts, u, v, z, distance, spans, flat):
-    """edge_bands' work on the dots of indices ``dots``, dot k's band from ``starts[k]``
-    of u, v, z and distance on; without the GIL."""
     for k in dots:
         r0, r1, c0, c1 = windows[k]
         count = starts[k]
@@ -210,7 +191,7 @@ def _edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, cle
 @njit(cache=True)
 def _row_span(a, b, dv, bound, cu, c0, c1, spare):
     """The columns [low, high) within [c0, c1) of a row ``dv`` (px from the centre) where
-    ``d^T P d < bound`` (see edge_bands) could hold, widened by a pixel (``spare`` 1), or
+    ``d^T P d < bound`` (see edge_bands_range) could hold, widened by a pixel (``spare`` 1), or
     where it certainly holds, narrowed by one (``spare`` -1); ``cu``: the centre's
     column (px). An empty span is (c0, c0)."""
     # d^T P d = (1 + a) du^2 + 2 b dv du + (1 - a) dv^2, with 1 + a > 0.
@@ -228,7 +209,7 @@ def _row_span(a, b, dv, bound, cu, c0, c1, spare):
 @njit(cache=True, **_SUMS)
 def _add_flat_run(pixels, row, start, end, cu, dv, moments):
     """Adds the pixels of ``row``, columns [start, end), to a dot's flat ``moments`` (see
-    edge_bands), with ``cu`` its centre's column and ``dv`` the row's offset (px). The
+    edge_bands_range), with ``cu`` its centre's column and ``dv`` the row's offset (px). The
     row's offset is one number, so six sums serve the ten."""
     count = s_u = s_uu = s_z = s_zu = s_zz = 0.0
     for col in range(start, end):
@@ -282,47 +263,44 @@ def crowded_windows(labels, windows, own, boxes, own_box):
 
 
 @njit(cache=True, **_SUMS)
-def band_levels(z, distance, spans, dark, full):
-    """Starting intensities of dots from their edge bands (see edge_bands). Means, not
-    medians: a start only has to lie in the fit's basin, and a median (quickselect on
-    noisy values) cost 8 us a dot, more than the rest of the start.
+def dot_levels(z, distance, dark, full):
+    """Starting intensities of a dot from its edge band's intensities ``z`` and signed
+    distances from the edge (see edge_bands_range). Means, not medians: a start only has to lie
+    in the fit's basin, and a median (quickselect on noisy values) cost 8 us a dot, more
+    than the rest of the start.
 
     Returns
     -------
-    levels : ndarray, shape (k, 5)
-        Per dot: the background (the mean outside 1.5 px of the edge), the Mark's level
-        (the mean inside 1.5 px, or the band's extreme: its minimum if ``dark``), the
-        sum of the band's fractions of the way from background to Mark, how many of
-        those fractions lie between 16 and 84 %, and how many pixels are at ``full``
-        scale or above (clipped).
+    background, level, fraction_sum, transition, clipped : float
+        The background (the mean outside 1.5 px of the edge), the Mark's level (the mean
+        inside 1.5 px, or the band's extreme: its minimum if ``dark``), the sum of the
+        band's fractions of the way from background to Mark, how many of those fractions
+        lie between 16 and 84 % (both 0 where the two levels are equal, or the band
+        empty), and how many pixels are at ``full`` scale or above (clipped).
     """
-    levels = np.zeros((len(spans), 5))
-    for k in range(len(spans)):
-        first, end = spans[k]
-        if end == first:
-            continue
-        # Sums and counts by selection, not branches, so that the compiler vectorises
-        # the two passes.
-        outside = in_mark = 0.0
-        outside_sum = in_mark_sum = 0.0
-        extreme = np.inf if dark else -np.inf
-        for i in range(first, end):
-            beyond, within = distance[i] > 1.5, distance[i] < -1.5
-            outside += beyond
-            outside_sum += z[i] if beyond else 0.0
-            in_mark += within
-            in_mark_sum += z[i] if within else 0.0
-            extreme = min(extreme, z[i]) if dark else max(extreme, z[i])
-        background = outside_sum / outside if outside else np.mean(z[first:end])
-        level = in_mark_sum / in_mark if in_mark else extreme
-        span = level - background
-        total = transition = clipped = 0.0
-        for i in range(first, end):
-            fraction = (z[i] - background) / span  # not kept where the span is 0
-            total += fraction
-            transition += (fraction > 0.16) & (fraction < 0.84)
-            clipped += z[i] >= full
-        levels[k, 0], levels[k, 1], levels[k, 4] = background, level, clipped
-        if span != 0.0:
-            levels[k, 2], levels[k, 3] = total, transition
-    return levels
+    if not z.size:
+        return 0.0, 0.0, 0.0, 0.0, 0.0
+    # Sums and counts by selection, not branches, so that the compiler vectorises the
+    # two passes.
+    outside = in_mark = 0.0
+    outside_sum = in_mark_sum = 0.0
+    extreme = np.inf if dark else -np.inf
+    for i in range(z.size):
+        beyond, within = distance[i] > 1.5, distance[i] < -1.5
+        outside += beyond
+        outside_sum += z[i] if beyond else 0.0
+        in_mark += within
+        in_mark_sum += z[i] if within else 0.0
+        extreme = min(extreme, z[i]) if dark else max(extreme, z[i])
+    background = outside_sum / outside if outside else np.mean(z)
+    level = in_mark_sum / in_mark if in_mark else extreme
+    span = level - background
+    total = transition = clipped = 0.0
+    for i in range(z.size):
+        fraction = (z[i] - background) / span  # not kept where the span is 0
+        total += fraction
+        transition += (fraction > 0.16) & (fraction < 0.84)
+        clipped += z[i] >= full
+    if span == 0.0:
+        return background, level, 0.0, 0.0, clipped
+    return background, level, total, transition, clipped

@@ -16,7 +16,6 @@ import numpy as np
 from numba import njit
 from scipy.special import erfcx
 
-from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 
 _SQRT_HALF = math.sqrt(0.5)
@@ -47,13 +46,6 @@ SHARPEST_BLUR = 1e-3
 # so: there the differences, of antiderivatives that grow as the distance squared, would
 # leave their rounding (1e-11 at 30 px).
 _FLAT_SIGMAS = 6.0
-# Band pixels of a frame's dots (weighted by their cost) above which a second thread fits
-# half of the dots: handing it the work costs about 50 us, a band pixel's fit about 27 ns
-# (three evaluations), and the thread saves half of that.
-PARALLEL_ABOVE_PX = 4000
-# A pixel through the box costs about 1.3 times one through the Gaussian fold (11 and 9 ns
-# an evaluation with its normal equations).
-BOX_PIXEL_COST = 1.3
 
 
 # The Gaussian exp(-x^2 / 2) is taken at |x| <= this: beyond, its value there (2e-16),
@@ -316,7 +308,7 @@ def _normal_equations(params, u, v, z, flat, u0, v0, box, normal, gradient, colu
     """The normal matrix J^T J and gradient J^T r of one dot's pixels at ``params``, into
     ``normal`` and ``gradient``, with ``columns`` (p + 1, n) as room: its edge band's
     (u, v, z: n; ``box``: see _edge_columns) and its flat pixels' (``flat``: their
-    moments, see _flat_terms). Returns the cost r^T r (r: model less intensity)."""
+    moments, see flat_terms). Returns the cost r^T r (r: model less intensity)."""
     width = params.size
     _edge_columns(params, u, v, u0, v0, box, columns)
     cost = 0.0
@@ -333,17 +325,17 @@ def _normal_equations(params, u, v, z, flat, u0, v0, box, normal, gradient, colu
                 gradient[b] = total
             else:
                 cost = total
-    return cost + _flat_terms(params, flat, normal, gradient)
+    return cost + flat_terms(params, flat, normal, gradient)
 
 
 @njit(cache=True)
-def _flat_terms(params, flat, normal, gradient):
+def flat_terms(params, flat, normal, gradient):
     """Adds to ``normal`` and ``gradient`` the share of a dot's pixels beyond its edge
     band, where its model is flat: ``level * (1 + g . e)``, with the level the
     background outside and background + contrast inside, g the illumination gradient and
     e the pixel's offset from the reference point. Their sums are polynomials in the
     parameters and the pixels' moments (``flat``, (2, 10), outside and inside: see
-    bands.edge_bands), so they cost the same for any number of pixels. Returns their
+    bands.edge_bands_range), so they cost the same for any number of pixels. Returns their
     cost."""
     contrast, background, grad_u, grad_v = params[4], params[5], params[6], params[7]
     cost = 0.0
@@ -378,18 +370,6 @@ def _flat_terms(params, flat, normal, gradient):
 
 
 @njit(cache=True)
-def flat_costs(x, flat):
-    """Each dot's flat pixels' sum of squared residuals at its parameters ``x`` (m, p)
-    (see _flat_terms; ``flat``: (m, 2, 10))."""
-    marks, width = x.shape
-    normal, gradient = np.zeros((width, width)), np.zeros(width)
-    costs = np.zeros(marks)
-    for k in range(marks):
-        costs[k] = _flat_terms(x[k], flat[k], normal, gradient)
-    return costs
-
-
-@njit(cache=True)
 def _solve_positive(matrix, rhs, out):
     """``out`` = matrix^-1 rhs by Cholesky; False if the matrix is not positive definite."""
     n = rhs.size
@@ -413,9 +393,9 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
                          normal, room):
     """Levenberg-Marquardt (Marquardt's diagonal scaling) of one dot from ``current``
     (p,), which it overwrites, against its band's pixels u, v, z (n,) and its flat
-    pixels' moments (``flat``, see _flat_terms); ``normal`` (p, p) receives
+    pixels' moments (``flat``, see flat_terms); ``normal`` (p, p) receives
     J^T J at the end, ``room`` is scratch of at least (p + 1) n. Returns the cost there
-    and whether the fit converged (see fit_dots)."""
+    and whether the fit converged (see fit_dot_range)."""
     width = current.size
     columns = room[:(width + 1) * z.size].reshape(width + 1, z.size)
     gradient, step, trial = np.empty(width), np.empty(width), np.empty(width)
@@ -476,29 +456,12 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
 
 
 @njit(cache=True, nogil=True)
-def _fit_dot_range(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations, dots,
-                   normal, cost, converged):
-    """fit_dots' work on the dots of indices ``dots``, into their rows of ``x``,
-    ``normal``, ``cost`` and ``converged``; without the GIL."""
-    width = x.shape[1]
-    largest = 0
-    for k in dots:
-        largest = max(largest, spans[k, 1] - spans[k, 0])
-    # Scratch for the largest dot's Jacobian columns and residuals; each dot's are a
-    # C-contiguous prefix of it, so that the compiled sums are vectorised.
-    room = np.empty((width + 1) * largest)
-    for k in dots:
-        first, end = spans[k]
-        cost[k], converged[k] = _levenberg_marquardt(
-            x[k], u[first:end], v[first:end], z[first:end], flat[k], reference[k, 0],
-            reference[k, 1], box[k], tolerance, max_iterations, normal[k], room)
-
-
-def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations=100):
-    """Least squares of dot_edge_model against each dot's pixels, one dot after another:
-    its edge band's, and by their moments those beyond it, where the model is flat.
-    Where there is more than one core and enough pixels (PARALLEL_ABOVE_PX), a second
-    thread fits half of the dots (the compiled fit releases the GIL).
+def fit_dot_range(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations, dots,
+                  normal, cost, converged):
+    """Least squares of dot_edge_model against the pixels of each of the dots of indices
+    ``dots``, one after another: its edge band's, and by their moments those beyond it,
+    where the model is flat. Without the GIL: each dot writes only its own rows, so two
+    threads can take the dots in two halves.
 
     Levenberg-Marquardt (Marquardt's diagonal scaling) stops when a nearly Gauss-Newton
     step would move the fit by less than STOP_SIGMAS of its uncertainty (the step is
@@ -514,20 +477,22 @@ def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations=
     x : ndarray, shape (m, p)
         Starting parameters (p = 8 or 10, see dot_edge_model); overwritten by the fits.
     u, v, z : ndarray, shape (n,)
-        Every dot's band pixels (px) and intensities, one dot after another.
+        The dots' band pixels (px) and intensities.
     spans : ndarray of int, shape (m, 2)
         Dot k's band pixels are ``spans[k, 0]:spans[k, 1]``.
     flat : ndarray, shape (m, 2, 10)
-        Each dot's flat pixels' moments about its reference point (bands.edge_bands);
-        zeros where only the band is fitted.
+        Each dot's flat pixels' moments about its reference point
+        (bands.edge_bands_range); zeros where only the band is fitted.
     box : ndarray of bool, shape (m,)
         Whether each dot's model sees the pixel's aperture as its box (see
         dot_edge_model).
     reference : ndarray, shape (m, 2)
         Each dot's point where the illumination factor is 1, px.
     tolerance : float
+    max_iterations : int
+    dots : ndarray of int
 
-    Returns
+    Outputs
     -------
     normal : ndarray, shape (m, p, p)
         J^T J at the fit (before its last step where that was taken unevaluated).
@@ -536,13 +501,15 @@ def fit_dots(x, u, v, z, spans, flat, box, reference, tolerance, max_iterations=
         last step was taken unevaluated).
     converged : ndarray of bool, shape (m,)
     """
-    marks, width = x.shape
-    normal = np.zeros((marks, width, width))
-    cost = np.zeros(marks)
-    converged = np.zeros(marks, dtype=np.bool_)
-    load = (spans[:, 1] - spans[:, 0]) * np.where(box, BOX_PIXEL_COST, 1)
-    run_in_halves(lambda dots: _fit_dot_range(x, u, v, z, spans, flat, box, reference,
-                                              tolerance, max_iterations, dots, normal, cost,
-                                              converged),
-                  load, PARALLEL_ABOVE_PX)
-    return normal, cost, converged
+    width = x.shape[1]
+    largest = 0
+    for k in dots:
+        largest = max(largest, spans[k, 1] - spans[k, 0])
+    # Scratch for the largest dot's Jacobian columns and residuals; each dot's are a
+    # C-contiguous prefix of it, so that the compiled sums are vectorised.
+    room = np.empty((width + 1) * largest)
+    for k in dots:
+        first, end = spans[k]
+        cost[k], converged[k] = _levenberg_marquardt(
+            x[k], u[first:end], v[first:end], z[first:end], flat[k], reference[k, 0],
+            reference[k, 1], box[k], tolerance, max_iterations, normal[k], room)

@@ -1,0 +1,169 @@
+"""A frame's dots from their windows to their fits, in one compiled run for each half of
+them (halves.run_in_halves): each dot's edge band (bands), its starting values, its fit
+(dot_fit), and its fit again through the pixel's box or on its band alone where the
+first fit calls for it. Between those steps, in numpy, the interpreter had cost about
+0.25 ms a frame, and the band's levels were left to one core."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from calib_core.marks.bands import dot_levels, edge_bands_range
+from calib_core.marks.config import EDGE_BAND_PX, FLAT_MISFIT, MIN_BAND_PX
+from calib_core.marks.dot_fit import fit_dot_range, flat_terms
+from calib_core.marks.halves import run_in_halves
+from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
+
+# Why a dot's band is not fitted, by its code (0: it is fitted).
+BAND_PROBLEMS = ('crowded: other blobs are nearer than it to most of its edge',
+                 'saturated Mark (clipped intensities bias the centre)',
+                 'no contrast between the Mark and its surroundings')
+# The fit's relative tolerance (see dot_fit.fit_dot_range) and its most iterations.
+_TOLERANCE, _MAX_ITERATIONS = 1e-6, 100
+# Window pixels of a frame's dots above which a second thread takes half of the dots:
+# handing it the work costs about 50 us, a window pixel about 30 ns (its band, 7 ns,
+# and, as most of it is band, three evaluations of the model), and the thread saves
+# half of that.
+PARALLEL_ABOVE_WINDOW_PX = 5000
+
+
+def ellipse_axes(radius0, shapes):
+    """The scale and semi-axes (m, 2: the smaller, the larger; px) of dots of mean radii
+    ``radius0`` (m,; px) and shapes (a, b) of dot_edge_model (m, 2). The ellipse's
+    semi-axes are scale / sqrt(1 +- e), with e = |(a, b)|, and in dot_edge_model's norm its
+    radius is radius0 * scale."""
+    e = np.hypot(shapes[:, 0], shapes[:, 1])
+    scale = (1 - e * e) ** 0.25
+    return scale, (radius0 * scale)[:, None] / np.sqrt(1 + np.outer(e, [1.0, -1.0]))
+
+
+def fit_dot_windows(pixels, windows, centres, radius0, shapes, ellipses, clear, clear_first,
+                    dark, full, box_below):
+    """The fits of m dots of one model (disks, or ellipses where ``ellipses``).
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (H, W)
+    windows : ndarray of int, shape (m, 4)
+        Each dot's window: rows r0:r1, columns c0:c1.
+    centres : ndarray, shape (m, 2)
+        Each dot's starting centre (u, v; px), also where its illumination factor is 1.
+    radius0 : ndarray, shape (m,)
+        Each dot's mean radius from its blob's area (px).
+    shapes : ndarray, shape (m, 2)
+        Each dot's shape (a, b) of dot_edge_model; zeros for disks.
+    clear, clear_first :
+        Masks of the pixels nearer to each dot than to other blobs (see bands.edge_bands_range).
+    dark : bool
+    full : float
+        The frame's full scale where some pixels reach it, else infinity.
+    box_below : float
+        The starting blur (px) below which the model sees the pixel's box (see
+        circle.fit_circles).
+
+    Returns
+    -------
+    x : ndarray, shape (m, p)
+        The fitted parameters (p = 10 for ellipses, 8 for disks; see dot_edge_model).
+    problem : ndarray of int, shape (m,)
+        0 where the dot was fitted, else 1 + the index of its reason in BAND_PROBLEMS.
+    pixels_fitted : ndarray, shape (m,)
+        The pixels in each fit: its band's and its flat ones'.
+    normal, cost, converged :
+        As dot_fit.fit_dot_range gives them.
+    """
+    width = 10 if ellipses else 8
+    marks = len(windows)
+    scale, semi_axes = ellipse_axes(radius0, shapes)
+    area = (windows[:, 1] - windows[:, 0]) * (windows[:, 3] - windows[:, 2])
+    starts = np.concatenate([[0], np.cumsum(area)[:-1]]).astype(np.int64)
+    size = int(area.sum())
+    bands = (np.empty(size), np.empty(size), np.empty(size), np.empty(size),
+             np.empty((marks, 2), dtype=np.int64), np.zeros((marks, 2, 10)))
+    x = np.zeros((marks, width))
+    problem = np.zeros(marks, dtype=np.int64)
+    box = np.zeros(marks, dtype=np.bool_)
+    fits = (np.zeros((marks, width, width)), np.zeros(marks), np.zeros(marks, dtype=np.bool_))
+    run_in_halves(lambda dots: _dots_range(pixels, windows, centres, radius0, scale, shapes,
+                                           semi_axes, clear, clear_first, starts, dark, full,
+                                           box_below, dots, *bands, x, problem, box, *fits),
+                  area, PARALLEL_ABOVE_WINDOW_PX)
+    spans, flat = bands[4], bands[5]
+    pixels_fitted = spans[:, 1] - spans[:, 0] + flat[:, :, 0].sum(axis=1)
+    return x, problem, pixels_fitted, *fits
+
+
+@njit(cache=True, nogil=True)
+def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, clear,
+                clear_first, starts, dark, full, box_below, dots, u, v, z, distance, spans,
+                flat, x, problem, box, normal, cost, converged):
+    """fit_dot_windows' work on the dots of indices ``dots``; without the GIL."""
+    edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, EDGE_BAND_PX, clear,
+                      clear_first, dots, starts, u, v, z, distance, spans, flat)
+    fitted = np.empty(len(dots), dtype=np.int64)
+    count = 0
+    for k in dots:
+        first, end = spans[k]
+        band = end - first
+        background, level, fraction_sum, transition, clipped = dot_levels(
+            z[first:end], distance[first:end], dark, full)
+        # Starting radius and edge sigma from the band's intensities as fractions of the
+        # way from background to Mark. Blur conserves area, so the fractions sum to the
+        # Mark's area inside the band; and for an erf edge those between 16 and 84 % lie
+        # within one sigma of the edge, a share sigma / EDGE_BAND_PX of the band's radial
+        # width.
+        inner_area = (max(semi_axes[k, 0] - EDGE_BAND_PX, 0.0)
+                      * max(semi_axes[k, 1] - EDGE_BAND_PX, 0.0))
+        radius_init = math.sqrt(max(fraction_sum / math.pi + inner_area, radius0[k] ** 2 / 4))
+        sigma0 = min(max(EDGE_BAND_PX * transition / max(band, 1), 0.3), 3.0)
+        blur0 = math.sqrt(max(sigma0 ** 2 - PIXEL_APERTURE_VARIANCE, 0.1 ** 2))
+        # The model is flat beyond the band only where the band holds the edge to 4
+        # sigma; a wider edge's tails there would tilt the fit under uneven light (7e-4
+        # px at 3 px blur), so such dots are fitted on their band alone.
+        if sigma0 > EDGE_BAND_PX / 4:
+            flat[k] = 0.0
+        x[k, 0], x[k, 1] = centres[k, 0], centres[k, 1]
+        x[k, 2], x[k, 3] = radius_init * scale[k], blur0
+        x[k, 4], x[k, 5] = level - background, background
+        x[k, 6] = x[k, 7] = 0.0  # the illumination gradient: even light
+        if x.shape[1] == 10:
+            x[k, 8], x[k, 9] = shapes[k, 0], shapes[k, 1]
+        box[k] = blur0 < box_below
+        if clear_first[k] >= 0 and band < MIN_BAND_PX:
+            problem[k] = 1
+        elif clipped > 0.01 * band:
+            problem[k] = 2
+        elif level == background:
+            problem[k] = 3
+        else:
+            fitted[count] = k
+            count += 1
+    fitted = fitted[:count]
+    fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS, fitted,
+                   normal, cost, converged)
+    # The start's blur is rough (a 0.3 px blur reads 0.1-0.35 px on disks, more on
+    # ellipses): a dot fitted through the Gaussian fold whose fitted blur is under the
+    # limit is fitted again through the box, from there.
+    again = fitted[(~box[fitted]) & (np.abs(x[fitted, 3]) < box_below)]
+    box[again] = True
+    fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS, again,
+                   normal, cost, converged)
+    # The flat pixels are trusted where they are flat: a dot whose flat pixels leave a
+    # mean squared residual over FLAT_MISFIT times its band's (a highlight or texture
+    # inside it, a neighbour's halo around it) is fitted again on its band alone. A
+    # highlight of half the contrast inside a 30 px dot had moved it by 0.0065 px.
+    width = x.shape[1]
+    scratch_normal, scratch_gradient = np.zeros((width, width)), np.zeros(width)
+    rough = np.zeros(len(fitted), dtype=np.bool_)
+    for i in range(len(fitted)):
+        k = fitted[i]
+        flat_cost = flat_terms(x[k], flat[k], scratch_normal, scratch_gradient)
+        rough[i] = (flat_cost * (spans[k, 1] - spans[k, 0]) > FLAT_MISFIT
+                    * max(cost[k] - flat_cost, 0.0) * (flat[k, 0, 0] + flat[k, 1, 0]))
+    rough_dots = fitted[rough]
+    for k in rough_dots:
+        flat[k] = 0.0
+    fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS,
+                   rough_dots, normal, cost, converged)
