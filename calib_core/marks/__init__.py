@@ -19,9 +19,11 @@ Modules: ``config`` (settings and result types), ``segmentation`` (candidates; w
 ``trend``, the illumination trend's robust fit, compiled),
 ``intensity`` (the cross's intensity model), ``bands`` (blob moments, edge bands and
 starting levels, compiled), ``dot_fit`` (the dot's model and its compiled solver),
-``circle`` and ``cross`` (the sub-pixel fits), ``pixels`` (shared helpers), ``detect``
-(:func:`detect_marks`), ``precompile`` (fills numba's cache at set-up). numba is imported
-with the first frame detected.
+``dot_run`` (a frame's dots from window to fit, one compiled run per half of them),
+``halves`` (the helper thread that takes the other half), ``circle`` and ``cross`` (the
+sub-pixel fits), ``pixels`` (shared helpers), ``detect`` (:func:`detect_marks`),
+``precompile`` (fills numba's cache at set-up). numba is imported with the first frame
+detected.
 """
 from calib_core.marks.config import SHAPES, Detection, DetectorConfig, Mark
 from calib_core.marks.detect import detect_marks
