@@ -254,6 +254,29 @@ def test_expected_count_mismatch(rng):
         detect_marks(image, expected_count=1)
 
 
+def test_noise_from_the_differences_medians(rng):
+    """estimate_noise is the MAD of the horizontal differences (every k-th row, about
+    10000 of them) from their median, by np.median, over 0.6745 sqrt(2): on integer
+    frames (from histograms, compiled) to the last bit, odd and even counts, narrow and
+    wide spans of values; 0 on a frame one pixel wide."""
+    for _ in range(200):
+        dtype = rng.choice([np.uint8, np.uint16, np.int32])
+        height, width = rng.integers(1, 300), rng.integers(2, 300)
+        frame = rng.normal(rng.uniform(0, 200), rng.uniform(0, 8), (height, width))
+        if rng.random() < 0.3:
+            frame = rng.uniform(-40 if dtype == np.int32 else 0, 3000, (height, width))
+        frame = np.clip(np.round(frame), -40 if dtype == np.int32 else 0, None).astype(dtype)
+        rows = frame[::max(1, int(np.ceil(frame.size / 10000)))]
+        differences = np.diff(rows.astype(float), axis=1)
+        mad = np.median(np.abs(differences - np.median(differences)))
+        assert estimate_noise(frame) == mad / 0.6745 / np.sqrt(2.0)
+    for frame in (np.arange(5, dtype=np.uint8)[:, None], np.zeros((1, 1), np.uint8),
+                  np.arange(5.0)[:, None]):
+        assert estimate_noise(frame) == 0.0
+        with pytest.raises(DetectionError):
+            detect_marks(frame)
+
+
 def test_bad_arrays_are_refused():
     with pytest.raises(InvalidInputError, match='single-channel'):
         detect_marks(np.zeros((10, 10, 3)))
