@@ -10,9 +10,9 @@ import numpy as np
 
 from calib_core.errors import DetectionError
 from calib_core.marks.bands import crowded_windows
-from calib_core.marks.config import DEGENERATE_FIT, Mark
-from calib_core.marks.dot_run import BAND_PROBLEMS, ellipse_axes, fit_dot_windows
-from calib_core.marks.pixels import centre_covariances, clipped_window
+from calib_core.marks.config import Mark
+from calib_core.marks.dot_run import REASONS, ellipse_axes, fit_dot_windows
+from calib_core.marks.pixels import clipped_window
 
 
 @dataclass(frozen=True)
@@ -69,37 +69,15 @@ def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
     # The model is evaluated on the edge band; the flat pixels beyond it enter the fit by
     # their moments: they pin the illumination gradient, which the band alone confuses
     # with a shift of the centre (10 % of the centre's error on 20-40 px dots).
-    x, problem, counts, normals, costs, converged = fit_dot_windows(
+    status, x, covariance, radius, quality = fit_dot_windows(
         pixels, windows, centres, radius0, shapes, ellipses, clear, clear_first,
         polarity == 'dark', np.inf if full is None else float(full), box_below)
-    fitted = np.flatnonzero(problem == 0)
-    x_fit, counts = x[fitted], counts[fitted]
-    covariances, determined = centre_covariances(
-        normals[fitted], costs[fitted] / np.maximum(counts - x.shape[1], 1))
-    cu, cv, radius, sigma, contrast = x_fit[:, :5].T
-    # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and the
-    # edge no ellipse.
-    e = np.hypot(x_fit[:, 8], x_fit[:, 9]) if ellipses else np.zeros(len(fitted))
-    radius = np.where(e < 1, radius / np.sqrt(np.sqrt(np.abs(1 - e * e))), radius)
-    with np.errstate(invalid='ignore'):
-        failed = (~converged[fitted] | (e >= 1) | (np.abs(sigma) > radius) | (radius <= 0)
-                  | (np.hypot(cu - centres[fitted, 0], cv - centres[fitted, 1])
-                     > 0.5 * radius0[fitted]))
-        quality = np.clip(1 - np.sqrt(costs[fitted] / counts) / np.abs(contrast), 0.0, 1.0)
-    results: list[Mark | DetectionError] = [
-        DetectionError(BAND_PROBLEMS[code - 1]) if code else None for code in problem.tolist()]
     # Python floats, not numpy scalars: numpy's call on a scalar costs 5 us a Mark.
-    marks = zip(cu.tolist(), cv.tolist(), covariances, radius.tolist(), contrast.tolist(),
-                quality.tolist())
-    for index, fit_failed, fit_determined, mark in zip(fitted.tolist(), failed.tolist(),
-                                                       determined.tolist(), marks):
-        if fit_failed:
-            results[index] = DetectionError('circle fit did not converge')
-        elif not fit_determined:
-            results[index] = DetectionError(DEGENERATE_FIT)
-        else:
-            results[index] = Mark('circle', *mark)
-    return results
+    return [Mark('circle', cu, cv, cov, size, contrast, fit_quality) if not code
+            else DetectionError(REASONS[code - 1])
+            for code, cu, cv, cov, size, contrast, fit_quality in zip(
+                status.tolist(), x[:, 0].tolist(), x[:, 1].tolist(), covariance,
+                radius.tolist(), x[:, 4].tolist(), quality.tolist())]
 
 
 def _clear_masks(labels, blob_boxes, windows, own, own_box):

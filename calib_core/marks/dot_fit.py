@@ -370,7 +370,7 @@ def flat_terms(params, flat, normal, gradient):
 
 
 @njit(cache=True)
-def _solve_positive(matrix, rhs, out):
+def solve_positive(matrix, rhs, out):
     """``out`` = matrix^-1 rhs by Cholesky; False if the matrix is not positive definite."""
     n = rhs.size
     lower = np.zeros((n, n))
@@ -416,7 +416,7 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
         damped[:] = normal
         for a in range(width):
             damped[a, a] += damping * max(normal[a, a], 1e-300)
-        if not _solve_positive(damped, -gradient, step):
+        if not solve_positive(damped, -gradient, step):
             damping *= 10.0
             if damping > _DAMPING_MAX:
                 return cost, False

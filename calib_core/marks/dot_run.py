@@ -11,15 +11,18 @@ import numpy as np
 from numba import njit
 
 from calib_core.marks.bands import dot_levels, edge_bands_range
-from calib_core.marks.config import EDGE_BAND_PX, FLAT_MISFIT, MIN_BAND_PX
-from calib_core.marks.dot_fit import fit_dot_range, flat_terms
+from calib_core.marks.config import DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, MIN_BAND_PX
+from calib_core.marks.dot_fit import fit_dot_range, flat_terms, solve_positive
 from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 
-# Why a dot's band is not fitted, by its code (0: it is fitted).
-BAND_PROBLEMS = ('crowded: other blobs are nearer than it to most of its edge',
-                 'saturated Mark (clipped intensities bias the centre)',
-                 'no contrast between the Mark and its surroundings')
+# Why a dot is no Mark, by its code (0: it is one): its band is not fitted (1-3), or its
+# fit is not (4-5).
+REASONS = ('crowded: other blobs are nearer than it to most of its edge',
+           'saturated Mark (clipped intensities bias the centre)',
+           'no contrast between the Mark and its surroundings',
+           'circle fit did not converge', DEGENERATE_FIT)
+_CROWDED, _SATURATED, _NO_CONTRAST, _NOT_CONVERGED, _DEGENERATE = 1, 2, 3, 4, 5
 # The fit's relative tolerance (see dot_fit.fit_dot_range) and its most iterations.
 _TOLERANCE, _MAX_ITERATIONS = 1e-6, 100
 # Window pixels of a frame's dots above which a second thread takes half of the dots:
@@ -65,14 +68,16 @@ def fit_dot_windows(pixels, windows, centres, radius0, shapes, ellipses, clear, 
 
     Returns
     -------
+    status : ndarray of int, shape (m,)
+        0 where the dot is a Mark, else 1 + the index of why not in REASONS.
     x : ndarray, shape (m, p)
         The fitted parameters (p = 10 for ellipses, 8 for disks; see dot_edge_model).
-    problem : ndarray of int, shape (m,)
-        0 where the dot was fitted, else 1 + the index of its reason in BAND_PROBLEMS.
-    pixels_fitted : ndarray, shape (m,)
-        The pixels in each fit: its band's and its flat ones'.
-    normal, cost, converged :
-        As dot_fit.fit_dot_range gives them.
+    covariance : ndarray, shape (m, 2, 2)
+        The centre's covariance (px^2): (J^T J)^-1's by the fit's residual variance.
+    radius : ndarray, shape (m,)
+        The mean radius (px).
+    quality : ndarray, shape (m,)
+        1 less the RMS residual over the contrast, within [0, 1].
     """
     width = 10 if ellipses else 8
     marks = len(windows)
@@ -83,22 +88,22 @@ def fit_dot_windows(pixels, windows, centres, radius0, shapes, ellipses, clear, 
     bands = (np.empty(size), np.empty(size), np.empty(size), np.empty(size),
              np.empty((marks, 2), dtype=np.int64), np.zeros((marks, 2, 10)))
     x = np.zeros((marks, width))
-    problem = np.zeros(marks, dtype=np.int64)
     box = np.zeros(marks, dtype=np.bool_)
     fits = (np.zeros((marks, width, width)), np.zeros(marks), np.zeros(marks, dtype=np.bool_))
+    outcome = (np.zeros(marks, dtype=np.int64), np.zeros((marks, 2, 2)), np.zeros(marks),
+               np.zeros(marks))
     run_in_halves(lambda dots: _dots_range(pixels, windows, centres, radius0, scale, shapes,
                                            semi_axes, clear, clear_first, starts, dark, full,
-                                           box_below, dots, *bands, x, problem, box, *fits),
+                                           box_below, dots, *bands, x, box, *fits, *outcome),
                   area, PARALLEL_ABOVE_WINDOW_PX)
-    spans, flat = bands[4], bands[5]
-    pixels_fitted = spans[:, 1] - spans[:, 0] + flat[:, :, 0].sum(axis=1)
-    return x, problem, pixels_fitted, *fits
+    status, covariance, radius, quality = outcome
+    return status, x, covariance, radius, quality
 
 
 @njit(cache=True, nogil=True)
 def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, clear,
                 clear_first, starts, dark, full, box_below, dots, u, v, z, distance, spans,
-                flat, x, problem, box, normal, cost, converged):
+                flat, x, box, normal, cost, converged, status, covariance, radius, quality):
     """fit_dot_windows' work on the dots of indices ``dots``; without the GIL."""
     edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, EDGE_BAND_PX, clear,
                       clear_first, dots, starts, u, v, z, distance, spans, flat)
@@ -132,11 +137,11 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
             x[k, 8], x[k, 9] = shapes[k, 0], shapes[k, 1]
         box[k] = blur0 < box_below
         if clear_first[k] >= 0 and band < MIN_BAND_PX:
-            problem[k] = 1
+            status[k] = _CROWDED
         elif clipped > 0.01 * band:
-            problem[k] = 2
+            status[k] = _SATURATED
         elif level == background:
-            problem[k] = 3
+            status[k] = _NO_CONTRAST
         else:
             fitted[count] = k
             count += 1
@@ -167,3 +172,39 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
         flat[k] = 0.0
     fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS,
                    rough_dots, normal, cost, converged)
+    for k in fitted:
+        _outcome(k, x, centres, radius0, spans, flat, normal, cost, converged, status,
+                 covariance, radius, quality)
+
+
+@njit(cache=True)
+def _outcome(k, x, centres, radius0, spans, flat, normal, cost, converged, status, covariance,
+             radius, quality):
+    """Dot k's mean radius, quality and centre covariance from its fit, and its status:
+    not converged, or converged where it makes no sense (an ellipse past e = 1, an edge
+    blurred beyond the radius, the centre moved by over half the starting radius), or
+    with a centre the pixels do not determine (J^T J not positive definite)."""
+    width = x.shape[1]
+    counts = spans[k, 1] - spans[k, 0] + flat[k, 0, 0] + flat[k, 1, 0]
+    # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and the
+    # edge no ellipse.
+    e = math.hypot(x[k, 8], x[k, 9]) if width == 10 else 0.0
+    radius[k] = x[k, 2] / math.sqrt(math.sqrt(abs(1 - e * e))) if e < 1 else x[k, 2]
+    quality[k] = min(max(1 - math.sqrt(cost[k] / counts) / abs(x[k, 4]), 0.0), 1.0)
+    if (not converged[k] or e >= 1 or abs(x[k, 3]) > radius[k] or radius[k] <= 0
+            or math.hypot(x[k, 0] - centres[k, 0], x[k, 1] - centres[k, 1]) > 0.5 * radius0[k]):
+        status[k] = _NOT_CONVERGED
+        return
+    variance = cost[k] / max(counts - width, 1.0)
+    unit, column = np.zeros(width), np.empty(width)
+    for axis in range(2):
+        unit[:] = 0.0
+        unit[axis] = 1.0
+        if not solve_positive(normal[k], unit, column):
+            status[k] = _DEGENERATE
+            return
+        covariance[k, 0, axis], covariance[k, 1, axis] = column[0] * variance, column[1] * variance
+    uu, uv, vv = covariance[k, 0, 0], covariance[k, 0, 1], covariance[k, 1, 1]
+    if not (math.isfinite(uu) and math.isfinite(uv) and math.isfinite(vv) and uu > 0
+            and uu * vv - uv * uv > 0):
+        status[k] = _DEGENERATE
