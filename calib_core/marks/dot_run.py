@@ -106,7 +106,7 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
                 flat, x, box, normal, cost, converged, status, covariance, radius, quality):
     """fit_dot_windows' work on the dots of indices ``dots``; without the GIL."""
     edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, EDGE_BAND_PX, clear,
-                      clear_first, dots, starts, u, v, z, distance, spans, flat)
+                     clear_first, dots, starts, u, v, z, distance, spans, flat)
     fitted = np.empty(len(dots), dtype=np.int64)
     count = 0
     for k in dots:
@@ -147,14 +147,14 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
             count += 1
     fitted = fitted[:count]
     fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS, fitted,
-                   normal, cost, converged)
+                  normal, cost, converged)
     # The start's blur is rough (a 0.3 px blur reads 0.1-0.35 px on disks, more on
     # ellipses): a dot fitted through the Gaussian fold whose fitted blur is under the
     # limit is fitted again through the box, from there.
     again = fitted[(~box[fitted]) & (np.abs(x[fitted, 3]) < box_below)]
     box[again] = True
     fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS, again,
-                   normal, cost, converged)
+                  normal, cost, converged)
     # The flat pixels are trusted where they are flat: a dot whose flat pixels leave a
     # mean squared residual over FLAT_MISFIT times its band's (a highlight or texture
     # inside it, a neighbour's halo around it) is fitted again on its band alone. A
@@ -171,7 +171,7 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
     for k in rough_dots:
         flat[k] = 0.0
     fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS,
-                   rough_dots, normal, cost, converged)
+                  rough_dots, normal, cost, converged)
     for k in fitted:
         _outcome(k, x, centres, radius0, spans, flat, normal, cost, converged, status,
                  covariance, radius, quality)
