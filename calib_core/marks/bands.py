@@ -1,12 +1,15 @@
-"""The compiled (numba) work on a frame's blobs and dot candidates: each blob's moments and
-depth, each dot's edge band and starting levels, one call for all of a frame's. Per-blob
-numpy calls had cost 30-100 us a blob, mostly the interpreter's."""
+"""The compiled (numba) work on a frame's blobs and dot candidates: each blob's moments,
+depth and class, each dot's edge band and starting levels, one call for all of a frame's.
+Per-blob numpy calls had cost 30-100 us a blob, mostly the interpreter's."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 from numba import njit
+
+from calib_core.marks.config import (
+    ELLIPSE_ABOVE_ASPECT, ELLIPSE_MIN_FILL, MAX_ASPECT, MAX_ELLIPSE_ASPECT, MIN_FILL)
 
 # Reassociation lets the compiler vectorise a loop's sums (their order changes their last
 # bits only); numpy's error model, a division without a check that would keep it scalar.
@@ -23,7 +26,7 @@ def blob_statistics(labels, boxes, seeds, flat, dark):
     statistics : ndarray, shape (k, 8)
         The label; the area (px^2); the centroid (px, in the box); the second central
         moments uu, uv, vv (px^2, with the pixel's own 1/12 px^2 added), which
-        segmentation's moment_aspects, moment_shapes and moment_overlap take; and the
+        blob_classes and segmentation's moment_shapes and moment_overlap take; and the
         depth: how far the blob's extreme in ``flat`` (uint8) lies from the median of a
         2 px ring around its box (smoothed, scaled units).
     """
@@ -60,6 +63,60 @@ def blob_statistics(labels, boxes, seeds, flat, dark):
                 break
         statistics[k, 7] = level - extreme if dark else extreme - level
     return statistics
+
+
+# Blob classes (blob_classes): a noise speck, too large, clipped at the frame's border,
+# ambiguous, a circle, shaped like an ellipse (a dot seen at an angle where its pixels fill
+# its moments' ellipse), a cross.
+SPECK, TOO_LARGE, CLIPPED, AMBIGUOUS, CIRCLE, ELLIPSE_SHAPED, CROSS = range(7)
+
+
+@njit(cache=True)
+def blob_classes(boxes, statistics, height, width, min_half, max_half, margin):
+    """Each blob's class by its bounding box (k, 4: x0, y0, width, height; px) and its row
+    of blob_statistics, in a frame ``height`` x ``width`` (px): a speck under ``min_half``
+    (px, half the box's longer side) or 4 px^2; too large over ``max_half``; clipped
+    within ``margin`` (px) of the border; then by its shape. A circle fills over 0.62 of
+    its box, is nearly square and its moments nearly isotropic; an ellipse-shaped blob
+    fills enough for an ellipse up to MAX_ELLIPSE_ASPECT; a cross is nearly square and
+    fills MIN_FILL to 0.6.
+
+    Returns
+    -------
+    classes : ndarray of int, shape (k,)
+    cross_shaped : ndarray of bool, shape (k,)
+        Whether the blob has a cross's aspect and fill (the class of an ellipse-shaped
+        blob whose pixels do not fill its moments' ellipse: CROSS, else AMBIGUOUS).
+    shape : ndarray, shape (k, 3)
+        Half the box's longer side (px), the box's aspect and the blob's fill of it.
+    """
+    classes = np.empty(len(boxes), dtype=np.int64)
+    cross_shaped = np.empty(len(boxes), dtype=np.bool_)
+    shape = np.empty((len(boxes), 3))
+    for k in range(len(boxes)):
+        x0, y0, w, h = boxes[k]
+        area, uu, uv, vv = statistics[k, 1], statistics[k, 4], statistics[k, 5], statistics[k, 6]
+        half, aspect, fill = max(w, h) / 2.0, max(w, h) / max(min(w, h), 1), area / (w * h)
+        shape[k, 0], shape[k, 1], shape[k, 2] = half, aspect, fill
+        # The axis ratio of the moments' ellipse, from its eigenvalues' contrast e.
+        e = math.hypot(uu - vv, 2 * uv) / (uu + vv)
+        moment_aspect = math.sqrt((1 + e) / max(1 - e, 1e-12))
+        cross_shaped[k] = aspect < MAX_ASPECT and MIN_FILL < fill < 0.6
+        if not (half >= min_half and area >= 4):
+            classes[k] = SPECK
+        elif half > max_half:
+            classes[k] = TOO_LARGE
+        elif x0 < margin or y0 < margin or x0 + w > width - margin or y0 + h > height - margin:
+            classes[k] = CLIPPED
+        elif fill > 0.62 and aspect < MAX_ASPECT and moment_aspect < ELLIPSE_ABOVE_ASPECT:
+            classes[k] = CIRCLE
+        elif fill > ELLIPSE_MIN_FILL and moment_aspect <= MAX_ELLIPSE_ASPECT:
+            classes[k] = ELLIPSE_SHAPED
+        elif cross_shaped[k]:
+            classes[k] = CROSS
+        else:
+            classes[k] = AMBIGUOUS
+    return classes, cross_shaped, shape
 
 
 @njit(cache=True, **_SUMS)

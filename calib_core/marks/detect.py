@@ -7,13 +7,12 @@ import numpy as np
 
 from calib_core.errors import DetectionError, InvalidInputError
 from calib_core.marks.config import (
-    ELLIPSE_ABOVE_ASPECT, ELLIPSE_MIN_FILL, MAX_ASPECT, MAX_ELLIPSE_ASPECT, MAX_SIGMA_OF_SIZE,
-    MIN_ELLIPSE_OVERLAP, MIN_FILL, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark,
+    MAX_SIGMA_OF_SIZE, MIN_ELLIPSE_OVERLAP, SHAPES, SIZE_SLACK, Detection, DetectorConfig, Mark,
     largest_sigma)
 from calib_core.marks.cross import fit_cross
 from calib_core.marks.pixels import check_image, full_scale
 from calib_core.marks.segmentation import (
-    estimate_noise, moment_aspects, moment_overlap, moment_shapes, segment)
+    estimate_noise, moment_overlap, moment_shapes, segment)
 
 
 def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',
@@ -102,45 +101,37 @@ def _classify(boxes, blobs, labels, frame_shape, config, shape, noise_scaled):
 
     ``blobs``: bands.blob_statistics' table (label, area, centroid in the box, moments,
     depth) of the blobs whose boxes (k, 4: x0, y0, width, height; px) are ``boxes``."""
+    from calib_core.marks import bands
     from calib_core.marks.circle import DotCandidates
-    height, width = frame_shape
-    x0, y0, w, h = boxes.T
-    area, uu, uv, vv, depth = blobs[:, 1], blobs[:, 4], blobs[:, 5], blobs[:, 6], blobs[:, 7]
-    half = np.maximum(w, h) / 2.0
-    aspect = np.maximum(w, h) / np.maximum(np.minimum(w, h), 1)
-    fill = area / (w * h)
-    moment_aspect = moment_aspects(uu, uv, vv)
-    margin = config.border_margin_px
-    rejected = []
-
-    def refuse(where, why):
-        rejected.extend((int(k), why(k)) for k in np.flatnonzero(where))
-
-    alive = (half >= config.min_size_px * SIZE_SLACK[0]) & (area >= 4)  # else a noise speck
-    large = alive & (half > config.max_size_px * SIZE_SLACK[1])
-    refuse(large, lambda k: f'too large ({half[k]:.0f} px)')
-    clipped = alive & ~large & ((x0 < margin) | (y0 < margin) | (x0 + w > width - margin)
-                                | (y0 + h > height - margin))
-    refuse(clipped, lambda k: 'clipped at the image border')
-    alive &= ~large & ~clipped
-    circle = alive & (fill > 0.62) & (aspect < MAX_ASPECT) & (moment_aspect < ELLIPSE_ABOVE_ASPECT)
-    ellipse = alive & ~circle & (fill > ELLIPSE_MIN_FILL) & (moment_aspect <= MAX_ELLIPSE_ASPECT)
-    for k in np.flatnonzero(ellipse):
-        component = _component(labels, x0[k], y0[k], w[k], h[k], int(blobs[k, 0]))
-        ellipse[k] = moment_overlap(component, *blobs[k, 1:7]) >= MIN_ELLIPSE_OVERLAP
-    cross = alive & ~circle & ~ellipse & (aspect < MAX_ASPECT) & (MIN_FILL < fill) & (fill < 0.6)
-    refuse(alive & ~circle & ~ellipse & ~cross,
-           lambda k: f'ambiguous shape (aspect {aspect[k]:.2f}, fill {fill[k]:.2f}; '
-                     'touching Marks or debris?)')
+    classes, cross_shaped, numbers = bands.blob_classes(
+        boxes, blobs, *frame_shape, config.min_size_px * SIZE_SLACK[0],
+        config.max_size_px * SIZE_SLACK[1], config.border_margin_px)
+    half, aspect, fill = numbers.T
+    # A dot seen at an angle fills its moments' ellipse; touching dots do not.
+    for k in np.flatnonzero(classes == bands.ELLIPSE_SHAPED):
+        x0, y0, w, h = boxes[k]
+        component = _component(labels, x0, y0, w, h, int(blobs[k, 0]))
+        if moment_overlap(component, *blobs[k, 1:7]) < MIN_ELLIPSE_OVERLAP:
+            classes[k] = bands.CROSS if cross_shaped[k] else bands.AMBIGUOUS
+    rejected = [(k, f'too large ({half[k]:.0f} px)' if kind == bands.TOO_LARGE
+                 else 'clipped at the image border' if kind == bands.CLIPPED
+                 else f'ambiguous shape (aspect {aspect[k]:.2f}, fill {fill[k]:.2f}; '
+                      'touching Marks or debris?)')
+                for k, kind in enumerate(classes.tolist())
+                if kind in (bands.TOO_LARGE, bands.CLIPPED, bands.AMBIGUOUS)]
     # A Mark at the lowest accepted contrast stands out of the smoothed frame by at
     # least half of it; a noise speck does not, and is dropped before a costly fit.
-    deep = depth >= 0.5 * config.min_snr * noise_scaled
-    dots = np.flatnonzero((circle | ellipse) & deep & (shape in ('', 'circle')))
-    shapes = np.where(ellipse[dots, None], moment_shapes(uu[dots], uv[dots], vv[dots]), 0.0)
-    candidates = DotCandidates(dots, boxes[dots], area[dots],
+    deep = blobs[:, 7] >= 0.5 * config.min_snr * noise_scaled
+    ellipse = classes == bands.ELLIPSE_SHAPED
+    dots = np.flatnonzero(((classes == bands.CIRCLE) | ellipse) & deep
+                          & (shape in ('', 'circle')))
+    uu, uv, vv = blobs[dots, 4:7].T
+    shapes = np.where(ellipse[dots, None], moment_shapes(uu, uv, vv), 0.0)
+    candidates = DotCandidates(dots, boxes[dots], blobs[dots, 1],
                                boxes[dots, :2] + blobs[dots, 2:4], shapes, ellipse[dots],
                                blobs[dots, 0].astype(int))
-    return candidates, np.flatnonzero(cross & deep & (shape in ('', 'cross'))), rejected
+    crosses = np.flatnonzero((classes == bands.CROSS) & deep & (shape in ('', 'cross')))
+    return candidates, crosses, rejected
 
 
 def _refusals(marks, noise, config) -> list[str | None]:

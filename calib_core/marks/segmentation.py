@@ -169,14 +169,6 @@ def _mark_shaped(contours, boxes, shape, config) -> int:
         & (np.maximum(w, h) < MAX_ELLIPSE_ASPECT * np.minimum(w, h)) & (fill > MIN_FILL)))
 
 
-def moment_aspects(uu, uv, vv):
-    """Axis ratios (>= 1) of the ellipses of blobs' second central moments uu, uv, vv
-    (px^2, arrays): sqrt((1 + e) / (1 - e)), with e = (l1 - l2) / (l1 + l2) of the
-    moments' eigenvalues, 0 for a disk."""
-    e = np.hypot(uu - vv, 2 * uv) / (uu + vv)
-    return np.sqrt((1 + e) / np.maximum(1 - e, 1e-12))
-
-
 def moment_shapes(uu, uv, vv):
     """The shapes (a, b) of dot_edge_model (m, 2) of the ellipses of blobs' second central
     moments (px^2, arrays): its P is C^-1 scaled to a trace of 2."""
