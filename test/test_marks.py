@@ -277,6 +277,34 @@ def test_noise_from_the_differences_medians(rng):
             detect_marks(frame)
 
 
+def test_mask_levels_from_otsu_and_the_guard(rng):
+    """Otsu's level is OpenCV's (THRESH_OTSU) on 300 random frames. Where it is at least
+    the guard below the median of the class above it (and above the median below, for
+    bright Marks), both masks are cut there (dark: below it, bright: above it; two
+    classes 120 DN apart, a 5 DN guard). Where it splits the background's noise (one 3 px Mark
+    at 60 DN on a 200 DN background with 3 DN noise), the dark level moves between the
+    Mark and the background, at least the guard below the background's median."""
+    from calib_core.marks.levels import mask_levels, otsu_level
+
+    def histogram(frame):
+        return cv2.calcHist([frame], [0], None, [256], [0, 256]).ravel()
+
+    for _ in range(300):
+        frame = np.clip(rng.normal(rng.uniform(0, 255), rng.uniform(1, 30), (40, 50)), 0, 255)
+        frame = frame.astype(np.uint8)
+        frame[10:10 + rng.integers(0, 25), 5:45] = rng.integers(0, 256)
+        otsu = cv2.threshold(frame, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)[0]
+        assert otsu_level(histogram(frame)) == otsu
+    two_classes = np.clip(np.round(rng.normal(180, 3, (100, 100))), 0, 255).astype(np.uint8)
+    two_classes[:50] -= 120
+    otsu = otsu_level(histogram(two_classes))
+    assert mask_levels(histogram(two_classes), 5.0) == (otsu - 1, otsu)
+    one_small = np.clip(np.round(rng.normal(200, 3, (200, 200))), 0, 255).astype(np.uint8)
+    one_small[100:103, 100:103] = 60
+    dark, _ = mask_levels(histogram(one_small), 15.0)
+    assert 60 < dark <= np.median(one_small) - 15
+
+
 def test_bad_arrays_are_refused():
     with pytest.raises(InvalidInputError, match='single-channel'):
         detect_marks(np.zeros((10, 10, 3)))

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 
 from calib_core.marks.config import (
-    EXTREME_PIXELS, MAX_ELLIPSE_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK,
-    SMOOTHING_NOISE_GAIN, SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
+    MAX_ELLIPSE_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN,
+    SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
 
 
 def estimate_noise(image: np.ndarray) -> float:
@@ -73,18 +73,19 @@ def segment(image, noise_scaled, config):
     blob's bounding box (k, 4: x, y, width, height, px) and one pixel of it (k, 2: u, v),
     from its outer contour; and the flattened frame (uint8). Labels and contours cost a
     fifth of connected components with statistics, which sum over every pixel of the
-    frame. The threshold is Otsu's unless that
-    splits the background's noise (see _threshold). ``auto`` polarity takes the class
-    with more Mark-shaped blobs: the minority class is not the Marks when a dense dot
-    grid and a dark table fill most of a photo."""
+    frame. The threshold is Otsu's unless that splits the background's noise (see
+    levels.mask_levels). ``auto`` polarity takes the class with more Mark-shaped blobs:
+    the minority class is not the Marks when a dense dot grid and a dark table fill most
+    of a photo."""
     scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
     guard = MIN_THRESHOLD_SIGMA * smoothed_noise
     flat = _flatten(cv2.GaussianBlur(scaled, (5, 5), 1.0), smoothed_noise)
     histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
-    otsu = _otsu(histogram)
+    from calib_core.marks.levels import mask_levels  # numba loads with the first frame
+    levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard)))
     polarities = ('dark', 'bright') if config.polarity == 'auto' else (config.polarity,)
-    masks = {p: _mask(flat, histogram, otsu, guard, p) for p in polarities}
+    masks = {p: _mask(flat, levels[p], p) for p in polarities}
     blobs = {p: _blobs(masks[p]) for p in polarities}
     # Ties go to dark Marks, the first.
     polarity = (max(polarities, key=lambda p: _mark_shaped(*blobs[p], flat.shape, config))
@@ -95,46 +96,11 @@ def segment(image, noise_scaled, config):
     return polarity, labels, boxes, seeds, flat
 
 
-def _mask(flat, histogram, otsu, guard, polarity):
-    """1 on the flattened frame's pixels of ``polarity`` Marks, else 0 (uint8).
-
-    cv2.threshold floors the level on 8-bit frames and keeps src > level (src <= level
-    inverted); the masks are flat < dark level and flat > bright level."""
-    if polarity == 'dark':
-        level = np.ceil(_threshold(histogram, otsu, guard)) - 1
-        return cv2.threshold(flat, level, 1, cv2.THRESH_BINARY_INV)[1]
-    level = 255 - _threshold(histogram[::-1], 255 - otsu, guard)
-    return cv2.threshold(flat, level, 1, cv2.THRESH_BINARY)[1]
-
-
-def _otsu(histogram) -> int:
-    """Otsu's threshold of a 256-bin histogram: the level t that maximises the variance
-    between the classes <= t and > t (as cv2.THRESH_OTSU, which would also binarise)."""
-    levels = np.arange(histogram.size)
-    weight = np.cumsum(histogram)
-    moment = np.cumsum(histogram * levels)
-    total, total_moment = weight[-1], moment[-1]
-    with np.errstate(divide='ignore', invalid='ignore'):
-        between = (total_moment * weight - total * moment) ** 2 / (weight * (total - weight))
-    return int(np.argmax(np.nan_to_num(between[:-1], nan=-1.0, posinf=-1.0)))
-
-
-def _threshold(histogram, otsu, guard) -> float:
-    """Grey level below which a pixel belongs to a dark Mark, from the flattened frame's
-    histogram (256 bins; mirror it for bright Marks) and Otsu's threshold.
-
-    Otsu's threshold is kept when it lies at least ``guard`` below the median of the
-    class above it. Otherwise it has split the background's noise (one small Mark in
-    view), and the level is halfway between that median and the darkest pixels: the
-    Mark's edge, as Otsu's threshold would have put it."""
-    above = np.cumsum(histogram[int(otsu) + 1:])
-    if not above.size or above[-1] == 0:
-        return otsu
-    background = int(otsu) + 1 + int(np.searchsorted(above, above[-1] / 2))
-    if otsu <= background - guard:
-        return otsu
-    darkest = int(np.searchsorted(np.cumsum(histogram), EXTREME_PIXELS))
-    return min(background - guard, (background + darkest) / 2)
+def _mask(flat, level, polarity):
+    """1 on the flattened frame's pixels of ``polarity`` Marks, else 0 (uint8): at or
+    below the dark Marks' ``level``, above the bright ones' (levels.mask_levels)."""
+    kind = cv2.THRESH_BINARY_INV if polarity == 'dark' else cv2.THRESH_BINARY
+    return cv2.threshold(flat, level, 1, kind)[1]
 
 
 def _blobs(mask):
