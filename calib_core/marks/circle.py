@@ -11,8 +11,7 @@ import numpy as np
 from calib_core.errors import DetectionError
 from calib_core.marks.bands import crowded_windows
 from calib_core.marks.config import Mark
-from calib_core.marks.dot_run import REASONS, ellipse_axes, fit_dot_windows
-from calib_core.marks.pixels import clipped_window
+from calib_core.marks.dot_run import REASONS, dot_windows, fit_dot_windows
 
 
 @dataclass(frozen=True)
@@ -60,18 +59,17 @@ def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
                box_below) -> list[Mark | DetectionError]:
     """The fits of dots of one model: all disks, or all ellipses (``ellipses``)."""
     centres = candidates.centroid.astype(float)
-    radius0 = np.sqrt(candidates.area / np.pi)
     shapes = candidates.shape.astype(float)
-    pad = np.ceil(4 + 0.15 * ellipse_axes(radius0, shapes)[1][:, 1]).astype(int)
-    windows = np.column_stack(clipped_window(pixels.shape, *candidates.box.T, pad))
-    clear, clear_first = _clear_masks(labels, blob_boxes, windows, candidates.label,
+    geometry = dot_windows(candidates.box, candidates.area.astype(float), shapes,
+                           *pixels.shape)
+    clear, clear_first = _clear_masks(labels, blob_boxes, geometry[3], candidates.label,
                                       candidates.index)
     # The model is evaluated on the edge band; the flat pixels beyond it enter the fit by
     # their moments: they pin the illumination gradient, which the band alone confuses
     # with a shift of the centre (10 % of the centre's error on 20-40 px dots).
     status, x, covariance, radius, quality = fit_dot_windows(
-        pixels, windows, centres, radius0, shapes, ellipses, clear, clear_first,
-        polarity == 'dark', np.inf if full is None else float(full), box_below)
+        pixels, geometry, centres, shapes, ellipses, clear, clear_first, polarity == 'dark',
+        np.inf if full is None else float(full), box_below)
     # Python floats, not numpy scalars: numpy's call on a scalar costs 5 us a Mark.
     return [Mark('circle', cu, cv, cov, size, contrast, fit_quality) if not code
             else DetectionError(REASONS[code - 1])

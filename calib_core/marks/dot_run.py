@@ -32,29 +32,57 @@ _TOLERANCE, _MAX_ITERATIONS = 1e-6, 100
 PARALLEL_ABOVE_WINDOW_PX = 5000
 
 
-def ellipse_axes(radius0, shapes):
-    """The scale and semi-axes (m, 2: the smaller, the larger; px) of dots of mean radii
-    ``radius0`` (m,; px) and shapes (a, b) of dot_edge_model (m, 2). The ellipse's
-    semi-axes are scale / sqrt(1 +- e), with e = |(a, b)|, and in dot_edge_model's norm its
-    radius is radius0 * scale."""
-    e = np.hypot(shapes[:, 0], shapes[:, 1])
-    scale = (1 - e * e) ** 0.25
-    return scale, (radius0 * scale)[:, None] / np.sqrt(1 + np.outer(e, [1.0, -1.0]))
+@njit(cache=True)
+def dot_windows(boxes, areas, shapes, height, width):
+    """The geometry of m dots from their blobs' boxes (m, 4: x0, y0, width, height; px),
+    areas (m,; px^2) and shapes (a, b) of dot_edge_model (m, 2), in a frame ``height`` x
+    ``width`` (px).
+
+    Returns
+    -------
+    radius0 : ndarray, shape (m,)
+        The mean radius from the area (px).
+    scale, semi_axes : ndarray, shape (m,) and (m, 2)
+        The ellipse's semi-axes are scale / sqrt(1 +- e), e = |(a, b)| (the smaller, the
+        larger; px), its mean radius radius0, and in dot_edge_model's norm its radius is
+        radius0 * scale.
+    windows : ndarray of int, shape (m, 4)
+        Rows r0:r1 and columns c0:c1 of the box grown by 4 px and 0.15 of the larger
+        semi-axis, inside the frame.
+    offsets : ndarray of int, shape (m + 1,)
+        Where each window's pixels begin, laid out one after another; the last, their
+        count.
+    """
+    marks = len(boxes)
+    radius0, scale, semi_axes = np.empty(marks), np.empty(marks), np.empty((marks, 2))
+    windows = np.empty((marks, 4), dtype=np.int64)
+    offsets = np.zeros(marks + 1, dtype=np.int64)
+    for k in range(marks):
+        radius0[k] = math.sqrt(areas[k] / math.pi)
+        e = math.hypot(shapes[k, 0], shapes[k, 1])
+        scale[k] = (1 - e * e) ** 0.25
+        semi_axes[k, 0] = radius0[k] * scale[k] / math.sqrt(1 + e)
+        semi_axes[k, 1] = radius0[k] * scale[k] / math.sqrt(1 - e)
+        pad = math.ceil(4 + 0.15 * semi_axes[k, 1])
+        x0, y0, w, h = boxes[k]
+        windows[k, 0], windows[k, 1] = max(y0 - pad, 0), min(y0 + h + pad, height)
+        windows[k, 2], windows[k, 3] = max(x0 - pad, 0), min(x0 + w + pad, width)
+        offsets[k + 1] = (offsets[k] + (windows[k, 1] - windows[k, 0])
+                          * (windows[k, 3] - windows[k, 2]))
+    return radius0, scale, semi_axes, windows, offsets
 
 
-def fit_dot_windows(pixels, windows, centres, radius0, shapes, ellipses, clear, clear_first,
-                    dark, full, box_below):
+def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_first, dark,
+                    full, box_below):
     """The fits of m dots of one model (disks, or ellipses where ``ellipses``).
 
     Parameters
     ----------
     pixels : ndarray, shape (H, W)
-    windows : ndarray of int, shape (m, 4)
-        Each dot's window: rows r0:r1, columns c0:c1.
+    geometry : tuple
+        The dots' dot_windows.
     centres : ndarray, shape (m, 2)
         Each dot's starting centre (u, v; px), also where its illumination factor is 1.
-    radius0 : ndarray, shape (m,)
-        Each dot's mean radius from its blob's area (px).
     shapes : ndarray, shape (m, 2)
         Each dot's shape (a, b) of dot_edge_model; zeros for disks.
     clear, clear_first :
@@ -80,11 +108,8 @@ def fit_dot_windows(pixels, windows, centres, radius0, shapes, ellipses, clear, 
         1 less the RMS residual over the contrast, within [0, 1].
     """
     width = 10 if ellipses else 8
-    marks = len(windows)
-    scale, semi_axes = ellipse_axes(radius0, shapes)
-    area = (windows[:, 1] - windows[:, 0]) * (windows[:, 3] - windows[:, 2])
-    starts = np.concatenate([[0], np.cumsum(area)[:-1]]).astype(np.int64)
-    size = int(area.sum())
+    radius0, scale, semi_axes, windows, offsets = geometry
+    marks, size = len(windows), int(offsets[-1])
     bands = (np.empty(size), np.empty(size), np.empty(size), np.empty(size),
              np.empty((marks, 2), dtype=np.int64), np.zeros((marks, 2, 10)))
     x = np.zeros((marks, width))
@@ -93,20 +118,20 @@ def fit_dot_windows(pixels, windows, centres, radius0, shapes, ellipses, clear, 
     outcome = (np.zeros(marks, dtype=np.int64), np.zeros((marks, 2, 2)), np.zeros(marks),
                np.zeros(marks))
     run_in_halves(lambda dots: _dots_range(pixels, windows, centres, radius0, scale, shapes,
-                                           semi_axes, clear, clear_first, starts, dark, full,
+                                           semi_axes, clear, clear_first, offsets, dark, full,
                                            box_below, dots, *bands, x, box, *fits, *outcome),
-                  area, PARALLEL_ABOVE_WINDOW_PX)
+                  np.diff(offsets), PARALLEL_ABOVE_WINDOW_PX)
     status, covariance, radius, quality = outcome
     return status, x, covariance, radius, quality
 
 
 @njit(cache=True, nogil=True)
 def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, clear,
-                clear_first, starts, dark, full, box_below, dots, u, v, z, distance, spans,
+                clear_first, offsets, dark, full, box_below, dots, u, v, z, distance, spans,
                 flat, x, box, normal, cost, converged, status, covariance, radius, quality):
     """fit_dot_windows' work on the dots of indices ``dots``; without the GIL."""
     edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, EDGE_BAND_PX, clear,
-                     clear_first, dots, starts, u, v, z, distance, spans, flat)
+                     clear_first, dots, offsets, u, v, z, distance, spans, flat)
     fitted = np.empty(len(dots), dtype=np.int64)
     count = 0
     for k in dots:
