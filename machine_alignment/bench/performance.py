@@ -8,6 +8,7 @@ where it replaced one (numerical derivatives where the identification has analyt
 the closed loop's full fits), and none where the suite has the only route (today's time is
 then the reference for later changes). Writes bench_results/performance.{md,json}."""
 import argparse
+import functools
 import json
 import resource
 import subprocess
@@ -43,11 +44,12 @@ def _dots_rms(found, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(good ** 2))) if len(good) else float('nan')
 
 
-def _detection(size: int) -> Work:
+def _detection(size: int, polarity: str = 'auto') -> Work:
     """One 640 x 480 frame of ``size`` dots (10 px radius, 1 px blur, 3 DN noise) on a
-    square grid; the baseline: SimpleBlobDetector with thresholds and areas set for the
-    frame (bench_results/results.md compares it at every radius, blur and noise)."""
-    from calib_core.marks import detect_marks
+    square grid, detected with the Marks' ``polarity`` (auto: chosen from the frame); the
+    baseline: SimpleBlobDetector with thresholds and areas set for the frame, which looks
+    for dark blobs (bench_results/results.md compares it at every radius, blur and noise)."""
+    from calib_core.marks import DetectorConfig, detect_marks
     from calib_core.sim.render import MarkShape, render
     from machine_alignment.bench.vision import BACKGROUND, CONTRAST, _blob_detector
     rng = np.random.default_rng(1)
@@ -60,7 +62,8 @@ def _detection(size: int) -> Work:
     level = BACKGROUND + CONTRAST
     tuned = _blob_detector(level + 10, BACKGROUND - 10, np.pi * 20.0 ** 2)
     truth = np.array([[m.u, m.v] for m in marks])
-    return Work(lambda: [[m.u, m.v] for m in detect_marks(image).marks],
+    config = DetectorConfig(polarity=polarity)
+    return Work(lambda: [[m.u, m.v] for m in detect_marks(image, config).marks],
                 lambda: [k.pt for k in tuned.detect(image)],
                 lambda found: _dots_rms(found, truth), 'px RMS')
 
@@ -248,6 +251,9 @@ _FULL_FITS = 'full fits, dense differences'
 JOBS = {
     'Mark detection, one frame': Job('640 x 480, 10 px dots, 3 DN noise', 'Marks', (9, 81),
                                      _detection, 'OpenCV SimpleBlobDetector, tuned'),
+    'Mark detection, polarity set': Job('the same frames, told the Marks are dark', 'Marks',
+                                        (9, 81), functools.partial(_detection, polarity='dark'),
+                                        'OpenCV SimpleBlobDetector, tuned'),
     'vision calibration': Job('pixel size and gantry (13 parameters)', 'positions', (12, 42),
                               _vision),
     'stage calibration': Job('stepwise + parametric, the paper\'s plan', 'stops', (130,),
