@@ -103,7 +103,7 @@ def test_flattening_only_where_the_light_is_uneven(rng):
     a fall-off of the light (32 % across the frame) also spreads the other, and only then
     is a surface taken off. The background (10 px clear of every dot) then spans 5 grey
     levels or less from its 5th to its 95th percentile (its noise 4, of the scaled and
-    smoothed frame), as on the even background, where it spanned over 30."""
+    smoothed frame), as on the even background; unflattened it spanned over 30."""
     from calib_core.marks.config import SMOOTHING_NOISE_GAIN
     from calib_core.marks.segmentation import _flatten
     centres = [(u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5))
