@@ -19,8 +19,8 @@ def mask_levels(histogram, guard):
     below the first, bright ones those above the second (as cv2.threshold takes an 8-bit
     level: floored, src > level)."""
     otsu = otsu_level(histogram)
-    dark = _class_threshold(histogram, otsu, guard, False)
-    bright = _class_threshold(histogram, 255 - otsu, guard, True)
+    dark = _class_threshold(histogram, otsu, guard)
+    bright = _class_threshold(histogram[::-1], 255 - otsu, guard)
     return math.ceil(dark) - 1.0, 255.0 - bright
 
 
@@ -48,9 +48,9 @@ def otsu_level(histogram):
 
 
 @njit(cache=True)
-def _class_threshold(histogram, otsu, guard, mirrored):
+def _class_threshold(histogram, otsu, guard):
     """Grey level below which a pixel belongs to a dark Mark, from the flattened frame's
-    histogram (``mirrored``: read from its top, for bright Marks) and Otsu's threshold.
+    histogram (mirrored for bright Marks) and Otsu's threshold.
 
     Otsu's threshold is kept when it lies at least ``guard`` below the median of the
     class above it. Otherwise it has split the background's noise (one small Mark in
@@ -60,12 +60,12 @@ def _class_threshold(histogram, otsu, guard, mirrored):
     size = histogram.size
     above = np.float32(0.0)
     for level in range(otsu + 1, size):
-        above = np.float32(above + histogram[size - 1 - level if mirrored else level])
+        above = np.float32(above + histogram[level])
     if above == 0:  # also where no level is above Otsu's
         return float(otsu)
     half, seen, background = np.float32(above / 2), np.float32(0.0), size
     for level in range(otsu + 1, size):
-        seen = np.float32(seen + histogram[size - 1 - level if mirrored else level])
+        seen = np.float32(seen + histogram[level])
         if seen >= half:
             background = level
             break
@@ -73,7 +73,7 @@ def _class_threshold(histogram, otsu, guard, mirrored):
         return float(otsu)
     seen, darkest = np.float32(0.0), size
     for level in range(size):
-        seen = np.float32(seen + histogram[size - 1 - level if mirrored else level])
+        seen = np.float32(seen + histogram[level])
         if seen >= EXTREME_PIXELS:
             darkest = level
             break
