@@ -298,7 +298,7 @@ def test_mask_levels_from_otsu_and_the_guard(rng):
     two_classes = np.clip(np.round(rng.normal(180, 3, (100, 100))), 0, 255).astype(np.uint8)
     two_classes[:50] -= 120
     otsu = otsu_level(histogram(two_classes))
-    assert mask_levels(histogram(two_classes), 5.0) == (otsu - 1, otsu)
+    assert mask_levels(histogram(two_classes), 5.0) == (otsu - 1, otsu - 1)
     one_small = np.clip(np.round(rng.normal(200, 3, (200, 200))), 0, 255).astype(np.uint8)
     one_small[100:103, 100:103] = 60
     dark, _ = mask_levels(histogram(one_small), 15.0)
@@ -484,7 +484,7 @@ def test_crowded_windows_as_a_search_of_every_window(rng):
     for _ in range(30):
         mask = (cv2.GaussianBlur(rng.random((120, 160)), (0, 0), 3) > 0.52).astype(np.uint8)
         labels = cv2.connectedComponents(mask, connectivity=8)[1]
-        contours, boxes = _blobs(mask)
+        contours, boxes, _ = _blobs(mask)
         if len(boxes) < 2:
             continue
         own_box = rng.integers(0, len(boxes), 20)
@@ -820,3 +820,59 @@ def test_a_process_forked_after_detecting_detects(rng):
 
 def _send_centres(image, sender):
     sender.send([(m.u, m.v) for m in detect_marks(image).marks])
+
+
+def test_polarity_vote_traces_one_mask_where_the_other_cannot_win(rng, monkeypatch):
+    """The vote counted on one mask (the class with fewer pixels) where its blobs have no
+    more holes than it has Mark-shaped blobs is the vote of both masks' counts, which
+    this test counts from each mask's own contours. 80 frames, 2 DN noise:
+    - a dark part with 0-4 bright dots beside a bright part with 0-4 dark dots, split at
+      a random column (ties, and either class the smaller);
+    - dots of one polarity on an even background: decided on one mask;
+    - one 3 px dark dot alone, 8 DN noise: Otsu's level is not kept, both masks traced.
+    Where Otsu's level is kept the masks complement each other."""
+    from calib_core.marks import segmentation
+    from calib_core.marks.levels import mask_levels
+    config = DetectorConfig()
+    traced, ties = [], 0
+    real_blobs = segmentation._blobs
+    monkeypatch.setattr(segmentation, '_blobs', lambda mask: traced.append(1) or real_blobs(mask))
+
+    def mark_shaped(flat, level, polarity):
+        blobs = real_blobs(segmentation._mask(flat, level, polarity))
+        return segmentation._mark_shaped(*blobs[:2], flat.shape, config)
+
+    for frame in range(80):
+        if frame % 4 == 0:
+            image = render([MarkShape('circle', *rng.uniform(40, [280, 200]), 3.0)], 320, 240,
+                           1.0, 200.0, -150.0)
+        else:
+            split = rng.choice([0, 320]) if frame % 4 == 1 else rng.integers(60, 260)
+            bright, dark = rng.integers(1 if frame % 4 == 1 else 0, 5, 2)
+            image = np.where(np.arange(320) < split, 40.0, 200.0) + np.zeros((240, 1))
+            for count, low, high, contrast in ((bright, 12, split - 12, 160.0),
+                                               (dark, split + 12, 308, -160.0)):
+                u = np.linspace(low, high, count + 2)[1:-1]
+                image += render([MarkShape('circle', x, rng.uniform(30, 210), 5.0) for x in u],
+                                320, 240, 1.0, 0.0, contrast)
+        noise = 8.0 if frame % 4 == 0 else 2.0
+        image = np.clip(np.round(image + rng.normal(0, noise, image.shape)), 0, 255)
+        flat = cv2.GaussianBlur(image.astype(np.uint8), (5, 5), 1.0)
+        histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
+        levels = dict(zip(('dark', 'bright'), mask_levels(histogram, 1.5 * noise)))
+        counts = {p: mark_shaped(flat, levels[p], p) for p in ('dark', 'bright')}
+        traced.clear()
+        polarity, mask, _ = segmentation._vote(flat, histogram, levels, config)
+        assert polarity == ('bright' if counts['bright'] > counts['dark'] else 'dark')
+        assert np.array_equal(mask, segmentation._mask(flat, levels[polarity], polarity))
+        complementary = levels['dark'] == levels['bright']
+        assert complementary == (frame % 4 != 0)
+        if complementary:
+            masks = [segmentation._mask(flat, levels[p], p) for p in ('dark', 'bright')]
+            assert np.all(masks[0] + masks[1] == 1)
+        else:
+            assert len(traced) == 2
+        if frame % 4 == 1:
+            assert len(traced) == 1
+        ties += counts['dark'] == counts['bright'] > 0
+    assert ties >= 3

@@ -72,7 +72,9 @@ class DetectorConfig:
         Accepted circle radius / cross half-length, px.
     polarity : str
         ``"dark"`` (Marks darker than background), ``"bright"`` or ``"auto"`` (the class
-        with more Mark-shaped blobs; setting it saves that look, about 0.3 ms a frame).
+        with more Mark-shaped blobs; setting it saves that look: 0.06 ms a 640 x 480
+        frame of 9 dots, 0.13 ms of 81, where one mask decides, as it does for dots on an
+        even background).
     min_snr : float
         Minimum fitted contrast over the image noise sigma.
     border_margin_px : float

@@ -17,11 +17,14 @@ def mask_levels(histogram, guard):
     256-bin histogram (float32, as cv2.calcHist gives it) and the ``guard`` (grey levels)
     between Otsu's level and the background's median: dark Marks are the pixels at or
     below the first, bright ones those above the second (as cv2.threshold takes an 8-bit
-    level: floored, src > level)."""
+    level: floored, src > level). Where Otsu's level t is kept for both, both are t - 1:
+    the dark Marks' mask is the pixels below t, the bright Marks' the others."""
     otsu = otsu_level(histogram)
-    dark = _class_threshold(histogram, otsu, guard)
-    bright = _class_threshold(histogram[::-1], 255 - otsu, guard)
-    return math.ceil(dark) - 1.0, 255.0 - bright
+    dark = math.ceil(_class_threshold(histogram, otsu, guard)) - 1.0
+    bright = 255.0 - _class_threshold(histogram[::-1], 255 - otsu, guard)
+    # The pixels at Otsu's level go to the bright Marks, so that the masks complement
+    # each other (segmentation._vote counts on it).
+    return dark, bright - 1.0 if bright == otsu else bright
 
 
 @njit(cache=True)
