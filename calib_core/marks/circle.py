@@ -3,6 +3,7 @@ candidate's window and the pixels in it clear of other blobs, then the edge band
 starting values and fits of all of a frame's, in one compiled run (dot_run)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import cv2
@@ -10,7 +11,7 @@ import numpy as np
 
 from calib_core.errors import DetectionError
 from calib_core.marks.bands import crowded_windows
-from calib_core.marks.config import Mark
+from calib_core.marks.config import EDGE_BAND_PX, Mark
 from calib_core.marks.dot_run import REASONS, dot_windows, fit_dot_windows
 
 
@@ -81,11 +82,23 @@ def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
 def _clear_masks(labels, blob_boxes, windows, own, own_box):
     """bands.edge_bands_range's ``clear`` and ``clear_first``: masks for the dots whose
     windows (k, 4) hold other blobs than their own (``own``: labels, k; ``own_box``: their
-    indices into the frame's ``blob_boxes``)."""
+    indices into the frame's ``blob_boxes``), or have them within EDGE_BAND_PX outside.
+
+    A blob's mask ends where its edge is halfway: its blurred edge reaches up to the
+    band's width beyond (the model is flat beyond the band only for edges it holds to 4
+    sigma). A neighbour 1 px outside a dot's window had put its edge among the dot's flat
+    pixels and moved the dot by twice its sigma."""
+    reach = int(math.ceil(EDGE_BAND_PX))
+    height, width = labels.shape
+    around = np.column_stack([np.maximum(windows[:, 0] - reach, 0),
+                              np.minimum(windows[:, 1] + reach, height),
+                              np.maximum(windows[:, 2] - reach, 0),
+                              np.minimum(windows[:, 3] + reach, width)])
     masks, first, start = [], np.full(len(windows), -1), 0
-    for k in np.flatnonzero(crowded_windows(labels, windows, own, blob_boxes, own_box)):
-        mask = _clear_of_neighbours(labels[slice(*windows[k, :2]), slice(*windows[k, 2:])],
-                                    own[k])
+    for k in np.flatnonzero(crowded_windows(labels, around, own, blob_boxes, own_box)):
+        r0, r1, c0, c1 = around[k]
+        mask = _clear_of_neighbours(labels[r0:r1, c0:c1], own[k])
+        mask = mask[windows[k, 0] - r0:windows[k, 1] - r0, windows[k, 2] - c0:windows[k, 3] - c0]
         masks.append(mask.ravel())
         first[k], start = start, start + mask.size
     return (np.concatenate(masks) if masks else np.zeros(0, dtype=bool)), first
