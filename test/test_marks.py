@@ -500,10 +500,12 @@ def test_crowded_windows_as_a_search_of_every_window(rng):
 
 def test_clear_of_neighbours_by_whole_squared_distances(rng, monkeypatch):
     """A window's pixel is kept for its dot where it is no farther from the dot than from
-    any other blob (ties the dot's), by whole squared distances: also where the distance
-    transform's float32 roots are an ulp off, as they are from one process to the next
-    (which had moved centres by up to 0.0003 px between runs)."""
+    any other blob (ties the dot's) and at least NEIGHBOUR_CLEARANCE_PX from every other
+    blob, by whole squared distances: also where the distance transform's float32 roots
+    are an ulp off, as they are from one process to the next (which had moved centres by
+    up to 0.0003 px between runs)."""
     from calib_core.marks.circle import _clear_of_neighbours
+    from calib_core.marks.config import NEIGHBOUR_CLEARANCE_PX
     exact_transform = cv2.distanceTransform
 
     def an_ulp_off(source, *args):
@@ -528,7 +530,9 @@ def test_clear_of_neighbours_by_whole_squared_distances(rng, monkeypatch):
                 return np.full(pixels.shape[0], np.inf)
             return (((pixels[:, None] - blob[None]) ** 2).sum(axis=2)).min(axis=1)
 
-        expected = nearest(window == 1) <= nearest((window != 0) & (window != 1))
+        to_others = nearest((window != 0) & (window != 1))
+        expected = ((nearest(window == 1) <= to_others)
+                    & (to_others >= NEIGHBOUR_CLEARANCE_PX ** 2))
         assert np.array_equal(_clear_of_neighbours(window, 1).ravel(), expected)
 
 
@@ -891,3 +895,19 @@ def test_a_neighbour_just_outside_the_window_is_kept_out(blur, gap):
     marks = detect_marks(render(truth, 240, 200, blur, 200.0, -150.0), expected_count=2).marks
     for mark, true in zip(sorted(marks, key=lambda m: m.u), truth):
         assert np.hypot(mark.u - true.u, mark.v - true.v) < 1e-3
+
+
+@pytest.mark.parametrize('blur,gap,tolerance', [(1.0, 3.0, 1e-3), (1.5, 3.0, 4e-3),
+                                                (1.5, 4.0, 4e-3)])
+def test_pixels_near_a_neighbour_are_left_out(blur, gap, tolerance):
+    """Two 10 px dots 3-4 px apart edge to edge, noise-free. Halfway between them the
+    other's blurred edge still holds a few % of its contrast; the pixels within
+    NEIGHBOUR_CLEARANCE_PX of the other blob are left out. Kept, they had moved the dots
+    by 0.0035 px (blur 1 px, gap 3 px), 0.029 px (blur 1.5 px, gap 3 px) and 0.0066 px
+    (gap 4 px): more than the sigma at 1 % noise (0.004-0.006 px). Now 2e-4 and 0.003 px:
+    at blur 1.5 px the other's edge at 3.5 px is still 1 % of its contrast."""
+    truth = [MarkShape('circle', 100.3, 100.2, 10.0),
+             MarkShape('circle', 120.3 + gap, 100.6, 10.0)]
+    marks = detect_marks(render(truth, 240, 200, blur, 200.0, -150.0), expected_count=2).marks
+    for mark, true in zip(sorted(marks, key=lambda m: m.u), truth):
+        assert np.hypot(mark.u - true.u, mark.v - true.v) < tolerance

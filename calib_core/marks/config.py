@@ -13,6 +13,10 @@ SHAPES = ('circle', 'cross')
 # Half-width of the ring of pixels around a circle's edge used by the fit, px: covers the
 # edge blur (sigma up to 1.5 px) to 4 sigma.
 EDGE_BAND_PX = 6.0
+# A dot's pixels within this distance of another blob are left out of its fit, px: the
+# other's edge, blurred by sigma 1.4 px, has fallen there to 0.6 % of its contrast
+# (2.5 sigma; a blob's mask ends where its edge is halfway).
+NEIGHBOUR_CLEARANCE_PX = 3.5
 # Segmentation: the illumination surface is fitted to means of blocks this wide (px),
 # with this many rounds of outlier rejection.
 TREND_BLOCK_PX = 16
