@@ -911,3 +911,30 @@ def test_pixels_near_a_neighbour_are_left_out(blur, gap, tolerance):
     marks = detect_marks(render(truth, 240, 200, blur, 200.0, -150.0), expected_count=2).marks
     for mark, true in zip(sorted(marks, key=lambda m: m.u), truth):
         assert np.hypot(mark.u - true.u, mark.v - true.v) < tolerance
+
+
+def test_labels_painted_in_boxes_are_the_connected_components(rng):
+    """Where no two blobs' bounding boxes overlap, the labels painted box by box are the
+    mask's 8-connected components, relabelled; boxes_overlap agrees with comparing every
+    pair of boxes (300 random masks, sparse to dense)."""
+    from calib_core.marks.labels import boxes_overlap, paint_labels
+    from calib_core.marks.segmentation import _blobs
+    painted = 0
+    for _ in range(300):
+        level = rng.uniform(0.50, 0.56)
+        mask = (cv2.GaussianBlur(rng.random((60, 80)), (0, 0), 2) > level).astype(np.uint8)
+        _, boxes, _ = _blobs(mask)
+        x0, y0, w, h = boxes.T[:, :, None]
+        pairs = ((x0 < (x0 + w).T) & (x0.T < x0 + w) & (y0 < (y0 + h).T) & (y0.T < y0 + h))
+        overlap = bool(np.any(pairs & ~np.eye(len(boxes), dtype=bool)))
+        assert boxes_overlap(boxes) == overlap
+        if overlap:
+            continue
+        labels = np.zeros(mask.shape, dtype=np.int32)
+        paint_labels(mask, boxes, labels)
+        components = cv2.connectedComponents(mask, connectivity=8)[1]
+        assert np.array_equal(labels > 0, mask > 0)
+        pairing = np.unique(np.column_stack([labels.ravel(), components.ravel()]), axis=0)
+        assert len(pairing) == len(np.unique(labels)) == len(np.unique(components))
+        painted += 1
+    assert painted >= 50

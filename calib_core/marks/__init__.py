@@ -17,7 +17,8 @@ Pixels follow OpenCV's convention: the centre of the top-left pixel is (0, 0).
 
 Modules: ``config`` (settings and result types), ``segmentation`` (candidates; with
 ``trend``, the illumination trend's robust fit, ``noise``, the pixel noise's robust
-sigma, and ``levels``, the masks' threshold levels, all compiled),
+sigma, ``levels``, the masks' threshold levels, and ``labels``, the blobs' labels
+painted in their boxes, all compiled),
 ``intensity`` (the cross's intensity model), ``bands`` (blob moments, edge bands and
 starting levels, compiled), ``dot_fit`` (the dot's model and its compiled solver),
 ``dot_run`` (a frame's dots from window to fit, one compiled run per half of them),
