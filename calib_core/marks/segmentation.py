@@ -74,10 +74,10 @@ def segment(image, noise_scaled, config):
     from its outer contour; and the flattened frame (uint8). Labels and contours cost a
     fifth of connected components with statistics, which sum over every pixel of the
     frame; where no two blobs' boxes overlap, the labels are painted in the boxes
-    (labels.py), a fifth of connected components' time. The threshold is Otsu's unless that splits the background's noise (see
-    levels.mask_levels). ``auto`` polarity takes the class with more Mark-shaped blobs:
-    the minority class is not the Marks when a dense dot grid and a dark table fill most
-    of a photo."""
+    (labels.py), a fifth of connected components' time. The threshold is Otsu's unless
+    that splits the background's noise (see levels.mask_levels). ``auto`` polarity takes
+    the class with more Mark-shaped blobs (_vote): the minority class is not the Marks
+    when a dense dot grid and a dark table fill most of a photo."""
     scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
     guard = MIN_THRESHOLD_SIGMA * smoothed_noise
