@@ -231,18 +231,41 @@ def edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clea
                         u[count], v[count], z[count], distance[count] = col, row, value, gap
                         count += 1
                         continue
-                moments = flat[k, 0] if gap > 0 else flat[k, 1]
-                moments[0] += 1.0
-                moments[1] += du
-                moments[2] += dv
-                moments[3] += du * du
-                moments[4] += du * dv
-                moments[5] += dv * dv
-                moments[6] += value
-                moments[7] += value * du
-                moments[8] += value * dv
-                moments[9] += value * value
+                _add_flat(flat[k, 0] if gap > 0 else flat[k, 1], du, dv, value)
         spans[k, 1] = count
+
+
+@njit(cache=True, inline='always')
+def _add_flat(moments, du, dv, value):
+    """Adds one pixel, ``du``, ``dv`` px from the dot's centre, of intensity ``value``, to
+    its flat ``moments`` (see edge_bands_range)."""
+    moments[0] += 1.0
+    moments[1] += du
+    moments[2] += dv
+    moments[3] += du * du
+    moments[4] += du * dv
+    moments[5] += dv * dv
+    moments[6] += value
+    moments[7] += value * du
+    moments[8] += value * dv
+    moments[9] += value * value
+
+
+@njit(cache=True)
+def narrow_band(k, reach, centres, u, v, z, distance, spans, flat):
+    """Narrows dot k's edge band (see edge_bands_range) to the pixels within ``reach``
+    (px) of its edge: the others join its flat pixels' moments, outside the edge or
+    inside it, and the band is compacted in place."""
+    count = spans[k, 0]
+    cu, cv = centres[k, 0], centres[k, 1]
+    for i in range(spans[k, 0], spans[k, 1]):
+        if abs(distance[i]) < reach:
+            u[count], v[count], z[count], distance[count] = u[i], v[i], z[i], distance[i]
+            count += 1
+        else:
+            _add_flat(flat[k, 0] if distance[i] > 0 else flat[k, 1], u[i] - cu, v[i] - cv,
+                      z[i])
+    spans[k, 1] = count
 
 
 @njit(cache=True)

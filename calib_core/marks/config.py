@@ -13,6 +13,9 @@ SHAPES = ('circle', 'cross')
 # Half-width of the ring of pixels around a circle's edge used by the fit, px: covers the
 # edge blur (sigma up to 1.5 px) to 4 sigma.
 EDGE_BAND_PX = 6.0
+# A sharper dot's band is narrowed to its edge's reach as its start reads it: 4 of the
+# edge's sigma, and a pixel for the start's edge being off, at least 3 px (px).
+NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX, NARROW_BAND_MIN_PX = 4.0, 1.0, 3.0
 # A dot's pixels within this distance of another blob are left out of its fit, px: the
 # other's edge, blurred by sigma 1.4 px, has fallen there to 0.6 % of its contrast
 # (2.5 sigma; a blob's mask ends where its edge is halfway).

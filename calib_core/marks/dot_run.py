@@ -10,8 +10,10 @@ import math
 import numpy as np
 from numba import njit
 
-from calib_core.marks.bands import dot_levels, edge_bands_range
-from calib_core.marks.config import DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, MIN_BAND_PX
+from calib_core.marks.bands import dot_levels, edge_bands_range, narrow_band
+from calib_core.marks.config import (
+    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, MIN_BAND_PX, NARROW_BAND_MIN_PX,
+    NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX)
 from calib_core.marks.dot_fit import fit_dot_range, flat_terms, solve_positive
 from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
@@ -151,9 +153,16 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
         blur0 = math.sqrt(max(sigma0 ** 2 - PIXEL_APERTURE_VARIANCE, 0.1 ** 2))
         # The model is flat beyond the band only where the band holds the edge to 4
         # sigma; a wider edge's tails there would tilt the fit under uneven light (7e-4
-        # px at 3 px blur), so such dots are fitted on their band alone.
+        # px at 3 px blur), so such dots are fitted on their band alone. A sharper
+        # dot's band is narrowed to its edge's reach: its pixels beyond are flat, and
+        # cost the fit nothing as moments (0.5 px blur: 40 % fewer band pixels, the
+        # same centres to 1e-9 px).
         if sigma0 > EDGE_BAND_PX / 4:
             flat[k] = 0.0
+        else:
+            reach = max(NARROW_BAND_SIGMAS * sigma0 + NARROW_BAND_SLACK_PX, NARROW_BAND_MIN_PX)
+            if reach < EDGE_BAND_PX:
+                narrow_band(k, reach, centres, u, v, z, distance, spans, flat)
         x[k, 0], x[k, 1] = centres[k, 0], centres[k, 1]
         x[k, 2], x[k, 3] = radius_init * scale[k], blur0
         x[k, 4], x[k, 5] = level - background, background
