@@ -13,6 +13,7 @@ from calib_core.errors import DetectionError
 from calib_core.marks.bands import crowded_windows
 from calib_core.marks.config import EDGE_BAND_PX, NEIGHBOUR_CLEARANCE_PX, Mark
 from calib_core.marks.dot_run import REASONS, dot_windows, fit_dot_windows
+from calib_core.marks.pixels import clipped_window
 
 
 @dataclass(frozen=True)
@@ -88,17 +89,14 @@ def _clear_masks(labels, blob_boxes, windows, own, own_box):
     band's width beyond (the model is flat beyond the band only for edges it holds to 4
     sigma). A neighbour 1 px outside a dot's window had put its edge among the dot's flat
     pixels and moved the dot by twice its sigma."""
-    reach = int(math.ceil(EDGE_BAND_PX))
-    height, width = labels.shape
-    around = np.column_stack([np.maximum(windows[:, 0] - reach, 0),
-                              np.minimum(windows[:, 1] + reach, height),
-                              np.maximum(windows[:, 2] - reach, 0),
-                              np.minimum(windows[:, 3] + reach, width)])
+    r0, r1, c0, c1 = windows.T
+    around = np.column_stack(clipped_window(labels.shape, c0, r0, c1 - c0, r1 - r0,
+                                            int(math.ceil(EDGE_BAND_PX))))
     masks, first, start = [], np.full(len(windows), -1), 0
     for k in np.flatnonzero(crowded_windows(labels, around, own, blob_boxes, own_box)):
-        r0, r1, c0, c1 = around[k]
-        mask = _clear_of_neighbours(labels[r0:r1, c0:c1], own[k])
-        mask = mask[windows[k, 0] - r0:windows[k, 1] - r0, windows[k, 2] - c0:windows[k, 3] - c0]
+        top, bottom, left, right = around[k]
+        mask = _clear_of_neighbours(labels[top:bottom, left:right], own[k])
+        mask = mask[r0[k] - top:r1[k] - top, c0[k] - left:c1[k] - left]
         masks.append(mask.ravel())
         first[k], start = start, start + mask.size
     return (np.concatenate(masks) if masks else np.zeros(0, dtype=bool)), first
