@@ -12,6 +12,11 @@ from calib_core.errors import InvalidInputError
 
 DEGREES_PER_RAD = 180 / np.pi
 MM_PER_M = 1000.0
+CELSIUS_ZERO_K = 273.15
+# A machine's temperature on the live graph, as the simulated machines publish it and the
+# calibrators log it: sensor_msgs/Temperature, in degrees Celsius as that message defines
+# it (converted to kelvin where it is read).
+TEMPERATURE_TOPIC = '/machine/temperature'
 
 
 @dataclass(frozen=True)
@@ -38,8 +43,9 @@ class Column:
     def likely_mistake(self, value: float) -> str:
         """What the column's largest value outside the range most likely means: mm for m
         when it is many times the range or a metre and more, and would fit it in mm;
-        degrees for rad when over twice the range and fitting it in degrees; else another
-        zero or column."""
+        degrees for rad when over twice the range and fitting it in degrees; degrees Celsius
+        for kelvin (and the other way round) when the value so read fits; else another zero
+        or column."""
         ratio = abs(value) / max(abs(self.low), abs(self.high))
         # A metre or more outside a machine's range, or many times the range: mm, when the
         # value read in mm fits.
@@ -49,6 +55,11 @@ class Column:
         if self.unit == 'rad' and ratio >= 2 and \
                 self.low <= value / DEGREES_PER_RAD <= self.high:
             return 'the values look like degrees; the format is radians'
+        if self.unit == 'K' and self.low <= value + CELSIUS_ZERO_K <= self.high:
+            return 'the values look like degrees Celsius; the format is kelvin'
+        if self.unit == 'K' and self.low <= value - CELSIUS_ZERO_K <= self.high:
+            return ('the values look like kelvin where degrees Celsius were due (as '
+                    'sensor_msgs/Temperature carries them)')
         return 'no such machine reads this (another zero, unit or column?)'
 
     def check(self, values, source: str) -> None:

@@ -77,12 +77,14 @@ def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> 
 
 def grid_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
                camera_rate_hz: float = 10.0, half: int = 4, pitch: float = 7.5e-3,
-               columns: int = 3, rows: int = 2) -> list[NodeSpec]:
-    """The printer's camera gantry over a grid plate: gantry, camera (the simulated operator
-    places the plate as asked), detector, vision calibrator (publishing the calibration in
-    force: the camera's pixel size) and the grid calibrator."""
+               columns: int = 3, rows: int = 2, gantry: dict | None = None) -> list[NodeSpec]:
+    """The printer's camera gantry over a grid plate: gantry (its temperature published;
+    ``gantry``: more of its parameters, such as its warm-up and its screws' expansion),
+    camera (the simulated operator places the plate as asked), detector, vision calibrator
+    (publishing the calibration in force: the camera's pixel size) and the grid
+    calibrator."""
     return [
-        NodeSpec('printer_alignment.nodes.gantry_sim'),
+        NodeSpec('printer_alignment.nodes.gantry_sim', dict(gantry or {})),
         # The operator squares the plate to the simulated gantry's X axis.
         NodeSpec('printer_alignment.nodes.camera_sim',
                  {'scene': 'grid_plate', 'rate_hz': camera_rate_hz, 'grid_half': half,

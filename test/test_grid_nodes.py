@@ -1,8 +1,9 @@
-"""The grid calibrator on the live graph (gantry, camera over a grid plate that the
-simulated operator places as asked, detector), as separate processes over DDS: one
-service call measures every placement of every region, writes the map and records the
-run; the recorded run solves again offline to the same map; a plan that leaves the travel
-is refused before anything moves."""
+"""The grid calibrator on the live graph (gantry in a shop whose temperature cycles, camera
+over a grid plate that the simulated operator places as asked, detector), as separate
+processes over DDS: one service call measures every placement of every region, with the
+machine's temperature logged, writes the map and records the run; the closed loop finds
+the screws' growth with temperature; the recorded run solves again offline to the same
+map; a plan that leaves the travel is refused before anything moves."""
 import json
 import os
 from pathlib import Path
@@ -26,12 +27,17 @@ from machine_alignment.launcher import grid_graph  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
 
 PLAN = {'half': 1, 'pitch': 7.5e-3, 'columns': 2, 'rows': 1}     # 2 regions of 3 x 3 marks
+# The shop's temperature cycles by +-4 K over 5 s (the run takes seconds where a machine's
+# takes hours) and the screws grow by 20 ppm/K, which the rotary encoders do not see.
+SCREW_EXPANSION_PER_K = 20e-6
+GANTRY = {'cycle_amplitude': 4.0, 'cycle_period': 5.0, 'screw_expansion': SCREW_EXPANSION_PER_K}
 
 
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
     out = tmp_path_factory.mktemp('grid_graph')
-    spec = grid_graph(str(out / 'calibration'), str(out / 'runs'), camera_rate_hz=20.0, **PLAN)
+    spec = grid_graph(str(out / 'calibration'), str(out / 'runs'), camera_rate_hz=20.0,
+                      gantry=GANTRY, **PLAN)
     with running(spec, DOMAIN, out, 'grid_test_client') as (graph, node):
         yield graph, node, out
 
@@ -48,6 +54,7 @@ def test_one_call_measures_every_placement_and_writes_the_map(graph):
     result = response.result
     assert result.kind == 'grid' and result.residual_unit == 'm' and result.version == 1
     report = json.loads(result.report_json)
+    assert 'samples on /machine/temperature' in report['temperature']
     # 2 regions of 3 x 4 sites, two columns shared (one with the shifted column): 18 sites.
     assert len(report['sites']) == 18 and report['stitching']['regions'] == 2
     assert 'nominal pixel size' in report['camera']       # no vision calibration in force
@@ -59,10 +66,12 @@ def test_one_call_measures_every_placement_and_writes_the_map(graph):
 
 
 def test_analyze_residuals_on_the_last_run(graph):
-    """The grid's own loop on the run just measured (after the test above): a report per
-    region with the whole run's held-out summary, its figure, the report latched; a
-    random hold-out is refused (the grid loop holds out each reading in turn) and so is
-    putting an effect in force."""
+    """The grid's own loop on the run just measured (after the test above), each reading
+    with its logged temperature: the screws' growth found in every region (the reading
+    falls behind the carriage: the expansion is minus the screws'), a report per region
+    with the whole run's held-out summary, its figure, the report latched; a random
+    hold-out is refused (the grid loop holds out each reading in turn) and so is putting
+    an effect in force."""
     _, node, _ = graph
     client = node.create_client(AnalyzeResiduals, 'grid_calibrator/analyze_residuals')
     response = call(node, client, AnalyzeResiduals.Request(), timeout=60.0)
@@ -71,7 +80,14 @@ def test_analyze_residuals_on_the_last_run(graph):
     report = json.loads(analysis.report_json)
     assert analysis.machine == 'grid' and analysis.unit == 'm'
     assert set(report['regions']) == {'0', '1'}
-    assert 0 < analysis.rms_after <= analysis.rms_before < 50e-6
+    added = report['effects_added']
+    assert sorted(effect['region'] for effect in added) == ['0', '1']
+    for effect in added:
+        assert effect['name'] == 'drift_temperature'
+        for axis in ('x', 'y'):
+            error = effect['parameters'][f'expansion_{axis}'] + SCREW_EXPANSION_PER_K
+            assert abs(error) < 4 * effect['std_devs'][f'expansion_{axis}'], effect
+    assert 0 < analysis.rms_after < 0.5 * analysis.rms_before < 50e-6
     assert Path(analysis.report_path).with_suffix('.png').stat().st_size > 10_000
     refused = call(node, client, AnalyzeResiduals.Request(plan_yaml='holdout_fraction: 0.2'))
     assert not refused.success and 'leave-one-out' in refused.message
@@ -94,6 +110,11 @@ def test_the_recorded_run_solves_again_offline_to_the_same_map(graph, tmp_path):
     times = np.concatenate([p.covariates['time'] for r in regions.values()
                             for p in r.placements])
     assert len(times) == 2 * 3 * 9 and times.min() == 0 and 0 < times.max() < 600
+    # Each reading with the temperature the machine had (K), through the shop's cycle.
+    kelvin = np.concatenate([p.covariates['temperature'] for r in regions.values()
+                             for p in r.placements])
+    assert np.all(np.abs(kelvin - 293.15) <= GANTRY['cycle_amplitude'] + 1e-9)
+    assert np.ptp(kelvin) > GANTRY['cycle_amplitude']
     assert cli_main(['analyze', 'grid', '--data', str(marks), '--pitch', str(PLAN['pitch'])]) == 0
 
 

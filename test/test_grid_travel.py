@@ -187,6 +187,54 @@ def test_a_cut_run_replays_its_complete_regions_and_names_the_rest():
         regions_from_readings(GRID, cut)
 
 
+def _stamped(seconds):
+    from types import SimpleNamespace
+    return SimpleNamespace(stamp=SimpleNamespace(sec=int(seconds),
+                                                 nanosec=int(round(seconds % 1 * 1e9))))
+
+
+def test_the_logged_temperature_reaches_every_reading():
+    """A run's readings, one every 2 s from t = 1000 s, and the machine's temperature
+    logged every 0.5 s (degrees Celsius, as sensor_msgs/Temperature carries it), rising
+    by 0.01 K/s: each reading gets its temperature in kelvin, linear between the samples.
+    A log in kelvin is refused as such; a log that stops early leaves the run without a
+    temperature (said why), its time kept."""
+    from types import SimpleNamespace
+
+    from calib_core.errors import InvalidInputError
+    from grid_calib.core.records import regions_from_readings, temperature_log
+    truth = default_travel(GRID, 1, 1, seed=3)
+    messages = []
+    for r, region in _regions(truth).items():
+        for p in region.placements:
+            reading = (site_of(p.marks, p.name) + region.origin) * GRID.pitch + p.deviation
+            messages += [SimpleNamespace(region=r, placement=p.name, i=i, j=j, x=x, y=y)
+                         for (i, j), (x, y) in zip(p.marks, reading)]
+    start = 1000.0
+    for k, msg in enumerate(messages):
+        msg.header = _stamped(start + 2.0 * k)
+    end = start + 2.0 * len(messages)
+    samples = [SimpleNamespace(header=_stamped(t), temperature=20.0 + 0.01 * (t - start))
+               for t in np.arange(start - 5.0, end + 5.0, 0.5)]
+    regions, notes = regions_from_readings(GRID, messages, temperature_log(samples[::-1]))
+    assert notes == []
+    for p in regions[0].placements:
+        expected = 293.15 + 0.01 * p.covariates['time']
+        assert np.abs(p.covariates['temperature'] - expected).max() < 1e-9
+    for sample in samples:
+        sample.temperature += 273.15
+    with pytest.raises(InvalidInputError, match='kelvin where degrees Celsius were due'):
+        temperature_log(samples)
+    early = [s for s in samples if s.header.stamp.sec < start + 10.0]
+    for sample in early:
+        sample.temperature -= 273.15
+    regions, notes = regions_from_readings(GRID, messages, temperature_log(early))
+    # The last sample is at 1009.5 s: 35 of the 363 readings lie within 60 s of it.
+    assert notes == ['temperature not attached: 328 reading(s) lie more than 60 s from every '
+                     'sample of the log']
+    assert all(set(p.covariates) == {'time'} for p in regions[0].placements)
+
+
 def test_a_plate_centred_between_sites_is_refused():
     readings = _readings()
     moved = {name: (marks, reading + [0.3 * GRID.pitch, 0.0])

@@ -41,6 +41,13 @@ def test_column_names_the_likely_mistake():
     with pytest.raises(InvalidInputError, match=r'theta .* -5 rad in row 2.*degrees'):
         angle.check([0.01, -5.0], 'f.csv')
     angle.check([0.5, -0.5], 'f.csv')                     # inside: nothing said
+    temperature = Column('temperature', 'K', 200.0, 400.0, 'temperature (kelvin)')
+    with pytest.raises(InvalidInputError, match='look like degrees Celsius; the format is kelvin'):
+        temperature.check([293.15, 21.5], 'f.csv')
+    with pytest.raises(InvalidInputError, match='look like kelvin where degrees Celsius'):
+        temperature.check([566.3], 'the temperature log')  # 293.15 K sent as degrees Celsius
+    with pytest.raises(InvalidInputError, match='another zero'):
+        temperature.check([1500.0], 'f.csv')
 
 
 @pytest.mark.parametrize('change, expected', [

@@ -117,10 +117,11 @@ def region_from_readings(grid: Grid, readings: dict, label: str = 'region',
 
 
 # The grid marks CSV, declared: readings anywhere on a machine, temperatures in kelvin.
+TEMPERATURE_COLUMN = Column('temperature', 'K', 200.0, 400.0, 'temperature (kelvin)')
 MARKS_SCHEMA = Schema((
     Column('x', 'm', -MAX_POSITION_M, MAX_POSITION_M, 'mark reading x'),
     Column('y', 'm', -MAX_POSITION_M, MAX_POSITION_M, 'mark reading y'),
-    Column('temperature', 'K', 200.0, 400.0, 'temperature (kelvin)')))
+    TEMPERATURE_COLUMN))
 
 
 def read_marks(path, pitch: float) -> tuple[Grid, dict]:

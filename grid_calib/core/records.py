@@ -6,13 +6,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from grid_calib.core.data import region_from_readings
+from calib_core.schema import CELSIUS_ZERO_K, TEMPERATURE_TOPIC
+from grid_calib.core.data import TEMPERATURE_COLUMN, region_from_readings
 from grid_calib.core.model import PLACEMENTS, Grid
 from grid_calib.errors import PlacementError
 
 READINGS_TOPIC = '/grid_calibrator/readings'
 PLACEMENT_TOPIC = '/grid_calibrator/placement'
 RESULT_TOPIC = '/grid_calibrator/result'
+# A reading takes the temperature interpolated between the log's samples around it; a
+# reading further than this from every sample (a sensor that stopped) leaves the whole
+# run without a temperature.
+MAX_TEMPERATURE_GAP_S = 60.0
 
 
 def grid_from_placements(placements) -> Grid:
@@ -39,11 +44,50 @@ def _stamp(msg) -> float:
     return np.nan if header is None else header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
-def regions_from_readings(grid: Grid, readings) -> tuple[dict, list[str]]:
-    """Regions (region -> ``data.Region``) from GridMarkReading messages, and a sentence for
-    each region left out because its run is incomplete (a run stopped or killed part way):
-    what was measured is kept, nothing incomplete is solved. With every reading stamped,
-    each carries its ``time`` (s since the run's first reading) for the closed loop.
+def temperature_log(messages) -> tuple[np.ndarray, np.ndarray]:
+    """The stamps (s) and temperatures (K) of sensor_msgs/Temperature messages (degrees
+    Celsius, as the message defines them), in time order.
+
+    Raises
+    ------
+    InvalidInputError
+        A temperature NaN or beyond what a machine reaches, with the likely mistake
+        (kelvin sent as degrees Celsius)."""
+    stamps = np.array([_stamp(msg) for msg in messages], dtype=float)
+    kelvin = np.array([msg.temperature for msg in messages], dtype=float) + CELSIUS_ZERO_K
+    TEMPERATURE_COLUMN.check(kelvin, f'the temperature log ({TEMPERATURE_TOPIC})')
+    order = np.argsort(stamps, kind='stable')
+    return stamps[order], kelvin[order]
+
+
+def temperatures_at(stamps: np.ndarray, log) -> tuple[np.ndarray | None, str]:
+    """The temperature (K) at each reading's stamp (s), linear between the log's samples
+    (``temperature_log``), and ''; or None and why not: the log is empty, a stamp is
+    missing, or a reading lies further than MAX_TEMPERATURE_GAP_S from every sample."""
+    sample_stamps, kelvin = log
+    stamps = np.asarray(stamps, dtype=float)
+    if not len(kelvin):
+        return None, 'no temperature logged'
+    if not (np.all(np.isfinite(stamps)) and np.all(np.isfinite(sample_stamps))):
+        return None, 'temperature not attached: a reading or a sample has no time stamp'
+    after = np.searchsorted(sample_stamps, stamps).clip(1, len(kelvin) - 1)
+    gap = np.minimum(np.abs(stamps - sample_stamps[after - 1]),
+                     np.abs(stamps - sample_stamps[after]))
+    far = int(np.count_nonzero(gap > MAX_TEMPERATURE_GAP_S))
+    if far:
+        return None, (f'temperature not attached: {far} reading(s) lie more than '
+                      f'{MAX_TEMPERATURE_GAP_S:.0f} s from every sample of the log')
+    return np.interp(stamps, sample_stamps, kelvin), ''
+
+
+def regions_from_readings(grid: Grid, readings, temperatures=None
+                          ) -> tuple[dict, list[str]]:
+    """Regions (region -> ``data.Region``) from GridMarkReading messages, and sentences
+    saying what was left out: each region whose run is incomplete (a run stopped or killed
+    part way; what was measured is kept, nothing incomplete is solved), a temperature the
+    log does not cover. With every reading stamped, each carries its ``time`` (s since the
+    run's first reading) for the closed loop, and with a log of ``temperatures``
+    (``temperature_log``) its ``temperature`` (K).
 
     Raises
     ------
@@ -52,7 +96,12 @@ def regions_from_readings(grid: Grid, readings) -> tuple[dict, list[str]]:
         are not the method's."""
     by_region, stamps = {}, np.array([_stamp(msg) for msg in readings])
     start = np.min(stamps) if len(stamps) and np.all(np.isfinite(stamps)) else None
-    for msg, stamp in zip(readings, stamps):
+    left_out, kelvin = [], None
+    if temperatures is not None:
+        kelvin, source = temperatures_at(stamps, temperatures)
+        if kelvin is None:
+            left_out.append(source)
+    for k, (msg, stamp) in enumerate(zip(readings, stamps)):
         if msg.placement not in PLACEMENTS:
             raise PlacementError(f'a reading names placement {msg.placement!r}; the method '
                                  f'uses {PLACEMENTS}')
@@ -61,8 +110,8 @@ def regions_from_readings(grid: Grid, readings) -> tuple[dict, list[str]]:
                                  f'{msg.j}): the reading is NaN or infinite')
         by_region.setdefault(int(msg.region), {}).setdefault(msg.placement, []).append(
             ((int(msg.i), int(msg.j)), (float(msg.x), float(msg.y)),
-             None if start is None else stamp - start))
-    regions, left_out = {}, []
+             None if start is None else stamp - start, None if kelvin is None else kelvin[k]))
+    regions = {}
     full = len(grid.marks)
     for region in sorted(by_region):
         counts = {p: len(by_region[region].get(p, [])) for p in PLACEMENTS}
@@ -70,10 +119,14 @@ def regions_from_readings(grid: Grid, readings) -> tuple[dict, list[str]]:
             left_out.append(f'region {region} left out: incomplete ('
                             + ', '.join(f'{p} {n}/{full}' for p, n in counts.items()) + ')')
             continue
-        as_arrays = {p: (np.array([m for m, _, _ in rows]), np.array([r for _, r, _ in rows]))
+        as_arrays = {p: (np.array([row[0] for row in rows]), np.array([row[1] for row in rows]))
                      for p, rows in by_region[region].items()}
-        times = None if start is None else {
-            p: {'time': np.array([t for _, _, t in rows])}
-            for p, rows in by_region[region].items()}
-        regions[region] = region_from_readings(grid, as_arrays, f'region {region}', times)
+        covariates = None
+        if start is not None:
+            covariates = {p: {'time': np.array([row[2] for row in rows])}
+                          for p, rows in by_region[region].items()}
+            if kelvin is not None:
+                for p, rows in by_region[region].items():
+                    covariates[p]['temperature'] = np.array([row[3] for row in rows])
+        regions[region] = region_from_readings(grid, as_arrays, f'region {region}', covariates)
     return regions, left_out

@@ -14,15 +14,20 @@ parameters otherwise, and the report says so). The regions are self-calibrated a
 stitched; the stage error map is written as an atomic, versioned file, published latched on
 ``/grid_calibrator/result`` with progress on ``/grid_calibrator/progress``, and the run is
 recorded to MCAP (``machine-align calibrate grid --bag`` solves it again offline; a run
-stopped part way replays its complete regions). Plan keys: ``half``, ``pitch``,
-``columns``, ``rows``, ``first_centre``, ``approach``, ``certified_pitch``, ``stitch``.
-A plan that leaves the travel is refused before anything moves.
+stopped part way replays its complete regions). Each reading is stamped with its frame's
+time; the machine's temperature, where a sensor publishes it on ``temperature_topic``
+(sensor_msgs/Temperature, degrees Celsius), is recorded with the readings, and each
+reading takes it at its stamp. Plan keys: ``half``, ``pitch``, ``columns``, ``rows``,
+``first_centre``, ``approach``, ``certified_pitch``, ``stitch``. A plan that leaves the
+travel is refused before anything moves.
 
 Service ``grid_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the grid's closed
 loop (:func:`grid_calib.core.residual_loop.analyze_travel`) on the last run's regions:
 report and figure in ``output_dir/analysis``, published latched on
-``/grid_calibrator/analysis`` and recorded. Plan keys ``alpha`` and ``max_effects``; its
-held-out check is leave-one-out, so ``holdout_fraction`` and ``seed`` are refused.
+``/grid_calibrator/analysis`` and recorded. The loop reads the run as the offline replay
+reads its bag: every reading with its time in the run and, where logged, its temperature
+(thermal expansion). Plan keys ``alpha`` and ``max_effects``; its held-out check is
+leave-one-out, so ``holdout_fraction`` and ``seed`` are refused.
 """
 import threading
 
@@ -32,11 +37,12 @@ from alignment_msgs.msg import (
 from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from sensor_msgs.msg import Temperature
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from calib_core.closed_loop import LoopConfig
-from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.image_plane import NOMINAL_PIXEL_SIZE, CameraToPlate
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
@@ -46,8 +52,10 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
+from calib_core.schema import TEMPERATURE_TOPIC
 from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
-from grid_calib.core.records import PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC
+from grid_calib.core.records import (
+    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, regions_from_readings, temperature_log)
 from grid_calib.core.residual_loop import analyze_travel
 from grid_calib.core.stitching import METHODS
 from grid_calib.core.travel import calibrate_travel, grid_result_content
@@ -114,6 +122,7 @@ class GridCalibratorNode(Node):
         self.declare_parameter('vision_result_topic', '/vision_calibrator/result')
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('placement_timeout_s', 600.0)
+        self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self._plan_from_parameters({})            # refuse a bad plan at start-up
         size = [int(v) for v in self.get_parameter('image_size').value]
         if len(size) != 2 or min(size) <= 0:
@@ -126,6 +135,9 @@ class GridCalibratorNode(Node):
         self._vision = None                       # (pixel_size, angle) from the vision result
         self._placed = threading.Event()
         self._gantry_state, self._last_marks = GantryState(), None
+        # Temperature samples received and not yet recorded, and those of the run so far.
+        self._temperatures_lock = threading.Lock()
+        self._new_temperatures, self._run_temperatures, self._run_readings = [], [], []
         group = ReentrantCallbackGroup()
         self.move_client = self.create_client(MoveGantry, 'gantry/move', callback_group=group)
         self.detect_client = self.create_client(DetectMarks, 'mark_detector/detect',
@@ -137,6 +149,10 @@ class GridCalibratorNode(Node):
         self.create_subscription(CalibrationResult,
                                  self.get_parameter('vision_result_topic').value,
                                  self.on_vision_result, LATCHED, callback_group=group)
+        self.temperature_topic = self.get_parameter('temperature_topic').value
+        if self.temperature_topic:
+            self.create_subscription(Temperature, self.temperature_topic,
+                                     self.on_temperature, 10, callback_group=group)
         self.calibration_service = CalibrationService(self, 'grid', self._run, self._header)
         self.create_service(RunCalibration, 'grid_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
@@ -189,6 +205,20 @@ class GridCalibratorNode(Node):
         if camera is not None:
             self._vision = camera
 
+    def on_temperature(self, msg):
+        with self._temperatures_lock:
+            # Only the run's samples are kept: a minute's worth at 10 Hz between runs.
+            self._new_temperatures = self._new_temperatures[-600:] + [msg]
+
+    def _record_temperatures(self, run: RecordedRun) -> None:
+        """The temperature samples received since the last call, into the run's bag (from
+        the run's thread: the bag has one writer)."""
+        with self._temperatures_lock:
+            samples, self._new_temperatures = self._new_temperatures, []
+        for msg in samples:
+            run.record(TEMPERATURE_TOPIC, msg)
+        self._run_temperatures += samples
+
     def on_confirm_placement(self, request, response):
         self._placed.set()
         response.success, response.message = True, 'placement confirmed'
@@ -238,12 +268,37 @@ class GridCalibratorNode(Node):
                                    f'{region} within {self.placement_timeout:.0f} s')
 
     def _record_reading(self, run, region, placement, mark, reading) -> None:
-        run.record(READINGS_TOPIC, GridMarkReading(
-            header=self._header(), region=int(region), placement=placement, i=int(mark[0]),
+        self._record_temperatures(run)
+        # Stamped when the frame showed the mark (the camera's stamp): the reading's time
+        # and temperature are that moment's, not the end of its detection's.
+        header = self._header()
+        if self._last_marks.header.stamp.sec or self._last_marks.header.stamp.nanosec:
+            header.stamp = self._last_marks.header.stamp
+        msg = GridMarkReading(
+            header=header, region=int(region), placement=placement, i=int(mark[0]),
             j=int(mark[1]), x=float(reading[0]), y=float(reading[1]),
-            gantry=self._gantry_state, marks=self._last_marks), self.reading_pub)
+            gantry=self._gantry_state, marks=self._last_marks)
+        run.record(READINGS_TOPIC, msg, self.reading_pub)
+        self._run_readings.append(msg)
         # What a viewer shows: the camera over the mark, at the stage's reading.
         run.record_frames([('stage', 'camera', *planar(reading[0], reading[1], 0.0))])
+
+    def _keep_for_the_loop(self, grid) -> str:
+        """Keeps the run for the closed loop as the offline replay reads its bag (each
+        reading's time, and its temperature where the log covers the run); says where the
+        temperature came from, or why there is none. A bad temperature log costs the loop
+        its temperature, never the calibration."""
+        try:
+            log, refused = temperature_log(self._run_temperatures), []
+        except MachineAlignmentError as exc:
+            self.get_logger().warning(f'temperature not used: {exc}')
+            log, refused = None, [f'temperature not used: {exc}']
+        regions, notes = regions_from_readings(grid, self._run_readings, log)
+        self._measured = (grid, regions)
+        if refused or notes:
+            return '; '.join(refused + notes)
+        return (f'{len(log[1])} samples on {self.temperature_topic}, '
+                f'{log[1].min():.3f}..{log[1].max():.3f} K')
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='grid_calibration',
@@ -253,18 +308,24 @@ class GridCalibratorNode(Node):
     def _run(self, overrides: dict) -> CalibrationResult:
         plan, certified, stitch = self._plan_from_parameters(overrides)
         camera, camera_source = self._camera()
+        with self._temperatures_lock:
+            self._new_temperatures = self._new_temperatures[-1:]   # the last before the run
+        self._run_temperatures, self._run_readings = [], []
         with RecordedRun(self, 'grid', {
                 PLACEMENT_TOPIC: 'alignment_msgs/msg/GridPlacement',
                 READINGS_TOPIC: 'alignment_msgs/msg/GridMarkReading',
+                TEMPERATURE_TOPIC: 'sensor_msgs/msg/Temperature',
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             regions = measure_grid(
                 plan, lambda r, p, centre: self._place(run, plan, r, p, centre), self._move,
                 lambda: self._locate(camera), self._progress,
                 lambda r, p, mark, reading: self._record_reading(run, r, p, mark, reading))
+            self._record_temperatures(run)
             calibration = calibrate_travel(plan.grid, regions, stitch, certified)
-            self._measured = (plan.grid, regions)
+            temperature = self._keep_for_the_loop(plan.grid)
             content = grid_result_content(calibration)
             content['report']['camera'] = camera_source
+            content['report']['temperature'] = temperature
             path, version, content = run.save('grid', content)
             result = grid_result_message(content, self._header(), str(path), version)
             run.record(RESULT_TOPIC, result, self.result_pub)

@@ -11,12 +11,14 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calib_core.bags import decode_bag  # noqa: E402
+from calib_core.bags import bag_topics, decode_bag  # noqa: E402
 from calib_core.errors import MachineAlignmentError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
+from calib_core.schema import TEMPERATURE_TOPIC  # noqa: E402
 from grid_calib.core.data import read_marks  # noqa: E402
 from grid_calib.core.records import (  # noqa: E402
-    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
+    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings,
+    temperature_log)
 from grid_calib.core.reference_map import write_reference  # noqa: E402
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
@@ -71,12 +73,16 @@ def _plot(path: Path, calibration) -> None:
 
 
 def grid_run(bag):
-    """The grid and regions of a run recorded by grid_calibrator, the regions a cut run
-    left incomplete named, and the live run's report (None if it ended without one)."""
+    """The grid and regions of a run recorded by grid_calibrator (each reading with its
+    time and, where the run logged one, its temperature), the regions a cut run left
+    incomplete named, and the live run's report (None if it ended without one)."""
     readings, recorded = read_run(bag, READINGS_TOPIC, 'alignment_msgs/msg/GridMarkReading',
                                   lambda msg: msg, 'grid mark readings', RESULT_TOPIC)
     grid = grid_from_placements([m for _, _, m in decode_bag(bag, [PLACEMENT_TOPIC])])
-    regions, left_out = regions_from_readings(grid, readings)
+    temperatures = None
+    if bag_topics(bag).get(TEMPERATURE_TOPIC) == 'sensor_msgs/msg/Temperature':
+        temperatures = temperature_log([m for _, _, m in decode_bag(bag, [TEMPERATURE_TOPIC])])
+    regions, left_out = regions_from_readings(grid, readings, temperatures)
     for line in left_out:
         print(line)
     if not regions:

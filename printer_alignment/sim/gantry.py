@@ -8,7 +8,10 @@ with the paper's model (leads Rx, Ry, axis angle a, non-orthogonality t) plus tw
 the paper's model lacks: backlash b (lost motion: the carriage lags the motor by b/2 in the
 direction of the last move) and lead-screw periodic error e(theta) = A sin(2 pi theta + phase)
 (once per screw revolution). The encoders read the motor angle theta exactly; commands are
-axis positions in m converted with the nominal leads, as a real drive does.
+axis positions in m converted with the nominal leads, as a real drive does. Optionally the
+screws expand as the machine warms, their leads R (1 + k dT), which the rotary encoders do
+not see: the carriage runs ahead of the reading by k dT times its distance from the
+screws' zero.
 """
 from __future__ import annotations
 
@@ -33,12 +36,39 @@ class GantryErrors:
     periodic_amplitude_y: float = 2.0e-6
     periodic_phase_x: float = 0.4
     periodic_phase_y: float = 2.1
+    screw_expansion: float = 0.0        # 1/K, of both screws' leads (steel: about 11.5e-6)
 
     @classmethod
     def ideal(cls) -> 'GantryErrors':
         """A gantry exactly at its nominal geometry (for tests of clean data)."""
         return cls(model=GantryModel(), backlash_x=0.0, backlash_y=0.0,
                    periodic_amplitude_x=0.0, periodic_amplitude_y=0.0)
+
+
+@dataclass(frozen=True)
+class MachineTemperature:
+    """The machine's temperature (K) ``seconds`` after start-up: a warm-up towards its
+    running equilibrium, ``warm_up`` K above ``start`` with the time constant
+    ``warm_up_time`` (s), and the shop's cycle (its air conditioning), ``cycle_amplitude``
+    K over ``cycle_period`` s."""
+
+    start: float = 293.15
+    warm_up: float = 0.0
+    warm_up_time: float = 3600.0
+    cycle_amplitude: float = 0.0
+    cycle_period: float = 1800.0
+
+    def __post_init__(self):
+        if not (200.0 <= self.start <= 400.0 and abs(self.warm_up) <= 50.0
+                and 0 <= self.cycle_amplitude <= 20.0 and self.warm_up_time > 0
+                and self.cycle_period > 0):
+            raise InvalidInputError(
+                f'need a start in 200..400 K, |warm_up| <= 50 K, a cycle_amplitude in 0..20 K '
+                f'and positive times (s), not {self}')
+
+    def at(self, seconds: float) -> float:
+        return (self.start + self.warm_up * (1.0 - np.exp(-seconds / self.warm_up_time))
+                + self.cycle_amplitude * np.sin(2 * np.pi * seconds / self.cycle_period))
 
 
 @dataclass(frozen=True)
@@ -62,6 +92,7 @@ class GantrySim:
         self.travel = travel
         self.revs = np.zeros(2)
         self._direction = np.ones(2)  # +1: last moved towards +, -1: towards -
+        self.warming = 0.0            # K above the temperature of the leads in the model
 
     @property
     def axis_position(self) -> np.ndarray:
@@ -95,11 +126,12 @@ class GantrySim:
         """Where the camera really is in the plate frame (m), shape (2,). Truth: sim only."""
         e = self.errors
         theta = self.revs
+        grown = 1.0 + e.screw_expansion * self.warming
         screw = np.array([
-            e.model.lead_x * theta[0]
+            e.model.lead_x * grown * theta[0]
             + e.periodic_amplitude_x * np.sin(2 * np.pi * theta[0] + e.periodic_phase_x)
             - 0.5 * e.backlash_x * self._direction[0],
-            e.model.lead_y * theta[1]
+            e.model.lead_y * grown * theta[1]
             + e.periodic_amplitude_y * np.sin(2 * np.pi * theta[1] + e.periodic_phase_y)
             - 0.5 * e.backlash_y * self._direction[1]])
         return e.model.matrix() @ screw + np.array([e.model.offset_x, e.model.offset_y])
