@@ -13,10 +13,6 @@ from calib_core.errors import InvalidInputError
 DEGREES_PER_RAD = 180 / np.pi
 MM_PER_M = 1000.0
 CELSIUS_ZERO_K = 273.15
-# A machine's temperature on the live graph, as the simulated machines publish it and the
-# calibrators log it: sensor_msgs/Temperature, in degrees Celsius as that message defines
-# it (converted to kelvin where it is read).
-TEMPERATURE_TOPIC = '/machine/temperature'
 
 
 @dataclass(frozen=True)

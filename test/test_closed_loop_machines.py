@@ -53,6 +53,33 @@ def test_gantry_clean_data_get_nothing():
         assert report['effects_added'] == [] and report['unexplained'] == []
 
 
+def test_gantry_screws_growing_with_the_shop_temperature_are_found_and_kept_out_of_force():
+    """Screws of 11.5 ppm/K (steel) in a shop cycling by +-1 K over 30 min, 200 positions
+    10 s apart with time and temperature logged: the loop adds the thermal expansion (the
+    carriage runs ahead of the command by k dT x), not a drift in time, and says it
+    describes the run, not the machine (it must not be put in force). On the same machine
+    at a steady temperature it adds no drift."""
+    from calib_core.closed_loop import why_not_in_force
+    from printer_alignment.sim.gantry import MachineTemperature
+    expansion = 11.5e-6
+    truth = dataclasses.replace(GantryErrors.ideal(), screw_expansion=expansion)
+    shop = MachineTemperature(cycle_amplitude=1.0, cycle_period=1800.0)
+    report = analyze(GantryLoopModel(measure_random_positions(
+        truth, noise=GANTRY_NOISE, seed=4, temperature=shop))).report
+    effects = _added(report)
+    assert set(effects) == {'drift_temperature'}
+    fitted = effects['drift_temperature']
+    for axis in ('x', 'y'):
+        error = fitted['parameters'][f'expansion_{axis}'] - expansion
+        assert abs(error) < 4 * fitted['std_devs'][f'expansion_{axis}'], fitted
+    assert 'drift_temperature' in why_not_in_force(report['effects_added'])
+    steady = analyze(GantryLoopModel(measure_random_positions(
+        truth, noise=GANTRY_NOISE, seed=4, temperature=MachineTemperature()))).report
+    assert steady['effects_added'] == []
+    assert steady['skipped']['drift_temperature'] == 'temperature is constant in the data'
+    assert why_not_in_force([{'name': 'reversal'}, {'name': 'periodic'}]) == ''
+
+
 def test_gantry_directions_from_row_order(tmp_path):
     data = measure_random_positions(GantryErrors(), 40, GANTRY_NOISE, seed=3)
     path = tmp_path / 'gantry.csv'

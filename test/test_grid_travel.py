@@ -202,7 +202,8 @@ def test_the_logged_temperature_reaches_every_reading():
     from types import SimpleNamespace
 
     from calib_core.errors import InvalidInputError
-    from grid_calib.core.records import regions_from_readings, temperature_log
+    from calib_core.temperature import temperature_log
+    from grid_calib.core.records import regions_from_readings
     truth = default_travel(GRID, 1, 1, seed=3)
     messages = []
     for r, region in _regions(truth).items():
@@ -230,8 +231,8 @@ def test_the_logged_temperature_reaches_every_reading():
         sample.temperature -= 273.15
     regions, notes = regions_from_readings(GRID, messages, temperature_log(early))
     # The last sample is at 1009.5 s: 35 of the 363 readings lie within 60 s of it.
-    assert notes == ['temperature not attached: 328 reading(s) lie more than 60 s from every '
-                     'sample of the log']
+    assert notes == ['temperature not attached: 328 measurement(s) lie more than 60 s from '
+                     'every sample of the log']
     assert all(set(p.covariates) == {'time'} for p in regions[0].placements)
 
 

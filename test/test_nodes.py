@@ -106,6 +106,11 @@ def test_analyze_residuals_finds_the_gantry_backlash(graph):
     assert backlash['backlash_x'] == pytest.approx(4e-6, abs=1.5e-6)
     assert backlash['backlash_y'] == pytest.approx(6e-6, abs=1.5e-6)
     assert analysis.rms_after < 0.6 * analysis.rms_before
+    # Each position with its frame's time and the machine's temperature (20 C throughout):
+    # a drift in time tested and not added on a machine that does not drift.
+    assert 'drift_time' in report['candidates'] and 'drift_time' not in report['skipped']
+    assert report['skipped']['drift_temperature'] == 'temperature is constant in the data'
+    assert not {'drift_time', 'drift_temperature'} & set(analysis.effects_added)
     assert analysis.applied and (out / 'calibration' / 'vision.v2.yaml').exists()
     assert all(running.alive())
 

@@ -20,8 +20,8 @@ Modules: ``model`` (MachineModel, LoopConfig), ``fitting``, ``identifiability``,
 """
 from calib_core.closed_loop.fitting import evaluate, refit
 from calib_core.closed_loop.model import LoopConfig, MachineModel, scalar_covariates, select_rows
-from calib_core.closed_loop.report import LoopResult, format_report
+from calib_core.closed_loop.report import LoopResult, format_report, why_not_in_force
 from calib_core.closed_loop.selection import analyze
 
 __all__ = ['LoopConfig', 'LoopResult', 'MachineModel', 'analyze', 'evaluate', 'format_report',
-           'refit', 'scalar_covariates', 'select_rows']
+           'refit', 'scalar_covariates', 'select_rows', 'why_not_in_force']

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib_core.effects import OF_THE_RUN
 from calib_core.effects.periodic import alias_periods
 from calib_core.loop_structure import lack_of_fit, likely_causes, structure_tests
 from calib_core.closed_loop.fitting import (
@@ -156,6 +157,18 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
     return LoopResult(_plain(report), holdout, before_all, after_all, covariates, final,
                       residuals_by_channel(machine, primary.base_fit, every),
                       residuals_by_channel(machine, final, every), effect_terms)
+
+
+def why_not_in_force(effects_added: list) -> str:
+    """Why a loop's extended model must not become the calibration in force: a sentence
+    naming the added effects (report entries with a ``name``) that describe the run
+    measured rather than the machine (OF_THE_RUN); '' where none does."""
+    of_the_run = sorted({effect['name'] for effect in effects_added} & set(OF_THE_RUN))
+    if not of_the_run:
+        return ''
+    return (f'{", ".join(of_the_run)} describe(s) the run measured, not the machine: nothing '
+            'put in force (measure again at a steady temperature, or call without apply for '
+            'the report)')
 
 
 def _plain(value):

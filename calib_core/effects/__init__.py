@@ -59,9 +59,14 @@ LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Peri
                                DriftTime(), DriftTemperature(), RadialDistortion(),
                                TangentialDistortion(), LegPlay(), Compliance(),
                                RotaryHarmonics(), ErrorMotion())}
+# Effects that describe the run measured, not the machine: in force they would act on later
+# runs with that run's clock, temperature or blocks (a drift with temperature could be
+# compensated only from a live temperature, which no consumer here reads).
+OF_THE_RUN = ('drift_time', 'drift_temperature', 'block_step', 'warm_up')
 
 __all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'DriftTemperature',
-           'DriftTime', 'Effect', 'ErrorMotion', 'LeadError', 'LegPlay', 'Offset', 'Periodic', 'Prepared',
+           'DriftTime', 'Effect', 'ErrorMotion', 'LeadError', 'LegPlay', 'OF_THE_RUN', 'Offset',
+           'Periodic', 'Prepared',
            'RadialDistortion', 'Reversal', 'ReversalByPosition', 'RotaryHarmonics', 'Scale',
            'Squareness', 'TangentialDistortion', 'WarmUp', 'resolvable_orders',
            'resolvable_periods']

@@ -1,6 +1,8 @@
 """The ``analyze_residuals`` service every calibrator offers: run the closed loop on the
 calibrator's data, write the report (JSON + PNG), publish it latched, record it to an MCAP
-bag and, when asked, make the extended model the calibration in force."""
+bag and, when asked, make the extended model the calibration in force (never one with an
+effect of the run rather than the machine: a drift in time or with temperature, a step
+between blocks)."""
 from __future__ import annotations
 
 import json
@@ -11,7 +13,7 @@ from typing import Callable
 import yaml
 from alignment_msgs.msg import ResidualAnalysis
 
-from calib_core.closed_loop import LoopConfig, MachineModel, analyze
+from calib_core.closed_loop import LoopConfig, MachineModel, analyze, why_not_in_force
 from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import parse_plan
 from calib_core.nodes.qos import LATCHED
@@ -115,11 +117,17 @@ class AnalysisService:
                 raise InvalidInputError(f'unknown analysis options {sorted(unknown)}; known: '
                                         f'{list(self.options) + list(LOOP_OPTIONS)}')
             report, draw, result = self.loop(self.collect(options), config, self.progress)
-            response.analysis = self._publish(report, draw, result, request.apply)
+            refused = why_not_in_force(report['effects_added']) if request.apply else ''
+            if refused:
+                report = dict(report, not_applied=refused)
+            response.analysis = self._publish(report, draw, result,
+                                              request.apply and not refused)
             response.success = True
             response.message = (f'added {", ".join(response.analysis.effects_added) or "nothing"}; '
                                 f'held-out RMS {report["rms_before"]:.4g} -> '
-                                f'{report["rms_after"]:.4g} {report["unit"]}')
+                                f'{report["rms_after"]:.4g} {report["unit"]}'
+                                + (f'; {report["not_applied"]}' if 'not_applied' in report
+                                   else ''))
             logger.info(f'{self.kind} analysis: {response.message}')
         except (MachineAlignmentError, TypeError, ValueError, yaml.YAMLError) as exc:
             logger.error(f'{self.kind} analysis failed: {exc}')

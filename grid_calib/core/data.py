@@ -13,6 +13,7 @@ from calib_core.checks import MAX_POSITION_M
 from calib_core.files import read_csv_rows
 from calib_core.schema import Column, Schema
 from calib_core.storage import write_atomic
+from calib_core.temperature import TEMPERATURE
 from grid_calib.core.model import PLACEMENTS, Grid, site_of
 from grid_calib.core.selfcal import Placement
 from grid_calib.errors import PlacementError
@@ -117,11 +118,10 @@ def region_from_readings(grid: Grid, readings: dict, label: str = 'region',
 
 
 # The grid marks CSV, declared: readings anywhere on a machine, temperatures in kelvin.
-TEMPERATURE_COLUMN = Column('temperature', 'K', 200.0, 400.0, 'temperature (kelvin)')
 MARKS_SCHEMA = Schema((
     Column('x', 'm', -MAX_POSITION_M, MAX_POSITION_M, 'mark reading x'),
     Column('y', 'm', -MAX_POSITION_M, MAX_POSITION_M, 'mark reading y'),
-    TEMPERATURE_COLUMN))
+    TEMPERATURE))
 
 
 def read_marks(path, pitch: float) -> tuple[Grid, dict]:

@@ -6,18 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.schema import CELSIUS_ZERO_K, TEMPERATURE_TOPIC
-from grid_calib.core.data import TEMPERATURE_COLUMN, region_from_readings
+from calib_core.temperature import stamp_seconds, temperatures_at
+from grid_calib.core.data import region_from_readings
 from grid_calib.core.model import PLACEMENTS, Grid
 from grid_calib.errors import PlacementError
 
 READINGS_TOPIC = '/grid_calibrator/readings'
 PLACEMENT_TOPIC = '/grid_calibrator/placement'
 RESULT_TOPIC = '/grid_calibrator/result'
-# A reading takes the temperature interpolated between the log's samples around it; a
-# reading further than this from every sample (a sensor that stopped) leaves the whole
-# run without a temperature.
-MAX_TEMPERATURE_GAP_S = 60.0
 
 
 def grid_from_placements(placements) -> Grid:
@@ -38,48 +34,6 @@ def grid_from_placements(placements) -> Grid:
     return Grid((count - 1) // 2, pitch)
 
 
-def _stamp(msg) -> float:
-    """A reading's header stamp (s), NaN for a reading without one."""
-    header = getattr(msg, 'header', None)
-    return np.nan if header is None else header.stamp.sec + 1e-9 * header.stamp.nanosec
-
-
-def temperature_log(messages) -> tuple[np.ndarray, np.ndarray]:
-    """The stamps (s) and temperatures (K) of sensor_msgs/Temperature messages (degrees
-    Celsius, as the message defines them), in time order.
-
-    Raises
-    ------
-    InvalidInputError
-        A temperature NaN or beyond what a machine reaches, with the likely mistake
-        (kelvin sent as degrees Celsius)."""
-    stamps = np.array([_stamp(msg) for msg in messages], dtype=float)
-    kelvin = np.array([msg.temperature for msg in messages], dtype=float) + CELSIUS_ZERO_K
-    TEMPERATURE_COLUMN.check(kelvin, f'the temperature log ({TEMPERATURE_TOPIC})')
-    order = np.argsort(stamps, kind='stable')
-    return stamps[order], kelvin[order]
-
-
-def temperatures_at(stamps: np.ndarray, log) -> tuple[np.ndarray | None, str]:
-    """The temperature (K) at each reading's stamp (s), linear between the log's samples
-    (``temperature_log``), and ''; or None and why not: the log is empty, a stamp is
-    missing, or a reading lies further than MAX_TEMPERATURE_GAP_S from every sample."""
-    sample_stamps, kelvin = log
-    stamps = np.asarray(stamps, dtype=float)
-    if not len(kelvin):
-        return None, 'no temperature logged'
-    if not (np.all(np.isfinite(stamps)) and np.all(np.isfinite(sample_stamps))):
-        return None, 'temperature not attached: a reading or a sample has no time stamp'
-    after = np.searchsorted(sample_stamps, stamps).clip(1, len(kelvin) - 1)
-    gap = np.minimum(np.abs(stamps - sample_stamps[after - 1]),
-                     np.abs(stamps - sample_stamps[after]))
-    far = int(np.count_nonzero(gap > MAX_TEMPERATURE_GAP_S))
-    if far:
-        return None, (f'temperature not attached: {far} reading(s) lie more than '
-                      f'{MAX_TEMPERATURE_GAP_S:.0f} s from every sample of the log')
-    return np.interp(stamps, sample_stamps, kelvin), ''
-
-
 def regions_from_readings(grid: Grid, readings, temperatures=None
                           ) -> tuple[dict, list[str]]:
     """Regions (region -> ``data.Region``) from GridMarkReading messages, and sentences
@@ -87,14 +41,14 @@ def regions_from_readings(grid: Grid, readings, temperatures=None
     part way; what was measured is kept, nothing incomplete is solved), a temperature the
     log does not cover. With every reading stamped, each carries its ``time`` (s since the
     run's first reading) for the closed loop, and with a log of ``temperatures``
-    (``temperature_log``) its ``temperature`` (K).
+    (``calib_core.temperature.temperature_log``) its ``temperature`` (K).
 
     Raises
     ------
     PlacementError
         A reading with NaN or an unknown placement, or a complete region whose placements
         are not the method's."""
-    by_region, stamps = {}, np.array([_stamp(msg) for msg in readings])
+    by_region, stamps = {}, np.array([stamp_seconds(msg) for msg in readings])
     start = np.min(stamps) if len(stamps) and np.all(np.isfinite(stamps)) else None
     left_out, kelvin = [], None
     if temperatures is not None:

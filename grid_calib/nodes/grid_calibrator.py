@@ -37,12 +37,11 @@ from alignment_msgs.msg import (
 from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from sensor_msgs.msg import Temperature
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from calib_core.closed_loop import LoopConfig
-from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.image_plane import NOMINAL_PIXEL_SIZE, CameraToPlate
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
@@ -52,10 +51,11 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
-from calib_core.schema import TEMPERATURE_TOPIC
+from calib_core.nodes.temperature import TemperatureLog
+from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE
 from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
 from grid_calib.core.records import (
-    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, regions_from_readings, temperature_log)
+    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, regions_from_readings)
 from grid_calib.core.residual_loop import analyze_travel
 from grid_calib.core.stitching import METHODS
 from grid_calib.core.travel import calibrate_travel, grid_result_content
@@ -135,9 +135,7 @@ class GridCalibratorNode(Node):
         self._vision = None                       # (pixel_size, angle) from the vision result
         self._placed = threading.Event()
         self._gantry_state, self._last_marks = GantryState(), None
-        # Temperature samples received and not yet recorded, and those of the run so far.
-        self._temperatures_lock = threading.Lock()
-        self._new_temperatures, self._run_temperatures, self._run_readings = [], [], []
+        self._run_readings = []
         group = ReentrantCallbackGroup()
         self.move_client = self.create_client(MoveGantry, 'gantry/move', callback_group=group)
         self.detect_client = self.create_client(DetectMarks, 'mark_detector/detect',
@@ -149,10 +147,8 @@ class GridCalibratorNode(Node):
         self.create_subscription(CalibrationResult,
                                  self.get_parameter('vision_result_topic').value,
                                  self.on_vision_result, LATCHED, callback_group=group)
-        self.temperature_topic = self.get_parameter('temperature_topic').value
-        if self.temperature_topic:
-            self.create_subscription(Temperature, self.temperature_topic,
-                                     self.on_temperature, 10, callback_group=group)
+        self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
+                                           group)
         self.calibration_service = CalibrationService(self, 'grid', self._run, self._header)
         self.create_service(RunCalibration, 'grid_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
@@ -205,20 +201,6 @@ class GridCalibratorNode(Node):
         if camera is not None:
             self._vision = camera
 
-    def on_temperature(self, msg):
-        with self._temperatures_lock:
-            # Only the run's samples are kept: a minute's worth at 10 Hz between runs.
-            self._new_temperatures = self._new_temperatures[-600:] + [msg]
-
-    def _record_temperatures(self, run: RecordedRun) -> None:
-        """The temperature samples received since the last call, into the run's bag (from
-        the run's thread: the bag has one writer)."""
-        with self._temperatures_lock:
-            samples, self._new_temperatures = self._new_temperatures, []
-        for msg in samples:
-            run.record(TEMPERATURE_TOPIC, msg)
-        self._run_temperatures += samples
-
     def on_confirm_placement(self, request, response):
         self._placed.set()
         response.success, response.message = True, 'placement confirmed'
@@ -268,7 +250,7 @@ class GridCalibratorNode(Node):
                                    f'{region} within {self.placement_timeout:.0f} s')
 
     def _record_reading(self, run, region, placement, mark, reading) -> None:
-        self._record_temperatures(run)
+        self.temperatures.record(run)
         # Stamped when the frame showed the mark (the camera's stamp): the reading's time
         # and temperature are that moment's, not the end of its detection's.
         header = self._header()
@@ -288,17 +270,10 @@ class GridCalibratorNode(Node):
         reading's time, and its temperature where the log covers the run); says where the
         temperature came from, or why there is none. A bad temperature log costs the loop
         its temperature, never the calibration."""
-        try:
-            log, refused = temperature_log(self._run_temperatures), []
-        except MachineAlignmentError as exc:
-            self.get_logger().warning(f'temperature not used: {exc}')
-            log, refused = None, [f'temperature not used: {exc}']
+        log, sentence = self.temperatures.log()
         regions, notes = regions_from_readings(grid, self._run_readings, log)
         self._measured = (grid, regions)
-        if refused or notes:
-            return '; '.join(refused + notes)
-        return (f'{len(log[1])} samples on {self.temperature_topic}, '
-                f'{log[1].min():.3f}..{log[1].max():.3f} K')
+        return '; '.join([sentence] + notes)
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='grid_calibration',
@@ -308,19 +283,18 @@ class GridCalibratorNode(Node):
     def _run(self, overrides: dict) -> CalibrationResult:
         plan, certified, stitch = self._plan_from_parameters(overrides)
         camera, camera_source = self._camera()
-        with self._temperatures_lock:
-            self._new_temperatures = self._new_temperatures[-1:]   # the last before the run
-        self._run_temperatures, self._run_readings = [], []
+        self.temperatures.start()
+        self._run_readings = []
         with RecordedRun(self, 'grid', {
                 PLACEMENT_TOPIC: 'alignment_msgs/msg/GridPlacement',
                 READINGS_TOPIC: 'alignment_msgs/msg/GridMarkReading',
-                TEMPERATURE_TOPIC: 'sensor_msgs/msg/Temperature',
+                TEMPERATURE_TOPIC: TEMPERATURE_TYPE,
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             regions = measure_grid(
                 plan, lambda r, p, centre: self._place(run, plan, r, p, centre), self._move,
                 lambda: self._locate(camera), self._progress,
                 lambda r, p, mark, reading: self._record_reading(run, r, p, mark, reading))
-            self._record_temperatures(run)
+            self.temperatures.record(run)
             calibration = calibrate_travel(plan.grid, regions, stitch, certified)
             temperature = self._keep_for_the_loop(plan.grid)
             content = grid_result_content(calibration)

@@ -14,11 +14,11 @@ import numpy as np  # noqa: E402
 from calib_core.bags import bag_topics, decode_bag  # noqa: E402
 from calib_core.errors import MachineAlignmentError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
-from calib_core.schema import TEMPERATURE_TOPIC  # noqa: E402
+from calib_core.temperature import (  # noqa: E402
+    TEMPERATURE_TOPIC, TEMPERATURE_TYPE, temperature_log)
 from grid_calib.core.data import read_marks  # noqa: E402
 from grid_calib.core.records import (  # noqa: E402
-    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings,
-    temperature_log)
+    PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
 from grid_calib.core.reference_map import write_reference  # noqa: E402
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
@@ -80,7 +80,7 @@ def grid_run(bag):
                                   lambda msg: msg, 'grid mark readings', RESULT_TOPIC)
     grid = grid_from_placements([m for _, _, m in decode_bag(bag, [PLACEMENT_TOPIC])])
     temperatures = None
-    if bag_topics(bag).get(TEMPERATURE_TOPIC) == 'sensor_msgs/msg/Temperature':
+    if bag_topics(bag).get(TEMPERATURE_TOPIC) == TEMPERATURE_TYPE:
         temperatures = temperature_log([m for _, _, m in decode_bag(bag, [TEMPERATURE_TOPIC])])
     regions, left_out = regions_from_readings(grid, readings, temperatures)
     for line in left_out:

@@ -21,7 +21,8 @@ from std_msgs.msg import Header
 from calib_core.errors import MachineAlignmentError
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
-from calib_core.schema import CELSIUS_ZERO_K, TEMPERATURE_TOPIC
+from calib_core.schema import CELSIUS_ZERO_K
+from calib_core.temperature import TEMPERATURE_TOPIC
 from printer_alignment.nodes.conversions import gantry_state_as_message
 from printer_alignment.sim.gantry import GantryErrors, GantrySim, MachineTemperature, Travel
 

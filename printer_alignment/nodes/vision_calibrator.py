@@ -20,10 +20,12 @@ calibrator, aligner) can work after the plate is removed and the graph restarted
 
 Service ``vision_calibrator/analyze_residuals`` (AnalyzeResiduals) measures ``points``
 random positions over the travel in random order (so both directions of approach occur)
-with the calibrated camera and gantry model, runs the closed loop on the gantry (backlash,
-screw error, squareness, ...), publishes the report latched on
-``/vision_calibrator/analysis`` and, with ``apply``, writes the calibration again with the
-added effects as a new version.
+with the calibrated camera and gantry model, each with its frame's time and the machine's
+temperature then (where a sensor publishes it on ``temperature_topic``), runs the closed
+loop on the gantry (backlash, screw error, squareness, drift, thermal expansion, ...),
+publishes the report latched on ``/vision_calibrator/analysis`` and, with ``apply``,
+writes the calibration again with the added effects as a new version (not where they
+describe the run rather than the machine: a drift in time or with temperature).
 """
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionObservation
@@ -43,6 +45,8 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.temperature import TemperatureLog
+from calib_core.temperature import TEMPERATURE_TOPIC, stamp_seconds
 from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
     NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate)
@@ -93,6 +97,7 @@ class VisionCalibratorNode(Node):
         # to the plate cannot measure it, and the distortion coefficients scale with it.
         self.declare_parameter('focal_px', 2000.0)
         self.declare_parameter('image_size', [640, 480])
+        self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         focal = self.get_parameter('focal_px').value
         size = list(self.get_parameter('image_size').value)
         if not (focal > 0 and len(size) == 2 and all(int(v) > 0 for v in size)):
@@ -102,6 +107,8 @@ class VisionCalibratorNode(Node):
         self.nominal_camera = CameraToPlate(float(self.get_parameter('nominal_pixel_size').value))
         self._gantry_state = GantryState()
         group = ReentrantCallbackGroup()
+        self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
+                                           group)
         self.move_client = self.create_client(MoveGantry, 'gantry/move', callback_group=group)
         self.detect_client = self.create_client(DetectMarks, 'mark_detector/detect',
                                                 callback_group=group)
@@ -273,28 +280,44 @@ class VisionCalibratorNode(Node):
         high = np.array([plan.x_range[1], plan.y_range[1]]) - plan.margin
         targets = rng.uniform(low, high, (points, 2))
         start = np.array([self._gantry_state.x, self._gantry_state.y])
-        command, measured = [], []
+        command, measured, stamps = [], [], []
+        self.temperatures.start()
         for k, (x, y) in enumerate(targets):
             revs = self._move(x, y)
             predicted = calibration.gantry.camera_position(revs)[0]
-            measured.append(self._locate(calibration, predicted))
+            position, stamp = self._locate(calibration, predicted)
+            measured.append(position)
+            stamps.append(stamp)
             command.append([self._gantry_state.x, self._gantry_state.y])
+            self.temperatures.record()
             self._progress(k + 1, points, f'analysis: position {k + 1}/{points}')
         command = np.array(command)
         directions = directions_from_order(np.vstack([start, command]))[1:]
-        return GantryLoopModel(GantryData(command, np.array(measured), directions))
+        return GantryLoopModel(GantryData(command, np.array(measured), directions,
+                                          self._run_covariates(np.array(stamps))))
 
-    def _locate(self, calibration, predicted, attempts: int = 3) -> np.ndarray:
-        """Camera position (m) measured at the current stop. An image far from where the
-        calibrated model puts the camera (a quarter pitch) is taken again: it was exposed
-        before the gantry arrived."""
+    def _run_covariates(self, stamps: np.ndarray) -> dict:
+        """Each position's ``time`` (s since the first, from its frame's stamp) and, where
+        the sensor's log covers them, its ``temperature`` (K)."""
+        covariates = {'time': stamps - stamps.min()}
+        kelvin, sentence = self.temperatures.at(stamps)
+        if kelvin is None:
+            self.get_logger().info(f'analysis without a temperature: {sentence}')
+        else:
+            covariates['temperature'] = kelvin
+        return covariates
+
+    def _locate(self, calibration, predicted, attempts: int = 3) -> tuple[np.ndarray, float]:
+        """Camera position (m) measured at the current stop, and its frame's stamp (s). An
+        image far from where the calibrated model puts the camera (a quarter pitch) is
+        taken again: it was exposed before the gantry arrived."""
         pitch = self.plan.pitch
         for _ in range(attempts):
-            _, uv = self._detect_dots()
+            detected, uv = self._detect_dots()
             position = locate_camera(uv, calibration.camera2plate, pitch, predicted)
             miss = float(np.linalg.norm(position - predicted))
             if miss < 0.25 * pitch:
-                return position
+                return position, stamp_seconds(detected.marks)
             self.get_logger().warning(f'camera position {miss * 1e6:.0f} um from the '
                                       'calibrated model\'s; taking another image')
         raise CalibrationError(f'{attempts} images in a row disagree with the calibrated model '

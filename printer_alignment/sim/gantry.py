@@ -138,29 +138,39 @@ class GantrySim:
 
 
 def measure_positions(gantry: GantrySim, targets: np.ndarray, noise: float = 0.3e-6,
-                      seed: int = 0):
+                      seed: int = 0, temperature: MachineTemperature | None = None,
+                      seconds_each: float = 10.0):
     """Visit ``targets`` (commanded axis positions, m, (n, 2)) in order and measure the
     camera position through the camera and a dot plate, with ``noise`` m (1 sigma) per
-    coordinate; the data for the closed loop (directions from the moves)."""
+    coordinate; the data for the closed loop (directions from the moves). With a
+    ``temperature``, a position is measured every ``seconds_each`` s as the machine's
+    temperature changes, each with its ``time`` (s) and ``temperature`` (K) logged."""
     from calib_core.datasets import directions_from_order
     from printer_alignment.core.loop_models import GantryData
     rng = np.random.default_rng(seed)
     targets = np.atleast_2d(np.asarray(targets, dtype=float))
+    times = seconds_each * np.arange(len(targets))
+    kelvin = np.array([temperature.at(t) for t in times]) if temperature else None
     measured = []
-    for x, y in targets:
+    for k, (x, y) in enumerate(targets):
         gantry.move(x, y)
+        if temperature:
+            gantry.warming = kelvin[k] - temperature.start
         measured.append(gantry.true_camera_position() + rng.normal(0, noise, 2))
     start = np.array([gantry.travel.x_min, gantry.travel.y_min])
     # The gantry's own state fixes the direction of the first target.
     with_start = np.vstack([start, targets])
-    return GantryData(targets, np.array(measured), directions_from_order(with_start)[1:])
+    covariates = {'time': times, 'temperature': kelvin} if temperature else {}
+    return GantryData(targets, np.array(measured), directions_from_order(with_start)[1:],
+                      covariates)
 
 
 def measure_random_positions(errors: GantryErrors, count: int = 200, noise: float = 0.3e-6,
-                             seed: int = 0):
+                             seed: int = 0, temperature: MachineTemperature | None = None):
     """:func:`measure_positions` at ``count`` random targets over the whole travel, visited
     in random order, so both directions of approach occur on each axis."""
     travel = Travel()
     targets = np.random.default_rng(seed).uniform(
         [travel.x_min, travel.y_min], [travel.x_max, travel.y_max], (count, 2))
-    return measure_positions(GantrySim(errors, travel), targets, noise, seed=seed + 1)
+    return measure_positions(GantrySim(errors, travel), targets, noise, seed=seed + 1,
+                             temperature=temperature)
