@@ -59,3 +59,20 @@ def temperatures_at(stamps, log) -> tuple[np.ndarray | None, str]:
         return None, (f'temperature not attached: {far} measurement(s) lie more than '
                       f'{MAX_TEMPERATURE_GAP_S:.0f} s from every sample of the log')
     return np.interp(stamps, sample_stamps, kelvin), ''
+
+
+def run_covariates(stamps, log=None) -> tuple[dict, str]:
+    """A run's covariates for the closed loop, per measurement: ``time`` (s since the
+    first, from the stamps (s) of the messages that recorded them) and, where a
+    ``temperature_log`` covers them, ``temperature`` (K); and why there is no temperature
+    ('' where there is, or no log was given). No time where a stamp is missing."""
+    stamps = np.asarray(stamps, dtype=float)
+    if not len(stamps) or not np.all(np.isfinite(stamps)):
+        return {}, 'no time: a measurement has no time stamp'
+    covariates = {'time': stamps - stamps.min()}
+    if log is None:
+        return covariates, ''
+    kelvin, why = temperatures_at(stamps, log)
+    if kelvin is not None:
+        covariates['temperature'] = kelvin
+    return covariates, why

@@ -141,6 +141,8 @@ def test_analyze_residuals_after_the_run(graph):
     report = json.loads(analysis.report_json)
     assert analysis.machine == 'hexapod' and report['rows']['total'] == 2 * 20 + 2 * 10
     assert 'leg_play' in report['candidates'] and 'leg_play' not in report['skipped']
+    # Every stop with its time: a drift tested, and not found on a machine without one.
+    assert 'drift_time' not in report['skipped'] and 'drift_time' not in analysis.effects_added
     # The simulated joint play (8.3-9.9 um per leg) is what the 42 parameters lack.
     assert 'leg_play' in analysis.effects_added, (report['rejected'], report['not_identifiable'])
     assert analysis.rms_after < analysis.rms_before

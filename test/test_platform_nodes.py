@@ -95,6 +95,12 @@ def test_the_last_run_is_analysed_and_never_put_in_force(graph):
                          '{holdout_fraction: 0.1}')
     assert done.returncode == 0, done.stderr
     assert 'closed loop on the platform' in done.stdout
+    # Every identification pose with its time: a drift in time is not refused for want of
+    # time, only for too few poses (15 here); no sensor publishes a temperature.
+    latest = max((out / 'calibration' / 'analysis').glob('platform_*.json'))
+    skipped = json.loads(latest.read_text())['skipped']
+    assert 'too little data' in skipped['drift_time'], skipped
+    assert 'temperature, which the data lack' in skipped['drift_temperature'], skipped
     assert all(running_graph.alive())
 
 

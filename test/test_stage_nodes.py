@@ -118,6 +118,11 @@ def test_calibration_replay_alignment_and_closed_loop(graph):
                     AnalyzeResiduals.Request(apply=False), timeout=300.0)
     assert analysis.success, analysis.message
     assert analysis.analysis.machine == 'stage' and analysis.analysis.rms_after > 0
+    # Every stop with its time (a drift tested); no sensor publishes a temperature here.
+    loop = json.loads(analysis.analysis.report_json)
+    assert 'drift_time' in loop['candidates'] and 'drift_time' not in loop['skipped']
+    assert 'drift_time' not in analysis.analysis.effects_added
+    assert 'temperature' in loop['skipped']['drift_temperature']
     assert all(running.alive())
 
 

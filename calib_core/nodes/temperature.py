@@ -8,7 +8,7 @@ import threading
 from sensor_msgs.msg import Temperature
 
 from calib_core.errors import MachineAlignmentError
-from calib_core.temperature import TEMPERATURE_TOPIC, temperature_log, temperatures_at
+from calib_core.temperature import TEMPERATURE_TOPIC, run_covariates, temperature_log
 
 # Samples kept between runs: the last one is the run's first (a minute at 10 Hz).
 KEPT_BETWEEN_RUNS = 600
@@ -63,11 +63,10 @@ class TemperatureLog:
         return log, (f'{len(log[1])} samples on {self.topic}, '
                      f'{log[1].min():.3f}..{log[1].max():.3f} K')
 
-    def at(self, stamps) -> tuple:
-        """The temperature (K) at each measurement's stamp (s) from the run's log, and the
-        log's sentence; None and why not where the log cannot give it."""
+    def covariates(self, stamps) -> tuple[dict, str]:
+        """The run's covariates per measurement (calib_core.temperature.run_covariates:
+        its time and, where the log covers it, its temperature) from the stamps (s) of the
+        messages that recorded them, and a sentence on the temperature."""
         log, sentence = self.log()
-        if log is None:
-            return None, sentence
-        kelvin, why = temperatures_at(stamps, log)
-        return kelvin, why or sentence
+        covariates, why = run_covariates(stamps, log)
+        return covariates, why or sentence

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.temperature import stamp_seconds, temperatures_at
+from calib_core.temperature import run_covariates, stamp_seconds
 from grid_calib.core.data import region_from_readings
 from grid_calib.core.model import PLACEMENTS, Grid
 from grid_calib.errors import PlacementError
@@ -48,14 +48,10 @@ def regions_from_readings(grid: Grid, readings, temperatures=None
     PlacementError
         A reading with NaN or an unknown placement, or a complete region whose placements
         are not the method's."""
-    by_region, stamps = {}, np.array([stamp_seconds(msg) for msg in readings])
-    start = np.min(stamps) if len(stamps) and np.all(np.isfinite(stamps)) else None
-    left_out, kelvin = [], None
-    if temperatures is not None:
-        kelvin, source = temperatures_at(stamps, temperatures)
-        if kelvin is None:
-            left_out.append(source)
-    for k, (msg, stamp) in enumerate(zip(readings, stamps)):
+    run, why = run_covariates([stamp_seconds(msg) for msg in readings], temperatures)
+    left_out = [why] if why and 'time' in run else []
+    by_region = {}
+    for k, msg in enumerate(readings):
         if msg.placement not in PLACEMENTS:
             raise PlacementError(f'a reading names placement {msg.placement!r}; the method '
                                  f'uses {PLACEMENTS}')
@@ -63,8 +59,7 @@ def regions_from_readings(grid: Grid, readings, temperatures=None
             raise PlacementError(f'region {msg.region}, {msg.placement}, mark ({msg.i}, '
                                  f'{msg.j}): the reading is NaN or infinite')
         by_region.setdefault(int(msg.region), {}).setdefault(msg.placement, []).append(
-            ((int(msg.i), int(msg.j)), (float(msg.x), float(msg.y)),
-             None if start is None else stamp - start, None if kelvin is None else kelvin[k]))
+            ((int(msg.i), int(msg.j)), (float(msg.x), float(msg.y)), k))
     regions = {}
     full = len(grid.marks)
     for region in sorted(by_region):
@@ -75,12 +70,9 @@ def regions_from_readings(grid: Grid, readings, temperatures=None
             continue
         as_arrays = {p: (np.array([row[0] for row in rows]), np.array([row[1] for row in rows]))
                      for p, rows in by_region[region].items()}
-        covariates = None
-        if start is not None:
-            covariates = {p: {'time': np.array([row[2] for row in rows])}
-                          for p, rows in by_region[region].items()}
-            if kelvin is not None:
-                for p, rows in by_region[region].items():
-                    covariates[p]['temperature'] = np.array([row[3] for row in rows])
+        # Each reading's covariates of the run, where it has them (all stamped).
+        covariates = {p: {name: values[[row[2] for row in rows]]
+                          for name, values in run.items()}
+                      for p, rows in by_region[region].items()} if run else None
         regions[region] = region_from_readings(grid, as_arrays, f'region {region}', covariates)
     return regions, left_out

@@ -10,6 +10,10 @@ The geometry is written as an atomic, versioned YAML file in the form of DESIGN.
 ``/hexapod_calibrator/measurements`` and progress on ``/hexapod_calibrator/progress``; the
 run is recorded to an MCAP bag. One calibration at a time; a failed or interrupted run
 leaves the previous calibration in force.
+
+Service ``hexapod_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
+the last run's stops, each with its time and, where a sensor publishes it on
+``temperature_topic``, the machine's temperature (recorded in the run's bag).
 """
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, HexapodMeasurement, Progress
@@ -28,8 +32,10 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import POSE_TYPE, frame_of
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.temperature import TemperatureLog
 from calib_core.parameters import ParameterSet
 from calib_core.storage import write_calibration
+from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from hexapod_calib.core.calibration import PoseData, check_identification
 from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
@@ -63,12 +69,14 @@ class HexapodCalibratorNode(Node):
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('payload_mass', 0.0)
         self.declare_parameter('payload_centre', [0.0, 0.0, 0.0])
+        self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self.payload_mass = float(self.get_parameter('payload_mass').value)
         self.payload_centre = [float(v) for v in self.get_parameter('payload_centre').value]
         if not (self.payload_mass >= 0 and len(self.payload_centre) == 3
                 and np.all(np.isfinite(self.payload_centre))):
             raise InvalidInputError('payload_mass must be >= 0 kg and payload_centre 3 numbers (m)')
-        self._last_run = []  # every stop of the last completed run, in order
+        # Every stop of the last completed run, in order, and the run's covariates per stop.
+        self._last_run, self._run_covariates = [], {}
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         if not self.timeout > 0:
             raise InvalidInputError('call_timeout_s must be > 0')
@@ -77,6 +85,8 @@ class HexapodCalibratorNode(Node):
         self._settled = None
         self._last_measurement = None  # the sensor's message, recorded as it came
         group = ReentrantCallbackGroup()
+        self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
+                                           group)
         self.move_client = self.create_client(MoveHexapod, 'hexapod/move', callback_group=group)
         self.measure_client = self.create_client(MeasurePose, 'pose_sensor/measure',
                                                  callback_group=group)
@@ -129,13 +139,13 @@ class HexapodCalibratorNode(Node):
         return pose_from_message(response.pose.pose.pose)
 
     def _record(self, run: RecordedRun, stops, phase, target, legs, measured):
-        stops.append((target, measured, legs))
+        self.temperatures.record(run)
         target_pose = pose_as_message(target)
-        run.record(MEASUREMENTS_TOPIC,
-                   HexapodMeasurement(header=self._header(), phase=phase, target=target_pose,
-                                      leg_lengths=np.asarray(legs, float).tolist(),
-                                      measured=self._last_measurement),
-                   self.measurement_pub)
+        measurement = HexapodMeasurement(header=self._header(), phase=phase, target=target_pose,
+                                         leg_lengths=np.asarray(legs, float).tolist(),
+                                         measured=self._last_measurement)
+        run.record(MEASUREMENTS_TOPIC, measurement, self.measurement_pub)
+        stops.append((target, measured, legs, stamp_seconds(measurement)))
         # What a viewer shows: the platform as measured and where it was sent.
         run.record(MEASURED_POSE_TOPIC, PoseStamped(header=self._header(),
                                                     pose=self._last_measurement.pose))
@@ -157,8 +167,10 @@ class HexapodCalibratorNode(Node):
                                f'{moved["rms"] * 1e6:.2f} um RMS, {moved["max"] * 1e6:.2f} um '
                                'max (1 sigma) on the evaluation poses, before anything moves')
         stops = []
+        self.temperatures.start()
         with RecordedRun(self, 'hexapod', {
                 MEASUREMENTS_TOPIC: 'alignment_msgs/msg/HexapodMeasurement',
+                TEMPERATURE_TOPIC: TEMPERATURE_TYPE,
                 MEASURED_POSE_TOPIC: POSE_TYPE,
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             calibration = run_hexapod_calibration(
@@ -172,7 +184,10 @@ class HexapodCalibratorNode(Node):
                 'report': calibration.report})
             result = hexapod_result_message(calibration, self._header(), str(path), version)
             run.record(RESULT_TOPIC, result, self.result_pub)
-        self._last_run = stops
+            self.temperatures.record(run)
+        self._last_run = [stop[:3] for stop in stops]
+        self._run_covariates, sentence = self.temperatures.covariates([s[3] for s in stops])
+        self.get_logger().info(f'closed loop data: {len(stops)} stops; temperature: {sentence}')
         after = calibration.report['evaluation']['after']
         self.get_logger().info(f'done: max {after["max_displacement_m"] * 1e6:.1f} um, '
                                f'{after["max_angle_rad"] * 1e6:.0f} urad on separate poses; '
@@ -184,7 +199,7 @@ class HexapodCalibratorNode(Node):
             raise CalibrationError('no calibration run to analyse yet: call '
                                    'hexapod_calibrator/calibrate first')
         targets, measured, legs = (np.array(column) for column in zip(*self._last_run))
-        data = PoseData(targets, measured, legs)
+        data = PoseData(targets, measured, legs, self._run_covariates)
         forces = (leg_forces(self.nominal, targets, self.payload_mass, self.payload_centre)
                   if self.payload_mass > 0 else None)
         return HexapodLoopModel(data, self.nominal, forces)

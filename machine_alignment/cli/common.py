@@ -12,6 +12,7 @@ from pathlib import Path
 from calib_core.bags import bag_topics, cut_run_count, decode_bag
 from calib_core.errors import MachineAlignmentError
 from calib_core.storage import write_atomic
+from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, temperature_log
 
 
 def progress(done: int, total: int, label: str) -> None:
@@ -139,3 +140,11 @@ def ranged(kind, low: float | None = None, high: float | None = None, unit: str 
         return value
     parse.__name__ = kind.__name__    # argparse names the type in its own messages
     return parse
+
+
+def bag_temperature_log(bag):
+    """The machine's temperature log a calibrator recorded in its run's bag
+    (calib_core.temperature.temperature_log), or None where the run recorded none."""
+    if bag_topics(bag).get(TEMPERATURE_TOPIC) != TEMPERATURE_TYPE:
+        return None
+    return temperature_log([msg for _, _, msg in decode_bag(bag, [TEMPERATURE_TOPIC])])

@@ -2,7 +2,9 @@
 (MCAP bag) as the CSV that ``machine-align analyze`` (and ``calibrate --data``) reads, so
 the closed loop can be run, repeated and shared offline on any live run. A cut run gives
 the stops it recorded. Each row gets a ``time`` column (s since the run's first stop, from
-the stops' header stamps), so a drift during the run can be tested. A five-axis bag (a
+the stops' header stamps) and, where the run recorded the machine's temperature, a
+``temperature`` column (K), so a drift during the run can be tested, as the calibrator's
+own loop tests it. A five-axis bag (a
 calibration run or the sweep ``analyze_residuals`` records) gives the observations CSV of
 its images, which ``analyze rotary --calibration`` reads for a sweep; a grid bag the marks
 CSV of its complete regions, which ``analyze grid`` reads."""
@@ -13,6 +15,7 @@ import dataclasses
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.temperature import run_covariates
 from dispenser_calib.core.data import write_observations
 from dispenser_calib.core.records import (
     OBSERVATIONS_TOPIC as FIVE_AXIS_TOPIC, RESULT_TOPIC as FIVE_AXIS_RESULT_TOPIC,
@@ -21,14 +24,14 @@ from grid_calib.core.data import write_marks
 from hexapod_calib.core.calibration import PoseData as HexapodPoseData
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC as HEXAPOD_TOPIC, measurement_record)
-from machine_alignment.cli.common import read_run
+from machine_alignment.cli.common import bag_temperature_log, read_run
 from machine_alignment.cli.grid import grid_run
 from platform_calib.core.procedure import data_of
 from platform_calib.core.records import (
     MEASUREMENTS_TOPIC as PLATFORM_TOPIC, RESULT_TOPIC as PLATFORM_RESULT_TOPIC,
     stop_from_message)
 from printer_alignment.core.records import (
-    STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, stage_data_from_records, stage_record)
+    STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, stage_data_from_messages)
 
 
 def _stamped(convert):
@@ -36,18 +39,21 @@ def _stamped(convert):
     return lambda msg: (convert(msg), msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
 
 
-def _elapsed(stamps) -> np.ndarray:
-    stamps = np.asarray(stamps, float)
-    return stamps - stamps[0]
+def _covariates(bag, stamps) -> dict:
+    """The run's covariates per stop (time, and temperature where the bag has it)."""
+    covariates, why = run_covariates(stamps, bag_temperature_log(bag))
+    if why:
+        print(why)
+    return covariates
 
 
 def _stage(bag):
-    stamped, _ = read_run(bag, STAGE_OBSERVATIONS_TOPIC, 'alignment_msgs/msg/StageObservation',
-                          _stamped(stage_record), 'stage calibration observations',
-                          STAGE_RESULT_TOPIC)
-    records, stamps = zip(*stamped)
-    data = stage_data_from_records(records)
-    return dataclasses.replace(data, covariates={'time': _elapsed(stamps)}), 'every stop'
+    messages, _ = read_run(bag, STAGE_OBSERVATIONS_TOPIC, 'alignment_msgs/msg/StageObservation',
+                           lambda msg: msg, 'stage calibration observations', STAGE_RESULT_TOPIC)
+    data, why = stage_data_from_messages(messages, bag_temperature_log(bag))
+    if why:
+        print(why)
+    return data, 'every stop'
 
 
 def _platform(bag):
@@ -59,7 +65,7 @@ def _platform(bag):
         raise MachineAlignmentError(f'{bag} holds no identification poses')
     stops, stamps = zip(*identified)
     data = data_of(list(stops))
-    covariates = dict(data.covariates, time=_elapsed(stamps))
+    covariates = {**data.covariates, **_covariates(bag, stamps)}
     return dataclasses.replace(data, covariates=covariates), 'the identification poses'
 
 
@@ -70,7 +76,7 @@ def _hexapod(bag):
     records, stamps = zip(*stamped)
     # (phase, target, leg lengths, measured): every stop, as the calibrator's own analysis
     columns = [np.array([r[k] for r in records]) for k in (1, 3, 2)]
-    return (HexapodPoseData(*columns, {'time': _elapsed(stamps)}),
+    return (HexapodPoseData(*columns, _covariates(bag, stamps)),
             'every stop (all rounds and the evaluation)')
 
 

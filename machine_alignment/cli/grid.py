@@ -11,18 +11,17 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calib_core.bags import bag_topics, decode_bag  # noqa: E402
+from calib_core.bags import decode_bag  # noqa: E402
 from calib_core.errors import MachineAlignmentError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
-from calib_core.temperature import (  # noqa: E402
-    TEMPERATURE_TOPIC, TEMPERATURE_TYPE, temperature_log)
 from grid_calib.core.data import read_marks  # noqa: E402
 from grid_calib.core.records import (  # noqa: E402
     PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
 from grid_calib.core.reference_map import write_reference  # noqa: E402
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
-from machine_alignment.cli.common import ranged, read_run, write_json_and_plot  # noqa: E402
+from machine_alignment.cli.common import (  # noqa: E402
+    bag_temperature_log, ranged, read_run, write_json_and_plot)
 
 
 def _vectors(ax, where_mm, vectors_m, spacing_mm, title):
@@ -79,10 +78,7 @@ def grid_run(bag):
     readings, recorded = read_run(bag, READINGS_TOPIC, 'alignment_msgs/msg/GridMarkReading',
                                   lambda msg: msg, 'grid mark readings', RESULT_TOPIC)
     grid = grid_from_placements([m for _, _, m in decode_bag(bag, [PLACEMENT_TOPIC])])
-    temperatures = None
-    if bag_topics(bag).get(TEMPERATURE_TOPIC) == TEMPERATURE_TYPE:
-        temperatures = temperature_log([m for _, _, m in decode_bag(bag, [TEMPERATURE_TOPIC])])
-    regions, left_out = regions_from_readings(grid, readings, temperatures)
+    regions, left_out = regions_from_readings(grid, readings, bag_temperature_log(bag))
     for line in left_out:
         print(line)
     if not regions:

@@ -22,10 +22,13 @@ screen at the platform's zero) and the feeds by ``method`` (exact, lm, pso: the 
 swarm, refused when it has not converged), moves, and measures again.
 
 Service ``platform_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop
-on the last run's identification poses (feed effects: screw error, backlash, drift); the
-report is written and published, never put in force (the compensation has no place for
+on the last run's identification poses (feed effects: screw error, backlash, drift), each
+with its time and, where a sensor publishes it on ``temperature_topic``, the machine's
+temperature (recorded in the run's bag); the report is written and published, never put
+in force (the compensation has no place for
 feed effects: ``apply`` is refused).
 """
+import dataclasses
 import json
 
 import numpy as np
@@ -45,6 +48,8 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import POSE_TYPE, planar, pose_stamped
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.temperature import TemperatureLog
+from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from platform_calib.core.compensation import METHODS, composite_error, mark_positions
 from platform_calib.core.geometry import nominal_geometry, read_geometry
 from platform_calib.core.identification import check_identification
@@ -86,6 +91,7 @@ class PlatformCalibratorNode(Node):
         self.declare_parameter('method', 'exact')
         self.declare_parameter('nominal_geometry', '')     # YAML; empty: the built-in
         self.declare_parameter('call_timeout_s', 10.0)
+        self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self._plan_from_parameters({})                      # a bad plan stops the start
         if self.get_parameter('method').value not in METHODS:
             raise ValueError(f'method must be one of {METHODS}')
@@ -94,6 +100,9 @@ class PlatformCalibratorNode(Node):
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.model, self.feeds = None, None
         group = ReentrantCallbackGroup()
+        self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
+                                           group)
+        self._recorded = []       # the run's stops as recorded, each with its stamp (s)
         self.move_client = self.create_client(MovePlatform, 'platform/move', callback_group=group)
         self.tracker_client = self.create_client(MeasurePose, 'laser_tracker/measure',
                                                  callback_group=group)
@@ -108,7 +117,8 @@ class PlatformCalibratorNode(Node):
         self.create_service(RegisterScreen, 'platform_calibrator/register', self.on_register,
                             callback_group=group)
         publish_calibration_in_force(self, 'platform', self.result_pub, self._in_force)
-        self._identified = []     # the identification stops of the last completed run
+        # The identification stops of the last completed run and their covariates.
+        self._identified, self._identified_covariates = [], {}
         self.create_service(AnalyzeResiduals, 'platform_calibrator/analyze_residuals',
                             AnalysisService(
                                 self, 'platform', self.calibration_service.busy,
@@ -155,10 +165,13 @@ class PlatformCalibratorNode(Node):
         self.get_logger().info(f'[{step}/{total}] {message}')
 
     def _record(self, run, stop):
-        run.record(MEASUREMENTS_TOPIC, PlatformMeasurement(
+        self.temperatures.record(run)
+        measurement = PlatformMeasurement(
             header=self._header(), phase=stop.phase, target=[float(v) for v in stop.target],
             feeds=[float(v) for v in stop.feeds], direction=[int(v) for v in stop.direction],
-            measured=[float(v) for v in stop.measured]), self.measurement_pub)
+            measured=[float(v) for v in stop.measured])
+        run.record(MEASUREMENTS_TOPIC, measurement, self.measurement_pub)
+        self._recorded.append((stop, stamp_seconds(measurement)))
         # What a viewer shows: the platform as the tracker measured it and where it was sent.
         measured = planar(*stop.measured)
         run.record(MEASURED_POSE_TOPIC, pose_stamped(self._header(), *measured))
@@ -167,11 +180,14 @@ class PlatformCalibratorNode(Node):
 
     def _run(self, overrides: dict) -> CalibrationResult:
         plan = self._plan_from_parameters(overrides)
+        self.temperatures.start()
+        self._recorded = []
         with RecordedRun(self, 'platform', {
                 MEASUREMENTS_TOPIC: 'alignment_msgs/msg/PlatformMeasurement',
+                TEMPERATURE_TOPIC: TEMPERATURE_TYPE,
                 MEASURED_POSE_TOPIC: POSE_TYPE,
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
-            result, evaluation, stops, prediction = run_platform_calibration(
+            result, evaluation, _, prediction = run_platform_calibration(
                 plan, self.nominal, self._move, self._track,
                 lambda stop: self._record(run, stop), self._progress)
             check_identification(result, self.nominal)   # else nothing is put in force
@@ -183,8 +199,14 @@ class PlatformCalibratorNode(Node):
                 'stroke_m': [float(v) for v in geometry.stroke], 'report': report})
             message = platform_result_message(content, self._header(), str(path), version)
             run.record(RESULT_TOPIC, message, self.result_pub)
+            self.temperatures.record(run)
         self.model = geometry
-        self._identified = [s for s in stops if s.phase == 'identify']
+        identified = [(stop, stamp) for stop, stamp in self._recorded if stop.phase == 'identify']
+        self._identified = [stop for stop, _ in identified]
+        self._identified_covariates, sentence = self.temperatures.covariates(
+            [stamp for _, stamp in identified])
+        self.get_logger().info(f'closed loop data: {len(identified)} identification poses; '
+                               f'temperature: {sentence}')
         e = evaluation
         self._progress(1, 1, f'done: composite mark error (tracker) median '
                              f'{e["evaluate_nominal"]["median_m"] * 1e6:.1f} um nominal, '
@@ -196,7 +218,9 @@ class PlatformCalibratorNode(Node):
         if not self._identified:
             raise CalibrationError('no platform calibration run to analyse yet: call '
                                    'platform_calibrator/calibrate first')
-        return PlatformLoopModel(data_of(self._identified), self.nominal)
+        data = data_of(self._identified)
+        return PlatformLoopModel(dataclasses.replace(
+            data, covariates={**data.covariates, **self._identified_covariates}), self.nominal)
 
     def on_register(self, request, response):
         if not self.calibration_service.busy.acquire(blocking=False):

@@ -4,9 +4,12 @@ the same code and neither needs the message types. The topic names are the contr
 between the nodes that record a run and the tools that replay it."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from calib_core.errors import InvalidInputError
+from calib_core.temperature import run_covariates, stamp_seconds
 from printer_alignment.core.stage_calibration import StageData
 
 VISION_OBSERVATIONS_TOPIC = '/vision_calibrator/observations'
@@ -30,3 +33,13 @@ def stage_data_from_records(records) -> StageData:
     """The StageData of a run's records (as :func:`stage_record` returns them)."""
     q, directions, marks = zip(*records)
     return StageData(np.array(q), np.array(directions), np.array(marks))
+
+
+def stage_data_from_messages(messages, temperatures=None) -> tuple[StageData, str]:
+    """The StageData of a run's StageObservation messages for the closed loop: each stop
+    with its ``time`` (from the message's stamp) and, where a temperature log
+    (calib_core.temperature.temperature_log) covers it, its ``temperature``; and why there
+    is no temperature ('' where there is, or no log was given)."""
+    data = stage_data_from_records([stage_record(msg) for msg in messages])
+    covariates, why = run_covariates([stamp_seconds(msg) for msg in messages], temperatures)
+    return dataclasses.replace(data, covariates=covariates), why

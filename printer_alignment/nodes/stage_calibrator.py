@@ -21,7 +21,9 @@ RMS error predicted at the working inputs) with ``max_stops`` and ``step`` adds 
 rounds after the run until it is met or cannot be (``adaptive`` in the report).
 
 Service ``stage_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
-the last run's measurements with the error model without backlash as the base model.
+the last run's measurements with the error model without backlash as the base model, each
+stop with its time and, where a sensor publishes it on ``temperature_topic``, the
+machine's temperature (recorded in the run's bag), as the offline replay reads them.
 """
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, Progress, StageObservation
@@ -40,10 +42,13 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.temperature import TemperatureLog
 from calib_core.planning import Adaptive
+from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE
 from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
-    STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC)
+    STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC,
+    stage_data_from_messages)
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import (
     StagePlan, check_stage_calibration, models_as_dict, models_from_dict)
@@ -72,6 +77,7 @@ class StageCalibratorNode(Node):
         # taught by jogging the camera over them once.
         self.declare_parameter('calibration_marks', [0.0351, 0.0791, 0.1551, 0.0797])
         self.declare_parameter('call_timeout_s', 10.0)
+        self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         marks = [float(v) for v in self.get_parameter('calibration_marks').value]
         if len(marks) != 4 or not np.all(np.isfinite(marks)):
             raise ValueError('calibration_marks must be x1, y1, x2, y2 (m)')
@@ -79,6 +85,9 @@ class StageCalibratorNode(Node):
         self._plan(dict())    # validates the parameters at start
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         group = ReentrantCallbackGroup()
+        self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
+                                           group)
+        self._observations = []              # the run's StageObservation messages
         self.locator = MarkLocator(self, group, self.timeout)
         self.move_client = self.create_client(MoveStage, 'stage/move', callback_group=group)
         self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
@@ -149,11 +158,12 @@ class StageCalibratorNode(Node):
         return np.array(reached.q), np.array(reached.direction)
 
     def _record_stop(self, run: RecordedRun, q, direction, marks) -> None:
-        run.record(OBSERVATIONS_TOPIC,
-                   StageObservation(header=self._header(), q=list(q),
-                                    direction=[int(v) for v in direction],
-                                    marks_x=marks[:, 0].tolist(), marks_y=marks[:, 1].tolist()),
-                   self.observation_pub)
+        self.temperatures.record(run)
+        observation = StageObservation(header=self._header(), q=list(q),
+                                       direction=[int(v) for v in direction],
+                                       marks_x=marks[:, 0].tolist(), marks_y=marks[:, 1].tolist())
+        run.record(OBSERVATIONS_TOPIC, observation, self.observation_pub)
+        self._observations.append(observation)
         # What a viewer shows: each calibration Mark where the camera measured it.
         run.record_frames([('plate', f'mark{k + 1}', *planar(x, y, 0.0))
                            for k, (x, y) in enumerate(marks)])
@@ -161,8 +171,11 @@ class StageCalibratorNode(Node):
     def _run(self, plan: StagePlan, prediction: dict | None,
              adaptive: Adaptive | None) -> CalibrationResult:
         self.locator.vision   # fails early without a vision calibration
+        self.temperatures.start()
+        self._observations = []
         with RecordedRun(self, 'stage', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/StageObservation',
+                TEMPERATURE_TOPIC: TEMPERATURE_TYPE,
                 RESULT_TOPIC: 'alignment_msgs/msg/CalibrationResult'}) as run:
             self.locator.select_view('substrate')
             data, models, report = run_stage_calibration(
@@ -176,13 +189,23 @@ class StageCalibratorNode(Node):
                                                         'report': report})
             result = stage_result_message(report, models, self._header(), str(path), version)
             run.record(RESULT_TOPIC, result, self.result_pub)
-        self._data, self._content = data, content
+            self.temperatures.record(run)
+        self._data, self._content = self._loop_data(), content
         r = report['stepwise']
         total = len(data) + 1
         self._progress(total, total, f'done: R1..R3 {r["R1"] * 1e3:.4f}, {r["R2"] * 1e3:.4f}, '
                        f'{r["R3"] * 1e3:.4f} mm/rev, alpha1 {np.rad2deg(r["alpha1"]):.4f} deg; '
                        f'wrote {path}')
         return result
+
+    def _loop_data(self):
+        """The run for the closed loop as the offline replay reads its bag: every stop
+        with its time and, where the log covers it, the machine's temperature."""
+        log, sentence = self.temperatures.log()
+        data, why = stage_data_from_messages(self._observations, log)
+        self.get_logger().info(f'closed loop data: {len(data)} stops; temperature: '
+                               f'{why or sentence}')
+        return data
 
     def _loop_model(self, options: dict):
         if self._data is None:

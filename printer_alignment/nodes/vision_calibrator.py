@@ -293,19 +293,10 @@ class VisionCalibratorNode(Node):
             self._progress(k + 1, points, f'analysis: position {k + 1}/{points}')
         command = np.array(command)
         directions = directions_from_order(np.vstack([start, command]))[1:]
+        covariates, sentence = self.temperatures.covariates(stamps)
+        self.get_logger().info(f'analysis: temperature: {sentence}')
         return GantryLoopModel(GantryData(command, np.array(measured), directions,
-                                          self._run_covariates(np.array(stamps))))
-
-    def _run_covariates(self, stamps: np.ndarray) -> dict:
-        """Each position's ``time`` (s since the first, from its frame's stamp) and, where
-        the sensor's log covers them, its ``temperature`` (K)."""
-        covariates = {'time': stamps - stamps.min()}
-        kelvin, sentence = self.temperatures.at(stamps)
-        if kelvin is None:
-            self.get_logger().info(f'analysis without a temperature: {sentence}')
-        else:
-            covariates['temperature'] = kelvin
-        return covariates
+                                          covariates))
 
     def _locate(self, calibration, predicted, attempts: int = 3) -> tuple[np.ndarray, float]:
         """Camera position (m) measured at the current stop, and its frame's stamp (s). An
