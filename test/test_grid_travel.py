@@ -163,19 +163,24 @@ def test_marks_csv_faults_are_named(tmp_path):
         read_marks(even, GRID.pitch)
 
 
-def test_a_cut_run_replays_its_complete_regions_and_names_the_rest():
-    """Readings as a run killed during region 1's shifted placement left them: region 0
-    solves, region 1 is named as incomplete; a NaN reading is refused."""
+def _reading_messages(truth) -> list:
+    """The readings of ``truth``'s regions as GridMarkReading-shaped messages, in order."""
     from types import SimpleNamespace
-
-    from grid_calib.core.records import regions_from_readings
-    truth = default_travel(GRID, 2, 1, seed=6)
     messages = []
     for r, region in _regions(truth).items():
         for p in region.placements:
             reading = (site_of(p.marks, p.name) + region.origin) * GRID.pitch + p.deviation
             messages += [SimpleNamespace(region=r, placement=p.name, i=i, j=j, x=x, y=y)
                          for (i, j), (x, y) in zip(p.marks, reading)]
+    return messages
+
+
+def test_a_cut_run_replays_its_complete_regions_and_names_the_rest():
+    """Readings as a run killed during region 1's shifted placement left them: region 0
+    solves, region 1 is named as incomplete; a NaN reading is refused."""
+    from grid_calib.core.records import regions_from_readings
+    truth = default_travel(GRID, 2, 1, seed=6)
+    messages = _reading_messages(truth)
     cut = messages[:-40]
     regions, left_out = regions_from_readings(GRID, cut)
     assert list(regions) == [0]
@@ -205,12 +210,7 @@ def test_the_logged_temperature_reaches_every_reading():
     from calib_core.temperature import temperature_log
     from grid_calib.core.records import regions_from_readings
     truth = default_travel(GRID, 1, 1, seed=3)
-    messages = []
-    for r, region in _regions(truth).items():
-        for p in region.placements:
-            reading = (site_of(p.marks, p.name) + region.origin) * GRID.pitch + p.deviation
-            messages += [SimpleNamespace(region=r, placement=p.name, i=i, j=j, x=x, y=y)
-                         for (i, j), (x, y) in zip(p.marks, reading)]
+    messages = _reading_messages(truth)
     start = 1000.0
     for k, msg in enumerate(messages):
         msg.header = _stamped(start + 2.0 * k)

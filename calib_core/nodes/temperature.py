@@ -44,8 +44,9 @@ class TemperatureLog:
         ``run`` (a RecordedRun declaring TEMPERATURE_TOPIC) is given."""
         with self._lock:
             samples, self._new = self._new, []
-        for msg in samples if run is not None else ():
-            run.record(TEMPERATURE_TOPIC, msg)
+        if run is not None:
+            for msg in samples:
+                run.record(TEMPERATURE_TOPIC, msg)
         self._run += samples
 
     def log(self) -> tuple[tuple | None, str]:
