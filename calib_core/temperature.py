@@ -51,9 +51,10 @@ def temperatures_at(stamps, log) -> tuple[np.ndarray | None, str]:
         return None, 'no temperature logged'
     if not (np.all(np.isfinite(stamps)) and np.all(np.isfinite(sample_stamps))):
         return None, 'temperature not attached: a measurement or a sample has no time stamp'
-    after = np.searchsorted(sample_stamps, stamps).clip(1, max(len(kelvin) - 1, 1))
-    gap = np.minimum(np.abs(stamps - sample_stamps[after - 1]),
-                     np.abs(stamps - sample_stamps[np.minimum(after, len(kelvin) - 1)]))
+    # The samples on either side of each measurement (the one sample at either end).
+    right = np.searchsorted(sample_stamps, stamps).clip(0, len(kelvin) - 1)
+    left = (right - 1).clip(0)
+    gap = np.minimum(np.abs(stamps - sample_stamps[left]), np.abs(stamps - sample_stamps[right]))
     far = int(np.count_nonzero(gap > MAX_TEMPERATURE_GAP_S))
     if far:
         return None, (f'temperature not attached: {far} measurement(s) lie more than '
