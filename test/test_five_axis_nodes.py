@@ -69,6 +69,8 @@ def test_analyze_residuals_images_a_sweep_and_runs_the_rotary_loop(graph):
     assert analysis.machine == 'rotary axes' and analysis.unit == 'sigma'
     assert report['rows']['total'] == 48
     assert analysis.effects_added == []
+    # Each image with its time: a drift tested, not refused for want of time.
+    assert 'drift_time' in report['candidates'] and 'drift_time' not in report['skipped']
     sweeps = [p for p in set((out / 'runs').iterdir()) - bags if p.name.startswith('five_axis_sweep')]
     assert len(sweeps) == 1
     refused = call(node, client, AnalyzeResiduals.Request(plan_yaml='{step: 3.0}'))

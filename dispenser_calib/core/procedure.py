@@ -74,12 +74,12 @@ def rotary_sweep(tilts=np.linspace(-0.3, 0.3, 5), step: float = np.deg2rad(22.5)
 
 
 def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
-                  capture: Callable[[], tuple], clock: Callable[[], float],
+                  capture: Callable[[], tuple],
                   record: Callable[[Image, str], None] = lambda *a: None,
-                  progress: Callable[[int, int, str], None] = lambda *a: None):
+                  progress: Callable[[int, int, str], None] = lambda *a: None) -> list:
     """Image the board at each of ``stops`` (n, 5) (:func:`rotary_sweep`), every stop
-    checked against the strokes before anything moves. ``clock()`` gives the time (s) of
-    each image. Returns the images and their times (n,) s.
+    checked against the strokes before anything moves; ``record`` gets each image as it is
+    taken (its time and the machine's temperature are the recorder's). Returns the images.
 
     Raises
     ------
@@ -87,16 +87,15 @@ def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
         A stop outside a stroke (before anything moves)."""
     for pose in stops:
         check_stroke(pose)
-    images, times = [], []
+    images = []
     for pose in stops:
         reached = np.asarray(move(pose), dtype=float)
         indices, pixels = capture()
-        times.append(clock())
         images.append(Image(f'sweep{len(images):03d}', reached, np.asarray(indices, int),
                             np.asarray(pixels, float)))
         record(images[-1], 'sweep')
         progress(len(images), len(stops), f'sweep image {len(images)}: {len(indices)} dots')
-    return images, np.asarray(times, float)
+    return images
 
 
 def evaluation_stops(nominal: DispenserModel, count: int, seed: int = 0) -> np.ndarray:

@@ -75,12 +75,13 @@ def read_target_poses(path, a_column: str = 'a', c_column: str = 'c') -> TargetP
                        {k: v for k, v in columns.items() if k not in used})
 
 
-def poses_from_images(model: DispenserModel, images: list, times: np.ndarray | None = None
+def poses_from_images(model: DispenserModel, images: list, covariates: dict | None = None
                       ) -> TargetPoses:
     """The board's pose in each image (OpenCV's solvePnP with ``model``'s intrinsics and
     distortion, then fitted to the dots' ellipse centres) with its covariance, as target
     poses for the rotary axes: the dispenser's camera is the instrument, which stays put if
-    the linear axes do. ``times`` (s) per image, optional. The covariance matters: a small
+    the linear axes do. ``covariates`` per image (name -> (n,): ``time`` s, ``temperature``
+    K), optional. The covariance matters: a small
     board seen from close by fixes its turn about the optical axis far better than its
     tilts, and only the weighted residuals show an angle error of C below the tilts' noise.
 
@@ -111,7 +112,7 @@ def poses_from_images(model: DispenserModel, images: list, times: np.ndarray | N
         translations.append(translation)
         covariances.append(covariance)
     poses = np.array([im.pose for im in images])
-    covariates = {'time': np.asarray(times, float)} if times is not None else {}
+    covariates = {name: np.asarray(v, float) for name, v in (covariates or {}).items()}
     return TargetPoses(poses[:, 3], poses[:, 4], np.array(rotations), np.array(translations),
                        covariates, np.array(covariances))
 

@@ -37,11 +37,12 @@ Service ``five_axis_calibrator/analyze_residuals`` (AnalyzeResiduals; plan keys 
 with the linear axes held (A at each tilt, C round the turn), takes the board's pose in
 each through the calibration in force and runs the closed loop on the rotary axes
 (:class:`dispenser_calib.core.loop_model.RotaryLoopModel`): a worm gear's error, lost
-motion, error motion, drift. The sweep's images are recorded (``five_axis_sweep`` bag;
-``machine-align analyze rotary --data`` on them with ``--calibration`` repeats it offline).
+motion, error motion, drift (each image with its time and, where a sensor publishes it on
+``temperature_topic``, the machine's temperature). The sweep's images are recorded
+(``five_axis_sweep`` bag; ``machine-align analyze rotary --data`` on them with
+``--calibration`` repeats it offline).
 """
 import json
-import time
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult, FiveAxisObservation, Progress
@@ -64,7 +65,9 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import IMAGE_TYPE, compressed_image
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.temperature import TemperatureLog
 from calib_core.storage import read_calibration, write_calibration
+from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.model import (
@@ -101,6 +104,7 @@ class FiveAxisCalibratorNode(Node):
         self.declare_parameter('evaluation', 6)
         self.declare_parameter('image_size', [2448, 2048])
         self.declare_parameter('call_timeout_s', 10.0)
+        self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
         self.declare_parameter('part_path', PART_PATH.ravel().tolist())
         self.declare_parameter('needle_tip', NEEDLE_TIP.tolist())
@@ -128,6 +132,8 @@ class FiveAxisCalibratorNode(Node):
         self.pose = np.zeros(5)
         self.nominal = nominal_model(size=self.image_size)
         group = ReentrantCallbackGroup()
+        self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
+                                           group)
         self.move_client = self.create_client(MoveFiveAxis, 'five_axis/move', callback_group=group)
         self.capture_client = self.create_client(CaptureDots, 'five_axis/capture_board',
                                                  callback_group=group)
@@ -218,12 +224,15 @@ class FiveAxisCalibratorNode(Node):
         numbers, pixels = self._capture(self.features_client, 'feature image')
         return numbers[:, 0], pixels
 
-    def _record(self, run, image, phase):
-        run.record(OBSERVATIONS_TOPIC, FiveAxisObservation(
+    def _record(self, run, image, phase) -> float:
+        """Records an image's observation (and, when frames are used, its frame); returns
+        the observation's stamp (s)."""
+        observation = FiveAxisObservation(
             header=self._header(), image=image.name, phase=phase,
             pose=[float(v) for v in image.pose], i=[int(v) for v in image.indices[:, 0]],
             j=[int(v) for v in image.indices[:, 1]], u=[float(v) for v in image.pixels[:, 0]],
-            v=[float(v) for v in image.pixels[:, 1]]), self.observation_pub)
+            v=[float(v) for v in image.pixels[:, 1]])
+        run.record(OBSERVATIONS_TOPIC, observation, self.observation_pub)
         # What a viewer shows: the machine at the commanded pose (nominal kinematics) and,
         # when frames are used, the camera's frame the dots were found in.
         run.record_frames(nominal_frames(image.pose))
@@ -231,6 +240,7 @@ class FiveAxisCalibratorNode(Node):
         if frame is not None:
             run.record(FRAME_TOPIC, compressed_image(frame, self._header(),
                                                      self.get_parameter('frame_format').value))
+        return stamp_seconds(observation)
 
     def _progress(self, step, total, message):
         self.progress_pub.publish(Progress(header=self._header(), task='five_axis_calibration',
@@ -292,16 +302,23 @@ class FiveAxisCalibratorNode(Node):
         if not isinstance(both_ways, bool):
             raise InvalidInputError(f'both_ways must be true or false, not {both_ways!r}')
         capture = self._capture_frame if self.get_parameter('frames').value else self._capture
-        start = time.monotonic()
         self._frame = None
+        stamps = []
+        self.temperatures.start()
+
+        def record(run, image, phase):
+            self.temperatures.record(run)
+            stamps.append(self._record(run, image, phase))
         with RecordedRun(self, 'five_axis_sweep', {
                 OBSERVATIONS_TOPIC: 'alignment_msgs/msg/FiveAxisObservation',
-                FRAME_TOPIC: IMAGE_TYPE}) as run:
-            images, times = measure_sweep(
+                TEMPERATURE_TOPIC: TEMPERATURE_TYPE, FRAME_TOPIC: IMAGE_TYPE}) as run:
+            images = measure_sweep(
                 rotary_sweep(tilts, float(step), both_ways), self._move, capture,
-                lambda: time.monotonic() - start,
-                lambda image, phase: self._record(run, image, phase), self._progress)
-        return RotaryLoopModel(poses_from_images(self.model, images, times))
+                lambda image, phase: record(run, image, phase), self._progress)
+            self.temperatures.record(run)
+        covariates, sentence = self.temperatures.covariates(stamps)
+        self.get_logger().info(f'sweep: {len(images)} images; temperature: {sentence}')
+        return RotaryLoopModel(poses_from_images(self.model, images, covariates))
 
     def _with_calibration(self, request, response, what: str, known: tuple, work):
         """Run ``work(options)`` on the request's plan with the calibration in force, one
