@@ -183,8 +183,11 @@ def analyze_region(grid: Grid, placements: list[Placement],
             columns = _columns(prepared, context)
             determined = _determined(current, columns)
             if not determined.any():
-                verdicts[name] = ('not identifiable: the self-calibration already holds it (it '
-                                  'depends only on the site, the mark or the placement)')
+                verdicts[name] = (
+                    'not identifiable: the self-calibration already holds it (it depends only '
+                    'on the site, the mark or the placement)' if not added else
+                    'not identifiable: the self-calibration and '
+                    f'{", ".join(a["name"] for a in added)} already hold it')
                 continue
             extended = _Fit(system, np.column_stack([current.extra, columns[:, determined]]))
             p = int(determined.sum())
