@@ -22,7 +22,7 @@ from hexapod_calib.sim.hexapod import TALL_PAYLOAD_CENTRE, HexapodTruth, measure
 from machine_alignment.bench import detection_case, main_with_out, write_results, write_table
 from printer_alignment.core.loop_models import CameraLoopModel, GantryLoopModel, StageLoopModel
 from printer_alignment.sim.camera import tilted_plate_views
-from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
+from printer_alignment.sim.gantry import GantryErrors, MachineTemperature, measure_random_positions
 from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
 
 
@@ -33,8 +33,13 @@ def _axis(truth_kwargs: dict, seed: int):
     return AxisModel(simulate_axis_test(AxisTruth(**truth_kwargs), seed=seed))
 
 
-def _gantry(errors, seed: int):
-    return GantryLoopModel(measure_random_positions(errors, seed=seed))
+def _gantry(errors, seed: int, temperature: MachineTemperature | None = None):
+    return GantryLoopModel(measure_random_positions(errors, seed=seed, temperature=temperature))
+
+
+# A shop whose air conditioning cycles by +-1 K over 30 min, the gantry's positions 10 s
+# apart (200 over 33 min), each with its time and temperature.
+SHOP = MachineTemperature(cycle_amplitude=1.0, cycle_period=1800.0)
 
 
 CAMERA = np.array([[800.0, 0, 322], [0, 805, 236], [0, 0, 1]])
@@ -77,6 +82,7 @@ def _cases():
     axis_floor = ('axis', lambda s: _axis({}, s))
     warm_axis_floor = ('axis, 1 K warmer', lambda s: _axis({'temperature_rise': 1.0}, s))
     camera_floor = ('camera', lambda s: _camera((0, 0, 0, 0), s))
+    steel_screws = dataclasses.replace(ideal, screw_expansion=11.5e-6)
     return [
         ('axis', 'reversal (backlash 4 um)', {'reversal'},
          lambda s: _axis({'backlash': 4e-6}, s), axis_floor),
@@ -90,6 +96,9 @@ def _cases():
         ('gantry', 'squareness + reversal (4 / 6 um) + periodic (1.5 / 2 um)',
          {'squareness', 'reversal', 'periodic'}, lambda s: _gantry(GantryErrors(), s),
          ('gantry', lambda s: _gantry(no_screw, s))),
+        ('gantry', 'drift_temperature (screws 11.5e-6/K, shop cycle +-1 K)', {'drift_temperature'},
+         lambda s: _gantry(steel_screws, s, SHOP),
+         ('gantry in the shop cycle', lambda s: _gantry(ideal, s, SHOP))),
         ('camera', 'radial_distortion (k1 -0.25, k2 0.08)', {'radial_distortion'},
          lambda s: _camera((-0.25, 0.08, 0, 0), s), camera_floor),
         ('camera', 'radial + tangential_distortion',
