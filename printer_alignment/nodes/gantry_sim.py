@@ -84,9 +84,6 @@ class GantrySimNode(Node):
         self.temperature_pub.publish(Temperature(header=header,
                                                  temperature=kelvin - CELSIUS_ZERO_K))
 
-    def _header(self):
-        return Header(stamp=self.get_clock().now().to_msg(), frame_id='gantry')
-
     def on_move(self, request, response):
         try:
             with self._lock:
