@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
-from calib_core.temperature import run_covariates
+from calib_core.temperature import run_covariates, stamp_seconds
 from dispenser_calib.core.data import write_observations
 from dispenser_calib.core.records import (
     OBSERVATIONS_TOPIC as FIVE_AXIS_TOPIC, RESULT_TOPIC as FIVE_AXIS_RESULT_TOPIC,
@@ -36,7 +36,7 @@ from printer_alignment.core.records import (
 
 def _stamped(convert):
     """``convert`` of a stop message, with the stop's header stamp (s)."""
-    return lambda msg: (convert(msg), msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+    return lambda msg: (convert(msg), stamp_seconds(msg))
 
 
 def _covariates(bag, stamps) -> dict:
