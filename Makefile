@@ -38,8 +38,11 @@ $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg
 	$(BIN)/pip install --quiet --no-build-isolation --no-deps -e .
 	touch $@
 
-# The detector's compiled (numba) code, into its on-disk cache: 15-20 s, once.
+# The detector's compiled (numba) code, into its on-disk cache: 15-20 s, once. The old
+# cache goes first: numba checks only each function's own file, so a function would keep
+# its compiled copy of a changed callee in another file.
 $(VENV)/.stamp-compiled: $(VENV)/.stamp-package $(wildcard calib_core/marks/*.py)
+	rm -f calib_core/marks/__pycache__/*.nbi calib_core/marks/__pycache__/*.nbc
 	$(BIN)/python -m calib_core.marks.precompile
 	touch $@
 

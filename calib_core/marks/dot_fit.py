@@ -371,20 +371,36 @@ def flat_terms(params, flat, normal, gradient):
 
 @njit(cache=True)
 def solve_positive(matrix, rhs, out):
-    """``out`` = matrix^-1 rhs by Cholesky; False if the matrix is not positive definite."""
+    """``out`` = matrix^-1 rhs by Cholesky; False if the matrix is not positive definite.
+
+    Scalar loops: numpy's sums of row slices allocated a temporary each, about 90 for an
+    8 x 8 matrix, and the solves (five a dot) cost more than the dot's model. Each sum is
+    taken first and then subtracted, in the slices' order, as before."""
     n = rhs.size
-    lower = np.zeros((n, n))
+    lower = np.empty((n, n))
     for j in range(n):
-        diagonal = matrix[j, j] - np.sum(lower[j, :j] ** 2)
+        total = 0.0
+        for m in range(j):
+            total += lower[j, m] * lower[j, m]
+        diagonal = matrix[j, j] - total
         if not diagonal > 0.0:
             return False
         lower[j, j] = math.sqrt(diagonal)
         for i in range(j + 1, n):
-            lower[i, j] = (matrix[i, j] - np.sum(lower[i, :j] * lower[j, :j])) / lower[j, j]
+            total = 0.0
+            for m in range(j):
+                total += lower[i, m] * lower[j, m]
+            lower[i, j] = (matrix[i, j] - total) / lower[j, j]
     for i in range(n):
-        out[i] = (rhs[i] - np.sum(lower[i, :i] * out[:i])) / lower[i, i]
+        total = 0.0
+        for m in range(i):
+            total += lower[i, m] * out[m]
+        out[i] = (rhs[i] - total) / lower[i, i]
     for i in range(n - 1, -1, -1):
-        out[i] = (out[i] - np.sum(lower[i + 1:, i] * out[i + 1:])) / lower[i, i]
+        total = 0.0
+        for m in range(i + 1, n):
+            total += lower[m, i] * out[m]
+        out[i] = (out[i] - total) / lower[i, i]
     return True
 
 
@@ -398,7 +414,8 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
     and whether the fit converged (see fit_dot_range)."""
     width = current.size
     columns = room[:(width + 1) * z.size].reshape(width + 1, z.size)
-    gradient, step, trial = np.empty(width), np.empty(width), np.empty(width)
+    gradient, descent, step, trial = (np.empty(width), np.empty(width), np.empty(width),
+                                      np.empty(width))
     trial_normal, trial_gradient = np.empty((width, width)), np.empty(width)
     damped = np.empty((width, width))
     cost = _normal_equations(current, u, v, z, flat, u0, v0, box, normal, gradient, columns)
@@ -416,7 +433,9 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
         damped[:] = normal
         for a in range(width):
             damped[a, a] += damping * max(normal[a, a], 1e-300)
-        if not solve_positive(damped, -gradient, step):
+        for a in range(width):
+            descent[a] = -gradient[a]
+        if not solve_positive(damped, descent, step):
             damping *= 10.0
             if damping > _DAMPING_MAX:
                 return cost, False
@@ -424,12 +443,19 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
         # The predicted decrease of the quadratic model is the step's squared Mahalanobis
         # length times the noise variance; a nearly Gauss-Newton step within STOP_SIGMAS
         # is taken without evaluating it, and the fit ends.
-        predicted = -2.0 * np.dot(gradient, step) - np.dot(step, normal @ step)
+        # In loops: numpy's products of 8-vectors called BLAS and allocated.
+        predicted = 0.0
+        for a in range(width):
+            curvature = 0.0
+            for b in range(width):
+                curvature += normal[a, b] * step[b]
+            predicted -= step[a] * (2.0 * gradient[a] + curvature)
         variance = cost / degrees_of_freedom
         if damping <= _DAMPING_START and predicted <= STOP_SIGMAS ** 2 * variance:
             current += step
             return cost - max(predicted, 0.0), True
-        trial[:] = current + step
+        for a in range(width):
+            trial[a] = current[a] + step[a]
         trial_cost = _normal_equations(trial, u, v, z, flat, u0, v0, box, trial_normal,
                                        trial_gradient, columns)
         if not trial_cost <= cost:  # also when not finite
