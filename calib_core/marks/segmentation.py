@@ -43,16 +43,19 @@ def _flatten(smoothed, tolerance):
     to their 10th percentile, or to their 90th, are returned unchanged: the Marks darken
     (brighten) one tail of the blocks, uneven light spreads both, and an even background
     gains nothing from the fit (dense dots had it fitted in every frame: 0.3 ms)."""
+    from calib_core.marks.trend import robust_quadratic, tile_means  # numba loads with the first frame
     height, width = smoothed.shape
     rows, cols = max(height // TREND_BLOCK_PX, 3), max(width // TREND_BLOCK_PX, 3)
-    means = cv2.resize(smoothed, (cols, rows), interpolation=cv2.INTER_AREA).ravel().astype(np.float64)
+    if (rows * TREND_BLOCK_PX, cols * TREND_BLOCK_PX) == (height, width):
+        means = tile_means(smoothed, TREND_BLOCK_PX).ravel()
+    else:
+        means = cv2.resize(smoothed, (cols, rows), interpolation=cv2.INTER_AREA).ravel().astype(np.float64)
     # The 10th, 50th and 90th percentiles, as order statistics (np.percentile costs 5x
     # more).
     tenths = [means.size // 10, means.size // 2, means.size - 1 - means.size // 10]
     low, middle, high = np.partition(means, tenths)[tenths]
     if min(middle - low, high - middle) < tolerance:
         return smoothed
-    from calib_core.marks.trend import robust_quadratic  # numba loads with the first frame
     coef = robust_quadratic(means.reshape(rows, cols), width, height, TREND_ITERATIONS)
     # The surface is evaluated every SURFACE_STEP_PX px and interpolated up: cv2.resize
     # puts the coarse sample j at full-frame px SURFACE_STEP_PX * j + (SURFACE_STEP_PX - 1) / 2.

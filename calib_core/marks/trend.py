@@ -1,10 +1,35 @@
-"""The frame's illumination trend, compiled (numba): a quadratic surface fitted robustly to
-block means. In numpy its dozen small calls a round cost 0.5 ms a frame, mostly the
-interpreter's; here 0.05 ms."""
+"""The frame's illumination trend, compiled (numba): the means of its blocks, and a
+quadratic surface fitted robustly to them. In numpy the fit's dozen small calls a round
+cost 0.5 ms a frame, mostly the interpreter's; here 0.05 ms."""
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+
+@njit(cache=True)
+def tile_means(frame, block):
+    """The rounded means (grey levels, float) of the ``block`` x ``block`` px blocks that
+    tile an 8-bit ``frame`` (its sides multiples of ``block``): cv2.resize's INTER_AREA
+    to the bit (its sums times 1 / block^2, rounded half to even), for a power-of-two
+    ``block``, where the division is exact. A block's rows are summed into one row of
+    column sums, a loop the compiler vectorises: 0.02 ms a 640 x 480 frame, INTER_AREA's
+    0.07 ms."""
+    height, width = frame.shape
+    rows, cols = height // block, width // block
+    means = np.empty((rows, cols))
+    column_sums = np.empty(width, dtype=np.int32)
+    for row in range(rows):
+        column_sums[:] = 0
+        for line in range(row * block, (row + 1) * block):
+            for col in range(width):
+                column_sums[col] += frame[line, col]
+        for col in range(cols):
+            total = 0
+            for k in range(col * block, (col + 1) * block):
+                total += column_sums[k]
+            means[row, col] = np.rint(total / (block * block))
+    return means
 
 
 @njit(cache=True)
