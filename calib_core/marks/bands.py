@@ -119,6 +119,23 @@ def blob_classes(boxes, statistics, height, width, min_half, max_half, margin):
     return classes, cross_shaped, shape
 
 
+@njit(cache=True)
+def mark_shaped_count(boxes, areas, height, width, min_half, max_half, margin):
+    """How many blobs, by their bounding boxes (k, 4: x0, y0, width, height; px) and
+    areas (k,; px^2), in a frame ``height`` x ``width`` (px), have half the box's longer
+    side within [min_half, max_half] (px), a box's aspect under MAX_ELLIPSE_ASPECT (a dot
+    seen at an angle's too) and a fill of it over MIN_FILL, clear of ``margin`` (px) from
+    the border. In numpy its dozen calls on a few blobs cost 10 us."""
+    count = 0
+    for k in range(len(boxes)):
+        x0, y0, w, h = boxes[k]
+        longer, shorter = max(w, h), min(w, h)
+        count += (x0 >= margin and y0 >= margin and x0 + w <= width - margin
+                  and y0 + h <= height - margin and min_half <= longer / 2.0 <= max_half
+                  and longer < MAX_ELLIPSE_ASPECT * shorter and areas[k] / (w * h) > MIN_FILL)
+    return count
+
+
 @njit(cache=True, **_SUMS)
 def _label_moments(labels, x0, y0, w, h, label):
     """The count and the sums of col, row, col^2, col row and row^2 (px, in the box) of

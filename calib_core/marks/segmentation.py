@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 
 from calib_core.marks.config import (
-    MAX_ELLIPSE_ASPECT, MIN_FILL, MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN,
-    SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
+    MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN, SURFACE_STEP_PX, TREND_BLOCK_PX,
+    TREND_ITERATIONS)
 
 
 def estimate_noise(image: np.ndarray) -> float:
@@ -153,20 +153,12 @@ def _mark_shaped(contours, boxes, shape, config) -> int:
     frame with one small Mark is such a blob: counted, it outvoted a dot seen at an angle."""
     if not contours:
         return 0
-    x, y = boxes[:, 0], boxes[:, 1]
-    w, h = boxes[:, 2].astype(float), boxes[:, 3].astype(float)
+    from calib_core.marks.bands import mark_shaped_count
     # A contour's polygon runs through the boundary pixels' centres, so it encloses about
     # half a pixel less than the blob all round.
-    area = np.array([cv2.contourArea(c) for c in contours]) + (w + h)
-    half = np.maximum(w, h) / 2.0
-    fill = area / (w * h)
-    margin = config.border_margin_px
-    inside = ((x >= margin) & (y >= margin) & (x + w <= shape[1] - margin)
-              & (y + h <= shape[0] - margin))
-    return int(np.count_nonzero(
-        inside & (half >= SIZE_SLACK[0] * config.min_size_px)
-        & (half <= SIZE_SLACK[1] * config.max_size_px)
-        & (np.maximum(w, h) < MAX_ELLIPSE_ASPECT * np.minimum(w, h)) & (fill > MIN_FILL)))
+    area = np.array([cv2.contourArea(c) for c in contours]) + boxes[:, 2] + boxes[:, 3]
+    return mark_shaped_count(boxes, area, *shape, SIZE_SLACK[0] * config.min_size_px,
+                             SIZE_SLACK[1] * config.max_size_px, float(config.border_margin_px))
 
 
 def moment_shapes(uu, uv, vv):
