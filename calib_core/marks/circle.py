@@ -13,7 +13,6 @@ from calib_core.errors import DetectionError
 from calib_core.marks.bands import crowded_windows
 from calib_core.marks.config import EDGE_BAND_PX, NEIGHBOUR_CLEARANCE_PX, Mark
 from calib_core.marks.dot_run import REASONS, dot_windows, fit_dot_windows
-from calib_core.marks.pixels import clipped_window
 
 
 @dataclass(frozen=True)
@@ -50,8 +49,10 @@ def fit_circles(pixels, candidates: DotCandidates, labels, blob_boxes, polarity:
     for ellipses in (False, True):
         group = np.flatnonzero(candidates.ellipse == ellipses)
         if group.size:
-            fits = _fit_group(pixels, candidates.subset(group), ellipses, labels, blob_boxes,
-                              polarity, full, box_below)
+            # Most frames hold one kind only: then the candidates are the group.
+            members = candidates if group.size == len(results) else candidates.subset(group)
+            fits = _fit_group(pixels, members, ellipses, labels, blob_boxes, polarity, full,
+                              box_below)
             for index, fit in zip(group.tolist(), fits):
                 results[index] = fit
     return results
@@ -90,8 +91,8 @@ def _clear_masks(labels, blob_boxes, windows, own, own_box):
     sigma). A neighbour 1 px outside a dot's window had put its edge among the dot's flat
     pixels and moved the dot by twice its sigma."""
     r0, r1, c0, c1 = windows.T
-    around = np.column_stack(clipped_window(labels.shape, c0, r0, c1 - c0, r1 - r0,
-                                            int(math.ceil(EDGE_BAND_PX))))
+    pad, (height, width) = int(math.ceil(EDGE_BAND_PX)), labels.shape
+    around = np.clip(windows + (-pad, pad, -pad, pad), 0, (height, height, width, width))
     masks, first, start = [], np.full(len(windows), -1), 0
     for k in np.flatnonzero(crowded_windows(labels, around, own, blob_boxes, own_box)):
         top, bottom, left, right = around[k]

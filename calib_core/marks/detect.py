@@ -125,8 +125,10 @@ def _classify(boxes, blobs, labels, frame_shape, config, shape, noise_scaled):
     ellipse = classes == bands.ELLIPSE_SHAPED
     dots = np.flatnonzero(((classes == bands.CIRCLE) | ellipse) & deep
                           & (shape in ('', 'circle')))
-    uu, uv, vv = blobs[dots, 4:7].T
-    shapes = np.where(ellipse[dots, None], moment_shapes(uu, uv, vv), 0.0)
+    shapes = np.zeros((len(dots), 2))
+    if ellipse[dots].any():  # 15 us a frame of dots seen face on, where all are zero
+        uu, uv, vv = blobs[dots, 4:7].T
+        shapes = np.where(ellipse[dots, None], moment_shapes(uu, uv, vv), 0.0)
     candidates = DotCandidates(dots, boxes[dots], blobs[dots, 1],
                                boxes[dots, :2] + blobs[dots, 2:4], shapes, ellipse[dots],
                                blobs[dots, 0].astype(int))
