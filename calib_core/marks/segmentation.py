@@ -43,13 +43,15 @@ def _flatten(smoothed, tolerance):
     to their 10th percentile, or to their 90th, are returned unchanged: the Marks darken
     (brighten) one tail of the blocks, uneven light spreads both, and an even background
     gains nothing from the fit (dense dots had it fitted in every frame: 0.3 ms)."""
-    from calib_core.marks.trend import robust_quadratic, tile_means  # numba loads with the first frame
+    # numba loads with the first frame
+    from calib_core.marks.trend import robust_quadratic, tile_means
     height, width = smoothed.shape
     rows, cols = max(height // TREND_BLOCK_PX, 3), max(width // TREND_BLOCK_PX, 3)
     if (rows * TREND_BLOCK_PX, cols * TREND_BLOCK_PX) == (height, width):
         means = tile_means(smoothed, TREND_BLOCK_PX).ravel()
     else:
-        means = cv2.resize(smoothed, (cols, rows), interpolation=cv2.INTER_AREA).ravel().astype(np.float64)
+        means = cv2.resize(smoothed, (cols, rows), interpolation=cv2.INTER_AREA)
+        means = means.ravel().astype(np.float64)
     # The 10th, 50th and 90th percentiles, as order statistics (np.percentile costs 5x
     # more).
     tenths = [means.size // 10, means.size // 2, means.size - 1 - means.size // 10]
