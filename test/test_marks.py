@@ -98,21 +98,24 @@ def test_single_mark_under_illumination_falloff(rng, size, contrast):
     assert np.sign(mark.contrast) == np.sign(contrast)
 
 
-def test_flattening_only_where_the_light_is_uneven(rng):
+@pytest.mark.parametrize('height, width', [(480, 640), (490, 650)])
+def test_flattening_only_where_the_light_is_uneven(rng, height, width):
     """81 dots of 10 px darken a tail of the frame's block means whatever the light; only
     a fall-off of the light (32 % across the frame) also spreads the other, and only then
     is a surface taken off. The background (10 px clear of every dot) then spans 5 grey
     levels or less from its 5th to its 95th percentile (its noise 4, of the scaled and
-    smoothed frame), as on the even background; unflattened it spanned over 30."""
+    smoothed frame), as on the even background; unflattened it spanned over 30. Also on
+    a frame whose sides are no multiples of the 16 px blocks, whose last 10 rows and
+    columns are in no block's mean."""
     from calib_core.marks.config import SMOOTHING_NOISE_GAIN
     from calib_core.marks.segmentation import _flatten
     centres = [(u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5))
                for v in np.linspace(45, 435, 9) for u in np.linspace(45, 595, 9)]
     marks = [MarkShape('circle', u, v, 10.0) for u, v in centres]
-    v, u = np.mgrid[:480, :640]
+    v, u = np.mgrid[:height, :width]
     clear = np.min([np.hypot(u - cu, v - cv) for cu, cv in centres], axis=0) > 20
     for gradient in ((0.0, 0.0), (5e-4, 0.0)):
-        image = render(marks, 640, 480, 1.0, 200.0, -150.0, gradient=gradient)
+        image = render(marks, width, height, 1.0, 200.0, -150.0, gradient=gradient)
         image = np.clip(np.round(image + rng.normal(0, 3, image.shape)), 0, 255).astype(np.uint8)
         scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
         smoothed = cv2.GaussianBlur(scaled, (5, 5), 1.0)
@@ -279,15 +282,19 @@ def test_noise_from_the_differences_medians(rng):
 
 def test_tile_means_are_inter_area_to_the_bit(rng):
     """The compiled block means equal cv2.resize's INTER_AREA on 16 px blocks tiling the
-    frame, halves rounded to even, on random and smoothed frames of five sizes (ties
-    occur: 1 block in 256 sums to an odd multiple of 128)."""
+    frame, halves rounded to even, on random and smoothed frames of seven sizes (ties
+    occur: 1 block in 256 sums to an odd multiple of 128); where the blocks do not tile
+    it (1080 rows, 650 columns), on the part they cover from the top left corner."""
     from calib_core.marks.trend import tile_means
-    for height, width in ((480, 640), (48, 64), (64, 48), (160, 160), (1024, 1280)):
-        for _ in range(20):
+    for height, width in ((480, 640), (48, 64), (64, 48), (160, 160), (1024, 1280),
+                          (1080, 1920), (490, 650)):
+        rows, cols = height // 16, width // 16
+        for _ in range(10):
             frame = rng.integers(0, 256, (height, width)).astype(np.uint8)
             if rng.random() < 0.5:
                 frame = cv2.GaussianBlur(frame, (5, 5), 1.0)
-            expected = cv2.resize(frame, (width // 16, height // 16), interpolation=cv2.INTER_AREA)
+            expected = cv2.resize(frame[:16 * rows, :16 * cols], (cols, rows),
+                                  interpolation=cv2.INTER_AREA)
             np.testing.assert_array_equal(tile_means(frame, 16), expected.astype(float))
 
 
