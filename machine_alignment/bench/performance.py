@@ -68,6 +68,32 @@ def _detection(size: int, polarity: str = 'auto') -> Work:
                 lambda found: _dots_rms(found, truth), 'px RMS')
 
 
+# The frame sizes of the frame-size job, by pixel count: VGA, full HD (whose 1080 rows are
+# no multiple of the detector's 16 px trend blocks) and a 5 MP sensor.
+FRAMES = {640 * 480: (640, 480), 1920 * 1080: (1920, 1080), 2592 * 1944: (2592, 1944)}
+
+
+def _frame_size(size: int) -> Work:
+    """One frame of ``size`` pixels (FRAMES) with 9 dots of 10 px radius spread over it
+    (1 px blur, 3 DN noise), detected choosing the polarity; the baseline as in
+    _detection. Both pass over every pixel of the frame, whatever the dots."""
+    from calib_core.marks import detect_marks
+    from calib_core.sim.render import MarkShape, render
+    from machine_alignment.bench.vision import BACKGROUND, CONTRAST, _blob_detector
+    rng = np.random.default_rng(1)
+    width, height = FRAMES[size]
+    marks = [MarkShape('circle', u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5), 10.0)
+             for v in np.linspace(0.15, 0.85, 3) * height
+             for u in np.linspace(0.15, 0.85, 3) * width]
+    image = render(marks, width, height, 1.0, BACKGROUND, CONTRAST)
+    image = np.clip(np.round(image + rng.normal(0, 3.0, image.shape)), 0, 255).astype(np.uint8)
+    tuned = _blob_detector(BACKGROUND + CONTRAST + 10, BACKGROUND - 10, np.pi * 20.0 ** 2)
+    truth = np.array([[m.u, m.v] for m in marks])
+    return Work(lambda: [[m.u, m.v] for m in detect_marks(image).marks],
+                lambda: [k.pt for k in tuned.detect(image)],
+                lambda found: _dots_rms(found, truth), 'px RMS')
+
+
 def _vision(size: int) -> Work:
     """Pixel size and gantry model from ``size`` positions over the dot plate (the frames
     rendered and detected beforehand: bench_results/results.md times the detection)."""
@@ -254,6 +280,9 @@ JOBS = {
     'Mark detection, polarity set': Job('the same frames, told the Marks are dark', 'Marks',
                                         (9, 81), functools.partial(_detection, polarity='dark'),
                                         'OpenCV SimpleBlobDetector, tuned'),
+    'Mark detection, frame size': Job('9 dots of 10 px over 640 x 480, 1920 x 1080 and '
+                                      '2592 x 1944 frames', 'pixels', tuple(FRAMES),
+                                      _frame_size, 'OpenCV SimpleBlobDetector, tuned'),
     'vision calibration': Job('pixel size and gantry (13 parameters)', 'positions', (12, 42),
                               _vision),
     'stage calibration': Job('stepwise + parametric, the paper\'s plan', 'stops', (130,),
