@@ -223,6 +223,28 @@ def test_uint8_image_and_quality(rng):
     assert mark.quality > 0.9
 
 
+def test_hot_pixels_in_a_deep_frame_do_not_hide_the_marks(rng):
+    """A 16-bit frame of 12-bit data (background 2000 DN, 15 dots 100 DN darker, 5 DN
+    noise) with two hot pixels at 65535: scaled between its extremes, the dots' contrast
+    fell within half of one of the 8-bit grey levels segmentation sees, and no Mark was
+    found. Scaled between the levels all but the most extreme pixels lie in, every dot
+    is found where it is found without the hot pixels, to its own uncertainty; and a
+    float frame with one pixel a thousand times too bright likewise."""
+    truth = [MarkShape('circle', 100 + 110 * i + rng.uniform(-0.5, 0.5),
+                       100 + 110 * j + rng.uniform(-0.5, 0.5), 10.0)
+             for i in range(5) for j in range(3)]
+    image = render(truth, 640, 480, 1.0, 2000.0, -100.0) + rng.normal(0, 5, (480, 640))
+    deep = np.clip(np.round(image), 0, 65535).astype(np.uint16)
+    clean = detect_marks(deep, expected_count=15).marks
+    deep[200, 300] = deep[10, 600] = 65535
+    hot = detect_marks(deep, expected_count=15).marks
+    for with_hot, without in zip(hot, clean):
+        assert np.hypot(with_hot.u - without.u, with_hot.v - without.v) < 3 * without.sigma_px
+    bright = image.copy()
+    bright[200, 300] = 1000 * image.max()
+    assert len(detect_marks(bright, expected_count=15).marks) == 15
+
+
 def test_image_without_marks_is_a_clear_error(rng):
     noise = 200 + rng.normal(0, 3, (480, 640))
     with pytest.raises(DetectionError, match='no contrast|no Mark'):

@@ -25,6 +25,12 @@ NEIGHBOUR_CLEARANCE_PX = 3.5
 TREND_BLOCK_PX = 16
 TREND_ITERATIONS = 4
 SURFACE_STEP_PX = 4
+# The frame is scaled to 8 bits for segmentation between its extremes, unless a grey
+# level would then span over this many noise sigma (a frame deeper than 8 bits stretched by
+# a few hot or dead pixels, or an overlay): then between the levels with this share of
+# the pixels beyond them at each end, where that range is under half of the frame's.
+MAX_GREY_LEVEL_SIGMAS = 2.0
+SCALING_OUTLIER_SHARE = 1e-4
 # The 5x5, sigma 1 px Gaussian smoothing before the threshold scales white noise by this.
 SMOOTHING_NOISE_GAIN = 0.287
 # The threshold stays at least this many smoothed-noise sigma from the background.

@@ -12,7 +12,7 @@ from calib_core.marks.config import (
 from calib_core.marks.cross import fit_cross
 from calib_core.marks.pixels import check_image, full_scale
 from calib_core.marks.segmentation import (
-    estimate_noise, moment_overlap, moment_shapes, segment)
+    estimate_noise, moment_overlap, moment_shapes, scaling_range, segment)
 
 
 def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',
@@ -54,8 +54,12 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     if high - low < 2 * config.min_snr * noise or high == low:
         raise DetectionError('image has no contrast (empty or uniform): no Mark can be seen')
 
-    noise_scaled = noise * 255.0 / (high - low)
-    polarity, labels, boxes, seeds, flat = segment(image, noise_scaled, config)
+    # Segmentation sees the frame within its scaling range; the fits see every pixel.
+    scale_low, scale_high = scaling_range(image, low, high, noise)
+    segmented = image if (scale_low, scale_high) == (low, high) else np.clip(
+        image, image.dtype.type(scale_low), image.dtype.type(scale_high))
+    noise_scaled = noise * 255.0 / (scale_high - scale_low)
+    polarity, labels, boxes, seeds, flat = segment(segmented, noise_scaled, config)
     blobs = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark')
     circles, crosses, rejected = _classify(boxes, blobs, labels, image.shape, config, shape,
                                            noise_scaled)

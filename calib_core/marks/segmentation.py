@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 
 from calib_core.marks.config import (
-    MIN_THRESHOLD_SIGMA, SIZE_SLACK, SMOOTHING_NOISE_GAIN, SURFACE_STEP_PX, TREND_BLOCK_PX,
-    TREND_ITERATIONS)
+    MAX_GREY_LEVEL_SIGMAS, MIN_THRESHOLD_SIGMA, SCALING_OUTLIER_SHARE, SIZE_SLACK,
+    SMOOTHING_NOISE_GAIN, SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
 
 
 def estimate_noise(image: np.ndarray) -> float:
@@ -31,6 +31,31 @@ def estimate_noise(image: np.ndarray) -> float:
         diff = np.diff(rows.astype(np.float64), axis=1).ravel()
         mad = np.median(np.abs(diff - np.median(diff)))
     return float(mad / 0.6745 / np.sqrt(2.0))
+
+
+def scaling_range(image, low, high, noise):
+    """The levels (image units) that segment maps to 0 and 255: the frame's ``low`` and
+    ``high``, or, where one of 256 grey levels between them would span over
+    MAX_GREY_LEVEL_SIGMAS of the ``noise`` (sigma, image units) and the range without
+    SCALING_OUTLIER_SHARE of the pixels at each end is under half as wide, that range.
+
+    Two hot pixels at 65535 in a 16-bit frame of 12-bit data put its dots' 100 DN of
+    contrast within half a grey level, and no Mark was found; an 8-bit frame's grey
+    level is never wider than its own."""
+    if image.dtype == np.uint8 or (high - low) / 255.0 <= MAX_GREY_LEVEL_SIGMAS * noise:
+        return low, high
+    values = image.ravel()
+    # Where every 100th pixel or so already spans half of the range, few pixels do not
+    # stretch it (a noise-free frame's Marks and background), and the full sort is spared.
+    sample = values[::max(values.size // 10000, 1)]
+    if float(sample.max()) - float(sample.min()) >= 0.5 * (high - low):
+        return low, high
+    beyond = max(int(values.size * SCALING_OUTLIER_SHARE), 1)
+    ends = [beyond, values.size - 1 - beyond]
+    inner_low, inner_high = (float(level) for level in np.partition(values, ends)[ends])
+    if inner_high <= inner_low or inner_high - inner_low >= 0.5 * (high - low):
+        return low, high
+    return inner_low, inner_high
 
 
 def _flatten(smoothed, tolerance):
@@ -93,7 +118,8 @@ def segment(image, noise_scaled, config):
     (labels.py), a fifth of connected components' time. The threshold is Otsu's unless
     that splits the background's noise (see levels.mask_levels). ``auto`` polarity takes
     the class with more Mark-shaped blobs (_vote): the minority class is not the Marks
-    when a dense dot grid and a dark table fill most of a photo."""
+    when a dense dot grid and a dark table fill most of a photo. The frame is scaled to 8
+    bits between its extremes (clipped to scaling_range's by the caller)."""
     scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
     guard = MIN_THRESHOLD_SIGMA * smoothed_noise
