@@ -15,7 +15,16 @@ def full_scale(image: np.ndarray) -> float | None:
     return None
 
 
+# The pixel types of camera frames, rendered frames and files, which make setup compiles
+# the detector for (precompile.py), C-ordered.
+PIXEL_TYPES = (np.uint8, np.uint16, np.float32, np.float64)
+
+
 def check_image(image) -> np.ndarray:
+    """The frame as the compiled code reads it: 2-D, finite, in the machine's byte order,
+    C-ordered and of one of PIXEL_TYPES (other integer types become float64, exactly).
+    Any other layout or type would be compiled anew on its first frame: 3-4 s for a view
+    of part of a frame, a Fortran-ordered or an int32 one."""
     image = np.asarray(image)
     if image.ndim != 2:
         raise InvalidInputError(f'expected a single-channel image (2-D array), got shape {image.shape}')
@@ -25,8 +34,11 @@ def check_image(image) -> np.ndarray:
         raise InvalidInputError('image contains NaN or infinite values')
     if image.dtype.kind not in 'uif':
         raise InvalidInputError(f'unsupported pixel type {image.dtype}')
-    # The compiled fits read pixels in the machine's byte order only.
-    return image if image.dtype.isnative else image.astype(image.dtype.newbyteorder('='))
+    if not image.dtype.isnative:
+        image = image.astype(image.dtype.newbyteorder('='))
+    if image.dtype.type not in PIXEL_TYPES:
+        image = image.astype(np.float64)
+    return np.ascontiguousarray(image)
 
 
 def upper_median(values) -> float:

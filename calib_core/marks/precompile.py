@@ -6,9 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.marks.detect import detect_marks
-
-# The pixel types of camera frames, rendered frames and files.
-PIXEL_TYPES = (np.uint8, np.uint16, np.float32, np.float64)
+from calib_core.marks.pixels import PIXEL_TYPES
 
 
 def dot_frame(dtype) -> np.ndarray:
