@@ -44,28 +44,33 @@ def _dots_rms(found, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(good ** 2))) if len(good) else float('nan')
 
 
-def _detection(size: int, polarity: str = 'auto') -> Work:
-    """One 640 x 480 frame of ``size`` dots (10 px radius, 1 px blur, 3 DN noise) on a
-    square grid, detected with the Marks' ``polarity`` (auto: chosen from the frame); the
-    baseline: SimpleBlobDetector with thresholds and areas set for the frame, which looks
-    for dark blobs (bench_results/results.md compares it at every radius, blur and noise)."""
+def _dot_frame(width: int, height: int, columns, rows, polarity: str = 'auto') -> Work:
+    """A ``width`` x ``height`` frame of dots (10 px radius, 1 px blur, 3 DN noise) at the
+    grid of ``columns`` and ``rows`` (px), each moved by up to 0.5 px, detected with the
+    Marks' ``polarity`` (auto: chosen from the frame); the baseline: SimpleBlobDetector with
+    thresholds and areas set for the frame, which looks for dark blobs
+    (bench_results/results.md compares it at every radius, blur and noise)."""
     from calib_core.marks import DetectorConfig, detect_marks
     from calib_core.sim.render import MarkShape, render
     from machine_alignment.bench.vision import BACKGROUND, CONTRAST, _blob_detector
     rng = np.random.default_rng(1)
-    side = int(round(np.sqrt(size)))
     marks = [MarkShape('circle', u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5), 10.0)
-             for v in np.linspace(45, 435, side) for u in np.linspace(45, 595, side)]
-    noise = 3.0
-    image = render(marks, 640, 480, 1.0, BACKGROUND, CONTRAST)
-    image = np.clip(np.round(image + rng.normal(0, noise, image.shape)), 0, 255).astype(np.uint8)
-    level = BACKGROUND + CONTRAST
-    tuned = _blob_detector(level + 10, BACKGROUND - 10, np.pi * 20.0 ** 2)
+             for v in rows for u in columns]
+    image = render(marks, width, height, 1.0, BACKGROUND, CONTRAST)
+    image = np.clip(np.round(image + rng.normal(0, 3.0, image.shape)), 0, 255).astype(np.uint8)
+    tuned = _blob_detector(BACKGROUND + CONTRAST + 10, BACKGROUND - 10, np.pi * 20.0 ** 2)
     truth = np.array([[m.u, m.v] for m in marks])
     config = DetectorConfig(polarity=polarity)
     return Work(lambda: [[m.u, m.v] for m in detect_marks(image, config).marks],
                 lambda: [k.pt for k in tuned.detect(image)],
                 lambda found: _dots_rms(found, truth), 'px RMS')
+
+
+def _detection(size: int, polarity: str = 'auto') -> Work:
+    """One 640 x 480 frame of ``size`` dots on a square grid (_dot_frame)."""
+    side = int(round(np.sqrt(size)))
+    return _dot_frame(640, 480, np.linspace(45, 595, side), np.linspace(45, 435, side),
+                      polarity)
 
 
 # The frame sizes of the frame-size job, by pixel count: VGA, full HD (whose 1080 rows are
@@ -74,24 +79,12 @@ FRAMES = {640 * 480: (640, 480), 1920 * 1080: (1920, 1080), 2592 * 1944: (2592, 
 
 
 def _frame_size(size: int) -> Work:
-    """One frame of ``size`` pixels (FRAMES) with 9 dots of 10 px radius spread over it
-    (1 px blur, 3 DN noise), detected choosing the polarity; the baseline as in
-    _detection. Both pass over every pixel of the frame, whatever the dots."""
-    from calib_core.marks import detect_marks
-    from calib_core.sim.render import MarkShape, render
-    from machine_alignment.bench.vision import BACKGROUND, CONTRAST, _blob_detector
-    rng = np.random.default_rng(1)
+    """One frame of ``size`` pixels (FRAMES) with 9 dots spread over it (_dot_frame),
+    detected choosing the polarity. Both detectors pass over every pixel of the frame,
+    whatever the dots."""
     width, height = FRAMES[size]
-    marks = [MarkShape('circle', u + rng.uniform(-0.5, 0.5), v + rng.uniform(-0.5, 0.5), 10.0)
-             for v in np.linspace(0.15, 0.85, 3) * height
-             for u in np.linspace(0.15, 0.85, 3) * width]
-    image = render(marks, width, height, 1.0, BACKGROUND, CONTRAST)
-    image = np.clip(np.round(image + rng.normal(0, 3.0, image.shape)), 0, 255).astype(np.uint8)
-    tuned = _blob_detector(BACKGROUND + CONTRAST + 10, BACKGROUND - 10, np.pi * 20.0 ** 2)
-    truth = np.array([[m.u, m.v] for m in marks])
-    return Work(lambda: [[m.u, m.v] for m in detect_marks(image).marks],
-                lambda: [k.pt for k in tuned.detect(image)],
-                lambda found: _dots_rms(found, truth), 'px RMS')
+    spread = np.linspace(0.15, 0.85, 3)
+    return _dot_frame(width, height, spread * width, spread * height)
 
 
 def _vision(size: int) -> Work:
