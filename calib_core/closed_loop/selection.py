@@ -16,6 +16,10 @@ from calib_core.closed_loop.channels import (
 from calib_core.closed_loop.fitting import (
     Fit, cross_validated_rms, fit_model, heldout_errors, holdout_split, model_residuals,
     residuals_by_channel, without_effects)
+from calib_core.loop_structure import structure_tests
+from calib_core.closed_loop.evidence import (
+    MIN_HELDOUT_GAIN, covariate_columns, describe_gain, earns_its_place, matching_candidate, pooled_gain,
+    seen_not_added)
 from calib_core.closed_loop.identifiability import (
     minimum_residuals, pure_error_variance, undetermined_reason)
 from calib_core.closed_loop.linearised import LinearisedModel
@@ -38,12 +42,18 @@ class _Split:
     too_small: dict
 
 
-def _make_split(machine, config: LoopConfig, seed: int):
-    """Hold-out rows, fitting rows, folds and the base model's fit for one seed."""
-    rng = np.random.default_rng(seed)
+def _make_split(machine, config: LoopConfig, k: int):
+    """Hold-out rows, fitting rows, folds and the base model's fit for split ``k``.
+
+    The rows are partitioned into 1 / ``holdout_fraction`` parts (balanced within each
+    stratum); split k holds out part k of a partition, a new partition every round of
+    parts, so that the first rounds hold every row out once and the figures pooled over the
+    splits speak for every row."""
     every = np.arange(len(machine))
     holdout_parts = max(2, int(round(1 / config.holdout_fraction)))
-    holdout = holdout_split(machine.strata(), holdout_parts, rng) == 0
+    partition = holdout_split(machine.strata(), holdout_parts,
+                              np.random.default_rng([config.seed, k // holdout_parts]))
+    holdout = partition == k % holdout_parts
     train = every[~holdout]
     base = machine.initial()
     needed = minimum_residuals(len(base.free_names))
@@ -53,7 +63,8 @@ def _make_split(machine, config: LoopConfig, seed: int):
             f'{len(machine)} rows are too few for the base model ({len(base.free_names)} '
             f'parameters) with {config.holdout_fraction:.0%} held out: the fitting rows give '
             f'{len(train) * probe.shape[1]} residuals, {needed} are needed')
-    folds = holdout_split(machine.strata()[train], config.folds, rng)
+    folds = holdout_split(machine.strata()[train], config.folds,
+                          np.random.default_rng([config.seed, k, 1]))
     return holdout, train, folds, fit_model(machine, base, [], [], train)
 
 
@@ -158,9 +169,9 @@ def _prefer_the_simpler(accepted: list, alpha: float) -> list:
     return kept
 
 
-def _select(machine, config: LoopConfig, seed: int, min_effect: float, progress=None) -> _Split:
-    """Forward selection on one hold-out split (steps 2 and 3 of the module's list)."""
-    holdout, train, folds, base_fit = _make_split(machine, config, seed)
+def _select(machine, config: LoopConfig, k: int, min_effect: float, progress=None) -> _Split:
+    """Forward selection on hold-out split ``k`` (steps 2 and 3 of the module's list)."""
+    holdout, train, folds, base_fit = _make_split(machine, config, k)
     current = base_fit
     current_cv = cross_validated_rms(machine, current, train, folds)
     rounds, skipped, added, not_identifiable, too_small = [], {}, [], {}, {}
@@ -266,54 +277,137 @@ def _build(machine, splits: list, chosen: list, config: LoopConfig):
     return current, evidence, not_identifiable, rejected
 
 
-MIN_HELDOUT_GAIN = 0.01
-"""An effect must lower the held-out RMS, pooled over the splits, by this share to stay:
-a gain of less than 1 % is no reason to change a machine's model. The held-out maximum
-may not grow by more than this share or by more than the RMS falls (a row it does not
-touch keeps its error to rounding, hence a share, not zero)."""
-
-
-def _prune(machine, splits: list, current: Fit, rejected: dict) -> Fit:
-    """Reject, one at a time, each effect that does not earn its place on held-out rows:
-    removing it leaves the held-out RMS pooled over the splits within
-    :data:`MIN_HELDOUT_GAIN` (or lowers it), the held-out maximum grows with it by more
-    than the pooled RMS falls (and by more than that share) on most splits, or on the
-    reported split the held-out RMS is larger with it. The effect that gains least goes
-    first; the reason goes into ``rejected``."""
+def _prune(machine, splits: list, current: Fit, rejected: dict, gains: dict) -> Fit:
+    """Reject, one at a time, each effect that does not earn its place on held-out rows
+    (:func:`earns_its_place`); the effect that gains least goes first. Its reason goes into
+    ``rejected`` and its figures into ``gains``."""
     while current.effects:
-        with_all = heldout_errors(machine, splits, current.effects, current.values, current)
         failing = []
         for name in current.names():
-            effects, values = without_effects(current, (name,))
-            without = heldout_errors(machine, splits, effects, values, current)
-            gain = 1 - np.sqrt(with_all['sum_of_squares'] / without['sum_of_squares'])
-            max_ratios = np.array(with_all['maxima']) / np.array(without['maxima'])
-            # The maximum may grow by no more than the RMS falls: a few rows the effect
-            # does not describe (named under outliers) must not veto a real effect, and a
-            # small RMS gain must not buy a larger worst error.
-            allowed = 1 + MIN_HELDOUT_GAIN if gain <= 0 else max(1 + MIN_HELDOUT_GAIN,
-                                                                 1 / (1 - gain))
-            # The first split's held-out rows are the ones reported before and after. Its
-            # maximum alone does not veto (one split's worst row is mostly noise: it vetoed
-            # the hexapod's real play on 60 poses); the report says when it grew.
-            reported_worse = with_all['sums'][0] > without['sums'][0]
-            if gain < MIN_HELDOUT_GAIN or np.median(max_ratios) > allowed or reported_worse:
-                failing.append((gain, name, with_all, without, max_ratios, allowed))
+            gain = pooled_gain(machine, splits, current, name)
+            if not earns_its_place(gain):
+                failing.append((gain['gain'], name, gain))
         if not failing:
             return current
-        gain, name, with_all, without, max_ratios, allowed = min(failing, key=lambda f: f[0])
-        rms = [np.sqrt(e['sum_of_squares'] / e['count']) for e in (with_all, without)]
-        reported = np.sqrt(with_all['sums'][0] / without['sums'][0])
-        rejected[name] = (
-            f'it does not earn its place on held-out rows: RMS over the splits {rms[0]:.3g} '
-            f'with it, {rms[1]:.3g} without ({gain:+.1%}, {MIN_HELDOUT_GAIN:.0%} needed); '
-            f'held-out max with / without it {np.median(max_ratios):.3f} (median over the '
-            f'splits, at most {allowed:.3f} allowed); on the reported split RMS '
-            f'x {reported:.3f}, max x {max_ratios[0]:.3f}')
+        _, name, gain = min(failing, key=lambda f: f[0])
+        gains[name] = gain
+        rejected[name] = f'it does not earn its place on held-out rows: {describe_gain(gain)}'
         effects, values = without_effects(current, (name,))
         current = (fit_model(machine, current.base, effects, values, splits[0].train)
                    if effects else splits[0].base_fit)
     return current
+
+
+def _simplify(machine, splits: list, current: Fit, config: LoopConfig, evidence: dict,
+              replaced: dict) -> Fit:
+    """Each added effect replaced by a candidate with fewer parameters where that does as
+    well on the held-out rows of every split (pooled RMS within :data:`MIN_HELDOUT_GAIN`).
+
+    Forward selection adds the best candidate of its round given the effects it has then:
+    a drift over a run, half of it seen as a difference between directions before the
+    backlash is in, loses its round to a step per cycle (four parameters for one slope).
+    The alternatives are the candidates significant on the first split in some round;
+    ``replaced`` gets, per effect replaced, what replaced it and why."""
+    primary = splits[0]
+    significant = {c['effect'] for r in primary.rounds for c in r['candidates']
+                   if c['status'] == 'candidate'}
+    for name in list(current.names()):
+        k = current.names().index(name)
+        effects, values = without_effects(current, (name,))
+        reduced = (fit_model(machine, current.base, effects, values, primary.train)
+                   if effects else primary.base_fit)
+        context = machine.context(reduced.base, primary.train)
+        residuals = residuals_by_channel(machine, reduced, primary.train)
+        pooled = heldout_errors(machine, splits, current.effects, current.values, current)
+        best = None
+        for alternative in sorted(significant - set(current.names())):
+            entry = _try_candidate(machine, reduced, alternative, primary.train, context,
+                                   residuals, config.alpha)
+            if (isinstance(entry, str) or entry['extra'] >= len(current.values[k])
+                    or not entry['p_value_raw'] < config.alpha
+                    or undetermined_reason(machine, reduced, entry, primary.train)):
+                continue
+            fit = entry['fit']
+            sum_of_squares = heldout_errors(machine, splits, fit.effects, fit.values,
+                                            fit)['sum_of_squares']
+            ratio = float(np.sqrt(sum_of_squares / pooled['sum_of_squares']))
+            if ratio <= 1 + MIN_HELDOUT_GAIN and (best is None or ratio < best[0]):
+                best = (ratio, alternative, entry)
+        if best is None:
+            continue
+        ratio, alternative, entry = best
+        current = entry['fit']
+        replaced[name] = (f'{alternative} describes the same with fewer parameters: held-out '
+                          f'RMS pooled over the splits x {ratio:.3f} with it in its place')
+        evidence[alternative] = {'round': 'simplified', 'evidence': {
+            'f_statistic': entry['f_statistic'], 'p_value': entry['p_value_raw'],
+            'explained_rms': entry['size'], 'replaces': name,
+            'heldout_ratio_to_replaced': ratio}}
+    return current
+
+
+def _second_look(machine, splits: list, final: Fit, config: LoopConfig, min_effect: float,
+                 evidence: dict) -> tuple[Fit, dict, list | None]:
+    """Try, on the final model, the effect that would explain each structure the tests
+    flag in its residuals (a period, a trend, a step on one channel), with a flagged
+    period among its trial periods. An effect is added where it is significant (its own
+    searches counted), identifiable, at least ``min_effect`` and earns its place on the
+    held-out rows of every split (``earns_its_place``); then the tests run again.
+
+    Returns the model, per (kind, component, covariate) of a flagged structure what trying
+    its effect gave (for the report), and the structure left in the model returned (None
+    where it was not tested again)."""
+    primary = splits[0]
+    tried, notes, flagged = set(), {}, None
+    while len(final.effects) < config.max_effects:
+        residuals = residuals_by_channel(machine, final, primary.train)
+        context = machine.context(final.base, primary.train)
+        flagged = structure_tests(machine.channels, residuals,
+                                  covariate_columns(machine, context), config.alpha)
+        grown = False
+        for item in flagged:
+            match = matching_candidate(item, machine)
+            key = (item['kind'], item['component'], item['covariate'])
+            if match is None or match in tried:
+                continue
+            tried.add(match)
+            name, channel = match
+            if name in final.names():
+                notes[key] = f'{name} is in the model already on other channels'
+                continue
+            hinted = dict(context, period_hint={channel: item['period']}) \
+                if 'period' in item else context
+            entry = _try_candidate(machine, final, name, primary.train, hinted, residuals,
+                                   config.alpha, (channel,), {})
+            if isinstance(entry, str):
+                notes[key] = f'{name} on {channel} not tested: {entry}'
+                continue
+            why = None
+            if not entry['p_value_raw'] < config.alpha:
+                why = f'not significant jointly with the model (p = {entry["p_value_raw"]:.2g})'
+            else:
+                why = undetermined_reason(machine, final, entry, primary.train)
+            if why is None and entry['size'] < min_effect:
+                why = f'explains {entry["size"]:.3g} RMS, below the minimum effect size'
+            if why is None:
+                gain = pooled_gain(machine, splits, entry['fit'], name)
+                if not earns_its_place(gain):
+                    why = f'it does not earn its place on held-out rows: {describe_gain(gain)}'
+            if why is not None:
+                notes[key] = f'{name} on {channel} tried: {why}'
+                continue
+            final = entry['fit']
+            evidence[name] = {'round': 'structure test', 'evidence': {
+                'f_statistic': entry['f_statistic'], 'p_value': entry['p_value_raw'],
+                'explained_rms': entry['size'], 'periods_searched': entry['prepared'].trials,
+                'from_structure': {k: item[k] for k in ('kind', 'component', 'covariate',
+                                                        'p_value') if k in item}}}
+            grown = True
+            break
+        if not grown:
+            return final, notes, flagged
+        flagged = None
+    return final, notes, flagged
 
 
 def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=None) -> LoopResult:
@@ -321,9 +415,13 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
 
     The selection (steps 2-3 of the module's list) runs on ``config.splits`` hold-out
     splits; an effect is added only if it was chosen in ``config.min_frequency`` of them,
-    is identifiable on the first split, explains at least ``min_effect`` and does not make
-    the held-out error summed over the splits worse. Before/after are reported on the
-    first split's held-out rows, with the spread over all splits.
+    is identifiable on the first split, explains at least ``min_effect`` and earns its
+    place on the held-out rows pooled over every split (no one split vetoes it). Then the
+    structure left is tested, and the effect that would explain a flagged structure is
+    tried under the same rules (:func:`_second_look`). Before/after are pooled over the
+    splits' held-out rows (every row held out at least once), with the spread over the
+    splits; an effect chosen on some split but not added is reported under
+    ``unexplained`` with its evidence.
 
     ``progress(done, total, label)`` is called as candidates are scored.
 
@@ -344,7 +442,7 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     for k in range(config.splits):
         report = (lambda done, total, label, k=k: progress(
             done, total, f'split {k + 1}/{config.splits}, {label}')) if progress else None
-        splits.append(_select(machine, config, config.seed + k, min_effect, report))
+        splits.append(_select(machine, config, k, min_effect, report))
     positions = {}
     for split in splits:
         for position, item in enumerate(split.added):
@@ -353,7 +451,8 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     chosen = sorted((n for n in positions if frequency[n] >= config.min_frequency),
                     key=lambda n: (-frequency[n], np.mean(positions[n])))
     final, evidence, not_identifiable, rejected = _build(machine, splits, chosen, config)
-    final = _prune(machine, splits, final, rejected)
+    gains = {}
+    final = _prune(machine, splits, final, rejected, gains)
     for name in positions:
         if frequency[name] < config.min_frequency:
             rejected[name] = (f'chosen in {len(positions[name])} of {config.splits} hold-out '
@@ -363,5 +462,14 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
         for name, reason in split.not_identifiable.items():
             if name not in final.names():
                 not_identifiable.setdefault(name, reason)
+    replaced = {}
+    final = _simplify(machine, splits, final, config, evidence, replaced)
+    final, tried, structure = _second_look(machine, splits, final, config, min_effect, evidence)
+    for name in final.names():
+        rejected.pop(name, None)
+        not_identifiable.pop(name, None)
+    rejected.update(replaced)
+    seen = seen_not_added(machine, splits, final, rejected, not_identifiable, gains,
+                          explained=set(replaced))
     return loop_result(machine, config, splits, final, evidence, frequency, not_identifiable,
-                   rejected, min_effect)
+                       rejected, min_effect, seen, tried, structure)

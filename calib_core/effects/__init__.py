@@ -23,8 +23,10 @@ Names are stable (they appear in reports):
 ``periodic``                cyclic error per channel, e.g. once per lead-screw revolution,
                             a cos(2 pi x / P) + b sin(2 pi x / P), period P found from the data (m)
 ``drift_time``              linear drift with time, term = rate * (t - t_ref) (m/s)
-``drift_temperature``       thermal expansion and zero drift, term = (k x + c) (T - T_ref)
-                            (k in 1/K, c in m/K)
+``drift_sequence``          linear drift over the run by approach number where no clock was
+                            logged, term = rate * (s - s_mean) (m per approach)
+``drift_temperature``       thermal expansion and zero drift, term = (k (x - x_mean) + g)
+                            (T - T_ref) (k in 1/K, g the growth at the mean position, m/K)
 ``radial_distortion``       lens distortion k1, k2 (OpenCV): x_n (k1 r^2 + k2 r^4) (1)
 ``tangential_distortion``   decentring distortion p1, p2 (OpenCV) (1)
 ``leg_play``                joint play taken up by the static leg force,
@@ -49,22 +51,24 @@ from calib_core.effects.categorical import CATEGORICAL_COVARIATES, BlockStep, Wa
 from calib_core.effects.error_motion import ErrorMotion
 from calib_core.effects.leg_play import LegPlay
 from calib_core.effects.per_channel import (
-    Compliance, DriftTemperature, DriftTime, Offset, Reversal, Scale, Squareness)
+    Compliance, DriftSequence, DriftTemperature, DriftTime, Offset, Reversal, Scale,
+    Squareness)
 from calib_core.effects.periodic import Periodic, resolvable_periods
 from calib_core.effects.position import LeadError, ReversalByPosition
 from calib_core.effects.rotary import RotaryHarmonics, resolvable_orders
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
                                ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
-                               DriftTime(), DriftTemperature(), RadialDistortion(),
+                               DriftTime(), DriftSequence(), DriftTemperature(), RadialDistortion(),
                                TangentialDistortion(), LegPlay(), Compliance(),
                                RotaryHarmonics(), ErrorMotion())}
 # Effects that describe the run measured, not the machine: in force they would act on later
 # runs with that run's clock, temperature or blocks (a drift with temperature could be
 # compensated only from a live temperature, which no consumer here reads).
-OF_THE_RUN = ('drift_time', 'drift_temperature', 'block_step', 'warm_up')
+OF_THE_RUN = ('drift_time', 'drift_sequence', 'drift_temperature', 'block_step', 'warm_up')
 
-__all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'DriftTemperature',
+__all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'DriftSequence',
+           'DriftTemperature',
            'DriftTime', 'Effect', 'ErrorMotion', 'LeadError', 'LegPlay', 'OF_THE_RUN', 'Offset',
            'Periodic', 'Prepared',
            'RadialDistortion', 'Reversal', 'ReversalByPosition', 'RotaryHarmonics', 'Scale',

@@ -20,7 +20,9 @@ class Offset(PerChannel):
 
 
 class Scale(PerChannel):
-    name, meaning, requires = 'scale', 'scale (length) error of each channel', ('position',)
+    name, requires = 'scale', ('position',)
+    meaning = ('scale (length) error of each channel: a lead screw\'s lead, an encoder\'s '
+               'or a read-out\'s conversion factor off by a share')
     unit, suffix = '1', 'scale'
 
     def basis(self, context, width):
@@ -56,6 +58,20 @@ class DriftTime(PerChannel):
         return np.repeat(t[:, None], width, axis=1)
 
 
+class DriftSequence(PerChannel):
+    name = 'drift_sequence'
+    meaning = ('linear drift of each channel over the run by approach number, where no '
+               'clock was logged (thermal drift of the machine or the instrument)')
+    requires, covariate, unit, suffix = ('sequence',), 'sequence', 'm/approach', 'rate'
+
+    def inactive_reason(self):
+        return 'the approach number is constant in the data'
+
+    def basis(self, context, width):
+        s = context['sequence'] - context.get('sequence_ref', 0.0)
+        return np.repeat(s[:, None], width, axis=1)
+
+
 class Compliance(PerChannel):
     name, meaning = 'compliance', 'elastic deflection proportional to the static load'
     requires, covariate, unit, suffix = ('load',), 'load', 'm/N', 'compliance'
@@ -87,21 +103,46 @@ class Squareness(FixedParameters):
 
 
 class DriftTemperature(Effect):
+    """Thermal expansion and zero drift, term = (k (x - x_mean) + g) (T - T_ref) per
+    channel, with x_mean the channel's mean position on the rows prepared on.
+
+    Written about the mean position, not zero, because only the growth there (g, m/K) is
+    determined on a short stroke: k x + c at a 0.64 m leg moving +-5 mm tells k and c apart
+    no better than 0.005 m / 0.64 m of the growth. The loop's report flags k as not
+    determined where it is below twice its standard deviation (see ``undetermined``)."""
+
     name = 'drift_temperature'
-    meaning = ('thermal expansion (k, 1/K, proportional to position) and zero drift '
-               '(c, m/K) with temperature')
+    meaning = ('thermal expansion (k, 1/K, about the mean position) and the growth at the '
+               'mean position (g, m/K) with temperature')
     requires = ('temperature', 'position')
 
     def _prepare(self, context, channels, channel_residuals):
         if np.ptp(context['temperature']) <= 0:
             return 'temperature is constant in the data'
         count = len(channels)
+        centre = np.mean(context['position'], axis=0)
 
         def term(params, ctx):
-            k, c = params[:count], params[count:]
+            k, g = params[:count], params[count:]
             dt = (ctx['temperature'] - ctx.get('temperature_ref', 0.0))[:, None]
-            return (k * ctx['position'] + c) * dt
+            return (k * (ctx['position'] - centre) + g) * dt
 
-        names = tuple(f'expansion_{c}' for c in channels) + tuple(f'zero_drift_{c}' for c in channels)
+        names = tuple(f'expansion_{c}' for c in channels) + tuple(f'growth_{c}' for c in channels)
+        notes = {'mean_position_m': dict(zip(channels, map(float, centre))),
+                 'stroke_m': dict(zip(channels, map(float, np.ptp(context['position'], axis=0))))}
         return Prepared(self, names, ('1/K',) * count + ('m/K',) * count,
-                        np.zeros(2 * count), term)
+                        np.zeros(2 * count), term, notes=notes)
+
+    @staticmethod
+    def undetermined(parameters: dict, std_devs: dict, notes: dict) -> dict:
+        """Parameter name -> why it is not determined: an expansion below twice its standard
+        deviation (the stroke too short to tell it from the growth at the mean position)."""
+        out = {}
+        for name, value in parameters.items():
+            if name.startswith('expansion_') and not abs(value) >= 2 * std_devs[name]:
+                channel = name[len('expansion_'):]
+                stroke = notes.get('stroke_m', {}).get(channel, float('nan'))
+                out[name] = (f'{value:.3g} +- {std_devs[name]:.2g} 1/K: a stroke of '
+                             f'{stroke * 1e3:.3g} mm does not tell expansion from the growth at '
+                             f'the mean position; growth_{channel} is what the data determine')
+        return out

@@ -81,8 +81,10 @@ class Periodic(Effect):
     alias_ratio = 0.9             # a second peak this high makes the period ambiguous
     max_harmonics = 3
 
-    def _channel(self, x: np.ndarray, r: np.ndarray):
-        """(period, harmonics, trials) for one channel, or a reason string."""
+    def _channel(self, x: np.ndarray, r: np.ndarray, hint: float | None = None):
+        """(period, harmonics, trials) for one channel, or a reason string. A ``hint``
+        (m; a period the loop's structure test found by the same search) is taken as the
+        period where the positions resolve it; the search's trials still count."""
         shortest, longest, need = resolvable_periods(x)
         distinct = len(np.unique(x))
         if shortest >= longest:
@@ -97,6 +99,10 @@ class Periodic(Effect):
         count = int(min(20000, max(200, 10 * (f_high - f_low) * span)))
         freqs = np.linspace(f_low, f_high, count)
         power = lombscargle(x, r - r.mean(), 2 * np.pi * freqs, floating_mean=True)
+        if hint is not None and f_low <= 1 / hint <= f_high:
+            # The hinted peak wins; its rivals were weighed by the search that found it.
+            freqs = np.append(freqs, 1 / hint)
+            power = np.append(power, np.inf)
         best = int(np.argmax(power))
         # Peaks closer than 1/span are one peak; harmonics of the best are not rivals.
         separation = 1.0 / span
@@ -124,8 +130,10 @@ class Periodic(Effect):
             return (f'{len(position)} rows are too few to find a period '
                     f'(needs {self.min_samples})')
         found, reasons, trials, searched_by_channel = [], [], 1.0, {}
+        hints = context.get('period_hint', {})
         for c in range(position.shape[1]):
-            result = self._channel(position[:, c], channel_residuals[:, c])
+            result = self._channel(position[:, c], channel_residuals[:, c],
+                                   hints.get(channels[c]))
             if isinstance(result, str):
                 reasons.append(f'{channels[c]}: {result}' if len(channels) > 1 else result)
                 continue

@@ -46,10 +46,11 @@ class RotaryLoopModel(MachineModel):
     channel_units = ('rad', 'rad', 'm', 'm', 'm', 'rad', 'rad', 'rad')
     channel_blocks = (('a', 'c') + SHIFT, TURN)
     candidates = ('scale', 'angular_harmonics', 'error_motion', 'reversal', 'drift_time',
-                  'drift_temperature')
+                  'drift_sequence', 'drift_temperature')
     # Encoders turn, gears wobble and axes reverse; heat moves the target against the camera.
     effect_channels = {'scale': ('a', 'c'), 'angular_harmonics': ('a', 'c'),
-                       'reversal': ('a', 'c'), 'drift_time': SHIFT, 'drift_temperature': SHIFT}
+                       'reversal': ('a', 'c'), 'drift_time': SHIFT, 'drift_sequence': SHIFT,
+                       'drift_temperature': SHIFT}
     min_effect = 1e-6
 
     def __init__(self, poses: TargetPoses, lever: float = LEVER):

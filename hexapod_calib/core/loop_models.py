@@ -40,7 +40,8 @@ class HexapodLoopModel(MachineModel):
     base_model = ('6-SPS, 42 parameters: per leg the actuator offset and the base and '
                   'platform joint centres; residual in leg length (m)')
     channels = tuple(f'leg{i + 1}' for i in range(LEGS))
-    candidates = ('leg_play', 'compliance', 'reversal', 'drift_temperature', 'drift_time')
+    candidates = ('leg_play', 'compliance', 'reversal', 'scale', 'drift_temperature', 'drift_time',
+                  'drift_sequence')
 
     def __init__(self, data: PoseData, nominal: HexapodGeometry, forces: np.ndarray | None = None):
         """``forces`` (n, 6; N, compression positive) override any force columns."""

@@ -23,7 +23,8 @@ class PlatformLoopModel(MachineModel):
     base_model = ('3-PRR, 18 parameters (per chain the feed zero, its direction, the link '
                   'and the platform joint); residual: loop closure |C_i - B_i| - L_i (m)')
     channels = ('feed1', 'feed2', 'feed3')
-    candidates = ('periodic', 'reversal', 'drift_temperature', 'drift_time')
+    candidates = ('periodic', 'reversal', 'scale', 'drift_temperature', 'drift_time',
+                  'drift_sequence')
 
     def __init__(self, data: PoseData, nominal: PlatformGeometry):
         # What calibrate refuses, analyze refuses: the loop's base fit is the same.

@@ -122,7 +122,8 @@ class GantryLoopModel(MachineModel):
     base_model = ('measured = R(axis_angle) [(1 + scale_x) command_x, (1 + scale_y) command_y] '
                   '+ offset (m); the paper\'s model without non-orthogonality')
     channels = ('x', 'y')
-    candidates = ('squareness', 'reversal', 'periodic', 'drift_time', 'drift_temperature')
+    candidates = ('squareness', 'reversal', 'periodic', 'drift_time', 'drift_sequence',
+                  'drift_temperature')
 
     def __init__(self, data: GantryData):
         self.data = data
@@ -274,7 +275,7 @@ class StageLoopModel(MachineModel):
                   'alpha1, alpha2, stage mounting and the Marks\' platform positions; '
                   'Marks predicted in the plate frame (m)')
     channels = ('chain1', 'chain2', 'chain3')
-    candidates = ('reversal', 'periodic', 'drift_time', 'drift_temperature')
+    candidates = ('reversal', 'periodic', 'drift_time', 'drift_sequence', 'drift_temperature')
 
     def __init__(self, data: StageData):
         self.data = data
