@@ -35,6 +35,8 @@ Names are stable (they appear in reports):
 ``angular_harmonics``       a rotary axis's angular error repeating every turn (worm gear,
                             encoder eccentricity), sum of a_k cos(k theta) + b_k sin(k theta),
                             orders resolved by the angles sampled (rad)
+``smooth_map``              a smooth 2-D error map over an XY machine's travel: per axis 2-D
+                            Legendre products of total degree 2 to d (2-4, by BIC) (m)
 ``error_motion``            radial, axial and tilt error motion of a rotary axis (ISO 230-7): the
                             rotor shifting (m) and tilting (rad) with its angle, orders 2 and up
                             per component; needs ``rotor_frame`` (n, C, C, 5), each axis's
@@ -43,7 +45,8 @@ Names are stable (they appear in reports):
 ==========================  ============================================================
 
 Modules: ``base`` (Effect, Prepared and shared shapes), ``per_channel``, ``leg_play``,
-``periodic``, ``position``, ``categorical``, ``camera``, ``rotary``, ``error_motion``.
+``periodic``, ``position``, ``categorical``, ``camera``, ``rotary``, ``error_motion``,
+``smooth_map``.
 """
 from calib_core.effects.base import Effect, Prepared
 from calib_core.effects.camera import RadialDistortion, TangentialDistortion
@@ -56,12 +59,13 @@ from calib_core.effects.per_channel import (
 from calib_core.effects.periodic import Periodic, resolvable_periods
 from calib_core.effects.position import LeadError, ReversalByPosition
 from calib_core.effects.rotary import RotaryHarmonics, resolvable_orders
+from calib_core.effects.smooth_map import SmoothMap
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
                                ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
                                DriftTime(), DriftSequence(), DriftTemperature(), RadialDistortion(),
                                TangentialDistortion(), LegPlay(), Compliance(),
-                               RotaryHarmonics(), ErrorMotion())}
+                               RotaryHarmonics(), ErrorMotion(), SmoothMap())}
 # Effects that describe the run measured, not the machine: in force they would act on later
 # runs with that run's clock, temperature or blocks (a drift with temperature could be
 # compensated only from a live temperature, which no consumer here reads).
@@ -72,5 +76,5 @@ __all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'Drif
            'DriftTime', 'Effect', 'ErrorMotion', 'LeadError', 'LegPlay', 'OF_THE_RUN', 'Offset',
            'Periodic', 'Prepared',
            'RadialDistortion', 'Reversal', 'ReversalByPosition', 'RotaryHarmonics', 'Scale',
-           'Squareness', 'TangentialDistortion', 'WarmUp', 'resolvable_orders',
+           'SmoothMap', 'Squareness', 'TangentialDistortion', 'WarmUp', 'resolvable_orders',
            'resolvable_periods']

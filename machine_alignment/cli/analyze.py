@@ -10,6 +10,8 @@ import numpy as np
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
 from calib_core.closed_loop import LoopConfig, analyze, format_report
 from calib_core.controller_formats import write_linuxcnc_comp
+from calib_core.datasets import write_columns
+from calib_core.effects.smooth_map import compensation_grid
 from calib_core.iso230_2_plot import plot_iso230_2
 from calib_core.errors import MachineAlignmentError
 from dispenser_calib.core.loop_model import RotaryLoopModel
@@ -114,6 +116,29 @@ def _axis_figures(machine, result, report: dict, json_path, units: str = 'mm') -
         print(f'wrote {figure} (mean +- 2 s per direction against target, before and after)')
 
 
+MAP_GRID_POINTS = 11
+"""Points per axis of the 2-D compensation grid written for a smooth map."""
+
+
+def _map_grid(result, report: dict, json_path) -> None:
+    """The smooth 2-D map the loop added, as the compensation grid a controller loads,
+    beside the JSON (x, y, correction_x, correction_y in m over the travel measured)."""
+    names = result.fit.names()
+    if 'smooth_map' not in names or not json_path:
+        return
+    k = names.index('smooth_map')
+    prepared = result.fit.effects[k]
+    low, high = (np.array(v) for v in prepared.notes['map_travel_m'])
+    step = float(np.min(high - low)) / (MAP_GRID_POINTS - 1)
+    grid = compensation_grid(prepared.term, result.fit.values[k], low, high, step)
+    path = Path(json_path).with_name(Path(json_path).stem + '_map.csv')
+    write_columns(path, ['x', 'y', 'correction_x', 'correction_y'], list(grid.T))
+    report['compensation_map'] = str(path)
+    print(f'wrote {path} (x, y, correction_x, correction_y in m; {len(grid)} points '
+          f'{step * 1e3:.4g} mm apart over the travel measured; add the correction to the '
+          f'command)')
+
+
 def cmd_analyze(args) -> int:
     dropped = {}
     machine = _loop_machine(args, dropped)
@@ -127,6 +152,8 @@ def cmd_analyze(args) -> int:
         print(f'  column {name}: {reason}')
     if args.machine == 'axis':
         _axis_figures(machine, result, report, args.json, args.machine_units)
+    if args.machine == 'gantry':
+        _map_grid(result, report, args.json)
     if args.machine == 'rotary':
         report['identification'] = identified = machine.identified.report()
         print(f'  all poses, base model: A and C {90 - np.degrees(identified["squareness_a_c_rad"]):.4f}'

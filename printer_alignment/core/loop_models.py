@@ -122,8 +122,8 @@ class GantryLoopModel(MachineModel):
     base_model = ('measured = R(axis_angle) [(1 + scale_x) command_x, (1 + scale_y) command_y] '
                   '+ offset (m); the paper\'s model without non-orthogonality')
     channels = ('x', 'y')
-    candidates = ('squareness', 'reversal', 'periodic', 'drift_time', 'drift_sequence',
-                  'drift_temperature')
+    candidates = ('squareness', 'reversal', 'periodic', 'smooth_map', 'drift_time',
+                  'drift_sequence', 'drift_temperature')
 
     def __init__(self, data: GantryData):
         self.data = data
