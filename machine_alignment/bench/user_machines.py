@@ -28,11 +28,13 @@ def leg_vectors(base, platform, poses):
 
 
 def hexapod_day(seed: int, count: int, lead_ratio=LEAD_RATIO, workspace=0.06,
-                 tilt=np.radians(4), noise=(MOCAP_POSITION, MOCAP_ANGLE), machine: int = 1000):
+                 tilt=np.radians(4), noise=(MOCAP_POSITION, MOCAP_ANGLE), machine: int = 1000,
+                 rehome=0.0):
     """Poses over the workspace (+-``workspace`` m in x and y, 2/3 of it in z, +-``tilt``
     rad), the platform measured with ``noise`` (m, rad; motion capture by default), the legs
     read in revolutions from home converted with the nominal lead. ``machine`` seeds the
-    joint and leg errors (2 mm, 1 sigma), ``seed`` the poses and the noise."""
+    joint and leg errors (2 mm, 1 sigma), ``seed`` the poses and the noise; ``rehome``
+    (m, per leg) shifts each leg's reading, as homing the legs again on another day does."""
     rng = np.random.default_rng(seed)
     truth = np.random.default_rng(machine)
     base = NOMINAL.base_joints + truth.normal(0, 2e-3, (6, 3))
@@ -46,7 +48,7 @@ def hexapod_day(seed: int, count: int, lead_ratio=LEAD_RATIO, workspace=0.06,
                           axis=2)[0]
     # revolutions turned from home, read back with the nominal lead
     revolutions = (lengths - home) / (LEAD_NOMINAL * np.asarray(lead_ratio))
-    read = (home - fixed) + revolutions * LEAD_NOMINAL
+    read = (home - fixed) + np.asarray(rehome) + revolutions * LEAD_NOMINAL
     measured = poses + np.column_stack([rng.normal(0, noise[0], (count, 3)),
                                         rng.normal(0, noise[1], (count, 3))])
     return PoseData(poses, measured, read)
