@@ -53,6 +53,20 @@ def write_linuxcnc_comp(path, table, units: str = 'mm') -> int:
     return len(rows)
 
 
+def resampled_for_linuxcnc(table) -> tuple[np.ndarray, bool]:
+    """``table`` (rows of position, forward, reverse) as LinuxCNC can take it: unchanged
+    where it has at most :data:`LINUXCNC_MAX_ENTRIES` rows, else that many positions evenly
+    over its span with the corrections interpolated linearly (as the controller itself
+    interpolates between entries). Returns the table and whether it was resampled."""
+    rows = np.asarray(table, dtype=float).reshape(-1, 3)
+    rows = rows[np.argsort(rows[:, 0])]
+    if len(rows) <= LINUXCNC_MAX_ENTRIES:
+        return rows, False
+    positions = np.linspace(rows[0, 0], rows[-1, 0], LINUXCNC_MAX_ENTRIES)
+    return np.column_stack([positions, np.interp(positions, rows[:, 0], rows[:, 1]),
+                            np.interp(positions, rows[:, 0], rows[:, 2])]), True
+
+
 def read_linuxcnc_comp(path, comp_type: int = 1) -> np.ndarray:
     """The entries (k, 3) (nominal, forward trim, reverse trim, machine units) as
     LinuxCNC reads the file: triplets until the first line that is not one, type 0's

@@ -91,3 +91,30 @@ def test_gcode_reader_is_modal_and_refuses_what_a_controller_would(tmp_path):
             write_gcode_path(path, np.zeros((2, 5)), **bad)
     with pytest.raises(InvalidInputError, match='finite'):
         write_gcode_path(path, [[0, 0, 0, 0, np.nan]])
+
+
+def test_a_dense_scan_is_analysed_and_its_linuxcnc_table_resampled(tmp_path):
+    """A dense scan (600 rows, every one at its own position; issue 52: a 100 Hz run of
+    4,303 rows had ended the analysis): `analyze axis`
+    writes its report and JSON, and the LinuxCNC file with 256 entries whose trims match
+    the full table's to within what linear interpolation loses on a 0.2 mm period-free
+    error (under 0.05 um here), and says it resampled."""
+    import json
+    from machine_alignment.cli import main as cli_main
+    rng = np.random.default_rng(5)
+    count = 600
+    command = np.linspace(0.0, 0.2, count) + rng.normal(0, 1e-6, count)
+    direction = np.where(np.arange(count) < count // 2, 1.0, -1.0)
+    measured = command + 20e-6 * command - 1.5e-6 * direction + rng.normal(0, 0.3e-6, count)
+    data = tmp_path / 'scan.csv'
+    np.savetxt(data, np.column_stack([command, measured, direction]), delimiter=',',
+               header='command,measured,direction', comments='')
+    report_path = tmp_path / 'scan.json'
+    assert cli_main(['analyze', 'axis', '--data', str(data), '--json', str(report_path)]) == 0
+    report = json.loads(report_path.read_text())
+    assert report['linuxcnc_comp_resampled'].startswith('699 entries resampled to 256')
+    entries = read_linuxcnc_comp(report['linuxcnc_comp_file'])
+    assert len(entries) == 256
+    full = np.genfromtxt(report['compensation_table'], delimiter=',', names=True)
+    forward = np.interp(entries[:, 0] / 1e3, full['position'], full['correction_up'])
+    assert np.max(np.abs(entries[:, 1] / 1e3 - forward)) < 0.05e-6

@@ -9,7 +9,8 @@ import numpy as np
 
 from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
 from calib_core.closed_loop import LoopConfig, analyze, format_report
-from calib_core.controller_formats import write_linuxcnc_comp
+from calib_core.controller_formats import (
+    LINUXCNC_MAX_ENTRIES, resampled_for_linuxcnc, write_linuxcnc_comp)
 from calib_core.datasets import write_columns
 from calib_core.effects.smooth_map import compensation_grid
 from calib_core.iso230_2_plot import plot_iso230_2
@@ -103,11 +104,24 @@ def _axis_figures(machine, result, report: dict, json_path, units: str = 'mm') -
         print(f'wrote {path} (position, correction_up, correction_down in m; '
               f'{len(table)} rows, reference state: mean time and temperature, first block)')
         comp = Path(json_path).with_name(Path(json_path).stem + '_linuxcnc.comp')
-        write_linuxcnc_comp(comp, table, units)
-        report['linuxcnc_comp_file'] = str(comp)
-        print(f'wrote {comp} (LinuxCNC: [JOINT_n] COMP_FILE = {comp.name}, COMP_FILE_TYPE = '
-              f'1; values in {units}, the machine units; BACKLASH is then ignored, the two '
-              f'directions carry it)')
+        # An export never fails the analysis it belongs to: a dense scan's table is
+        # resampled to what LinuxCNC takes, and any other refusal is said, not raised.
+        entries, resampled = resampled_for_linuxcnc(table)
+        try:
+            write_linuxcnc_comp(comp, entries, units)
+        except MachineAlignmentError as error:
+            report['linuxcnc_comp_file'] = f'not written: {error}'
+            print(f'LinuxCNC compensation file not written: {error}')
+        else:
+            report['linuxcnc_comp_file'] = str(comp)
+            if resampled:
+                report['linuxcnc_comp_resampled'] = (
+                    f'{len(table)} entries resampled to {LINUXCNC_MAX_ENTRIES}, LinuxCNC\'s '
+                    f'limit per joint, linearly between the table\'s positions')
+            print(f'wrote {comp} (LinuxCNC: [JOINT_n] COMP_FILE = {comp.name}, COMP_FILE_TYPE '
+                  f'= 1; values in {units}, the machine units; BACKLASH is then ignored, the '
+                  f'two directions carry it'
+                  + (f'; {report["linuxcnc_comp_resampled"]}' if resampled else '') + ')')
         figure = Path(json_path).with_name(Path(json_path).stem + '_iso230_2.png')
         held = iso['method'].startswith('leave one cycle out')
         plot_iso230_2(figure, iso['before'], iso['after'], 'after the extended model, '

@@ -14,30 +14,16 @@ from std_srvs.srv import Trigger
 from calib_core.controller_formats import write_gcode_path
 from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.part_files import write_path_poses
+from calib_core.nodes.services import OPERATOR_SERVICES
 from machine_alignment.cli.common import progress, quantity, ranged, write_json
 from machine_alignment.live import LiveClient
 
+_TYPES = {kind.__name__: kind for kind in (Align, AnalyzeResiduals, LocateWorkpiece,
+                                           MeasureNeedle, RegisterScreen, RunCalibration,
+                                           Trigger)}
 # service -> (type, progress topic, what the YAML argument is)
-SERVICES = {
-    'vision_calibrator/calibrate': (RunCalibration, '/vision_calibrator/progress', 'plan'),
-    'vision_calibrator/calibrate_intrinsics': (RunCalibration, '/vision_calibrator/progress',
-                                               'plan'),
-    'stage_calibrator/calibrate': (RunCalibration, '/stage_calibrator/progress', 'plan'),
-    'hexapod_calibrator/calibrate': (RunCalibration, '/hexapod_calibrator/progress', 'plan'),
-    'grid_calibrator/calibrate': (RunCalibration, '/grid_calibrator/progress', 'plan'),
-    'platform_calibrator/calibrate': (RunCalibration, '/platform_calibrator/progress', 'plan'),
-    'platform_calibrator/register': (RegisterScreen, None, 'method'),
-    'five_axis_calibrator/calibrate': (RunCalibration, '/five_axis_calibrator/progress', 'plan'),
-    'five_axis_calibrator/measure_needle': (MeasureNeedle, None, 'plan'),
-    'five_axis_calibrator/locate': (LocateWorkpiece, None, 'plan'),
-    # The operator's answer to a placement request: the plate lies as asked.
-    'grid_calibrator/confirm_placement': (Trigger, None, 'nothing'),
-    'vision_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
-    'stage_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
-    'hexapod_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
-    'platform_calibrator/analyze_residuals': (AnalyzeResiduals, None, 'options'),
-    'aligner/align': (Align, None, 'model'),
-}
+SERVICES = {name: (_TYPES[kind], topic, argument)
+            for name, (kind, topic, argument) in OPERATOR_SERVICES.items()}
 
 
 def _request(service_type, text: str, apply: bool):

@@ -1,0 +1,42 @@
+"""`machine-align call` offers exactly the operator services the nodes serve (issue 52): a
+node that gains a calibrator's or the aligner's service fails here until the shared list
+(calib_core/nodes/services.py) names it."""
+import ast
+from pathlib import Path
+
+from calib_core.nodes.services import OPERATOR_SERVICES
+from machine_alignment.cli.call import SERVICES
+
+ROOT = Path(__file__).resolve().parents[1]
+# Hardware simulators' services (moves, captures, measurements) are the machine's own, not
+# an operator's: their names start with the simulated device.
+OPERATOR_PREFIXES = ('vision_calibrator/', 'stage_calibrator/', 'hexapod_calibrator/',
+                     'grid_calibrator/', 'platform_calibrator/', 'five_axis_calibrator/',
+                     'aligner/')
+
+
+def _served() -> dict:
+    """service name -> (type name, node file) of every create_service call in a node."""
+    served = {}
+    for path in ROOT.glob('*/nodes/*.py'):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and node.func.attr == 'create_service' and len(node.args) >= 2
+                    and isinstance(node.args[1], ast.Constant)):
+                served[node.args[1].value] = (ast.unparse(node.args[0]), path.name)
+    return served
+
+
+def test_every_operator_service_a_node_serves_is_offered_by_call():
+    served = {name: value for name, value in _served().items()
+              if name.startswith(OPERATOR_PREFIXES)}
+    assert len(served) >= 19
+    assert set(served) == set(OPERATOR_SERVICES)
+    for name, (kind, path) in served.items():
+        assert OPERATOR_SERVICES[name][0] == kind, (name, path)
+        assert SERVICES[name][0].__name__ == kind
+
+
+def test_the_loop_on_every_machine_can_be_triggered():
+    for machine in ('vision', 'stage', 'hexapod', 'platform', 'grid', 'five_axis'):
+        assert f'{machine}_calibrator/analyze_residuals' in SERVICES
