@@ -85,9 +85,17 @@ def _working_weight(criterion: str, working) -> np.ndarray | None:
     return np.einsum('wqp,wqs->ps', working, working) / len(working)
 
 
+RANDOM_STARTS = 7
+"""Exchanges started from random subsets besides the greedy start: single swaps stop at a
+local optimum (on 9 candidates one start in six ended 8 % above the best subset); the
+best of the starts is kept."""
+
+
 def exchange(jacobians, count: int, criterion: str = 'I', working=None,
-             max_sweeps: int = 20) -> Design:
-    """Choose ``count`` distinct candidates by the criterion.
+             max_sweeps: int = 20, random_starts: int = RANDOM_STARTS) -> Design:
+    """Choose ``count`` distinct candidates by the criterion: the best of an exchange from
+    the greedy start and from ``random_starts`` random subsets (seeded, so a plan is
+    reproducible).
 
     Parameters
     ----------
@@ -123,6 +131,23 @@ def exchange(jacobians, count: int, criterion: str = 'I', working=None,
         best = int(np.argmax(scores))
         chosen.append(best)
         a += jacobians[best].T @ jacobians[best]
+    starts = [chosen]
+    rng = np.random.default_rng(0)
+    for _ in range(random_starts if count < m else 0):
+        starts.append([int(k) for k in rng.choice(m, count, replace=False)])
+    designs = []
+    for start in starts:
+        a = ridge + information(jacobians, start)
+        if _value(a, criterion, weight) < np.inf:
+            designs.append(_swaps(jacobians, list(start), a, criterion, weight, max_sweeps))
+    return min(designs, key=lambda design: design.value)
+
+
+def _swaps(jacobians, chosen: list, a: np.ndarray, criterion: str, weight,
+           max_sweeps: int) -> Design:
+    """Fedorov's exchange from ``chosen`` (information ``a``): sweeps swapping each chosen
+    candidate for the one that most improves the criterion, until no swap helps."""
+    count = len(chosen)
     value = _value(a, criterion, weight)
     sweeps = 0
     for sweeps in range(1, max_sweeps + 1):
