@@ -88,7 +88,8 @@ def test_one_direction_or_one_cycle_gives_no_figure_it_cannot():
     first = np.arange(12) < 4      # the first cycle only
     once = figures(target[first], deviation[first], direction[first])
     assert once['up']['R'] is None and once['bidirectional']['R'] is None
-    assert once['bidirectional']['B'] == pytest.approx(5 * UM, rel=1e-12)   # 1 - (-2) = 3, 5 - 0 = 5
+    # B_i of the first cycle: 1 - (-2) = 3 and 5 - 0 = 5
+    assert once['bidirectional']['B'] == pytest.approx(5 * UM, rel=1e-12)
     with pytest.raises(InvalidInputError):
         figures([], [], [])
 

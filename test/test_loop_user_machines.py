@@ -53,7 +53,8 @@ def test_one_leg_growing_with_temperature_on_a_short_stroke_is_told_as_its_growt
     assert set(effects) == {'drift_temperature'}, format_report(report)
     thermal = effects['drift_temperature']
     assert set(_legs(thermal)) == {'leg2'}
-    assert abs(thermal['parameters']['growth_leg2'] - growth) < 3 * thermal['std_devs']['growth_leg2']
+    sigma = thermal['std_devs']['growth_leg2']
+    assert abs(thermal['parameters']['growth_leg2'] - growth) < 3 * sigma
     assert 'expansion_leg2' in thermal['parameters_not_determined']
     printed = format_report(report)
     assert 'expansion_leg2 not determined' in printed
