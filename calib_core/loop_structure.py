@@ -21,6 +21,7 @@ from scipy.optimize import minimize_scalar
 from scipy.signal import lombscargle
 
 from calib_core.effects import CATEGORICAL_COVARIATES, resolvable_periods
+from calib_core.effects.periodic import search_trials
 
 
 def _scaled(z: np.ndarray) -> np.ndarray:
@@ -46,7 +47,7 @@ def _periodic_basis(z: np.ndarray, r: np.ndarray):
                               bounds=(max(f_low, freqs[best] - step), min(f_high, freqs[best] + step)))
     omega = 2 * np.pi * refined.x
     basis = np.column_stack([np.cos(omega * z), np.sin(omega * z)])
-    return basis, max((f_high - f_low) * span, 1.0), 1 / refined.x
+    return basis, search_trials(f_low, f_high, span), 1 / refined.x
 
 
 def _candidates(name: str, z: np.ndarray, r: np.ndarray, covariates: dict, channel: str):

@@ -35,6 +35,21 @@ def resolvable_periods(position: np.ndarray) -> tuple[float, float, str]:
     return shortest, longest, need
 
 
+SEARCH_TRIALS_PER_RESOLUTION = 3.0
+"""Independent alternatives a refined periodogram search counts per resolution element
+(1 / span of frequency): a peak searched continuously finds the best of about three times
+as many independent frequencies as the band holds resolution elements (Horne and
+Baliunas 1986 find about 120 for 100 points searched to their Nyquist frequency, which
+hold 50). Counted as one per element, the structure test on pure noise claimed a period
+in 7.8 % of 400 runs at a nominal 2.5 %; with three, 2.5 % (test/test_significance.py)."""
+
+
+def search_trials(f_low: float, f_high: float, span: float) -> float:
+    """Independent alternatives of a periodogram search over [f_low, f_high] (1/m) of
+    positions spanning ``span`` m, for the look-elsewhere correction: at least 1."""
+    return max(SEARCH_TRIALS_PER_RESOLUTION * (f_high - f_low) * span, 1.0)
+
+
 def grid_spacing(position: np.ndarray, tolerance: float = 0.01) -> float | None:
     """The step (m) of the regular grid the distinct positions lie on (each within
     ``tolerance`` of a step from the first), or None when they are irregular."""
@@ -122,7 +137,7 @@ class Periodic(Effect):
             criterion.append(bic(np.column_stack([np.ones_like(x)]
                                                   + _harmonic_columns(x, period, h)), r))
         chosen = harmonics[int(np.argmin(criterion))]
-        return period, chosen, max((f_high - f_low) * span, 1.0) * len(harmonics)
+        return period, chosen, search_trials(f_low, f_high, span) * len(harmonics)
 
     def _prepare(self, context, channels, channel_residuals):
         position = context['position']
