@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 MSG_SOURCES := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test bench mutants clean
 
 setup: $(VENV)/.stamp-compiled
 
@@ -75,6 +75,10 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.plan_stage --out bench_results
 	$(BIN)/python -m machine_alignment.bench.five_axis --out bench_results
 	$(BIN)/python -m machine_alignment.bench.performance --out bench_results
+
+# Deliberate bugs, one at a time on a scratch copy: which do the tests miss?
+mutants: setup
+	$(BIN)/python tools/mutants.py
 
 clean:
 	rm -rf build out .pytest_cache

@@ -40,3 +40,16 @@ def test_every_operator_service_a_node_serves_is_offered_by_call():
 def test_the_loop_on_every_machine_can_be_triggered():
     for machine in ('vision', 'stage', 'hexapod', 'platform', 'grid', 'five_axis'):
         assert f'{machine}_calibrator/analyze_residuals' in SERVICES
+
+
+def test_printed_units_are_the_ones_named():
+    """An alignment's leftover in the units its line names (1 arcsec = 4.848 urad), and a
+    node's end in words (a clean exit is an exit code, not signal 0)."""
+    from machine_alignment.cli.call import alignment_line
+    from machine_alignment.launcher import describe_exit
+    assert alignment_line(2.5e-6, 4.8481368e-6) == (
+        'aligned: 2.50 um, 1.00 arcsec left (measured by the camera)')
+    assert describe_exit(0) == 'exit code 0'
+    assert describe_exit(1) == 'exit code 1'
+    assert describe_exit(-9) == 'killed by SIGKILL'
+    assert describe_exit(-15) == 'killed by SIGTERM'

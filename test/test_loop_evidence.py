@@ -74,3 +74,16 @@ def test_an_effect_chosen_on_two_splits_and_not_added_is_reported_with_its_evide
         if share > 0.5:
             assert name in {e['name'] for e in report['effects_added']} | {
                 u.get('effect') for u in report['unexplained']}
+
+
+def test_no_single_split_vetoes_an_effect_the_pooled_held_out_rows_support():
+    """The rule of the held-out gate: a 2 % pooled gain with the maximum growing on one
+    split only (the first, the one once reported) keeps the effect; a 0.5 % gain, or the
+    maximum growing on most splits by more than the RMS falls, does not."""
+    from calib_core.closed_loop.evidence import earns_its_place
+    one_split_worse = {'gain': 0.02, 'allowed': 1 / 0.98,
+                       'max_ratios': np.array([1.08, 0.95, 0.97, 0.99, 0.96])}
+    assert earns_its_place(one_split_worse)
+    assert not earns_its_place(dict(one_split_worse, gain=0.005))
+    assert not earns_its_place(dict(one_split_worse,
+                                    max_ratios=np.array([1.08, 1.05, 1.03, 0.99, 0.96])))

@@ -74,3 +74,24 @@ def test_the_sandwich_covariance_is_the_fits_scatter():
     predicted = predicted_errors(sandwich, working)
     scatter = np.einsum('wqp,np->nwq', working, estimates).std(axis=0)
     assert scatter == pytest.approx(predicted, rel=0.06)
+
+
+@pytest.mark.parametrize('criterion', ['I', 'D'])
+@pytest.mark.parametrize('seed', range(4))
+def test_every_exchange_ends_where_no_single_swap_helps(criterion, seed):
+    """Started from the five least informative candidates, the exchange's sweeps end where
+    swapping any one chosen candidate for any other does not improve the criterion: every
+    slot, the last included, was revisited until none helped."""
+    from calib_core.planning import _swaps, _working_weight
+    jacobians, working = _problem(seed, m=12)
+    weakest = [int(k) for k in np.argsort(np.einsum('mrp,mrp->m', jacobians, jacobians))[:5]]
+    design = _swaps(jacobians, list(weakest), information(jacobians, weakest), criterion,
+                    _working_weight(criterion, working), 20)
+    chosen = [int(k) for k in design.chosen]
+    assert design.value == pytest.approx(_criterion(jacobians, chosen, criterion, working),
+                                         rel=1e-9)
+    for slot in range(5):
+        for other in set(range(12)) - set(chosen):
+            swapped = chosen[:slot] + [other] + chosen[slot + 1:]
+            assert _criterion(jacobians, swapped, criterion, working) >= design.value * (
+                1 - 1e-9) - 1e-12

@@ -57,3 +57,12 @@ def test_a_runs_covariates_are_its_time_and_where_logged_its_temperature():
     assert set(covariates) == {'time'} and 'more than 60 s' in why
     assert run_covariates([110.0, np.nan], LOG) == ({}, 'no time: a measurement has no '
                                                         'time stamp')
+
+
+def test_a_slowly_logging_sensor_still_gives_every_measurement_its_temperature():
+    """Samples 100 s apart: a measurement 20 s after one and 80 s before the next is 20 s
+    from the log (the nearer sample), within the 60 s allowed; interpolated between them."""
+    log = (np.array([0.0, 100.0, 200.0]), np.array([293.0, 294.0, 293.0]))
+    kelvin, why = temperatures_at([20.0, 180.0], log)
+    assert why == ''
+    np.testing.assert_allclose(kelvin, [293.2, 293.2], atol=1e-12)

@@ -26,6 +26,13 @@ SERVICES = {name: (_TYPES[kind], topic, argument)
             for name, (kind, topic, argument) in OPERATOR_SERVICES.items()}
 
 
+def alignment_line(position_error: float, orientation_error: float) -> str:
+    """What is left after an alignment, for people: ``position_error`` (m) in um and
+    ``orientation_error`` (rad) in arcsec."""
+    return (f'aligned: {position_error * 1e6:.2f} um, '
+            f'{np.degrees(orientation_error) * 3600:.2f} arcsec left (measured by the camera)')
+
+
 def _request(service_type, text: str, apply: bool):
     if service_type is RunCalibration:
         return RunCalibration.Request(plan_yaml=text)
@@ -115,9 +122,7 @@ def cmd_call(args) -> int:
               f'{response.measured_error * 1e6:.2f} um after the move (composite, measured; '
               f'the model predicted {response.predicted_error * 1e6:.3f} um: its own view)')
     else:
-        print(f'aligned: {response.position_error * 1e6:.2f} um, '
-              f'{response.orientation_error * 180 / 3.141592653589793 * 3600:.2f} arcsec left '
-              '(measured by the camera)')
+        print(alignment_line(response.position_error, response.orientation_error))
         report = json.loads(response.report_json)
     write_json(args.json, report)
     return 0
