@@ -25,13 +25,15 @@ class SanityGate:
     what: str
     failures: list = field(default_factory=list)
 
-    def residual(self, rms: float, limit: float, unit: str, expected: str) -> None:
+    def residual(self, rms: float, limit: float, unit: str, expected: str,
+                 causes: str = 'data in another unit, or the machine is not the one '
+                               'described') -> None:
         """The fit's residual RMS must stay under ``limit`` (in ``unit``); ``expected``
-        says what the method's noise gives."""
+        says what the method's noise gives, ``causes`` the likely causes, most likely
+        first."""
         if not (np.isfinite(rms) and rms <= limit):
-            self.failures.append(f'residual RMS {rms:.4g} {unit}, above the {limit:g} {unit} '
-                                 f'a sound fit gives ({expected}): data in another unit, or '
-                                 'the machine is not the one described')
+            self.failures.append(f'residual RMS {rms:.4g} {unit}, above the {limit:.4g} {unit} '
+                                 f'a sound fit gives ({expected}): {causes}')
 
     def within(self, name: str, value: float, low: float, high: float, unit: str,
                why: str) -> None:

@@ -6,7 +6,9 @@ import numpy as np
 
 from calib_core.errors import MachineAlignmentError
 from hexapod_calib.core.calibration import (
-    PoseData, check_identification, identify, summarise_pose_errors)
+    DETERMINED_SIGMAS, PoseData, check_identification, identify, summarise_pose_errors,
+    undetermined_beyond)
+from hexapod_calib.core.description import likely_causes, read_description
 from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_geometry
 from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
@@ -86,10 +88,13 @@ def cmd_calibrate_stage(args) -> int:
 def cmd_calibrate_hexapod(args) -> int:
     if args.bag:
         return _calibrate_hexapod_from_bag(args)
-    if not args.geometry:
-        raise MachineAlignmentError('--data needs --geometry NOMINAL.yaml')
-    nominal = read_geometry(args.geometry)
-    data = PoseData.from_csv(args.data, nominal)
+    if bool(args.geometry) == bool(args.description):
+        raise MachineAlignmentError('--data needs --geometry NOMINAL.yaml or --description '
+                                    'MACHINE.yaml (one of them)')
+    description = read_description(args.description) if args.description else None
+    nominal = description.geometry if description else read_geometry(args.geometry)
+    data = PoseData.from_csv(args.data, nominal, leg_m_per_unit=(
+        description.measurement.actuators.m_per_unit if description else 1.0))
     identification = identify(data, nominal, fixed=args.fix or ())
     report = identification.report()
     report['data'] = str(args.data)
@@ -102,12 +107,29 @@ def cmd_calibrate_hexapod(args) -> int:
     for name in sorted(changes, key=lambda n: -abs(changes[n]))[:6]:
         print(f'  {name:>12} changed {changes[name] * 1e6:+9.1f} um '
               f'(+- {report["std_devs"].get(name, 0.0) * 1e6:.1f} um)')
-    _write_hexapod_outputs(args, identification.geometry, report, nominal)
+    if description:
+        report['description'] = {'file': description.source,
+                                 'residual_limit_m': description.residual_limit(),
+                                 'parameter_bound_m': description.parameter_bound(),
+                                 'expected_leg_rms_m': description.expected_leg_rms()}
+        print(f'  machine description {description.source}: {description.expected_text()}')
+        loose = undetermined_beyond(report, nominal, description.parameter_bound())
+        report['description']['not_determined_beyond_bound'] = loose
+        if loose:
+            print(f'  NOT DETERMINED by these poses, moved beyond the '
+                  f'{description.parameter_bound() * 1e3:.3g} mm bound within '
+                  f'{DETERMINED_SIGMAS:g} sigma: ' + ', '.join(
+                      f'{name} {change * 1e3:+.1f} +- {sigma * 1e3:.1f} mm'
+                      for name, (change, sigma) in loose.items())
+                  + ' (poses over a larger workspace or tilt determine them)')
+    _write_hexapod_outputs(args, identification.geometry, report, nominal, description,
+                           likely_causes(data, description) if description else None)
     return 0
 
 
-def _write_hexapod_outputs(args, geometry, report, nominal) -> None:
-    check_identification(report, nominal)
+def _write_hexapod_outputs(args, geometry, report, nominal, description=None,
+                           causes=None) -> None:
+    check_identification(report, nominal, description, causes)
     if args.out:
         write_geometry(args.out, geometry, {'std_devs': report['std_devs'],
                                             'residual_rms_m': report['residual_rms_m']})
@@ -170,6 +192,10 @@ def add_parser(sub) -> None:
     hexapod_source.add_argument('--bag', help='a run recorded by hexapod_calibrator')
     hexapod.add_argument('--geometry', help='nominal geometry YAML (with --bag: default the '
                                             'one the run recorded)')
+    hexapod.add_argument('--description', help='your machine\'s description YAML (geometry, '
+                                               'instrument, actuators and their unit, '
+                                               'repeatability): the gate then checks against '
+                                               'it; l1..l6 in the actuators\' unit')
     hexapod.add_argument('--out', help='calibrated geometry YAML to write')
     hexapod.add_argument('--fix', nargs='*', help='parameter names to keep at their nominal value')
     hexapod.add_argument('--json', help='report to write (JSON, SI units)')

@@ -1,0 +1,136 @@
+"""What a user says about their own machine, once per machine (issue 50): its actuators'
+units, the instrument that measures it and how well, its repeatability. Every machine
+kind's description file has these sections beside its geometry; the gates size
+themselves from them instead of from the simulated machines' constants.
+
+```yaml
+instrument:            # what measured the machine
+  name: motion capture
+  position_sigma_m: 0.4e-3      # 1 sigma per axis
+  angle_sigma_rad: 2.0e-3       # 1 sigma per axis (pose sensors)
+actuators:             # how the actuators are read
+  unit: rev                     # m, mm, um, rev (with m_per_unit), count (with m_per_unit)
+  m_per_unit: 5.0e-3            # the nominal lead, m per revolution
+  sigma_m: 5.0e-6               # positioning noise, 1 sigma
+repeatability_m: 20.0e-6        # the machine's own, 1 sigma
+```
+
+Every number is SI; a missing section takes the defaults of the simulated machine the
+suite ships (said in the report). Unknown keys, wrong types, NaN and negative noise are
+refused with the key named.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_core.errors import InvalidInputError
+
+# The unit an actuator reading is in -> m per unit; rev and count need m_per_unit.
+LENGTH_UNITS = {'m': 1.0, 'mm': 1e-3, 'um': 1e-6}
+SCALED_UNITS = ('rev', 'count')
+
+RESIDUAL_GATE_FACTOR = 5.0
+"""A fit's residual RMS may be this many times what the declared instrument, actuators and
+repeatability give before the result is refused: a sound fit of a model that describes
+the machine sits near 1 (effects the model lacks, such as a lead error, add a little); a
+fit of data in another unit or of another machine sits far above."""
+
+
+def _number(section: dict, key: str, where: str, default=None, positive: bool = False):
+    if key not in section:
+        if default is None:
+            raise InvalidInputError(f'{where}: {key} is missing')
+        return default
+    value = section[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise InvalidInputError(f'{where}: {key} must be a finite number, not {value!r}')
+    if value < 0 or (positive and value == 0):
+        raise InvalidInputError(f'{where}: {key} must be {"positive" if positive else ">= 0"}, '
+                                f'not {value!r}')
+    return float(value)
+
+
+def _section(content: dict, key: str, where: str, allowed: tuple) -> dict:
+    section = content.get(key, {})
+    if not isinstance(section, dict):
+        raise InvalidInputError(f'{where}: {key} must be a mapping')
+    unknown = sorted(set(section) - set(allowed))
+    if unknown:
+        raise InvalidInputError(f'{where}: {key} has unknown key(s) {", ".join(unknown)} '
+                                f'(known: {", ".join(allowed)})')
+    return section
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """What measured the machine: 1-sigma noise per axis (m, rad)."""
+
+    name: str
+    position_sigma_m: float
+    angle_sigma_rad: float = 0.0
+
+
+@dataclass(frozen=True)
+class Actuators:
+    """How the actuators are read: ``unit`` and ``m_per_unit`` (m per reading unit; for
+    rev the nominal lead), and their positioning noise ``sigma_m`` (1 sigma)."""
+
+    unit: str
+    m_per_unit: float
+    sigma_m: float
+
+    def to_metres(self, readings: np.ndarray) -> np.ndarray:
+        return np.asarray(readings, dtype=float) * self.m_per_unit
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """The instrument, actuators and repeatability of a description, and whether each
+    was declared (else the shipped simulated machine's value stands, and the report says
+    so)."""
+
+    instrument: Instrument
+    actuators: Actuators
+    repeatability_m: float
+    declared: tuple
+
+    def sources(self) -> str:
+        """Which figures came from the description, for the report."""
+        left = [k for k in ('instrument', 'actuators', 'repeatability_m') if k not in self.declared]
+        return ('declared in the description' if not left else
+                f'{", ".join(left)}: the shipped simulated machine\'s (not declared)')
+
+
+def read_measurement(content: dict, where: str, default_instrument: Instrument,
+                     default_actuator_sigma_m: float) -> Measurement:
+    """The instrument, actuators and repeatability sections of a description mapping."""
+    instrument = _section(content, 'instrument', where,
+                          ('name', 'position_sigma_m', 'angle_sigma_rad'))
+    actuators = _section(content, 'actuators', where, ('unit', 'm_per_unit', 'sigma_m'))
+    declared = tuple(k for k in ('instrument', 'actuators', 'repeatability_m') if k in content)
+    name = instrument.get('name', default_instrument.name if not instrument else 'instrument')
+    if not isinstance(name, str):
+        raise InvalidInputError(f'{where}: instrument name must be text')
+    measured_by = Instrument(
+        name,
+        _number(instrument, 'position_sigma_m', f'{where}: instrument',
+                default_instrument.position_sigma_m if not instrument else None, positive=True),
+        _number(instrument, 'angle_sigma_rad', f'{where}: instrument',
+                default_instrument.angle_sigma_rad))
+    unit = actuators.get('unit', 'm')
+    if unit in LENGTH_UNITS:
+        if 'm_per_unit' in actuators:
+            raise InvalidInputError(f'{where}: actuators in {unit} take no m_per_unit')
+        per_unit = LENGTH_UNITS[unit]
+    elif unit in SCALED_UNITS:
+        per_unit = _number(actuators, 'm_per_unit', f'{where}: actuators in {unit}',
+                           positive=True)
+    else:
+        raise InvalidInputError(f'{where}: actuator unit {unit!r} is not one of '
+                                f'{", ".join(list(LENGTH_UNITS) + list(SCALED_UNITS))}')
+    read_by = Actuators(unit, per_unit, _number(actuators, 'sigma_m', f'{where}: actuators',
+                                                default_actuator_sigma_m))
+    repeatability = _number(content, 'repeatability_m', where, 0.0)
+    return Measurement(measured_by, read_by, repeatability, declared)
