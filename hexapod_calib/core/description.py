@@ -9,6 +9,11 @@ geometry: {base_joints: [[x, y, z], ...], platform_joints: [...], leg_length_off
 instrument: {name: motion capture, position_sigma_m: 0.4e-3, angle_sigma_rad: 2.0e-3}
 actuators: {unit: rev, m_per_unit: 5.0e-3, sigma_m: 5.0e-6}
 repeatability_m: 20.0e-6
+workspace:          # where the machine works: plans and simulations stay in it
+  home: [0, 0, 0.58, 0, 0, 0]         # m, rad
+  translation_m: [0.06, 0.06, 0.04]   # half-widths of the box about home
+  rotation_rad: [0.07, 0.07, 0.07]
+  stroke_m: [0.03, 0.17]              # actuator readings (in m) the legs may take
 ```
 
 The gate then refuses an identification by what was declared: a leg-length residual
@@ -26,10 +31,12 @@ from calib_core.description import (
     RESIDUAL_GATE_FACTOR, Instrument, Measurement, read_measurement)
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
-from hexapod_calib.core.geometry import HexapodGeometry
+from hexapod_calib.core.geometry import HexapodGeometry, as_poses
 from hexapod_calib.core.kinematics import inverse_kinematics
+from hexapod_calib.core.procedure import HexapodPlan
 
-KEYS = ('kind', 'geometry', 'instrument', 'actuators', 'repeatability_m')
+KEYS = ('kind', 'geometry', 'instrument', 'actuators', 'repeatability_m', 'workspace')
+WORKSPACE_KEYS = ('home', 'translation_m', 'rotation_rad', 'stroke_m')
 SHIPPED_INSTRUMENT = Instrument('the shipped simulated pose sensor', 0.6e-6, 6e-6)
 SHIPPED_ACTUATOR_SIGMA_M = 0.5e-6
 PARAMETER_BOUND_SHARE = 0.25
@@ -45,6 +52,12 @@ class HexapodDescription:
     geometry: HexapodGeometry
     measurement: Measurement
     source: str
+    workspace: dict | None = None       # HexapodPlan's home, translation, rotation, stroke
+
+    def plan(self, **settings) -> HexapodPlan:
+        """A plan in this machine's workspace (the shipped machine's where none is
+        declared); ``settings`` as :class:`HexapodPlan`'s."""
+        return HexapodPlan(**(self.workspace or {}), **settings)
 
     def expected_leg_rms(self) -> float:
         """Leg-length residual (m, 1 sigma) the declared noise gives a sound fit: the
@@ -87,7 +100,43 @@ def read_description(path) -> HexapodDescription:
         raise InvalidInputError(f'{where}: kind must be hexapod, not {content.get("kind")!r}')
     geometry = HexapodGeometry.from_dict(content.get('geometry'), f'{where}: geometry')
     measurement = read_measurement(content, where, SHIPPED_INSTRUMENT, SHIPPED_ACTUATOR_SIGMA_M)
-    return HexapodDescription(geometry, measurement, where)
+    return HexapodDescription(geometry, measurement, where, _workspace(content, where))
+
+
+def _triple(value, count: int, name: str, where: str, positive: bool) -> tuple:
+    try:
+        values = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InvalidInputError(f'{where}: workspace {name} must be {count} numbers') from None
+    if values.shape != (count,) or not np.all(np.isfinite(values)) or (
+            positive and not np.all(values > 0)):
+        raise InvalidInputError(f'{where}: workspace {name} must be {count} finite '
+                                f'{"positive " if positive else ""}numbers, not {value!r}')
+    return tuple(float(v) for v in values)
+
+
+def _workspace(content: dict, where: str) -> dict | None:
+    """The workspace section as :class:`HexapodPlan` settings, or None."""
+    section = content.get('workspace')
+    if section is None:
+        return None
+    if not isinstance(section, dict):
+        raise InvalidInputError(f'{where}: workspace must be a mapping')
+    unknown = sorted(set(section) - set(WORKSPACE_KEYS))
+    missing = [k for k in WORKSPACE_KEYS if k not in section]
+    if unknown or missing:
+        raise InvalidInputError(f'{where}: workspace needs exactly {", ".join(WORKSPACE_KEYS)}'
+                                f' ({"unknown " + ", ".join(unknown) if unknown else ""}'
+                                f'{"; " if unknown and missing else ""}'
+                                f'{"missing " + ", ".join(missing) if missing else ""})')
+    home = as_poses(_triple(section['home'], 6, 'home', where, False), 'workspace home')[0]
+    stroke = _triple(section['stroke_m'], 2, 'stroke_m', where, False)
+    if not stroke[0] < stroke[1]:
+        raise InvalidInputError(f'{where}: workspace stroke_m must be [shortest, longest]')
+    return {'home': tuple(home.tolist()),
+            'translation': _triple(section['translation_m'], 3, 'translation_m', where, True),
+            'rotation': _triple(section['rotation_rad'], 3, 'rotation_rad', where, True),
+            'stroke': stroke}
 
 
 UNIT_SLIPS = ((1e3, 'the legs move 1000x as far as the measured poses need: the readings are '

@@ -47,6 +47,9 @@ class HexapodTruth:
         N; below this axial force the play stays where the last move left it.
     actuator_noise : float
         1-sigma random positioning error per leg and move, m.
+    lead_ratio : tuple (6,)
+        True over nominal lead per leg: the leg travels this times the commanded length
+        (a lead screw's lead off, read with the nominal one).
     """
 
     geometry: HexapodGeometry
@@ -55,6 +58,7 @@ class HexapodTruth:
     payload_centre: tuple = (0.03, -0.02, 0.08)
     force_to_close_play: float = 5.0
     actuator_noise: float = 0.5e-6
+    lead_ratio: tuple = (1.0,) * 6
 
     @classmethod
     def default(cls, nominal: HexapodGeometry | None = None, seed: int = 2) -> 'HexapodTruth':
@@ -96,13 +100,14 @@ class HexapodSim:
     near a singularity and lengths no pose realises."""
 
     def __init__(self, truth: HexapodTruth | None = None, nominal: HexapodGeometry | None = None,
-                 stroke: Stroke = Stroke(), max_condition: float = MAX_CONDITION, seed: int = 0):
+                 stroke: Stroke = Stroke(), max_condition: float = MAX_CONDITION, seed: int = 0,
+                 home=HOME_POSE):
         self.nominal = nominal or nominal_geometry()
         self.truth = truth or HexapodTruth.default(self.nominal)
         self.stroke = stroke
         self.max_condition = max_condition
         self._rng = np.random.default_rng(seed)
-        self.pose = HOME_POSE.copy()
+        self.pose = as_poses(home)[0].copy()
         self.leg_lengths = inverse_kinematics(self.nominal, self.pose)[0]
         self._play_side = np.zeros(6)      # -1/+1: where the play sits in weakly loaded legs
         self.pose, self._play_side = self._realise(self.leg_lengths, np.zeros(6))
@@ -119,6 +124,7 @@ class HexapodSim:
     def _realise(self, lengths: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The pose the true hexapod takes for commanded ``lengths``, and the play sides."""
         geometry = self.truth.geometry
+        lengths = lengths * np.asarray(self.truth.lead_ratio)
         pose = forward_kinematics(geometry, lengths, initial=self.pose,
                                   max_condition=self.max_condition)[0]
         noise = self._rng.normal(0.0, self.truth.actuator_noise, 6)

@@ -26,6 +26,7 @@ from grid_calib.core.residual_loop import analyze_travel
 from calib_core.iso230_2 import format_figures
 from calib_core.loop_plots import plot_loop
 from hexapod_calib.core.calibration import PoseData
+from hexapod_calib.core.description import read_description
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
@@ -78,8 +79,10 @@ def _loop_machine(args, dropped: dict):
     if args.machine == 'rotary':
         return RotaryLoopModel(read_target_poses(args.data, args.a_column, args.c_column),
                                args.lever)
-    nominal = read_geometry(args.geometry)
-    data = PoseData.from_csv(args.data, nominal, dropped)
+    description = read_description(args.description) if args.description else None
+    nominal = description.geometry if description else read_geometry(args.geometry)
+    data = PoseData.from_csv(args.data, nominal, dropped, leg_m_per_unit=(
+        description.measurement.actuators.m_per_unit if description else 1.0))
     forces = None
     if args.payload:
         mass, *centre = args.payload
@@ -258,7 +261,10 @@ def add_parser(sub) -> None:
                                  help='m: orientation errors count as the displacement of a '
                                       'point this far from the target origin')
         if name == 'hexapod':
-            machine.add_argument('--geometry', required=True, help='nominal geometry YAML')
+            described = machine.add_mutually_exclusive_group(required=True)
+            described.add_argument('--geometry', help='nominal geometry YAML')
+            described.add_argument('--description', help='your machine\'s description YAML '
+                                                          '(l1..l6 in its actuators\' unit)')
             machine.add_argument('--payload', type=float, nargs=4,
                                  metavar=('MASS', 'X', 'Y', 'Z'),
                                  help='payload mass (kg) and centre of mass (m, platform '

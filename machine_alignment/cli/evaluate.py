@@ -17,6 +17,7 @@ from dispenser_calib.core.procedure import evaluation_stops
 from dispenser_calib.sim.machine import observe
 from grid_calib.core.reference_map import compare, read_reference
 from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
+from hexapod_calib.core.description import read_description
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.kinematics import forward_kinematics
 from machine_alignment.cli.common import print_pose_summary, ranged, write_json
@@ -35,7 +36,10 @@ from printer_alignment.core.stage_calibration import ParametricModel, models_fro
 def cmd_evaluate_hexapod(args) -> int:
     calibrated = read_geometry(args.geometry)
     nominal = read_geometry(args.nominal) if args.nominal else None
-    data = PoseData.from_csv(args.data, nominal if nominal is not None else calibrated)
+    description = read_description(args.description) if args.description else None
+    data = PoseData.from_csv(args.data, nominal if nominal is not None else calibrated,
+                             leg_m_per_unit=(description.measurement.actuators.m_per_unit
+                                             if description else 1.0))
     predicted = forward_kinematics(calibrated, data.leg_lengths, initial=data.measured)
     report = {'data': str(args.data), 'geometry': str(args.geometry),
               'commanded_vs_measured': summarise_pose_errors(data.commanded, data.measured),
@@ -175,6 +179,8 @@ def add_parser(sub) -> None:
     hexapod_eval.add_argument('--geometry', required=True, help='calibrated geometry YAML')
     hexapod_eval.add_argument('--nominal', help='geometry the controller used, when the CSV has '
                                                 'no l1..l6 columns')
+    hexapod_eval.add_argument('--description', help='your machine\'s description YAML: l1..l6 '
+                                                    'in its actuators\' unit')
     hexapod_eval.add_argument('--json', help='report to write (JSON, SI units)')
     hexapod_eval.set_defaults(func=cmd_evaluate_hexapod)
     platform_eval = evaluated.add_parser(

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib_core.errors import MachineAlignmentError
 from dispenser_calib.core.model import nominal_model as dispenser_nominal
 from dispenser_calib.core.model import read_model as read_dispenser_model
 from dispenser_calib.core.part_files import write_plan
 from dispenser_calib.core.planning import (
     DEPTH_OF_FIELD, MAX_VIEW_DEG, plan_five_axis, todays_prediction)
 from hexapod_calib.core.geometry import POSE_NAMES, nominal_geometry as hexapod_nominal
+from hexapod_calib.core.description import read_description as read_hexapod_description
 from hexapod_calib.core.geometry import read_geometry as read_hexapod_geometry
 from hexapod_calib.core.planning import predict as predict_hexapod
 from hexapod_calib.core.procedure import HexapodPlan
@@ -50,14 +52,38 @@ def cmd_plan_platform(args) -> int:
     return 0
 
 
+HEXAPOD_NOISE_DEFAULTS = (('position_noise', 0.6e-6), ('angle_noise', 6e-6),
+                          ('actuator_noise', 0.5e-6))
+
+
 def cmd_plan_hexapod(args) -> int:
     check_writable(args.out, '--out')
-    nominal = read_hexapod_geometry(args.geometry) if args.geometry else hexapod_nominal()
-    plan = HexapodPlan(num_poses=args.poses, num_candidates=args.candidates, seed=args.seed,
-                       design=args.criterion)
+    if args.geometry and args.description:
+        raise MachineAlignmentError('give --geometry or --description, not both')
+    description = read_hexapod_description(args.description) if args.description else None
+    settings = dict(num_poses=args.poses, num_candidates=args.candidates, seed=args.seed,
+                    design=args.criterion)
+    if description:
+        nominal, plan = description.geometry, description.plan(**settings)
+        declared = description.measurement
+        noise = [declared.instrument.position_sigma_m, declared.instrument.angle_sigma_rad,
+                 declared.actuators.sigma_m]
+        # an option given on the command line overrides the declared figure
+        for k, (name, default) in enumerate(HEXAPOD_NOISE_DEFAULTS):
+            if getattr(args, name) != default:
+                noise[k] = getattr(args, name)
+        args.position_noise, args.angle_noise, args.actuator_noise = noise
+    else:
+        nominal = read_hexapod_geometry(args.geometry) if args.geometry else hexapod_nominal()
+        plan = HexapodPlan(**settings)
     poses, working = plan.poses(nominal)
     prediction = predict_hexapod(nominal, poses, working, args.position_noise,
                                  args.angle_noise, args.actuator_noise)
+    prediction['working_poses_m_rad'] = working.tolist()
+    prediction['workspace'] = {'home': list(plan.home), 'translation_m': list(plan.translation),
+                               'rotation_rad': list(plan.rotation),
+                               'stroke_m': list(plan.stroke),
+                               'from': description.source if description else 'built-in'}
     moved, turned = prediction['predicted_displacement_m'], prediction['predicted_rotation_rad']
     how = {'greedy': 'each leg\'s information determinant, greedily',
            'I': 'least pose error over the box, exchange', 'D': 'D-optimal, exchange'}
@@ -167,14 +193,24 @@ def add_parser(sub) -> None:
     hexapod.add_argument('--poses', type=ranged(int, 7, 10000), required=True,
                          help='how many poses to measure (at least 7; 13 or more)')
     hexapod.add_argument('--geometry', help='nominal geometry YAML (default: the built-in)')
+    hexapod.add_argument('--description', help='your machine\'s description YAML: its '
+                                               'geometry, workspace (home, box, strokes) and '
+                                               'instrument noise plan the poses')
     hexapod.add_argument('--candidates', type=ranged(int, 20, 100000), default=400,
                          help='random candidate poses inside the strokes to choose from')
-    hexapod.add_argument('--position-noise', type=ranged(float, 0.0, 1e-3, 'm'), default=0.6e-6,
-                         help='pose sensor, m per axis (1 sigma)')
-    hexapod.add_argument('--angle-noise', type=ranged(float, 0.0, 0.01, 'rad'), default=6e-6,
-                         help='pose sensor, rad per axis (1 sigma)')
-    hexapod.add_argument('--actuator-noise', type=ranged(float, 0.0, 1e-3, 'm'), default=0.5e-6,
-                         help='how far a leg stops from where it is sent, m (1 sigma)')
+    noise = dict(HEXAPOD_NOISE_DEFAULTS)
+    hexapod.add_argument('--position-noise', type=ranged(float, 0.0, 0.01, 'm'),
+                         default=noise['position_noise'],
+                         help='pose sensor, m per axis (1 sigma; default the description\'s '
+                              'or 0.6 um)')
+    hexapod.add_argument('--angle-noise', type=ranged(float, 0.0, 0.1, 'rad'),
+                         default=noise['angle_noise'],
+                         help='pose sensor, rad per axis (1 sigma; default the description\'s '
+                              'or 6 urad)')
+    hexapod.add_argument('--actuator-noise', type=ranged(float, 0.0, 1e-3, 'm'),
+                         default=noise['actuator_noise'],
+                         help='how far a leg stops from where it is sent, m (1 sigma; default '
+                              'the description\'s or 0.5 um)')
     hexapod.add_argument('--criterion', choices=('greedy', 'I', 'D'), default='greedy',
                          help='greedy: each leg\'s information determinant (the calibrator\'s '
                               'default); I: least pose error over the box; D: largest '

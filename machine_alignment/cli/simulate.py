@@ -2,6 +2,7 @@
 machine, in the formats the calibrate and analyze subcommands read."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,10 @@ from hexapod_calib.core.geometry import nominal_geometry, write_geometry
 from machine_alignment.cli import five_axis, platform
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
-from hexapod_calib.sim.hexapod import HexapodSim, HexapodTruth, PoseSensorSim
+from hexapod_calib.core.calibration import PoseData
+from hexapod_calib.core.description import read_description
+from hexapod_calib.sim.hexapod import (
+    HexapodSim, HexapodTruth, PoseSensorSim, Stroke, true_geometry)
 from machine_alignment.cli.common import progress, ranged
 from printer_alignment.core.camera_calibration import write_correspondences
 from printer_alignment.sim.camera import tilted_plate_views
@@ -26,23 +30,50 @@ from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
 
 
 def cmd_simulate_hexapod(args) -> int:
+    """The shipped simulated hexapod, or with ``--description`` a model of the user's: its
+    geometry, workspace, strokes, instrument and actuator noise, legs written in its
+    actuators' unit, with the error sources asked for."""
     out = Path(args.out)
-    nominal = nominal_geometry()
-    sim = HexapodSim(HexapodTruth.default(nominal, args.seed), nominal, seed=args.seed + 1)
-    sensor = PoseSensorSim(seed=args.seed + 2)
-    targets, evaluation = HexapodPlan(num_poses=args.poses, num_evaluation=args.evaluation,
-                                      num_candidates=max(400, 2 * (args.poses + args.evaluation)),
-                                      seed=args.seed).poses(nominal)
+    description = read_description(args.description) if args.description else None
+    nominal = description.geometry if description else nominal_geometry()
+    truth = HexapodTruth.default(nominal, args.seed)
+    if args.joint_error is not None:
+        truth = dataclasses.replace(truth, geometry=true_geometry(
+            nominal, args.seed, args.joint_error, args.joint_error))
+    if args.lead_ratio:
+        truth = dataclasses.replace(truth, lead_ratio=tuple(args.lead_ratio))
+    if args.no_play:
+        truth = dataclasses.replace(truth, leg_play=np.zeros(6))
+    settings = dict(num_poses=args.poses, num_evaluation=args.evaluation, seed=args.seed,
+                    num_candidates=max(400, 2 * (args.poses + args.evaluation)))
+    per_unit = 1.0
+    if description:
+        measured_by = description.measurement
+        truth = dataclasses.replace(truth, actuator_noise=measured_by.actuators.sigma_m)
+        plan = description.plan(**settings)
+        sensor = PoseSensorSim(measured_by.instrument.position_sigma_m,
+                               measured_by.instrument.angle_sigma_rad, seed=args.seed + 2)
+        sim = HexapodSim(truth, nominal, Stroke(*plan.stroke), seed=args.seed + 1,
+                         home=plan.home)
+        per_unit = measured_by.actuators.m_per_unit
+    else:
+        plan, sensor = HexapodPlan(**settings), PoseSensorSim(seed=args.seed + 2)
+        sim = HexapodSim(truth, nominal, seed=args.seed + 1)
+    targets, evaluation = plan.poses(nominal)
     for name, poses in (('calibration', targets), ('evaluation', evaluation)):
         data = measure_poses(poses, inverse_kinematics(nominal, poses), sim.move_legs,
                              lambda: sensor.measure(sim.pose), name,
                              progress=lambda step, total, _: progress(step, total, name))
-        data.to_csv(out / f'{name}.csv')
+        PoseData(data.commanded, data.measured, data.leg_lengths / per_unit,
+                 data.covariates).to_csv(out / f'{name}.csv')
     write_geometry(out / 'nominal.yaml', nominal)
     write_geometry(out / 'truth.yaml', sim.truth.geometry,
-                   {'note': 'simulation truth, for checking a calibration only'})
+                   {'note': 'simulation truth, for checking a calibration only',
+                    'lead_ratio': list(map(float, sim.truth.lead_ratio)),
+                    'leg_play_m': sim.truth.leg_play.tolist()})
+    unit = description.measurement.actuators.unit if description else 'm'
     print(f'wrote {out}/nominal.yaml, calibration.csv ({len(targets)} poses), '
-          f'evaluation.csv ({len(evaluation)} poses), truth.yaml')
+          f'evaluation.csv ({len(evaluation)} poses; legs l1..l6 in {unit}), truth.yaml')
     return 0
 
 
@@ -118,6 +149,16 @@ def add_parser(sub) -> None:
     hexapod_sim.add_argument('--poses', type=ranged(int, 1, 100000), default=30, help='calibration poses to measure')
     hexapod_sim.add_argument('--evaluation', type=ranged(int, 0, 100000), default=30, help='separate poses measured for the evaluation only')
     hexapod_sim.add_argument('--seed', type=ranged(int, 0), default=2, help='random seed: the same seed gives the same data')
+    hexapod_sim.add_argument('--description', help='your machine\'s description YAML: its '
+                                                   'geometry, workspace, strokes, instrument '
+                                                   'and actuator noise and unit')
+    hexapod_sim.add_argument('--joint-error', type=ranged(float, 0.0, 0.05, 'm'), default=None,
+                             help='1-sigma error of the true joints and leg offsets from the '
+                                  'nominal, m (default 0.1 mm)')
+    hexapod_sim.add_argument('--lead-ratio', type=ranged(float, 0.5, 2.0), nargs=6,
+                             metavar='R', help='true over nominal lead per leg (1.06: 6 %% '
+                                               'long)')
+    hexapod_sim.add_argument('--no-play', action='store_true', help='legs without joint play')
     hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
 
     stage_sim = simulated.add_parser('stage', help='a calibration run of the simulated '
