@@ -72,22 +72,41 @@ def _roughness(term: np.ndarray, covariate: np.ndarray) -> float:
     return float(np.sum(np.diff(term[order]) ** 2)) / spread
 
 
+def _named_channels(machine: MachineModel, result: LoopResult, effect: str) -> set:
+    """The channels the report names ``effect``'s parameters on (``backlash_leg2``), or
+    every channel where no parameter names one (a lens distortion, a squareness)."""
+    entry = next((e for e in result.report.get('effects_added', []) if e['name'] == effect), {})
+    named = {c for p in entry.get('parameters', {}) for c in machine.channels
+             if p.endswith(f'_{c}')}
+    return named or set(machine.channels)
+
+
 def effect_panels(machine: MachineModel, result: LoopResult) -> list:
     """(effect, channel index, covariate name) per panel: each added effect on the
-    channels where its term is largest (at most :data:`_MAX_EFFECT_PANELS` in all), against
-    the covariate its term follows most smoothly among those it is written in."""
+    channels the report names it on where its term is largest (at most
+    :data:`_MAX_EFFECT_PANELS` in all), against the covariate its term follows most
+    smoothly among those it is written in, the channel's own where the covariate is per
+    channel (a leg's play against that leg's load, not another's equally smooth one)."""
     panels = []
     for name, term in result.effect_terms.items():
         size = np.sqrt(np.mean(term ** 2, axis=0))
+        named = _named_channels(machine, result, name)
         for c in np.argsort(-size)[:3]:
-            # Channels where the effect is small beside its largest are left to the numbers.
-            if size[c] < 0.5 * size.max() or size[c] <= 0 or len(panels) >= _MAX_EFFECT_PANELS:
+            # Channels where the effect is small beside its largest are left to the numbers,
+            # and a channel the report does not name it on (a leg given the mean play) is
+            # not drawn as if it had been found there.
+            if (size[c] < 0.5 * size.max() or size[c] <= 0 or len(panels) >= _MAX_EFFECT_PANELS
+                    or machine.channels[c] not in named):
                 continue
             varying = [k for k, z in result.covariates.items() if np.ptp(z) > 0]
             # The covariates the effect is written in, when the data have them.
             declared = tuple('image_radius' if key == 'normalized' else key
                              for key in LIBRARY[name].requires)
             candidates = [k for k in varying if k.startswith(declared)] or varying
+            own = [k for k in candidates if k.endswith(f'_{machine.channels[c]}')]
+            shared = [k for k in candidates
+                      if not any(k.endswith(f'_{other}') for other in machine.channels)]
+            candidates = own + shared or candidates
             if candidates:
                 # Equally smooth (rows in the same order): the finer covariate says more.
                 covariate = min(candidates, key=lambda k: (

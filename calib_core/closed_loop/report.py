@@ -225,6 +225,9 @@ def format_report(report: dict) -> str:
         for channel, why in effect.get('channels_not_determined', {}).items():
             lines.append(f'    {effect["name"]} on {channel}: not determined, {why}; '
                          f'nothing added there')
+        for channel in effect.get('legs_with_mean_play', []):
+            lines.append(f'    {effect["name"]} on {channel}: the mean of the others (its load '
+                         f'changes side too rarely to fit its own)')
         for why in effect.get('channels_not_tested', []):
             lines.append(f'    {effect["name"]} not tested on {why}')
         for channel, aliases in effect.get('aliases_m', {}).items():

@@ -1,0 +1,27 @@
+"""What the loop's figure draws is what its report says (issue 52): an effect drawn on the
+channels the report names it on, each against its own channel's covariate."""
+from types import SimpleNamespace
+
+import numpy as np
+
+from calib_core.loop_plots import effect_panels
+
+
+def test_a_legs_play_is_drawn_against_its_own_load_and_only_where_it_was_found():
+    """Play named on legs 2 and 5; leg 4 carries the mean play (not a finding) with a
+    larger term; leg 1's load is as smooth a covariate for leg 2's term as its own (the
+    loads move together): the panels are legs 2 and 5 against load_leg2 and load_leg5."""
+    rng = np.random.default_rng(1)
+    channels = tuple(f'leg{k}' for k in range(1, 7))
+    base = rng.uniform(-200, 200, 120)
+    loads = {f'load_{c}': base * (1 + 0.01 * k) for k, c in enumerate(channels)}
+    term = np.zeros((120, 6))
+    for k, play in ((1, 4e-6), (4, 5e-6), (3, 6e-6)):
+        term[:, k] = -play / 2 * np.sign(loads[f'load_{channels[k]}'])
+    machine = SimpleNamespace(channels=channels)
+    result = SimpleNamespace(
+        effect_terms={'leg_play': term}, covariates=dict(loads, time=np.arange(120.0)),
+        report={'effects_added': [{'name': 'leg_play', 'parameters': {
+            'play_leg2': 4e-6, 'play_leg5': 5e-6, 'closing_force': 5.0}}]})
+    panels = effect_panels(machine, result)
+    assert sorted(panels) == [('leg_play', 1, 'load_leg2'), ('leg_play', 4, 'load_leg5')]
