@@ -52,15 +52,20 @@ def _number(section: dict, key: str, where: str, default=None, positive: bool = 
     return float(value)
 
 
-def _section(content: dict, key: str, where: str, allowed: tuple) -> dict:
-    section = content.get(key, {})
-    if not isinstance(section, dict):
-        raise InvalidInputError(f'{where}: {key} must be a mapping')
-    unknown = sorted(set(section) - set(allowed))
+def check_keys(mapping, allowed: tuple, where: str) -> dict:
+    """``mapping`` if it is a mapping of only ``allowed`` keys, else a clear error naming
+    the unknown ones (a misspelt key would otherwise leave a figure at its default)."""
+    if not isinstance(mapping, dict):
+        raise InvalidInputError(f'{where} must be a mapping')
+    unknown = sorted(map(str, set(mapping) - set(allowed)))
     if unknown:
-        raise InvalidInputError(f'{where}: {key} has unknown key(s) {", ".join(unknown)} '
+        raise InvalidInputError(f'{where}: unknown key(s) {", ".join(unknown)} '
                                 f'(known: {", ".join(allowed)})')
-    return section
+    return mapping
+
+
+def _section(content: dict, key: str, where: str, allowed: tuple) -> dict:
+    return check_keys(content.get(key, {}), allowed, f'{where}: {key}')
 
 
 @dataclass(frozen=True)

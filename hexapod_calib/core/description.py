@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.description import (
-    RESIDUAL_GATE_FACTOR, Instrument, Measurement, read_measurement)
+    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_measurement)
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
 from hexapod_calib.core.geometry import HexapodGeometry, as_poses
@@ -90,12 +90,7 @@ def read_description(path) -> HexapodDescription:
     """A hexapod description YAML, validated (every error names the key)."""
     content = read_yaml(path, 'a hexapod description YAML')
     where = str(path)
-    if not isinstance(content, dict):
-        raise InvalidInputError(f'{where} must be a YAML mapping with kind: hexapod and geometry')
-    unknown = sorted(set(content) - set(KEYS))
-    if unknown:
-        raise InvalidInputError(f'{where}: unknown key(s) {", ".join(map(str, unknown))} '
-                                f'(known: {", ".join(KEYS)})')
+    check_keys(content, KEYS, where)
     if content.get('kind') != 'hexapod':
         raise InvalidInputError(f'{where}: kind must be hexapod, not {content.get("kind")!r}')
     geometry = HexapodGeometry.from_dict(content.get('geometry'), f'{where}: geometry')
@@ -120,15 +115,10 @@ def _workspace(content: dict, where: str) -> dict | None:
     section = content.get('workspace')
     if section is None:
         return None
-    if not isinstance(section, dict):
-        raise InvalidInputError(f'{where}: workspace must be a mapping')
-    unknown = sorted(set(section) - set(WORKSPACE_KEYS))
+    check_keys(section, WORKSPACE_KEYS, f'{where}: workspace')
     missing = [k for k in WORKSPACE_KEYS if k not in section]
-    if unknown or missing:
-        raise InvalidInputError(f'{where}: workspace needs exactly {", ".join(WORKSPACE_KEYS)}'
-                                f' ({"unknown " + ", ".join(unknown) if unknown else ""}'
-                                f'{"; " if unknown and missing else ""}'
-                                f'{"missing " + ", ".join(missing) if missing else ""})')
+    if missing:
+        raise InvalidInputError(f'{where}: workspace lacks {", ".join(missing)}')
     home = as_poses(_triple(section['home'], 6, 'home', where, False), 'workspace home')[0]
     stroke = _triple(section['stroke_m'], 2, 'stroke_m', where, False)
     if not stroke[0] < stroke[1]:
