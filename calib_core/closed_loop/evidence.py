@@ -79,12 +79,13 @@ may not grow by more than this share or by more than the RMS falls (a row it doe
 touch keeps its error to rounding, hence a share, not zero)."""
 
 
-def pooled_gain(machine, splits: list, fit: Fit, name: str) -> dict:
+def pooled_gain(machine, splits: list, fit: Fit, name: str, with_all: dict | None = None) -> dict:
     """How much effect ``name`` of ``fit`` lowers the held-out error over every split (each
     refitted on the split's fitting rows with and without it): ``gain`` (share of the pooled
     held-out RMS), the pooled RMS with and without it, the held-out maxima's ratio per split
-    (``max_ratios``) and the ratio the maximum may grow by (``allowed``)."""
-    with_all = heldout_errors(machine, splits, fit.effects, fit.values, fit)
+    (``max_ratios``) and the ratio the maximum may grow by (``allowed``). ``with_all``:
+    ``fit``'s own held-out errors where they were computed already."""
+    with_all = with_all or heldout_errors(machine, splits, fit.effects, fit.values, fit)
     effects, values = without_effects(fit, (name,))
     without = heldout_errors(machine, splits, effects, values, fit)
     gain = 1 - np.sqrt(with_all['sum_of_squares'] / without['sum_of_squares'])

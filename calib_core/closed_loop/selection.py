@@ -283,8 +283,9 @@ def _prune(machine, splits: list, current: Fit, rejected: dict, gains: dict) -> 
     ``rejected`` and its figures into ``gains``."""
     while current.effects:
         failing = []
+        with_all = heldout_errors(machine, splits, current.effects, current.values, current)
         for name in current.names():
-            gain = pooled_gain(machine, splits, current, name)
+            gain = pooled_gain(machine, splits, current, name, with_all)
             if not earns_its_place(gain):
                 failing.append((gain['gain'], name, gain))
         if not failing:
@@ -312,22 +313,30 @@ def _simplify(machine, splits: list, current: Fit, config: LoopConfig, evidence:
     significant = {c['effect'] for r in primary.rounds for c in r['candidates']
                    if c['status'] == 'candidate'}
     for name in list(current.names()):
-        k = current.names().index(name)
+        size = len(current.values[current.names().index(name)])
+        alternatives = sorted(significant - set(current.names()))
+        if size < 2 or not alternatives:
+            continue        # nothing has fewer than one parameter
         effects, values = without_effects(current, (name,))
         reduced = (fit_model(machine, current.base, effects, values, primary.train)
                    if effects else primary.base_fit)
         context = machine.context(reduced.base, primary.train)
         residuals = residuals_by_channel(machine, reduced, primary.train)
-        pooled = heldout_errors(machine, splits, current.effects, current.values, current)
+        pooled = None
         best = None
-        for alternative in sorted(significant - set(current.names())):
+        for alternative in alternatives:
+            prepared = prepare_effect(LIBRARY[alternative], machine, context, residuals)
+            if isinstance(prepared, str) or len(prepared.names) >= size:
+                continue    # not simpler: no joint fit needed to know
             entry = _try_candidate(machine, reduced, alternative, primary.train, context,
                                    residuals, config.alpha)
-            if (isinstance(entry, str) or entry['extra'] >= len(current.values[k])
+            if (isinstance(entry, str) or entry['extra'] >= size
                     or not entry['p_value_raw'] < config.alpha
                     or undetermined_reason(machine, reduced, entry, primary.train)):
                 continue
             fit = entry['fit']
+            pooled = pooled or heldout_errors(machine, splits, current.effects,
+                                              current.values, current)
             sum_of_squares = heldout_errors(machine, splits, fit.effects, fit.values,
                                             fit)['sum_of_squares']
             ratio = float(np.sqrt(sum_of_squares / pooled['sum_of_squares']))
@@ -471,5 +480,7 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     rejected.update(replaced)
     seen = seen_not_added(machine, splits, final, rejected, not_identifiable, gains,
                           explained=set(replaced))
-    return loop_result(machine, config, splits, final, evidence, frequency, not_identifiable,
-                       rejected, min_effect, seen, tried, structure)
+    result = loop_result(machine, config, splits, final, evidence, frequency,
+                         not_identifiable, rejected, min_effect, seen, tried, structure)
+    result.report['replaced_by_simpler'] = replaced
+    return result

@@ -192,8 +192,9 @@ def _judge(report: dict, expected: set, channels: dict | None = None) -> dict:
             named = {p.rsplit('_', 1)[-1] for p in effect['parameters']}
             off_channel += len(named - allowed)
             elsewhere |= named != allowed
-    # Never lost: an effect chosen on most splits is added or reported as seen.
-    seen = {u.get('effect') for u in report['unexplained']}
+    # Never lost: an effect chosen on most splits is added, reported as seen, or replaced
+    # by a simpler one that describes the same.
+    seen = {u.get('effect') for u in report['unexplained']} | set(report['replaced_by_simpler'])
     lost = sorted(name for name, share in report['selection_frequency'].items()
                   if share > 0.5 and name not in added | seen)
     return {'found': bool(expected) and added == expected and not elsewhere,
