@@ -191,7 +191,10 @@ def test_adaptive_platform_says_when_the_limits_cannot_meet_the_target():
     the first 8, before measuring more."""
     adaptive, identified, _ = _adaptive_run(2e-6, 40)
     assert adaptive['stopped'].startswith('target cannot be met within max_poses = 40')
-    assert adaptive['rounds'][-1]['best_at_max_poses_m'] > 2e-6 and len(identified) == 8
+    floor = adaptive['rounds'][-1]['best_at_max_poses_m']
+    assert floor > 2e-6 and len(identified) == 8
+    # the floor printed in the unit named
+    assert f': {floor * 1e6:.2f} um predicted with all of them' in adaptive['stopped']
 
 
 def test_five_axis_plan_keeps_what_the_stepwise_start_needs_and_predicts_better_than_today():
