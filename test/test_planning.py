@@ -78,10 +78,12 @@ def test_platform_prediction_holds_and_twelve_planned_poses_beat_twelve_random()
     working = np.random.default_rng(5).uniform(-1, 1, (100, 3)) * np.asarray(WORKING_SPAN)
     plan = plan_platform(nominal_geometry(), 12, working)
     predicted = plan.report()['predicted_mark_error_m']['rms']
-    planned = [_realised_rms(plan.poses, seed, working) for seed in range(6)]
+    planned = [_realised_rms(plan.poses, seed, working) for seed in range(24)]
     random = [_realised_rms(plan_poses(12, seed), seed, working) for seed in range(6)]
-    # The prediction is a 1-sigma RMS from the noise alone: realised within a factor 1.5.
-    assert 0.67 < np.median(planned) / predicted < 1.5
+    # The prediction is a 1-sigma RMS from the noise alone: the RMS over 24 identifications
+    # realises it within 15 % (0.96-1.07 over four sets of 24 seeds); a factor sqrt(2) in
+    # the prediction is far outside.
+    assert 0.85 < np.sqrt(np.mean(np.square(planned))) / predicted < 1.15
     assert np.median(planned) < 0.75 * np.median(random)
     assert np.all(np.abs(plan.poses) <= np.asarray(WORKING_SPAN) + 1e-12)
 

@@ -52,6 +52,11 @@ MUTANTS = [
     ('planning: the sandwich with one inverse', 'calib_core/planning.py',
      "return inverse @ np.einsum('kip,kij,kjq->pq', rows, noise, rows) @ inverse",
      "return inverse @ np.einsum('kip,kij,kjq->pq', rows, noise, rows)", PLAN),
+    ('planning: the platform noise covariance doubled', 'platform_calib/core/planning.py',
+     'covariance = sandwich_covariance(rows, noise)',
+     'covariance = sandwich_covariance(rows, 2 * noise)',
+     ['test/test_planning.py::test_platform_prediction_holds_and_twelve_planned_poses_beat_'
+      'twelve_random']),
     ('gate: platform closure limit 10x', 'platform_calib/core/identification.py',
      'MAX_CLOSURE_RMS_M = 100e-6', 'MAX_CLOSURE_RMS_M = 1000e-6', GATES),
     ('gate: five-axis reprojection limit 10x', 'dispenser_calib/core/calibration.py',
