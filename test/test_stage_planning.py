@@ -143,3 +143,26 @@ def test_adaptive_stage_says_when_the_limits_cannot_meet_the_target():
     adaptive = report['adaptive']
     assert adaptive['stopped'].startswith('target cannot be met within max_stops = 60')
     assert adaptive['rounds'][-1]['best_at_max_stops_m'] > 0.2e-6 and len(data) == 31
+
+
+def test_the_prediction_carries_both_noises_and_its_maximum_is_over_the_working_inputs(
+        planned):
+    """Both noise terms count: the camera's alone and the landings' alone each predict an
+    error, and together their squares add (the errors are linear in the noise, first
+    order); the maximum is the largest Mark's over the working inputs, so it is at least
+    the RMS and at most the RMS times the square root of their count."""
+    from printer_alignment.core.stage_planning import CAMERA_NOISE, LANDING_SIGMA
+    working = default_working(60, seed=5)
+    targets = planned.targets
+
+    def predicted(landing, camera):
+        return predict_stage_plan(NOMINAL_STAGE, CALIBRATION_MARKS, targets, working,
+                                  landing_sigma=landing, camera_noise=camera)
+    both = predicted(LANDING_SIGMA, CAMERA_NOISE)
+    camera = predicted(0.0, CAMERA_NOISE)
+    landing = predicted(LANDING_SIGMA, 0.0)
+    assert camera.predicted_rms_m > 0 and landing.predicted_rms_m > 0
+    assert both.predicted_rms_m ** 2 == pytest.approx(
+        camera.predicted_rms_m ** 2 + landing.predicted_rms_m ** 2, rel=1e-6)
+    assert both.predicted_rms_m <= both.predicted_max_m <= both.predicted_rms_m * np.sqrt(
+        2 * len(working))

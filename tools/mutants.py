@@ -57,6 +57,14 @@ MUTANTS = [
      'covariance = sandwich_covariance(rows, 2 * noise)',
      ['test/test_planning.py::test_platform_prediction_holds_and_twelve_planned_poses_beat_'
       'twelve_random']),
+    ('planning: the stage camera noise dropped', 'printer_alignment/core/stage_planning.py',
+     '+ camera_noise ** 2 * np.eye(4))', '+ 0 * camera_noise * np.eye(4))',
+     ['test/test_stage_planning.py::test_the_prediction_carries_both_noises_and_its_maximum_'
+      'is_over_the_working_inputs']),
+    ('planning: the stage maximum taken as a mean', 'printer_alignment/core/stage_planning.py',
+     'float(per_mark.max()),', 'float(per_mark.mean()),',
+     ['test/test_stage_planning.py::test_the_prediction_carries_both_noises_and_its_maximum_'
+      'is_over_the_working_inputs']),
     ('gate: platform closure limit 10x', 'platform_calib/core/identification.py',
      'MAX_CLOSURE_RMS_M = 100e-6', 'MAX_CLOSURE_RMS_M = 1000e-6', GATES),
     ('gate: five-axis reprojection limit 10x', 'dispenser_calib/core/calibration.py',
