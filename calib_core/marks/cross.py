@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from calib_core.errors import DetectionError
 from calib_core.marks.intensity import cross_coverage, edge_sigma
@@ -14,6 +13,8 @@ from calib_core.marks.pixels import (
 
 
 def fit_cross(pixels, x0, y0, component, area, polarity, noise, full) -> Mark:
+    # Imported here: scipy.optimize costs 0.4 s, and most detections fit no cross.
+    from scipy.optimize import least_squares
     h, w = component.shape
     rows, cols = np.nonzero(component)
     # A cross is itself turned by a quarter turn about its centre; touching dots or

@@ -1,36 +1,74 @@
 """machine-align: the command line of machine_alignment. It runs the same core code as
 the nodes: subcommands read a dataset, image files or a recorded bag, print a human
-report and write JSON (``--json PATH``, SI units)."""
+report and write JSON (``--json PATH``, SI units).
+
+Only the subcommand asked for is imported (its science stack with it): ``--help`` and a
+subcommand's own help start at once."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
-import cv2
-
 from calib_core.errors import MachineAlignmentError
-from machine_alignment.cli import (
-    analyze, calibrate, call, detect, evaluate, export, five_axis, graphs, plan, platform,
-    simulate)
-from machine_alignment.cli.common import check_writable
+
+# subcommand -> (module under machine_alignment.cli, its function registering the parser,
+# the one-line help listed by ``machine-align --help``)
+COMMANDS = {
+    'detect': ('detect', 'add_parser', 'Mark centres (px) in image files'),
+    'calibrate': ('calibrate', 'add_parser', 'run a calibration offline'),
+    'evaluate': ('evaluate', 'add_parser', 'check a calibration on data not used to fit it'),
+    'simulate': ('simulate', 'add_parser', 'write datasets measured on a simulated machine'),
+    'analyze': ('analyze', 'add_parser', 'closed loop: find the effect a model lacks, refit, '
+                                         'report before/after on held-out data'),
+    'plan': ('plan', 'add_parser', 'choose the measurements for a calibration and predict '
+                                   'their result before anything moves'),
+    'export': ('export', 'add_parser', 'a recorded calibration run as the CSV that analyze '
+                                       'and calibrate --data read'),
+    'call': ('call', 'add_parser', 'trigger a service on a running graph (calibrate, '
+                                   'analyze_residuals, align, confirm a plate placement), '
+                                   'showing its progress'),
+    'launch': ('graphs', 'add_parser', 'start a simulated machine graph from the venv'),
+    'demo': ('graphs', 'add_parser', 'calibrate every simulated machine end to end (printer, '
+                                     'stage, hexapod, grid plate, platform, five-axis '
+                                     'dispenser)'),
+    'compensate': ('platform', 'add_compensate_parser', 'feeds that put the marks on target'),
+    'locate': ('five_axis', 'add_locate_parser', 'a workpiece\'s features through the '
+                                                 'calibrated chain'),
+    'needle': ('five_axis', 'add_needle_parser', 'the needle tip from dispensed test dots '
+                                                 'imaged through the calibrated chain'),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog='machine-align', description=__doc__)
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with ``command``'s subcommand in full (its module imported) and every
+    other listed by name and help only; every subcommand in full with ``command`` 'all'."""
+    parser = argparse.ArgumentParser(prog='machine-align', description=__doc__.split('\n\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
-    for group in (detect, calibrate, evaluate, simulate, analyze, plan, export, call, graphs):
-        group.add_parser(sub)
-    platform.add_compensate_parser(sub)
-    five_axis.add_locate_parser(sub)
-    five_axis.add_needle_parser(sub)
+    wanted = list(COMMANDS) if command == 'all' else [command] if command in COMMANDS else []
+    for name in wanted:
+        if name not in sub.choices:
+            module, register, _ = COMMANDS[name]
+            getattr(importlib.import_module(f'machine_alignment.cli.{module}'), register)(sub)
+    for name, (_, _, help_text) in COMMANDS.items():
+        if name not in sub.choices:
+            sub.add_parser(name, help=help_text, add_help=False)
     return parser
+
+
+def _command(argv) -> str | None:
+    """The subcommand named in ``argv`` (its first word that is not an option)."""
+    return next((word for word in argv if not word.startswith('-')), None)
 
 
 def main(argv=None) -> int:
     """Run one subcommand. Every failure ends in one line ``machine-align: error: ...``
     naming the file or input and the cause, and exit status 2 (3 for a bug, which is
     reported the same way rather than as a traceback)."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(_command(argv)).parse_args(argv)
+    import cv2
+    from machine_alignment.cli.common import check_writable
     try:
         for option in ('json', 'out'):
             if getattr(args, option, None):
