@@ -116,3 +116,19 @@ def test_the_rotary_order_screen_claims_at_most_its_rate_on_noise():
         noise = np.random.default_rng(9000 + seed).normal(0, 1e-6, (angle.size, 1))
         claims += select_orders(angle, noise, range(1, 8), 7)[1] < 0.05
     assert claims / SEEDS <= 0.05 + _band(0.05, SEEDS), claims
+
+
+def test_channel_p_values_are_the_wald_test_worked_here():
+    """Two channels: a (two parameters, its period searched over 4 alternatives) and b (one
+    parameter). Each p-value is the F tail of theta^T B^-1 theta / q on (q, dof), times
+    the channel's searches and the 2 channels."""
+    from scipy import stats
+    prepared = SimpleNamespace(trials_of=lambda channel: {'a': 4.0, 'b': 1.0}[channel])
+    values = np.array([3e-6, -1e-6, 2e-6])
+    covariance = np.array([[1e-12, 0.2e-12, 0], [0.2e-12, 2e-12, 0], [0, 0, 0.5e-12]])
+    p = channel_p_values(prepared, {'a': [0, 1], 'b': [2]}, values, covariance, 30)
+    block = covariance[:2, :2]
+    wald_a = values[:2] @ np.linalg.inv(block) @ values[:2] / 2
+    wald_b = values[2] ** 2 / covariance[2, 2]
+    assert p['a'] == pytest.approx(min(1.0, stats.f.sf(wald_a, 2, 30) * 4 * 2), rel=1e-9)
+    assert p['b'] == pytest.approx(min(1.0, stats.f.sf(wald_b, 1, 30) * 1 * 2), rel=1e-9)

@@ -166,3 +166,24 @@ def test_the_prediction_carries_both_noises_and_its_maximum_is_over_the_working_
         camera.predicted_rms_m ** 2 + landing.predicted_rms_m ** 2, rel=1e-6)
     assert both.predicted_rms_m <= both.predicted_max_m <= both.predicted_rms_m * np.sqrt(
         2 * len(working))
+
+
+def test_the_predicted_maximum_is_the_worst_marks_displacement(planned):
+    """The maximum worked here Mark by Mark: for each working input and each Mark, the
+    1-sigma displacement sqrt(trace(G C G^T)) with G that Mark's two rows of the Jacobian
+    (x and y) and C the plan's parameter covariance; the largest of them."""
+    from calib_core.planning import sandwich_covariance
+    from printer_alignment.core.stage_planning import (
+        free_parameters, mark_jacobian, stop_noise)
+    working = default_working(60, seed=5)
+    targets = planned.targets
+    parameters = free_parameters(NOMINAL_STAGE, CALIBRATION_MARKS)
+    directions = visiting_directions(targets)
+    covariance = sandwich_covariance(mark_jacobian(parameters, targets, directions),
+                                     stop_noise(parameters, targets, directions))
+    rows = mark_jacobian(parameters, working, np.ones_like(working))     # (W, 4, p)
+    worst = max(np.sqrt(np.trace(rows[w, 2 * m:2 * m + 2] @ covariance
+                                 @ rows[w, 2 * m:2 * m + 2].T))
+                for w in range(len(working)) for m in range(2))
+    design = predict_stage_plan(NOMINAL_STAGE, CALIBRATION_MARKS, targets, working)
+    assert design.predicted_max_m == pytest.approx(worst, rel=1e-9)

@@ -65,6 +65,11 @@ MUTANTS = [
      'float(per_mark.max()),', 'float(per_mark.mean()),',
      ['test/test_stage_planning.py::test_the_prediction_carries_both_noises_and_its_maximum_'
       'is_over_the_working_inputs']),
+    ('planning: the stage maximum over the other axis',
+     'printer_alignment/core/stage_planning.py',
+     'per_mark = np.linalg.norm(errors.reshape(len(working), 2, 2), axis=2)',
+     'per_mark = np.linalg.norm(errors.reshape(len(working), 2, 2), axis=1)',
+     ['test/test_stage_planning.py::test_the_predicted_maximum_is_the_worst_marks_displacement']),
     ('gate: platform closure limit 10x', 'platform_calib/core/identification.py',
      'MAX_CLOSURE_RMS_M = 100e-6', 'MAX_CLOSURE_RMS_M = 1000e-6', GATES),
     ('gate: five-axis reprojection limit 10x', 'dispenser_calib/core/calibration.py',
