@@ -8,7 +8,6 @@ import pytest
 
 from calib_core.axis import AxisModel
 from calib_core.closed_loop import LoopConfig, analyze, format_report
-from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from machine_alignment.bench.user_machines import (
     LEAD_RATIO, NOMINAL, growing_leg, hexapod_day, iso_run)

@@ -31,7 +31,7 @@ from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
 from machine_alignment.cli.common import (
-    parse_size, progress, ranged, write_json, write_json_and_plot)
+    parse_size, progress, ranged, write_json_and_plot)
 from platform_calib.core.geometry import nominal_geometry as nominal_platform
 from platform_calib.core.geometry import read_geometry as read_platform
 from platform_calib.core.identification import PoseData as PlatformPoseData
