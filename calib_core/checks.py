@@ -29,16 +29,36 @@ def check_metres(values, what: str, source, limit_m: float) -> None:
                                 'format is SI metres')
 
 
-def whole_number(value, name: str, minimum: int = 0) -> int:
-    """``value`` as an int, refused unless it is an integer >= ``minimum`` (``2.7``
-    and ``True`` are refused; ``3.0`` is 3).
+MAX_COUNT = 10_000
+"""The most measurements, poses, stops or sites any plan count may ask for: at a few
+seconds a measurement that is hours of a machine's time, and every plan here needs tens to
+hundreds. A plan may set a lower bound of its own."""
+
+MAX_SEED = 2 ** 32 - 1
+"""The largest random seed a plan takes (numpy's legacy seeds, and plenty)."""
+
+BRIEF = 60
+"""Characters of a refused value quoted in a message: a 10^7-element list or an expanded
+YAML alias must not come back as a reply of megabytes."""
+
+
+def brief(value) -> str:
+    """``repr(value)`` cut to :data:`BRIEF` characters, for error messages."""
+    text = repr(value)
+    return text if len(text) <= BRIEF else f'{text[:BRIEF]}... ({len(text)} characters)'
+
+
+def whole_number(value, name: str, minimum: int = 0, maximum: int = MAX_COUNT) -> int:
+    """``value`` as an int, refused unless it is an integer in [``minimum``, ``maximum``]
+    (``2.7`` and ``True`` are refused; ``3.0`` is 3).
 
     Raises
     ------
     InvalidInputError"""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(value) or int(value) != value or value < minimum:
-        raise InvalidInputError(f'{name} must be an integer >= {minimum}, not {value!r}')
+            or not np.isfinite(value) or int(value) != value or not minimum <= value <= maximum:
+        raise InvalidInputError(f'{name} must be an integer from {minimum} to {maximum}, not '
+                                f'{brief(value)}')
     return int(value)
 
 
@@ -52,9 +72,9 @@ def positive_length(value, name: str, limit_m: float = MAX_POSITION_M) -> float:
     try:
         value = float(value)
     except (TypeError, ValueError):
-        raise InvalidInputError(f'{name} must be a length in m, not {value!r}') from None
+        raise InvalidInputError(f'{name} must be a length in m, not {brief(value)}') from None
     if not (np.isfinite(value) and value > 0):
-        raise InvalidInputError(f'{name} must be a positive length (m), not {value!r}')
+        raise InvalidInputError(f'{name} must be a positive length (m), not {brief(value)}')
     check_metres(value, name, 'the plan', limit_m)
     return value
 

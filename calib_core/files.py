@@ -68,6 +68,41 @@ def load_yaml(text: str):
     return yaml.load(text, Loader=_NumbersAsTyped)
 
 
+MAX_REQUEST_BYTES = 16 * 1024
+"""The largest plan or options text a service takes: a plan is a few keys, and a request
+of megabytes is refused before it is parsed."""
+
+
+class _PlanLoader(_NumbersAsTyped):
+    """The safe loader, refusing a mapping that gives one key twice (``nx: 3`` then
+    ``nx: 4`` would silently take the second)."""
+
+    def construct_mapping(self, node, deep=False):
+        keys = [self.construct_object(key, deep=True) for key, _ in node.value]
+        repeated = sorted({str(k) for k in keys if keys.count(k) > 1})
+        if repeated:
+            raise InvalidInputError(f'the key(s) {", ".join(repeated)} given twice')
+        return super().construct_mapping(node, deep)
+
+
+def load_request_yaml(text: str):
+    """A service request's YAML (a plan, loop options), read safely and refused before
+    any expansion when it is longer than :data:`MAX_REQUEST_BYTES`, uses aliases (a few
+    hundred bytes of nested aliases expand to gigabytes) or repeats a key.
+
+    Raises
+    ------
+    InvalidInputError, yaml.YAMLError"""
+    size = len(text.encode('utf-8', 'replace'))
+    if size > MAX_REQUEST_BYTES:
+        raise InvalidInputError(f'the request is {size} bytes, more than the '
+                                f'{MAX_REQUEST_BYTES} a plan takes')
+    if any(isinstance(event, yaml.AliasEvent) for event in yaml.parse(text, Loader=_PlanLoader)):
+        raise InvalidInputError('YAML aliases (*name) are not taken in a request: write the '
+                                'values out')
+    return yaml.load(text, Loader=_PlanLoader)
+
+
 def read_yaml(path: str | os.PathLike, what: str):
     """The YAML content of ``path``; errors as :func:`read_text`, and for text that is not
     YAML."""

@@ -176,7 +176,7 @@ def test_calibration_run_beats_the_paper_and_recovers_the_truth():
 
 
 @pytest.mark.parametrize('overrides, message', [
-    ({'num_poses': 2.5}, 'num_poses must be an integer >= 1'),
+    ({'num_poses': 2.5}, 'num_poses must be an integer from 1 to'),
     ({'num_poses': 'many'}, 'num_poses must be an integer'),
     ({'translation': [0.01, 0.01]}, 'translation must be 3 finite numbers'),
     ({'stroke': [0.3, 0.2]}, 'stroke (min, max) increasing'),

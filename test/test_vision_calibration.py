@@ -192,7 +192,7 @@ def test_circle_grid_points_are_our_marks_in_grid_order(rng, tilt_deg):
 @pytest.mark.parametrize('plan, message', [
     ({'pitch': 0.0}, 'pitch must be a positive length'),
     ({'pitch': 0.5}, 'look like mm'),
-    ({'nx': 2.7}, 'nx must be an integer >= 2'),
+    ({'nx': 2.7}, 'nx must be an integer from 2 to'),
     ({'ny': True}, 'ny must be an integer'),
     ({'x_range': (0.2, 0.0)}, 'x_range must be (low, high)'),
     ({'y_range': (0.0, 150.0)}, 'look like mm'),

@@ -11,7 +11,7 @@ import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
-from calib_core.files import load_yaml
+from calib_core.files import load_request_yaml
 from calib_core.nodes.conversions import failed_result
 from calib_core.storage import read_calibration
 
@@ -75,8 +75,9 @@ def parse_plan(text: str) -> dict:
     Raises
     ------
     InvalidInputError
-        The text is YAML but not a mapping (yaml.YAMLError for text that is not YAML)."""
-    options = load_yaml(text) if text.strip() else {}
+        The text is YAML but not a mapping, too long, uses aliases or repeats a key
+        (yaml.YAMLError for text that is not YAML)."""
+    options = load_request_yaml(text) if text.strip() else {}
     if not isinstance(options, dict):
         raise InvalidInputError('plan_yaml must be a YAML mapping')
     return options

@@ -54,7 +54,7 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from calib_core.checks import whole_number
+from calib_core.checks import MAX_SEED, whole_number
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
@@ -186,7 +186,7 @@ class FiveAxisCalibratorNode(Node):
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
         if not isinstance(g('frames'), bool):
             raise InvalidInputError(f'frames must be true or false, not {g("frames")!r}')
-        return (whole_number(g('seed'), 'seed', 0), whole_number(g('evaluation'), 'evaluation', 0),
+        return (whole_number(g('seed'), 'seed', 0, MAX_SEED), whole_number(g('evaluation'), 'evaluation', 0),
                 g('frames'), {k: overrides[k] for k in PLANNED_KEYS if k in overrides})
 
     def _move(self, pose):

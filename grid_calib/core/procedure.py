@@ -9,7 +9,8 @@ from typing import Callable
 
 import numpy as np
 
-from calib_core.checks import MAX_POSITION_M, check_metres, positive_length, whole_number
+from calib_core.checks import (
+    MAX_COUNT, MAX_POSITION_M, check_metres, positive_length, whole_number)
 from calib_core.errors import InvalidInputError, OutOfTravelError
 from grid_calib.core.data import region_from_readings
 from grid_calib.core.model import PLACEMENTS, Grid, region_origins, site_of
@@ -38,7 +39,14 @@ class GridPlan:
         object.__setattr__(self, 'columns', whole_number(self.columns, 'columns', 1))
         object.__setattr__(self, 'rows', whole_number(self.rows, 'rows', 1))
         object.__setattr__(self, 'pitch', positive_length(self.pitch, 'pitch', MAX_PITCH_M))
-        centre = tuple(whole_number(v, 'first_centre', -10 ** 6) for v in self.first_centre)
+        readings = 4 * (2 * self.half + 1) ** 2 * self.columns * self.rows
+        if readings > MAX_COUNT:
+            raise InvalidInputError(
+                f'half {self.half}, {self.columns} x {self.rows} regions: {readings} readings '
+                f'(4 placements of (2 half + 1)^2 marks per region), more than the {MAX_COUNT} '
+                'a plan may ask for')
+        centre = tuple(whole_number(v, 'first_centre', -10 ** 6, 10 ** 6)
+                       for v in self.first_centre)
         if len(centre) != 2:
             raise InvalidInputError(f'first_centre must be two site indices, not {centre!r}')
         object.__setattr__(self, 'first_centre', centre)

@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from calib_core.checks import MAX_POSITION_M, whole_number
+from calib_core.checks import MAX_POSITION_M, MAX_SEED, whole_number
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.planning import Adaptive
 from hexapod_calib.core.calibration import (
@@ -84,8 +84,8 @@ class HexapodPlan:
                                     f'below 1 mm), not {self.target_error!r}')
         for name in ('num_poses', 'num_candidates', 'num_evaluation', 'iterations', 'seed',
                      'max_poses', 'step'):
-            object.__setattr__(self, name, whole_number(getattr(self, name), name,
-                                                        0 if name == 'seed' else 1))
+            object.__setattr__(self, name, whole_number(getattr(self, name), name, *(
+                (0, MAX_SEED) if name == 'seed' else (1,))))
         if not (isinstance(self.margin, (int, float)) and np.isfinite(self.margin)
                 and self.margin >= 0):
             raise InvalidInputError(f'margin must be a length >= 0 (m), not {self.margin!r}')

@@ -196,7 +196,7 @@ def add_parser(sub) -> None:
     hexapod.add_argument('--description', help='your machine\'s description YAML: its '
                                                'geometry, workspace (home, box, strokes) and '
                                                'instrument noise plan the poses')
-    hexapod.add_argument('--candidates', type=ranged(int, 20, 100000), default=400,
+    hexapod.add_argument('--candidates', type=ranged(int, 20, 10000), default=400,
                          help='random candidate poses inside the strokes to choose from')
     noise = dict(HEXAPOD_NOISE_DEFAULTS)
     hexapod.add_argument('--position-noise', type=ranged(float, 0.0, 0.01, 'm'),

@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from calib_core.checks import whole_number
+from calib_core.checks import MAX_SEED, whole_number
 from calib_core.errors import InvalidInputError
 from calib_core.planning import Adaptive
 from platform_calib.core.compensation import composite_error
@@ -51,7 +51,7 @@ class PlatformPlan:
         object.__setattr__(self, 'poses', whole_number(self.poses, 'poses', MIN_POSES))
         object.__setattr__(self, 'evaluation_poses',
                            whole_number(self.evaluation_poses, 'evaluation_poses', 1))
-        object.__setattr__(self, 'seed', whole_number(self.seed, 'seed', 0))
+        object.__setattr__(self, 'seed', whole_number(self.seed, 'seed', 0, MAX_SEED))
         span = np.asarray(self.span, dtype=float)
         if span.shape != (3,) or not np.all(np.isfinite(span)) or np.any(span <= 0) \
                 or np.any(span[:2] > 0.1) or span[2] > np.pi / 4:

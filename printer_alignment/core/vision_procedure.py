@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from calib_core.checks import (
-    MAX_POSITION_M, check_metres, positive_length, whole_number)
+    MAX_COUNT, MAX_POSITION_M, check_metres, positive_length, whole_number)
 from calib_core.errors import InvalidInputError
 from calib_core.sanity import SanityGate
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
@@ -60,6 +60,11 @@ class VisionPlan:
         if self.overshoot > self.margin:
             raise InvalidInputError('overshoot must not exceed margin (pre-positions would '
                                     'leave the travel)')
+        if self.nx * self.ny > MAX_COUNT:
+            raise InvalidInputError(
+                f'nx x ny = {self.nx * self.ny} positions, more than the {MAX_COUNT} a plan may '
+                f'ask for (at about 4 positions a second, {self.nx * self.ny / 4 / 3600:.3g} h '
+                'of the machine)')
         if self.x_range[1] - self.x_range[0] <= 2 * self.margin or \
                 self.y_range[1] - self.y_range[0] <= 2 * self.margin:
             raise InvalidInputError('travel too short for the margin')
