@@ -7,6 +7,7 @@ import numpy as np
 
 from calib_core.effects import CATEGORICAL_COVARIATES, LIBRARY
 from calib_core.closed_loop.fitting import Fit, heldout_errors, without_effects
+from calib_core.closed_loop.model import is_reference
 
 SEEN_NOT_ADDED = 'seen, not added'
 """The ``kind`` of an ``unexplained`` entry for an effect the selection chose on some
@@ -54,7 +55,6 @@ def matching_candidate(item: dict, machine) -> tuple[str, str] | None:
 
 def covariate_columns(machine, context: dict) -> dict:
     """A context flattened into named scalar covariates per row (``position_leg2``)."""
-    from calib_core.closed_loop.model import is_reference
     out = {}
     for key, value in context.items():
         if is_reference(key) or isinstance(value, dict):
