@@ -382,7 +382,7 @@ def _second_look(machine, splits: list, final: Fit, config: LoopConfig, min_effe
             tried.add(match)
             name, channel = match
             if name in final.names():
-                notes[key] = f'{name} is in the model already on other channels'
+                notes[key] = f'{name} is in the model already (a second one is not tried)'
                 continue
             hinted = dict(context, period_hint={channel: item['period']}) \
                 if 'period' in item else context
@@ -391,7 +391,6 @@ def _second_look(machine, splits: list, final: Fit, config: LoopConfig, min_effe
             if isinstance(entry, str):
                 notes[key] = f'{name} on {channel} not tested: {entry}'
                 continue
-            why = None
             if not entry['p_value_raw'] < config.alpha:
                 why = f'not significant jointly with the model (p = {entry["p_value_raw"]:.2g})'
             else:
