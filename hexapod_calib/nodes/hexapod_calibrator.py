@@ -67,8 +67,8 @@ class HexapodCalibratorNode(Node):
         declare_paths(self, 'output_dir', 'record_dir')
         self.declare_parameter('nominal_geometry', '', READ_ONLY)
         self.declare_parameter('call_timeout_s', 10.0)
-        self.declare_parameter('payload_mass', 0.0)
-        self.declare_parameter('payload_centre', [0.0, 0.0, 0.0])
+        self.declare_parameter('payload_mass', 0.0, READ_ONLY)
+        self.declare_parameter('payload_centre', [0.0, 0.0, 0.0], READ_ONLY)
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self.payload_mass = float(self.get_parameter('payload_mass').value)
         self.payload_centre = [float(v) for v in self.get_parameter('payload_centre').value]

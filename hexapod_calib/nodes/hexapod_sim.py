@@ -16,6 +16,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
 from calib_core.errors import InvalidInputError, MachineAlignmentError
+from calib_core.nodes.calibrator import READ_ONLY
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry
@@ -30,10 +31,10 @@ class HexapodSimNode(Node):
 
     def __init__(self):
         super().__init__('hexapod_sim')
-        self.declare_parameter('nominal_geometry', '')
-        self.declare_parameter('truth_seed', 2)
-        self.declare_parameter('noise_seed', 0)
-        self.declare_parameter('stroke', [0.17, 0.30])
+        self.declare_parameter('nominal_geometry', '', READ_ONLY)
+        self.declare_parameter('truth_seed', 2, READ_ONLY)
+        self.declare_parameter('noise_seed', 0, READ_ONLY)
+        self.declare_parameter('stroke', [0.17, 0.30], READ_ONLY)
         self.declare_parameter('rate_hz', 10.0)
         path = self.get_parameter('nominal_geometry').value
         nominal = read_geometry(path) if path else nominal_geometry()

@@ -16,6 +16,7 @@ from rclpy.time import Time
 from std_msgs.msg import Header
 
 from calib_core.errors import InvalidInputError, MachineAlignmentError
+from calib_core.nodes.calibrator import READ_ONLY
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.spin import run_node
 from hexapod_calib.core.records import pose_from_message
@@ -27,9 +28,9 @@ class PoseSensorSimNode(Node):
 
     def __init__(self):
         super().__init__('pose_sensor_sim')
-        self.declare_parameter('position_noise', 0.6e-6)
-        self.declare_parameter('angle_noise', 6e-6)
-        self.declare_parameter('seed', 1)
+        self.declare_parameter('position_noise', 0.6e-6, READ_ONLY)
+        self.declare_parameter('angle_noise', 6e-6, READ_ONLY)
+        self.declare_parameter('seed', 1, READ_ONLY)
         self.declare_parameter('wait_timeout_s', 2.0)
         self.sensor = PoseSensorSim(float(self.get_parameter('position_noise').value),
                                     float(self.get_parameter('angle_noise').value),

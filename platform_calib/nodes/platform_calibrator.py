@@ -42,7 +42,7 @@ from std_msgs.msg import Header
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, declare_paths, publish_calibration_in_force)
+    READ_ONLY, CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
@@ -89,7 +89,7 @@ class PlatformCalibratorNode(Node):
         self.declare_parameter('max_poses', 60)
         self.declare_parameter('step', 4)
         self.declare_parameter('method', 'exact')
-        self.declare_parameter('nominal_geometry', '')     # YAML; empty: the built-in
+        self.declare_parameter('nominal_geometry', '', READ_ONLY)     # YAML; empty: the built-in
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self._plan_from_parameters({})                      # a bad plan stops the start
