@@ -3,6 +3,8 @@ of each direction with +-2 s, and the bidirectional mean, as measured and after
 compensation on one scale."""
 from __future__ import annotations
 
+import textwrap
+
 import matplotlib
 
 matplotlib.use('Agg')
@@ -31,6 +33,8 @@ def _panel(ax, figures: dict, title: str) -> None:
     bi = figures['bidirectional']
     shown = ', '.join(f'{name} {bi[name] * 1e6:.2f}' for name in ('A', 'B', 'E', 'M', 'R')
                       if bi.get(name) is not None)
+    # Wrapped to the panel's width: a long "after" label ran off the figure's edge.
+    title = '\n'.join(textwrap.wrap(title, 60))
     ax.set_title(f'{title}\n{shown} um' if shown else title, fontsize=10)
     ax.set_xlabel('target position (mm)')
     ax.set_ylabel('deviation, measured - target (um)')
