@@ -171,7 +171,9 @@ def plot(path: Path, one: dict) -> None:
         ax.set_xlabel('x (mm)')
         ax.set_ylabel('y (mm)')
         ax.set_aspect('equal')
-    fig.tight_layout(rect=(0, 0.12, 1, 1))     # room for the arrow keys below the axes
+    # Room for the arrow keys below the axes and the titles above (equal-aspect axes grow
+    # to the top of their box, and a title there was cut off).
+    fig.tight_layout(rect=(0, 0.12, 1, 0.93))
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
