@@ -7,7 +7,6 @@ import numpy as np
 
 from calib_core.effects import CATEGORICAL_COVARIATES, LIBRARY
 from calib_core.closed_loop.fitting import Fit, heldout_errors, without_effects
-from calib_core.closed_loop.model import is_reference
 
 SEEN_NOT_ADDED = 'seen, not added'
 """The ``kind`` of an ``unexplained`` entry for an effect the selection chose on some
@@ -51,25 +50,6 @@ def matching_candidate(item: dict, machine) -> tuple[str, str] | None:
         if effect in machine.candidates:
             return effect, channel
     return None
-
-
-def covariate_columns(machine, context: dict) -> dict:
-    """A context flattened into named scalar covariates per row (``position_leg2``)."""
-    out = {}
-    for key, value in context.items():
-        if is_reference(key) or isinstance(value, dict):
-            continue
-        value = np.asarray(value, float)
-        if value.ndim > 2:      # a per-row matrix (a rotor's housing frame), not a covariate
-            continue
-        if value.ndim == 1:
-            out[key] = value
-        elif key == 'normalized':
-            out['image_radius'] = np.linalg.norm(value, axis=1)
-        else:
-            for c, name in enumerate(machine.channels):
-                out[f'{key}_{name}'] = value[:, c]
-    return out
 
 
 MIN_HELDOUT_GAIN = 0.01

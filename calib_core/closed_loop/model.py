@@ -148,6 +148,25 @@ def is_reference(key: str) -> bool:
     return key.endswith(('_ref', '_start'))
 
 
+def covariate_columns(machine, context: dict) -> dict:
+    """A context flattened into named scalar covariates per row (``position_leg2``)."""
+    out = {}
+    for key, value in context.items():
+        if is_reference(key) or isinstance(value, dict):
+            continue
+        value = np.asarray(value, float)
+        if value.ndim > 2:      # a per-row matrix (a rotor's housing frame), not a covariate
+            continue
+        if value.ndim == 1:
+            out[key] = value
+        elif key == 'normalized':
+            out['image_radius'] = np.linalg.norm(value, axis=1)
+        else:
+            for c, name in enumerate(machine.channels):
+                out[f'{key}_{name}'] = value[:, c]
+    return out
+
+
 def scalar_covariates(covariates: dict) -> dict:
     """The per-row covariates of a dataset the effects use: time (s), temperature (K),
     sequence (approach number, 0 first) and the categorical columns (block, setup, run,

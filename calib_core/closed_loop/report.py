@@ -10,9 +10,10 @@ import numpy as np
 from calib_core.effects import OF_THE_RUN
 from calib_core.effects.periodic import alias_periods
 from calib_core.loop_structure import lack_of_fit, likely_causes, structure_tests
-from calib_core.closed_loop.evidence import SEEN_NOT_ADDED, covariate_columns
+from calib_core.closed_loop.evidence import SEEN_NOT_ADDED
 from calib_core.closed_loop.fitting import (
     Fit, error_summary, evaluate, fit_model, residuals_by_channel)
+from calib_core.closed_loop.model import covariate_columns
 from calib_core.closed_loop.outliers import find_outliers
 
 
@@ -98,9 +99,10 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         item = evidence[prepared.effect.name]
         entry = prepared.describe(final.values[k], std[final.effect_slice(k)])
         undetermined = getattr(prepared.effect, 'undetermined', None)
-        if undetermined and undetermined(entry['parameters'], entry['std_devs'], prepared.notes):
-            entry['parameters_not_determined'] = undetermined(
-                entry['parameters'], entry['std_devs'], prepared.notes)
+        vague = undetermined and undetermined(entry['parameters'], entry['std_devs'],
+                                              prepared.notes)
+        if vague:
+            entry['parameters_not_determined'] = vague
         entry['round'] = item['round']
         if 'grid_spacing_m' in entry:
             entry['aliases_m'] = {channel: alias_periods(entry['parameters'][f'period_{channel}'], step)

@@ -18,12 +18,13 @@ from calib_core.closed_loop.fitting import (
     residuals_by_channel, without_effects)
 from calib_core.loop_structure import structure_tests
 from calib_core.closed_loop.evidence import (
-    MIN_HELDOUT_GAIN, covariate_columns, describe_gain, earns_its_place, matching_candidate, pooled_gain,
+    MIN_HELDOUT_GAIN, describe_gain, earns_its_place, matching_candidate, pooled_gain,
     seen_not_added)
 from calib_core.closed_loop.identifiability import (
     minimum_residuals, pure_error_variance, undetermined_reason)
 from calib_core.closed_loop.linearised import LinearisedModel
-from calib_core.closed_loop.model import LoopConfig, MachineModel, prepare_effect
+from calib_core.closed_loop.model import (
+    LoopConfig, MachineModel, covariate_columns, prepare_effect)
 from calib_core.closed_loop.report import LoopResult, loop_result
 
 
@@ -330,9 +331,10 @@ def _simplify(machine, splits: list, current: Fit, config: LoopConfig, evidence:
                 continue    # not simpler: no joint fit needed to know
             entry = _try_candidate(machine, reduced, alternative, primary.train, context,
                                    residuals, config.alpha)
-            if (isinstance(entry, str) or entry['extra'] >= size
-                    or not entry['p_value_raw'] < config.alpha
-                    or undetermined_reason(machine, reduced, entry, primary.train)):
+            # The selection's own rules (no minimum size: it stands in for an effect
+            # that passed it).
+            if (isinstance(entry, str) or entry['extra'] >= size or _judge(
+                    machine, reduced, entry, primary.train, 0.0, config.alpha, 1) != 'candidate'):
                 continue
             fit = entry['fit']
             pooled = pooled or heldout_errors(machine, splits, current.effects,
@@ -391,12 +393,13 @@ def _second_look(machine, splits: list, final: Fit, config: LoopConfig, min_effe
             if isinstance(entry, str):
                 notes[key] = f'{name} on {channel} not tested: {entry}'
                 continue
-            if not entry['p_value_raw'] < config.alpha:
-                why = f'not significant jointly with the model (p = {entry["p_value_raw"]:.2g})'
-            else:
-                why = undetermined_reason(machine, final, entry, primary.train)
-            if why is None and entry['size'] < min_effect:
-                why = f'explains {entry["size"]:.3g} RMS, below the minimum effect size'
+            # The selection's own rules, the effect's own searches its only trials.
+            status = _judge(machine, final, entry, primary.train, min_effect, config.alpha, 1)
+            why = {'candidate': None, 'not identifiable': entry.get('reason'),
+                   'not significant': f'not significant jointly with the model '
+                                      f'(p = {entry["p_value"]:.2g})',
+                   'below the minimum effect size': f'explains {entry["size"]:.3g} RMS, below '
+                                                    'the minimum effect size'}[status]
             if why is None:
                 gain = pooled_gain(machine, splits, entry['fit'], name)
                 if not earns_its_place(gain):
