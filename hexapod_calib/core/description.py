@@ -33,12 +33,13 @@ from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
 from hexapod_calib.core.geometry import HexapodGeometry, as_poses
 from hexapod_calib.core.kinematics import inverse_kinematics
+from hexapod_calib.core.planning import ACTUATOR_NOISE, ANGLE_NOISE, POSITION_NOISE
 from hexapod_calib.core.procedure import HexapodPlan
 
 KEYS = ('kind', 'geometry', 'instrument', 'actuators', 'repeatability_m', 'workspace')
 WORKSPACE_KEYS = ('home', 'translation_m', 'rotation_rad', 'stroke_m')
-SHIPPED_INSTRUMENT = Instrument('the shipped simulated pose sensor', 0.6e-6, 6e-6)
-SHIPPED_ACTUATOR_SIGMA_M = 0.5e-6
+SHIPPED_INSTRUMENT = Instrument('the shipped simulated pose sensor', POSITION_NOISE, ANGLE_NOISE)
+SHIPPED_ACTUATOR_SIGMA_M = ACTUATOR_NOISE
 PARAMETER_BOUND_SHARE = 0.25
 """A joint centre or leg offset more than this share of the base radius from the nominal
 is another machine (or another nominal): 102 mm on a 0.41 m base, 50 mm on a 0.2 m one."""

@@ -13,8 +13,12 @@ from dispenser_calib.core.planning import (
 from hexapod_calib.core.geometry import POSE_NAMES, nominal_geometry as hexapod_nominal
 from hexapod_calib.core.description import read_description as read_hexapod_description
 from hexapod_calib.core.geometry import read_geometry as read_hexapod_geometry
+from hexapod_calib.core.planning import ACTUATOR_NOISE as HEXAPOD_ACTUATOR_NOISE
+from hexapod_calib.core.planning import ANGLE_NOISE as HEXAPOD_ANGLE_NOISE
+from hexapod_calib.core.planning import POSITION_NOISE as HEXAPOD_POSITION_NOISE
 from hexapod_calib.core.planning import predict as predict_hexapod
 from hexapod_calib.core.procedure import HexapodPlan
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import check_writable, parse_size, ranged, write_json
 from machine_alignment.cli.platform import read_targets
 from platform_calib.core.geometry import nominal_geometry, read_geometry
@@ -52,10 +56,6 @@ def cmd_plan_platform(args) -> int:
     return 0
 
 
-HEXAPOD_NOISE_DEFAULTS = (('position_noise', 0.6e-6), ('angle_noise', 6e-6),
-                          ('actuator_noise', 0.5e-6))
-
-
 def cmd_plan_hexapod(args) -> int:
     check_writable(args.out, '--out')
     if args.geometry and args.description:
@@ -66,16 +66,16 @@ def cmd_plan_hexapod(args) -> int:
     if description:
         nominal, plan = description.geometry, description.plan(**settings)
         declared = description.measurement
-        noise = [declared.instrument.position_sigma_m, declared.instrument.angle_sigma_rad,
-                 declared.actuators.sigma_m]
-        # an option given on the command line overrides the declared figure
-        for k, (name, default) in enumerate(HEXAPOD_NOISE_DEFAULTS):
-            if getattr(args, name) != default:
-                noise[k] = getattr(args, name)
-        args.position_noise, args.angle_noise, args.actuator_noise = noise
+        noise = (declared.instrument.position_sigma_m, declared.instrument.angle_sigma_rad,
+                 declared.actuators.sigma_m)
     else:
         nominal = read_hexapod_geometry(args.geometry) if args.geometry else hexapod_nominal()
         plan = HexapodPlan(**settings)
+        noise = (HEXAPOD_POSITION_NOISE, HEXAPOD_ANGLE_NOISE, HEXAPOD_ACTUATOR_NOISE)
+    # An option given on the command line overrides the description's or built-in figure.
+    args.position_noise, args.angle_noise, args.actuator_noise = (
+        given if given is not None else figure for given, figure in zip(
+            (args.position_noise, args.angle_noise, args.actuator_noise), noise))
     poses, working = plan.poses(nominal)
     prediction = predict_hexapod(nominal, poses, working, args.position_noise,
                                  args.angle_noise, args.actuator_noise)
@@ -166,8 +166,7 @@ def cmd_plan_stage(args) -> int:
 
 
 def add_parser(sub) -> None:
-    plan = sub.add_parser('plan', help='choose the measurements for a calibration and '
-                                       'predict their result before anything moves')
+    plan = sub.add_parser('plan', help=command_help('plan'))
     what = plan.add_subparsers(dest='what', required=True)
     platform = what.add_parser('platform', help='poses for the platform\'s identification')
     platform.add_argument('--poses', type=ranged(int, 6, 10000), required=True,
@@ -198,17 +197,13 @@ def add_parser(sub) -> None:
                                                'instrument noise plan the poses')
     hexapod.add_argument('--candidates', type=ranged(int, 20, 10000), default=400,
                          help='random candidate poses inside the strokes to choose from')
-    noise = dict(HEXAPOD_NOISE_DEFAULTS)
     hexapod.add_argument('--position-noise', type=ranged(float, 0.0, 0.01, 'm'),
-                         default=noise['position_noise'],
                          help='pose sensor, m per axis (1 sigma; default the description\'s '
                               'or 0.6 um)')
     hexapod.add_argument('--angle-noise', type=ranged(float, 0.0, 0.1, 'rad'),
-                         default=noise['angle_noise'],
                          help='pose sensor, rad per axis (1 sigma; default the description\'s '
                               'or 6 urad)')
     hexapod.add_argument('--actuator-noise', type=ranged(float, 0.0, 1e-3, 'm'),
-                         default=noise['actuator_noise'],
                          help='how far a leg stops from where it is sent, m (1 sigma; default '
                               'the description\'s or 0.5 um)')
     hexapod.add_argument('--criterion', choices=('greedy', 'I', 'D'), default='greedy',
