@@ -10,7 +10,7 @@ from calib_core.axis import AxisModel
 from calib_core.closed_loop import LoopConfig, analyze, format_report
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from machine_alignment.bench.user_machines import (
-    LEAD_RATIO, NOMINAL, growing_leg, hexapod_day, iso_run)
+    LEAD_RATIO, NOMINAL, growing_leg, hexapod_day, independent_fit, iso_run)
 
 
 def _legs(effect):
@@ -112,27 +112,6 @@ def test_a_bowed_gantry_gets_a_smooth_map_and_its_compensation_grid(tmp_path):
         -3e-6, abs=0.3e-6)
 
 
-def _independent_fit(data, with_scale: bool):
-    """A least-squares fit of the hexapod written here, not the suite's: joints (36),
-    leg offsets (6) and, ``with_scale``, a scale per leg (6) to the leg lengths (m)."""
-    from scipy.optimize import least_squares
-    from machine_alignment.bench.user_machines import leg_vectors
-
-    def unpack(x):
-        base, platform = x[:18].reshape(6, 3), x[18:36].reshape(6, 3)
-        scale = x[42:48] if with_scale else np.zeros(6)
-        return base, platform, x[36:42], scale
-
-    def residuals(x, measured, legs):
-        base, platform, offset, scale = unpack(x)
-        return (np.linalg.norm(leg_vectors(base, platform, measured), axis=2) - offset
-                - legs * (1 + scale)).ravel()
-    start = np.concatenate([NOMINAL.base_joints.ravel(), NOMINAL.platform_joints.ravel(),
-                            NOMINAL.leg_length_offsets] + ([np.zeros(6)] if with_scale else []))
-    solution = least_squares(residuals, start, args=(data.measured, data.leg_lengths))
-    return solution.x, residuals
-
-
 def test_the_lead_error_found_holds_on_a_check_day_with_the_legs_homed_again():
     """Calibration day (80 poses) and a check day (60 other poses, every leg homed again,
     its reading shifted by up to 3 mm): with only the leg offsets fitted again on the check
@@ -153,7 +132,7 @@ def test_the_lead_error_found_holds_on_a_check_day_with_the_legs_homed_again():
     loop = rehomed_rms(on_check)
     floors = {}
     for with_scale in (True, False):
-        x, residuals = _independent_fit(calibration, with_scale)
+        x, residuals = independent_fit(calibration, with_scale)
         floors[with_scale] = rehomed_rms(residuals(x, check.measured, check.leg_lengths))
     assert loop < 1.1 * floors[True], (loop, floors)
     assert floors[False] > 1.2 * floors[True], floors

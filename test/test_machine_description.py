@@ -13,7 +13,8 @@ import yaml
 from calib_core.errors import InvalidInputError
 from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.description import read_description
-from machine_alignment.bench.user_machines import LEAD_NOMINAL, NOMINAL, hexapod_day
+from machine_alignment.bench.user_machines import (
+    LEAD_NOMINAL, NOMINAL, hexapod_day, independent_fit)
 from machine_alignment.cli import main as cli_main
 
 EXAMPLE = (Path(__file__).resolve().parents[1] / 'hexapod_calib' / 'descriptions'
@@ -26,17 +27,9 @@ def _csv(path, data, leg_factor):
 
 
 def _independent_rms(data) -> float:
-    """Leg-length residual RMS (m) of a 42-parameter least-squares fit written here."""
-    from scipy.optimize import least_squares
-    from machine_alignment.bench.user_machines import leg_vectors
-
-    def residuals(x):
-        base, platform = x[:18].reshape(6, 3), x[18:36].reshape(6, 3)
-        return (np.linalg.norm(leg_vectors(base, platform, data.measured), axis=2)
-                - x[36:42] - data.leg_lengths).ravel()
-    start = np.concatenate([NOMINAL.base_joints.ravel(), NOMINAL.platform_joints.ravel(),
-                            NOMINAL.leg_length_offsets])
-    return float(np.sqrt(np.mean(least_squares(residuals, start).fun ** 2)))
+    """Leg-length residual RMS (m) of an independent 42-parameter least-squares fit."""
+    x, residuals = independent_fit(data, with_scale=False)
+    return float(np.sqrt(np.mean(residuals(x, data.measured, data.leg_lengths) ** 2)))
 
 
 def test_the_shipped_example_describes_the_motion_capture_hexapod():

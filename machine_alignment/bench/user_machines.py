@@ -100,3 +100,21 @@ def bow(command: np.ndarray, amplitude: float) -> np.ndarray:
     u = 2 * (command - command.min(axis=0)) / np.ptp(command, axis=0) - 1
     return np.column_stack([amplitude * u[:, 1] ** 2,
                             0.7 * amplitude * (u[:, 0] ** 2 - u[:, 0] * u[:, 1])])
+
+
+def independent_fit(data: PoseData, with_scale: bool):
+    """A least-squares fit of the hexapod written here, not the suite's identification:
+    joints (36), leg offsets (6) and, ``with_scale``, a scale per leg (6) to the leg
+    lengths (m), from :data:`NOMINAL`. Returns the solution and its residual function
+    ``residuals(x, measured poses, leg lengths)`` (m, flattened), to evaluate it on other
+    poses."""
+    from scipy.optimize import least_squares
+
+    def residuals(x, measured, legs):
+        base, platform = x[:18].reshape(6, 3), x[18:36].reshape(6, 3)
+        scale = x[42:48] if with_scale else np.zeros(6)
+        return (np.linalg.norm(leg_vectors(base, platform, measured), axis=2) - x[36:42]
+                - legs * (1 + scale)).ravel()
+    start = np.concatenate([NOMINAL.base_joints.ravel(), NOMINAL.platform_joints.ravel(),
+                            NOMINAL.leg_length_offsets] + ([np.zeros(6)] if with_scale else []))
+    return least_squares(residuals, start, args=(data.measured, data.leg_lengths)).x, residuals
