@@ -40,6 +40,12 @@ COMMANDS = {
 }
 
 
+def command_help(name: str) -> str:
+    """The one-line help of subcommand ``name``: the same in ``--help``'s list, whether the
+    subcommand's module was imported or not."""
+    return COMMANDS[name][2]
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser with ``command``'s subcommand in full (its module imported) and every
     other listed by name and help only; every subcommand in full with ``command`` 'all'."""

@@ -30,6 +30,7 @@ from hexapod_calib.core.description import read_description
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import (
     parse_size, progress, ranged, write_json_and_plot)
 from platform_calib.core.geometry import nominal_geometry as nominal_platform
@@ -221,9 +222,7 @@ def cmd_analyze_grid(args) -> int:
 
 
 def add_parser(sub) -> None:
-    analyze_parser = sub.add_parser('analyze', help='closed loop: find the effect a model '
-                                                    'lacks, refit, report before/after on '
-                                                    'held-out data')
+    analyze_parser = sub.add_parser('analyze', help=command_help('analyze'))
     machines = analyze_parser.add_subparsers(dest='machine', required=True)
     for name, help_text in FORMATS.items():
         machine = machines.add_parser(name, help=help_text)

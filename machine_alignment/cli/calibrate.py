@@ -13,6 +13,7 @@ from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_ge
 from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
+from machine_alignment.cli import command_help
 from machine_alignment.cli import camera, five_axis, grid, platform
 from machine_alignment.cli.common import print_pose_summary, quantity, ranged, read_run, write_json
 from printer_alignment.core.records import (
@@ -164,7 +165,7 @@ def _calibrate_hexapod_from_bag(args) -> int:
 
 
 def add_parser(sub) -> None:
-    calibrate = sub.add_parser('calibrate', help='run a calibration offline')
+    calibrate = sub.add_parser('calibrate', help=command_help('calibrate'))
     what = calibrate.add_subparsers(dest='what', required=True)
     camera.add_parser(what)
     grid.add_parser(what)

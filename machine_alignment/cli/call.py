@@ -15,6 +15,7 @@ from calib_core.controller_formats import write_gcode_path
 from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.part_files import write_path_poses
 from calib_core.nodes.services import OPERATOR_SERVICES
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import progress, quantity, ranged, write_json
 from machine_alignment.live import LiveClient
 
@@ -129,9 +130,7 @@ def cmd_call(args) -> int:
 
 
 def add_parser(sub) -> None:
-    call = sub.add_parser('call', help='trigger a service on a running graph (calibrate, '
-                                       'analyze_residuals, align, confirm a plate '
-                                       'placement), showing its progress')
+    call = sub.add_parser('call', help=command_help('call'))
     call.add_argument('service', choices=sorted(SERVICES), metavar='SERVICE',
                       help='one of: ' + ', '.join(sorted(SERVICES)))
     call.add_argument('yaml', nargs='?', default='',

@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import progress, write_json
 from calib_core.marks import DetectorConfig, detect_marks
 
@@ -50,7 +51,7 @@ def cmd_detect(args) -> int:
 
 
 def add_parser(sub) -> None:
-    detect = sub.add_parser('detect', help='Mark centres (px) in image files')
+    detect = sub.add_parser('detect', help=command_help('detect'))
     detect.add_argument('images', nargs='+', help='image files (any format OpenCV reads)')
     detect.add_argument('--json', help='report to write (JSON, SI units)')
     detect.add_argument('--shape', default='any', choices=['any', 'circle', 'cross'],

@@ -20,6 +20,7 @@ from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
 from hexapod_calib.core.description import read_description
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.kinematics import forward_kinematics
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import print_pose_summary, ranged, write_json
 from machine_alignment.cli.platform import read_targets
 from platform_calib.core.compensation import mark_errors
@@ -172,7 +173,7 @@ def cmd_evaluate_grid(args) -> int:
 
 
 def add_parser(sub) -> None:
-    evaluate = sub.add_parser('evaluate', help='check a calibration on data not used to fit it')
+    evaluate = sub.add_parser('evaluate', help=command_help('evaluate'))
     evaluated = evaluate.add_subparsers(dest='what', required=True)
     hexapod_eval = evaluated.add_parser('hexapod', help='pose errors of a geometry on a pose file')
     hexapod_eval.add_argument('--data', required=True, help='pose CSV (as for calibrate hexapod)')

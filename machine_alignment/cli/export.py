@@ -24,6 +24,7 @@ from grid_calib.core.data import write_marks
 from hexapod_calib.core.calibration import PoseData as HexapodPoseData
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC as HEXAPOD_TOPIC, measurement_record)
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import bag_temperature_log, read_run
 from machine_alignment.cli.grid import grid_run
 from platform_calib.core.procedure import data_of
@@ -138,8 +139,7 @@ def cmd_export(args) -> int:
 
 
 def add_parser(sub) -> None:
-    parser = sub.add_parser('export', help='a recorded calibration run as the CSV that '
-                                           'analyze and calibrate --data read')
+    parser = sub.add_parser('export', help=command_help('export'))
     machines = parser.add_subparsers(dest='machine', required=True)
     for name, recorder in (('stage', 'stage_calibrator'), ('platform', 'platform_calibrator'),
                            ('hexapod', 'hexapod_calibrator'),

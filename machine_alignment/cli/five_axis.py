@@ -33,6 +33,7 @@ from dispenser_calib.core.procedure import (  # noqa: E402
 from dispenser_calib.sim.machine import (  # noqa: E402
     IMAGE_SIZE, PART_POSE, TRUE_TIP_OFFSET, observe, placed_part,
     points_in_view, true_model)
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import (  # noqa: E402
     parse_size, quantity, ranged, read_run, write_json, write_json_and_plot)
 
@@ -333,7 +334,7 @@ def add_calibrate_parser(what) -> None:
 
 
 def add_locate_parser(sub) -> None:
-    p = sub.add_parser('locate', help='a workpiece\'s features through the calibrated chain')
+    p = sub.add_parser('locate', help=command_help('locate'))
     p.add_argument('--calibration', required=True, help='five-axis calibration YAML')
     p.add_argument('--data', required=True, help='CSV: feature, x, y, z (m), a, c (rad), u, v (px)')
     p.add_argument('--cad', help='CSV name, x_m, y_m, z_m: the features in the part\'s frame '
@@ -355,8 +356,7 @@ def add_locate_parser(sub) -> None:
 
 
 def add_needle_parser(sub) -> None:
-    p = sub.add_parser('needle', help='the needle tip from dispensed test dots imaged through '
-                                      'the calibrated chain')
+    p = sub.add_parser('needle', help=command_help('needle'))
     p.add_argument('--calibration', required=True, help='five-axis calibration YAML')
     p.add_argument('--data', required=True,
                    help='CSV: feature (the dot), x, y, z (m), a, c (rad), u, v (px)')

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from calib_core.errors import CalibrationError
+from machine_alignment.cli import command_help
 from machine_alignment.demo import run_demo
 from machine_alignment.launcher import (
     Graph, describe_exit, five_axis_graph, grid_graph, hexapod_graph, platform_graph,
@@ -49,7 +50,7 @@ def cmd_demo(args) -> int:
 
 
 def add_parser(sub) -> None:
-    launch = sub.add_parser('launch', help='start a simulated machine graph from the venv')
+    launch = sub.add_parser('launch', help=command_help('launch'))
     launch.add_argument('graph', choices=['printer', 'stage', 'hexapod', 'grid', 'platform',
                                           'five-axis'],
                         help='printer: vision chain; stage: the printer with its stage; '
@@ -60,7 +61,6 @@ def add_parser(sub) -> None:
     launch.add_argument('--record-dir', default='runs', help='where runs are recorded (MCAP bags)')
     launch.set_defaults(func=cmd_launch)
 
-    demo = sub.add_parser('demo', help='calibrate every simulated machine end to end (printer, stage, hexapod, '
-                                       'grid plate, platform, five-axis dispenser)')
+    demo = sub.add_parser('demo', help=command_help('demo'))
     demo.add_argument('--out', default='out/demo', help="folder for the demo's calibrations, bags, logs and figures")
     demo.set_defaults(func=cmd_demo)

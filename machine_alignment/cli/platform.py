@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 from calib_core.datasets import write_columns  # noqa: E402
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
+from machine_alignment.cli import command_help
 from machine_alignment.cli.common import (  # noqa: E402
     quantity, ranged, read_run, write_json, write_json_and_plot)
 from platform_calib.core.compensation import (  # noqa: E402
@@ -212,7 +213,7 @@ def add_calibrate_parser(what) -> None:
 
 
 def add_compensate_parser(sub) -> None:
-    compensate_parser = sub.add_parser('compensate', help='feeds that put the marks on target')
+    compensate_parser = sub.add_parser('compensate', help=command_help('compensate'))
     what = compensate_parser.add_subparsers(dest='what', required=True)
     platform = what.add_parser('platform', help='the screen-registration platform')
     platform.add_argument('--geometry', required=True, help='identified geometry YAML')

@@ -14,6 +14,7 @@ from grid_calib.core.model import Grid
 from grid_calib.core.reference_map import write_reference
 from grid_calib.sim.plate import default_travel, measure_travel
 from hexapod_calib.core.geometry import nominal_geometry, write_geometry
+from machine_alignment.cli import command_help
 from machine_alignment.cli import five_axis, platform
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.procedure import HexapodPlan, measure_poses
@@ -140,7 +141,7 @@ def cmd_simulate_grid(args) -> int:
 
 
 def add_parser(sub) -> None:
-    simulate = sub.add_parser('simulate', help='write datasets measured on a simulated machine')
+    simulate = sub.add_parser('simulate', help=command_help('simulate'))
     simulated = simulate.add_subparsers(dest='what', required=True)
     platform.add_simulate_parser(simulated)
     five_axis.add_simulate_parser(simulated)
