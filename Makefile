@@ -5,7 +5,10 @@ SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := $(CURDIR)/.venv
 BIN := $(VENV)/bin
-MSG_SOURCES := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv) msg_defs/CMakeLists.txt msg_defs/package.xml
+# The interface packages, built in this order: tf2_msgs (the standard one, which the ROS 2
+# wheels lack), then alignment_msgs (this suite's).
+INTERFACES := tf2_msgs alignment_msgs
+MSG_SOURCES := $(wildcard interfaces/*/msg/*.msg interfaces/*/srv/*.srv interfaces/*/CMakeLists.txt interfaces/*/package.xml)
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 .PHONY: setup demo test bench mutants clean
@@ -25,13 +28,15 @@ $(VENV)/.stamp-deps: requirements.txt | $(BIN)/python
 	touch $@
 
 $(VENV)/.stamp-msgs: $(VENV)/.stamp-deps $(MSG_SOURCES)
-	rm -rf build/alignment_msgs && mkdir -p build/alignment_msgs
-	cd build/alignment_msgs && \
-	  export VIRTUAL_ENV=$(VENV) PATH=$(BIN):$$PATH AMENT_PREFIX_PATH=$(VENV) && \
-	  cmake $(CURDIR)/msg_defs -DCMAKE_PREFIX_PATH=$(VENV) -DCMAKE_INSTALL_PREFIX=$(VENV) \
-	    -DPython3_EXECUTABLE=$(BIN)/python -DBUILD_TESTING=OFF > cmake.log 2>&1 || { tail -n 40 cmake.log; exit 1; }; \
-	  $(MAKE) -j2 install > make.log 2>&1 || { tail -n 40 make.log; exit 1; }
-	$(BIN)/python -c "import alignment_msgs.msg, alignment_msgs.srv"
+	for package in $(INTERFACES); do \
+	  rm -rf build/$$package && mkdir -p build/$$package && \
+	  ( cd build/$$package && \
+	    export VIRTUAL_ENV=$(VENV) PATH=$(BIN):$$PATH AMENT_PREFIX_PATH=$(VENV) && \
+	    cmake $(CURDIR)/interfaces/$$package -DCMAKE_PREFIX_PATH=$(VENV) -DCMAKE_INSTALL_PREFIX=$(VENV) \
+	      -DPython3_EXECUTABLE=$(BIN)/python -DBUILD_TESTING=OFF > cmake.log 2>&1 || { tail -n 40 cmake.log; exit 1; }; \
+	    $(MAKE) -j2 install > make.log 2>&1 || { tail -n 40 make.log; exit 1; } ) || exit 1; \
+	done
+	$(BIN)/python -c "import alignment_msgs.msg, alignment_msgs.srv, tf2_msgs.msg"
 	touch $@
 
 $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg

@@ -33,8 +33,8 @@ _RECORD = struct.Struct('<HHQI')
 
 def _interface_dirs(package: str) -> list[Path]:
     """Where ``package``'s .msg/.srv files are: the source tree first, then install prefixes."""
-    here = Path(__file__).resolve().parents[1] / 'msg_defs'
-    candidates = [here] if package == 'alignment_msgs' else []
+    here = Path(__file__).resolve().parents[1] / 'interfaces' / package
+    candidates = [here]
     prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]
     candidates += [Path(p) / 'share' / package for p in prefixes if p]
     return [c for c in candidates if (c / 'msg').is_dir()]

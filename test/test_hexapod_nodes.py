@@ -171,3 +171,44 @@ def test_calibration_triggered_from_the_command_line(graph):
     refused = machine_align(DOMAIN, 'call', 'hexapod_calibrator/calibrate', 'speed: 3')
     assert refused.returncode == 2 and 'unknown plan keys' in refused.stderr
     assert all(running.alive())
+
+
+def test_calibrated_frames_on_tf_static_and_the_status_on_diagnostics(graph):
+    """After the calibrations above (the service's, the loop's applied one, the command
+    line's), a listener joining now gets on /tf_static the joints of the geometry in force,
+    equal to its file and not the first version's; /diagnostics names that version."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from tf2_msgs.msg import TFMessage
+
+    from calib_core.nodes.status import TF_STATIC_QOS
+    running, node, out = graph
+    frames, statuses = [], []
+    node.create_subscription(TFMessage, '/tf_static', frames.append, TF_STATIC_QOS)
+    node.create_subscription(DiagnosticArray, '/diagnostics', lambda array: statuses.extend(
+        s for s in array.status if s.name == 'hexapod_calibrator: calibration'), 10)
+    deadline = time.time() + 15
+    while (not frames or not statuses) and time.time() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.2)
+    assert frames and statuses
+    # What tf2_ros's buffer would hold: parent -> child translations from the messages.
+    joints = {t.child_frame_id: (t.header.frame_id, [t.transform.translation.x,
+                                                     t.transform.translation.y,
+                                                     t.transform.translation.z])
+              for message in frames for t in message.transforms}
+    current = read_geometry(out / 'calibration' / 'hexapod_geometry.yaml')
+    first = read_geometry(out / 'calibration' / 'hexapod_geometry.v1.yaml')
+    for i in range(6):
+        parent, position = joints[f'base_joint{i + 1}']
+        assert parent == 'base'
+        assert position == pytest.approx(list(current.base_joints[i]), abs=1e-12)
+        parent, position = joints[f'platform_joint{i + 1}']
+        assert parent == 'platform'
+        assert position == pytest.approx(list(current.platform_joints[i]), abs=1e-12)
+    assert np.max(np.abs(current.base_joints - first.base_joints)) > 1e-9
+    values = {kv.key: kv.value for kv in statuses[-1].values}
+    version = yaml.safe_load((out / 'calibration' / 'hexapod_geometry.yaml').read_text())['version']
+    assert values['version'] == str(version) and version >= 3
+    # The command-line test's last request was refused (unknown keys): shown, not an error.
+    assert statuses[-1].level != DiagnosticStatus.ERROR
+    assert 'unknown plan keys' in values['last_request_refused']
+    assert all(running.alive())

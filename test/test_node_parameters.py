@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.nodes.calibrator import PATH_DEFAULTS
+from calib_core.nodes.status import DEFAULT_MAX_AGE_DAYS
 
 ROOT = Path(__file__).resolve().parents[1]
 NODES_DOC = ROOT / 'docs' / 'nodes.md'
@@ -54,6 +55,9 @@ def _parameters(module: str) -> list[tuple[str, str, str]]:
         elif isinstance(call, ast.Call) and getattr(call.func, 'id', '') == 'declare_paths':
             rows += [(folder, repr(PATH_DEFAULTS[folder]), 'read-only: set at launch')
                      for folder in map(ast.literal_eval, call.args[1:])]
+        elif isinstance(call, ast.Call) and getattr(call.func, 'id', '') == 'CalibratorStatus':
+            rows.append(('max_calibration_age_days', f'{DEFAULT_MAX_AGE_DAYS:g}',
+                         'days; older: WARN on /diagnostics (calib_core.nodes.status)'))
     return rows
 
 

@@ -10,9 +10,9 @@ from std_msgs.msg import Header
 
 from calib_core.bags import BagWriter, decode_bag
 from calib_core.errors import InvalidInputError
+from calib_core.frames import planar
 from calib_core.nodes.scene import (
-    IMAGE_TYPE, POSE_TYPE, TF_TOPIC, TF_TYPE, compressed_image, planar, pose_stamped,
-    transforms_cdr)
+    IMAGE_TYPE, POSE_TYPE, TF_TOPIC, TF_TYPE, compressed_image, pose_stamped, transforms_cdr)
 from dispenser_calib.core.model import camera_points, nominal_frames, nominal_model
 
 

@@ -89,17 +89,21 @@ class AnalysisService:
         The loop a machine runs (:func:`general_loop` unless it has its own); ``report``
         has the keys :func:`analysis_as_message` reads, ``draw(png_path)`` writes the
         figure, ``result`` is what ``apply`` takes.
+    status : calib_core.nodes.status.CalibratorStatus, optional
+        Hears each report published (the loop's verdict on the node's diagnostics).
     """
 
     def __init__(self, node, kind: str, lock: threading.Lock,
                  collect: Callable[[dict], MachineModel],
                  apply: Callable[[object], str] | str,
                  topic: str, header: Callable, progress: Callable | None = None,
-                 options: tuple = (), loop: Callable = general_loop):
+                 options: tuple = (), loop: Callable = general_loop, status=None):
         self.node, self.kind, self.lock, self.header = node, kind, lock, header
         self.collect, self.apply, self.topic, self.progress = collect, apply, topic, progress
         self.options, self.loop = tuple(options), loop
         self.publisher = node.create_publisher(ResidualAnalysis, topic, LATCHED)
+        if status is not None:
+            self.publisher = status.tap(self.publisher, 'analysis')
 
     def __call__(self, request, response):
         if not self.lock.acquire(blocking=False):

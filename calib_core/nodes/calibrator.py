@@ -10,13 +10,17 @@ from typing import Callable
 import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 
-from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.errors import (
+    CalibrationError, InvalidInputError, MachineAlignmentError, OutOfTravelError)
 from calib_core.files import load_request_yaml
 from calib_core.nodes.conversions import failed_result
 from calib_core.storage import read_calibration
 
 
 READ_ONLY = ParameterDescriptor(read_only=True)
+# Failures that are the request's own (a malformed plan, a move outside the stroke),
+# refused before the machine is trusted with it: they say nothing about the machine.
+REFUSED_REQUESTS = (InvalidInputError, OutOfTravelError, TypeError, yaml.YAMLError)
 
 
 # The folder parameters and their defaults: calibration files, bags.
@@ -87,11 +91,13 @@ class CalibrationService:
     """Serves RunCalibration for one node: refuses a second request while one runs,
     parses ``plan_yaml`` into a mapping and hands it to ``run``, which returns the
     CalibrationResult message. A failed run is logged and answered with its reason; the
-    previous calibration stays in force."""
+    previous calibration stays in force. ``status`` (a
+    :class:`calib_core.nodes.status.CalibratorStatus`) hears how each run ended."""
 
     def __init__(self, node, kind: str, run: Callable[[dict], object], header: Callable,
-                 busy: threading.Lock | None = None):
+                 busy: threading.Lock | None = None, status=None):
         self.node, self.kind, self.run, self.header = node, kind, run, header
+        self.status = status
         # Services that drive the same machine share one lock.
         self._busy = busy or threading.Lock()
 
@@ -100,6 +106,7 @@ class CalibrationService:
             response.success, response.message = False, 'a calibration is already running'
             return response
         logger = self.node.get_logger()
+        refused = False     # the request itself was at fault, not the machine or the fit
         try:
             response.result = self.run(parse_plan(request.plan_yaml))
             response.success, response.message = True, 'ok'
@@ -108,12 +115,15 @@ class CalibrationService:
                          'stays in force')
             response.success, response.message = False, str(exc)
             response.result = failed_result(self.kind, self.header(), str(exc))
+            refused = isinstance(exc, REFUSED_REQUESTS)
         except Exception as exc:  # log a bug, answer, keep serving
             logger.error(f'internal error in {self.kind} calibration: {exc!r}')
             response.success, response.message = False, f'internal error: {exc!r}'
             response.result = failed_result(self.kind, self.header(), response.message)
         finally:
             self._busy.release()
+        if self.status is not None:
+            self.status.finished(response.success, response.message, refused)
         return response
 
     @property

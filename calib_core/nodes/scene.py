@@ -3,44 +3,35 @@ stop's machine frames as TF (``tf2_msgs/TFMessage`` on ``/tf``), a measured pose
 ``geometry_msgs/PoseStamped``, camera frames as ``sensor_msgs/CompressedImage``. Every
 calibrator records them beside its own messages; replays read only their own topics.
 
-The TF messages go to the bag only: the ROS 2 wheels this suite installs have no
-``tf2_msgs`` Python package, so they are serialised with rosbags' copy of the standard
-Jazzy definitions (the same CDR bytes rclpy would write) and not published live.
+``tf2_msgs`` is built by ``make setup`` from its standard Jazzy definition
+(interfaces/tf2_msgs): the ROS 2 wheels on PyPI lack it. Live, the calibrators publish
+their calibrated frames on ``/tf_static`` (:mod:`calib_core.nodes.status`).
 
 Frames are named per machine (``base``, ``platform``, ``camera``, ...); positions in m,
 rotations as unit quaternions (x, y, z, w, ROS order).
 """
 from __future__ import annotations
 
-from functools import lru_cache
-
 import cv2
 import numpy as np
-from geometry_msgs.msg import PoseStamped
-from rosbags.typesys import Stores, get_typestore
-from scipy.spatial.transform import Rotation
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseStamped, TransformStamped
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CompressedImage
+from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import InvalidInputError
+from calib_core.frames import Frame
 
 TF_TOPIC = '/tf'
+TF_STATIC_TOPIC = '/tf_static'
 TF_TYPE = 'tf2_msgs/msg/TFMessage'
 POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
 IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
 # JPEG at this quality keeps a 2448 x 2048 board frame near 0.5 MB; 'png' keeps every grey
 # level (2.3 MB a frame with 2 grey levels of noise) for detecting the dots again offline.
 JPEG_QUALITY = 90
-
-
-def quaternion(rotation_vector=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """The unit quaternion (x, y, z, w) of a rotation vector (3,) rad."""
-    return Rotation.from_rotvec(np.asarray(rotation_vector, dtype=float)).as_quat()
-
-
-def planar(x: float, y: float, theta: float) -> tuple[np.ndarray, np.ndarray]:
-    """(translation (3,) m, quaternion) of a pose in the plane: x, y (m), theta (rad,
-    counter-clockwise about +Z)."""
-    return np.array([x, y, 0.0]), quaternion((0.0, 0.0, theta))
 
 
 def pose_stamped(header, position, rotation) -> PoseStamped:
@@ -50,28 +41,22 @@ def pose_stamped(header, position, rotation) -> PoseStamped:
     return msg
 
 
-def transforms_cdr(stamp_ns: int, frames: list[tuple[str, str, np.ndarray, np.ndarray]]) -> bytes:
-    """A ``tf2_msgs/TFMessage`` (CDR bytes) stamped ``stamp_ns`` (ns since the epoch) of
-    (parent, child, translation (3,) m, quaternion (x, y, z, w)) per frame."""
-    types = _standard_types().types
-    time = types['builtin_interfaces/msg/Time'](sec=int(stamp_ns // 10**9),
-                                                  nanosec=int(stamp_ns % 10**9))
+def transform_message(stamp_ns: int, frames: list[Frame]) -> TFMessage:
+    """A ``tf2_msgs/TFMessage`` stamped ``stamp_ns`` (ns since the epoch) of (parent, child,
+    translation (3,) m, quaternion (x, y, z, w)) per frame."""
+    stamp = Time(sec=int(stamp_ns // 10**9), nanosec=int(stamp_ns % 10**9))
     out = []
     for parent, child, translation, rotation in frames:
-        translation, rotation = _checked(translation, rotation)
-        out.append(types['geometry_msgs/msg/TransformStamped'](
-            header=types['std_msgs/msg/Header'](stamp=time, frame_id=parent),
-            child_frame_id=child,
-            transform=types['geometry_msgs/msg/Transform'](
-                translation=types['geometry_msgs/msg/Vector3'](*translation),
-                rotation=types['geometry_msgs/msg/Quaternion'](*rotation))))
-    message = types[TF_TYPE](transforms=out)
-    return bytes(_standard_types().serialize_cdr(message, TF_TYPE))
+        message = TransformStamped(header=Header(stamp=stamp, frame_id=parent),
+                                   child_frame_id=child)
+        _fill(message.transform.translation, message.transform.rotation, translation, rotation)
+        out.append(message)
+    return TFMessage(transforms=out)
 
 
-@lru_cache(maxsize=1)
-def _standard_types():
-    return get_typestore(Stores.ROS2_JAZZY)
+def transforms_cdr(stamp_ns: int, frames: list[Frame]) -> bytes:
+    """:func:`transform_message` serialised (CDR bytes), as a bag stores it."""
+    return serialize_message(transform_message(stamp_ns, frames))
 
 
 def frame_of(pose_msg) -> tuple[np.ndarray, np.ndarray]:

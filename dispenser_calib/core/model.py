@@ -304,3 +304,16 @@ def nominal_frames(pose, working_distance: float = 0.120,
         ('a_cradle', 'table', np.array([0.0, 0.0, -a_height]),
          np.array([0.0, 0.0, np.sin(c / 2), np.cos(c / 2)])),
     ]
+
+
+def calibrated_frames(content: dict) -> list:
+    """The frames a five-axis calibration file's ``content`` fixes, for ``/tf_static``:
+    ``machine`` -> ``a_axis`` (origin on the calibrated A axis line, x along it) and
+    ``machine`` -> ``c_axis`` (origin on the C axis line, z along it); m. The camera's
+    position is not a parameter of this model (only its tilt and the affine map), so it
+    gets no frame."""
+    from calib_core.frames import turning
+    model = DispenserModel(np.array([content['parameters'][n] for n in NAMES]))
+    (a_direction, a_point), (c_direction, c_point) = model.a_axis, model.c_axis
+    return [('machine', 'a_axis', a_point, turning(A_NOMINAL, a_direction)),
+            ('machine', 'c_axis', c_point, turning(C_NOMINAL, c_direction))]

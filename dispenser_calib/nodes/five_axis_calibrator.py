@@ -65,13 +65,14 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import IMAGE_TYPE, compressed_image
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.storage import read_calibration, write_calibration
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from dispenser_calib.core.board_images import observe_frame
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.model import (
-    NAMES, DispenserModel, nominal_frames, nominal_model, parameter_unit)
+    NAMES, DispenserModel, calibrated_frames, nominal_frames, nominal_model, parameter_unit)
 from dispenser_calib.core.planning import stops_from_plan_keys
 from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, locate_workpiece, measure_needle,
@@ -145,10 +146,14 @@ class FiveAxisCalibratorNode(Node):
                                                   callback_group=group)
         self.dispensed_client = self.create_client(CaptureDots, 'five_axis/capture_dispensed',
                                                    callback_group=group)
-        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.status = CalibratorStatus(self, 'five_axis', calibrated_frames)
+        self.result_pub = self.status.tap(
+            self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED))
         self.observation_pub = self.create_publisher(FiveAxisObservation, OBSERVATIONS_TOPIC, 10)
-        self.progress_pub = self.create_publisher(Progress, '/five_axis_calibrator/progress', 10)
-        self.calibration_service = CalibrationService(self, 'five-axis', self._run, self._header)
+        self.progress_pub = self.status.tap(
+            self.create_publisher(Progress, '/five_axis_calibrator/progress', 10), 'progress')
+        self.calibration_service = CalibrationService(
+            self, 'five-axis', self._run, self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'five_axis_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
         self.create_service(AnalyzeResiduals, 'five_axis_calibrator/analyze_residuals',
@@ -156,7 +161,7 @@ class FiveAxisCalibratorNode(Node):
                                 self, 'five_axis', self.calibration_service.busy, self._sweep,
                                 'the five-axis calibration file has no place for rotary-axis '
                                 'effects yet', ANALYSIS_TOPIC, self._header, self._progress,
-                                options=SWEEP_KEYS),
+                                options=SWEEP_KEYS, status=self.status),
                             callback_group=group)
         self.create_service(LocateWorkpiece, 'five_axis_calibrator/locate', self.on_locate,
                             callback_group=group)

@@ -42,6 +42,7 @@ from std_srvs.srv import Trigger
 
 from calib_core.closed_loop import LoopConfig
 from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.frames import planar
 from calib_core.image_plane import NOMINAL_PIXEL_SIZE, CameraToPlate
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
@@ -49,8 +50,8 @@ from calib_core.nodes.calibrator import (
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
-from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE
 from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
@@ -143,16 +144,20 @@ class GridCalibratorNode(Node):
         self.move_client = self.create_client(MoveGantry, 'gantry/move', callback_group=group)
         self.detect_client = self.create_client(DetectMarks, 'mark_detector/detect',
                                                 callback_group=group)
-        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.status = CalibratorStatus(self, 'grid', None)
+        self.result_pub = self.status.tap(
+            self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED))
         self.placement_pub = self.create_publisher(GridPlacement, PLACEMENT_TOPIC, LATCHED)
         self.reading_pub = self.create_publisher(GridMarkReading, READINGS_TOPIC, 10)
-        self.progress_pub = self.create_publisher(Progress, '/grid_calibrator/progress', 10)
+        self.progress_pub = self.status.tap(
+            self.create_publisher(Progress, '/grid_calibrator/progress', 10), 'progress')
         self.create_subscription(CalibrationResult,
                                  self.get_parameter('vision_result_topic').value,
                                  self.on_vision_result, LATCHED, callback_group=group)
         self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
                                            group)
-        self.calibration_service = CalibrationService(self, 'grid', self._run, self._header)
+        self.calibration_service = CalibrationService(
+            self, 'grid', self._run, self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'grid_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
         self.create_service(Trigger, 'grid_calibrator/confirm_placement',
@@ -163,7 +168,8 @@ class GridCalibratorNode(Node):
                                 self, 'grid', self.calibration_service.busy, self._last_run,
                                 'the grid map has no place for the run\'s effects (a drift '
                                 'during the run is not a property of the stage)',
-                                ANALYSIS_TOPIC, self._header, loop=grid_loop),
+                                ANALYSIS_TOPIC, self._header, loop=grid_loop,
+                                status=self.status),
                             callback_group=group)
         publish_calibration_in_force(
             self, 'grid', self.result_pub,

@@ -150,3 +150,14 @@ def nominal_geometry(base_radius: float = 0.20, platform_radius: float = 0.10,
             base.append([base_radius * np.cos(phi_b), base_radius * np.sin(phi_b), 0.0])
             platform.append([platform_radius * np.cos(phi_p), platform_radius * np.sin(phi_p), 0.0])
     return HexapodGeometry(np.array(base), np.array(platform), np.zeros(LEGS))
+
+
+def calibrated_frames(content: dict) -> list:
+    """The frames a hexapod calibration file's ``content`` fixes, for ``/tf_static``:
+    ``base`` -> ``base_joint<i>`` and ``platform`` -> ``platform_joint<i>``, i = 1..6, each
+    joint centre (m) with the parent's axes."""
+    geometry = HexapodGeometry.from_dict(content, 'the calibration in force')
+    level = np.array([0.0, 0.0, 0.0, 1.0])
+    return ([('base', f'base_joint{i + 1}', p, level) for i, p in enumerate(geometry.base_joints)]
+            + [('platform', f'platform_joint{i + 1}', p, level)
+               for i, p in enumerate(geometry.platform_joints)])

@@ -32,12 +32,14 @@ from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import POSE_TYPE, frame_of
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.parameters import ParameterSet
 from calib_core.storage import write_calibration
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from hexapod_calib.core.calibration import PoseData, check_identification
-from hexapod_calib.core.geometry import HexapodGeometry, nominal_geometry, read_geometry
+from hexapod_calib.core.geometry import (
+    HexapodGeometry, calibrated_frames, nominal_geometry, read_geometry)
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.planning import predict
 from hexapod_calib.core.procedure import HexapodCalibration, HexapodPlan, run_hexapod_calibration
@@ -90,12 +92,15 @@ class HexapodCalibratorNode(Node):
         self.move_client = self.create_client(MoveHexapod, 'hexapod/move', callback_group=group)
         self.measure_client = self.create_client(MeasurePose, 'pose_sensor/measure',
                                                  callback_group=group)
-        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
-        self.progress_pub = self.create_publisher(Progress, '/hexapod_calibrator/progress', 10)
+        self.status = CalibratorStatus(self, CALIBRATION_NAME, calibrated_frames)
+        self.result_pub = self.status.tap(
+            self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED))
+        self.progress_pub = self.status.tap(
+            self.create_publisher(Progress, '/hexapod_calibrator/progress', 10), 'progress')
         self.measurement_pub = self.create_publisher(HexapodMeasurement, MEASUREMENTS_TOPIC, 10)
         calibration = CalibrationService(
             self, 'hexapod', lambda overrides: self._run(HexapodPlan.from_mapping(overrides)),
-            self._header)
+            self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', calibration,
                             callback_group=group)
         publish_calibration_in_force(self, CALIBRATION_NAME, self.result_pub,
@@ -103,7 +108,7 @@ class HexapodCalibratorNode(Node):
         self.create_service(AnalyzeResiduals, 'hexapod_calibrator/analyze_residuals',
                             AnalysisService(self, 'hexapod', calibration.busy,
                                             self._loop_model, self._apply_extended,
-                                            ANALYSIS_TOPIC, self._header),
+                                            ANALYSIS_TOPIC, self._header, status=self.status),
                             callback_group=group)
 
     def _header(self):

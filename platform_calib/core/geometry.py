@@ -129,3 +129,15 @@ def read_geometry(path) -> PlatformGeometry:
     nominal = nominal_geometry()
     return PlatformGeometry(nominal.base, nominal.alpha, nominal.length, nominal.joints,
                             branch, stroke).with_vector(np.array(values))
+
+
+def calibrated_frames(content: dict) -> list:
+    """The frames a platform calibration file's ``content`` fixes, for ``/tf_static``:
+    ``base`` -> ``feed<i>`` (the feed's zero A_i, x along its direction alpha_i) and
+    ``platform`` -> ``joint<i>`` (C_i), i = 1..3; m, rad."""
+    from calib_core.frames import planar
+    values = content['parameters']
+    return ([('base', f'feed{i}', *planar(values[f'x_A{i}'], values[f'y_A{i}'],
+                                          values[f'alpha{i}'])) for i in (1, 2, 3)]
+            + [('platform', f'joint{i}', *planar(values[f'x_C{i}'], values[f'y_C{i}'], 0.0))
+               for i in (1, 2, 3)])

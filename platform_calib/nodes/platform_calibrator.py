@@ -40,18 +40,20 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
     READ_ONLY, CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
-from calib_core.nodes.scene import POSE_TYPE, planar, pose_stamped
+from calib_core.nodes.scene import POSE_TYPE, pose_stamped
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from platform_calib.core.compensation import METHODS, composite_error, mark_positions
-from platform_calib.core.geometry import nominal_geometry, read_geometry
+from platform_calib.core.geometry import calibrated_frames, nominal_geometry, read_geometry
 from platform_calib.core.identification import check_identification
 from platform_calib.core.kinematics import inverse
 from platform_calib.core.loop_model import PlatformLoopModel
@@ -108,10 +110,14 @@ class PlatformCalibratorNode(Node):
                                                  callback_group=group)
         self.marks_client = self.create_client(MeasureMarks, 'platform/measure_marks',
                                                callback_group=group)
-        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
+        self.status = CalibratorStatus(self, 'platform', calibrated_frames)
+        self.result_pub = self.status.tap(
+            self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED))
         self.measurement_pub = self.create_publisher(PlatformMeasurement, MEASUREMENTS_TOPIC, 10)
-        self.progress_pub = self.create_publisher(Progress, '/platform_calibrator/progress', 10)
-        self.calibration_service = CalibrationService(self, 'platform', self._run, self._header)
+        self.progress_pub = self.status.tap(
+            self.create_publisher(Progress, '/platform_calibrator/progress', 10), 'progress')
+        self.calibration_service = CalibrationService(
+            self, 'platform', self._run, self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'platform_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
         self.create_service(RegisterScreen, 'platform_calibrator/register', self.on_register,
@@ -123,7 +129,7 @@ class PlatformCalibratorNode(Node):
                             AnalysisService(
                                 self, 'platform', self.calibration_service.busy,
                                 self._loop_model, 'the platform\'s compensation has no place '
-                                'for feed effects', ANALYSIS_TOPIC, self._header),
+                                'for feed effects', ANALYSIS_TOPIC, self._header, status=self.status),
                             callback_group=group)
 
     def _in_force(self, content, path):

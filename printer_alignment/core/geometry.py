@@ -58,3 +58,17 @@ class GantryModel:
         return {'lead_x': self.lead_x, 'lead_y': self.lead_y, 'axis_angle': self.axis_angle,
                 'non_orthogonality': self.non_orthogonality, 'offset_x': self.offset_x,
                 'offset_y': self.offset_y}
+
+
+def calibrated_frames(content: dict) -> list:
+    """The frames a vision calibration file's ``content`` fixes, for ``/tf_static`` (z up
+    from the plate): ``plate`` -> ``gantry`` (where the gantry's zero lies on the plate, x
+    along its X axis: offset and axis angle) and ``carriage`` -> ``camera`` (the image axes
+    against the carriage's, which move with the gantry's axes: camera angle less axis
+    angle); m, rad. The gantry's non-orthogonality and leads are not rigid frames and stay
+    in the calibration file; the moving ``gantry`` -> ``carriage`` comes from the machine."""
+    from calib_core.frames import planar
+    gantry, camera = content['gantry2plate'], content['camera2plate']
+    return [('plate', 'gantry', *planar(gantry['offset_x'], gantry['offset_y'],
+                                        gantry['axis_angle'])),
+            ('carriage', 'camera', *planar(0.0, 0.0, camera['angle'] - gantry['axis_angle']))]

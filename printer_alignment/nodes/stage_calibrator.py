@@ -34,14 +34,15 @@ from std_msgs.msg import Header
 
 from calib_core.checks import whole_number
 from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
-from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.planning import Adaptive
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE
@@ -90,11 +91,15 @@ class StageCalibratorNode(Node):
         self._observations = []              # the run's StageObservation messages
         self.locator = MarkLocator(self, group, self.timeout)
         self.move_client = self.create_client(MoveStage, 'stage/move', callback_group=group)
-        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
-        self.progress_pub = self.create_publisher(Progress, '/stage_calibrator/progress', 10)
+        self.status = CalibratorStatus(self, 'stage', None)
+        self.result_pub = self.status.tap(
+            self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED))
+        self.progress_pub = self.status.tap(
+            self.create_publisher(Progress, '/stage_calibrator/progress', 10), 'progress')
         self.observation_pub = self.create_publisher(StageObservation, OBSERVATIONS_TOPIC, 10)
         self.calibration_service = CalibrationService(
-            self, 'stage', lambda overrides: self._run(*self._plan(overrides)), self._header)
+            self, 'stage', lambda overrides: self._run(*self._plan(overrides)), self._header,
+            busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'stage_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
         self._data = self._content = None    # StageData and file content of the last run
@@ -106,7 +111,7 @@ class StageCalibratorNode(Node):
         self.create_service(AnalyzeResiduals, 'stage_calibrator/analyze_residuals',
                             AnalysisService(self, 'stage', self.calibration_service.busy,
                                             self._loop_model, self._apply_extended,
-                                            ANALYSIS_TOPIC, self._header),
+                                            ANALYSIS_TOPIC, self._header, status=self.status),
                             callback_group=group)
 
     def _plan(self, overrides: dict) -> tuple[StagePlan, dict | None, Adaptive | None]:

@@ -37,19 +37,20 @@ from std_msgs.msg import Header
 from calib_core.checks import MAX_POSITION_M, check_metres, positive_length, whole_number
 from calib_core.datasets import directions_from_order
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
+from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
-from calib_core.nodes.scene import planar
 from calib_core.nodes.spin import run_node
+from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.temperature import TEMPERATURE_TOPIC, stamp_seconds
 from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
-    NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate)
+    NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate, calibrated_frames)
 from printer_alignment.core.loop_models import GantryData, GantryLoopModel
 from printer_alignment.core.records import (
     INTRINSICS_RESULT_TOPIC as INTRINSICS_TOPIC, VISION_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC,
@@ -112,12 +113,15 @@ class VisionCalibratorNode(Node):
         self.move_client = self.create_client(MoveGantry, 'gantry/move', callback_group=group)
         self.detect_client = self.create_client(DetectMarks, 'mark_detector/detect',
                                                 callback_group=group)
-        self.result_pub = self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED)
-        self.progress_pub = self.create_publisher(Progress, '/vision_calibrator/progress', 10)
+        self.status = CalibratorStatus(self, 'vision', calibrated_frames)
+        self.result_pub = self.status.tap(
+            self.create_publisher(CalibrationResult, RESULT_TOPIC, LATCHED))
+        self.progress_pub = self.status.tap(
+            self.create_publisher(Progress, '/vision_calibrator/progress', 10), 'progress')
         self.observation_pub = self.create_publisher(VisionObservation, OBSERVATIONS_TOPIC, 10)
         self.calibration_service = CalibrationService(
             self, 'vision', lambda overrides: self._run(self._plan_from_parameters(overrides)),
-            self._header)
+            self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate',
                             self.calibration_service, callback_group=group)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_pixel_size',
@@ -125,7 +129,8 @@ class VisionCalibratorNode(Node):
         self.intrinsics_pub = self.create_publisher(CalibrationResult, INTRINSICS_TOPIC, LATCHED)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_intrinsics',
                             CalibrationService(self, 'intrinsics', self._run_intrinsics,
-                                               self._header, self.calibration_service.busy),
+                                               self._header, self.calibration_service.busy,
+                                               status=self.status),
                             callback_group=group)
         self._calibration = None   # (VisionCalibration, file content) of the last run
         self._publish_calibration_in_force()
@@ -133,7 +138,7 @@ class VisionCalibratorNode(Node):
                             AnalysisService(self, 'vision', self.calibration_service.busy,
                                             self._measure_for_analysis, self._apply_extended,
                                             ANALYSIS_TOPIC, self._header,
-                                            options=ANALYSIS_OPTIONS),
+                                            options=ANALYSIS_OPTIONS, status=self.status),
                             callback_group=group)
 
     def _publish_calibration_in_force(self):
