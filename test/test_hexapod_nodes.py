@@ -176,20 +176,25 @@ def test_calibration_triggered_from_the_command_line(graph):
 def test_calibrated_frames_on_tf_static_and_the_status_on_diagnostics(graph):
     """After the calibrations above (the service's, the loop's applied one, the command
     line's), a listener joining now gets on /tf_static the joints of the geometry in force,
-    equal to its file and not the first version's; /diagnostics names that version."""
+    equal to its file and not the first version's; /diagnostics names that version; the
+    simulator's platform moves on /tf."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from tf2_msgs.msg import TFMessage
 
     from calib_core.nodes.status import TF_STATIC_QOS
     running, node, out = graph
-    frames, statuses = [], []
+    frames, statuses, moving = [], [], []
     node.create_subscription(TFMessage, '/tf_static', frames.append, TF_STATIC_QOS)
+    node.create_subscription(TFMessage, '/tf', moving.append, 10)
     node.create_subscription(DiagnosticArray, '/diagnostics', lambda array: statuses.extend(
         s for s in array.status if s.name == 'hexapod_calibrator: calibration'), 10)
     deadline = time.time() + 15
-    while (not frames or not statuses) and time.time() < deadline:
+    while (not frames or not statuses or not moving) and time.time() < deadline:
         rclpy.spin_once(node, timeout_sec=0.2)
-    assert frames and statuses
+    assert frames and statuses and moving
+    # The simulator's platform moves under the same base frame.
+    assert [(t.header.frame_id, t.child_frame_id) for t in moving[-1].transforms] == [
+        ('base', 'platform')]
     # What tf2_ros's buffer would hold: parent -> child translations from the messages.
     joints = {t.child_frame_id: (t.header.frame_id, [t.transform.translation.x,
                                                      t.transform.translation.y,

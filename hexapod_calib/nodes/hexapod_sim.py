@@ -14,10 +14,12 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import READ_ONLY
 from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.scene import TF_TOPIC, frame_of, transform_message
 from calib_core.nodes.spin import run_node
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry
 from hexapod_calib.core.records import leg_lengths_from_message, pose_from_message
@@ -46,14 +48,20 @@ class HexapodSimNode(Node):
                               nominal, Stroke(*stroke), seed=int(self.get_parameter('noise_seed').value))
         self.legs_pub = self.create_publisher(JointState, '/hexapod/leg_lengths', 10)
         self.truth_pub = self.create_publisher(PoseStamped, '/sim/truth/hexapod_pose', LATCHED)
+        self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
         self.create_service(MoveHexapod, 'hexapod/move', self.on_move)
         self.create_timer(1.0 / rate, self.publish_legs)
         self._settled = self.get_clock().now().to_msg()
         self.publish_truth()
 
     def publish_legs(self):
-        self.legs_pub.publish(JointState(header=Header(stamp=self.get_clock().now().to_msg()),
+        now = self.get_clock().now()
+        self.legs_pub.publish(JointState(header=Header(stamp=now.to_msg()),
                                          name=LEG_NAMES, position=self.sim.leg_lengths.tolist()))
+        # The platform where the simulated machine is (a real controller would publish its
+        # forward kinematics), under the calibrator's base and platform joint frames.
+        self.tf_pub.publish(transform_message(now.nanoseconds, [
+            ('base', 'platform', *frame_of(pose_as_message(self.sim.pose)))]))
 
     def publish_truth(self):
         self.truth_pub.publish(PoseStamped(header=Header(stamp=self._settled, frame_id='base'),

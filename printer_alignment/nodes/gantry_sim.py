@@ -17,9 +17,12 @@ from geometry_msgs.msg import PointStamped
 from rclpy.node import Node
 from sensor_msgs.msg import Temperature
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.frames import planar
 from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
 from calib_core.schema import CELSIUS_ZERO_K
 from calib_core.temperature import TEMPERATURE_TOPIC
@@ -64,6 +67,7 @@ class GantrySimNode(Node):
         self.state_pub = self.create_publisher(GantryState, 'gantry/state', 10)
         self.truth_pub = self.create_publisher(PointStamped, 'sim/truth/camera_position', LATCHED)
         self.temperature_pub = self.create_publisher(Temperature, TEMPERATURE_TOPIC, 10)
+        self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
         self.create_service(MoveGantry, 'gantry/move', self.on_move)
         self.create_timer(1.0 / rate, self.publish_state)
         self.publish_state()
@@ -77,6 +81,10 @@ class GantrySimNode(Node):
             self.gantry.warming = kelvin - self.temperature.start
             self.state_pub.publish(gantry_state_as_message(
                 self.gantry.axis_position, self.gantry.revs, header))
+            # The carriage where the drive reads it (REP 105's moving frame under the
+            # calibrated plate -> gantry of the vision calibrator's /tf_static).
+            self.tf_pub.publish(transform_message(now.nanoseconds, [
+                ('gantry', 'carriage', *planar(*self.gantry.axis_position, 0.0))]))
             truth = self.gantry.true_camera_position()
         point = PointStamped(header=header)
         point.point.x, point.point.y = float(truth[0]), float(truth[1])
