@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 .PHONY: setup demo test bench mutants clean
 
-setup: $(VENV)/.stamp-compiled
+setup: $(VENV)/.stamp-compiled $(VENV)/.stamp-foxglove
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' || { \
@@ -50,6 +50,13 @@ $(VENV)/.stamp-compiled: $(VENV)/.stamp-package $(wildcard calib_core/marks/*.py
 	rm -f calib_core/marks/__pycache__/*.nbi calib_core/marks/__pycache__/*.nbc
 	$(BIN)/python -m calib_core.marks.precompile
 	touch $@
+
+# Foxglove's own decoders (npm), for the test that every bag opens in Foxglove. Without
+# Node.js the step says so and that test is skipped.
+$(VENV)/.stamp-foxglove: tools/foxglove/package.json tools/foxglove/package-lock.json | $(BIN)/python
+	@if command -v npm > /dev/null; then \
+	  cd tools/foxglove && npm ci --no-audit --no-fund --loglevel=error && touch $@; \
+	else echo "make: no npm: the Foxglove decoder test will be skipped (apt install nodejs npm)"; fi
 
 demo: setup
 	$(BIN)/machine-align demo --out out/demo

@@ -16,6 +16,7 @@ from sensor_msgs.msg import Image  # noqa: E402
 
 from machine_alignment.cli import main as cli_main  # noqa: E402
 from machine_alignment.launcher import printer_graph  # noqa: E402
+from foxglove import assert_foxglove_reads  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
 
 
@@ -151,3 +152,13 @@ def test_calibration_triggered_from_the_command_line(graph):
     assert 'vision calibration, version' in done.stdout and '7/7' in done.stdout
     assert 'pixel_size' in done.stdout
     assert all(running.alive())
+
+
+def test_every_bag_of_these_runs_decodes_in_foxglove(graph):
+    """What the runs above recorded (vision, vision_analysis) opens in Foxglove: its own
+    decoders read every channel and message as this suite's reader does."""
+    _, _, out = graph
+    bags = sorted(b for b in (out / 'runs').iterdir() if (b / 'metadata.yaml').exists())
+    seen = assert_foxglove_reads(bags)
+    kinds = {name.rsplit('_', 1)[0] for name in seen}
+    assert kinds >= {'vision_analysis', 'vision'}, kinds

@@ -17,6 +17,7 @@ from calib_core.storage import read_calibration  # noqa: E402
 from machine_alignment.launcher import platform_graph  # noqa: E402
 from platform_calib.core.geometry import nominal_geometry  # noqa: E402
 from platform_calib.core.planning import plan_platform  # noqa: E402
+from foxglove import assert_foxglove_reads  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
 
 
@@ -146,3 +147,13 @@ def test_the_calibrator_plans_its_own_poses_and_takes_a_planned_set(graph):
     assert rounds['stopped'] == 'target met' and rounds['rounds'][-1]['predicted_rms_m'] <= 10e-6
     assert len(rounds['rounds']) > 1
     assert all(running_graph.alive())
+
+
+def test_every_bag_of_these_runs_decodes_in_foxglove(graph):
+    """What the runs above recorded (platform, platform_analysis) opens in Foxglove: its own
+    decoders read every channel and message as this suite's reader does."""
+    _, _, out = graph
+    bags = sorted(b for b in (out / 'runs').iterdir() if (b / 'metadata.yaml').exists())
+    seen = assert_foxglove_reads(bags)
+    kinds = {name.rsplit('_', 1)[0] for name in seen}
+    assert kinds >= {'platform', 'platform_analysis'}, kinds

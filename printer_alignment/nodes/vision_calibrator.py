@@ -177,7 +177,7 @@ class VisionCalibratorNode(Node):
                                 marks=detected.marks)
         run.record(OBSERVATIONS_TOPIC, msg, self.observation_pub)
         # What a viewer shows: the camera where the gantry's encoders put it.
-        run.record_frames([('gantry', 'camera', *planar(msg.gantry.x, msg.gantry.y, 0.0))])
+        run.record_frames([('gantry', 'carriage', *planar(msg.gantry.x, msg.gantry.y, 0.0))])
         return observation_from_message(msg).uv
 
     def _move(self, x, y):
