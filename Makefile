@@ -5,8 +5,8 @@ SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := $(CURDIR)/.venv
 BIN := $(VENV)/bin
-# The interface packages, built in this order: tf2_msgs (the standard one, which the ROS 2
-# wheels lack), then alignment_msgs (this suite's).
+# The interface packages: tf2_msgs (the standard one, which the ROS 2 wheels lack) and
+# alignment_msgs (this suite's).
 INTERFACES := tf2_msgs alignment_msgs
 MSG_SOURCES := $(wildcard interfaces/*/msg/*.msg interfaces/*/srv/*.srv interfaces/*/CMakeLists.txt interfaces/*/package.xml)
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
@@ -27,15 +27,14 @@ $(VENV)/.stamp-deps: requirements.txt | $(BIN)/python
 	$(BIN)/pip install --quiet -r requirements.txt
 	touch $@
 
+# Built with colcon, as on a ROS install, into the venv (merged install).
 $(VENV)/.stamp-msgs: $(VENV)/.stamp-deps $(MSG_SOURCES)
-	for package in $(INTERFACES); do \
-	  rm -rf build/$$package && mkdir -p build/$$package && \
-	  ( cd build/$$package && \
-	    export VIRTUAL_ENV=$(VENV) PATH=$(BIN):$$PATH AMENT_PREFIX_PATH=$(VENV) && \
-	    cmake $(CURDIR)/interfaces/$$package -DCMAKE_PREFIX_PATH=$(VENV) -DCMAKE_INSTALL_PREFIX=$(VENV) \
-	      -DPython3_EXECUTABLE=$(BIN)/python -DBUILD_TESTING=OFF > cmake.log 2>&1 || { tail -n 40 cmake.log; exit 1; }; \
-	    $(MAKE) -j2 install > make.log 2>&1 || { tail -n 40 make.log; exit 1; } ) || exit 1; \
-	done
+	rm -rf $(addprefix build/,$(INTERFACES)) && mkdir -p build
+	export VIRTUAL_ENV=$(VENV) PATH=$(BIN):$$PATH AMENT_PREFIX_PATH=$(VENV) && \
+	  $(BIN)/colcon --log-base build/colcon-log build --paths $(addprefix interfaces/,$(INTERFACES)) \
+	    --build-base build --install-base $(VENV) --merge-install --parallel-workers 2 \
+	    --cmake-args -DPython3_EXECUTABLE=$(BIN)/python -DBUILD_TESTING=OFF -DCMAKE_PREFIX_PATH=$(VENV) \
+	    > build/colcon.log 2>&1 || { tail -n 60 build/colcon.log; exit 1; }
 	$(BIN)/python -c "import alignment_msgs.msg, alignment_msgs.srv, tf2_msgs.msg"
 	touch $@
 

@@ -36,6 +36,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
     package_data={'machine_alignment': ['fastdds_services.xml'],
                   'hexapod_calib': ['descriptions/*.yaml']},

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 from hexapod_calib.sim.hexapod import HexapodTruth
@@ -122,12 +123,31 @@ def five_axis_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
     ]
 
 
-def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment') -> list[dict]:
+def launch_arguments(nodes: list[NodeSpec], package: str = 'machine_alignment',
+                     config_dir: Path | None = None) -> list[dict]:
     """Keyword arguments of one ``launch_ros.actions.Node`` per node of a graph: the
-    executable is the module's console script (named after the module, see setup.py)."""
-    return [{'package': package, 'executable': node_name(spec), 'name': node_name(spec),
-             **({'parameters': [dict(spec.parameters)]} if spec.parameters else {})}
-            for spec in nodes]
+    executable is the module's console script (named after the module, see setup.py); its
+    parameters the node's file in ``config_dir`` (``<node>.yaml``, every default) where
+    given, then the graph's own values."""
+    out = []
+    for spec in nodes:
+        name = node_name(spec)
+        parameters = ([str(config_dir / f'{name}.yaml')] if config_dir else []) + (
+            [dict(spec.parameters)] if spec.parameters else [])
+        out.append({'package': package, 'executable': name, 'name': name,
+                    **({'parameters': parameters} if parameters else {})})
+    return out
+
+
+def config_dir(package: str = 'machine_alignment') -> Path:
+    """The nodes' parameter files: ``share/<package>/config`` of the install (a ROS
+    install), else the source tree's ``config/``."""
+    try:
+        from ament_index_python.packages import (
+            PackageNotFoundError, get_package_share_directory)
+        return Path(get_package_share_directory(package)) / 'config'
+    except (ImportError, OSError, PackageNotFoundError):     # OSError: no ament index set
+        return Path(__file__).resolve().parents[1] / 'config'
 
 
 # The folders a graph writes to, as launch arguments of every launch file.
@@ -146,8 +166,8 @@ def launch_description(graph: Callable[..., list[NodeSpec]]):
     declared = [DeclareLaunchArgument(name, default_value=default, description=meaning)
                 for name, (default, meaning) in FOLDER_ARGUMENTS.items()]
     nodes = graph(**{name: LaunchConfiguration(name) for name in FOLDER_ARGUMENTS})
-    return LaunchDescription(declared + [Node(**arguments)
-                                         for arguments in launch_arguments(nodes)])
+    return LaunchDescription(declared + [Node(**arguments) for arguments
+                                         in launch_arguments(nodes, config_dir=config_dir())])
 
 
 def _format(value) -> str:

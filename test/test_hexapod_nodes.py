@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-DOMAIN = str(100 + os.getpid() % 30)   # each DDS test module has its own band
+DOMAIN = str(100 + os.getpid() % 20)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402

@@ -92,3 +92,75 @@ def test_every_node_with_parameters_has_a_table():
         if _parameters(module):
             assert f'`{name}` (`{module}`)' in tables_text
     assert '| `output_dir` |' in tables_text and '| `design` | \'random\' |' in tables_text
+
+
+CONFIG = ROOT / 'config'
+
+
+def _values(module: str, computed: list | None = None) -> dict:
+    """Each declared parameter's default value, evaluated in the node module's namespace
+    (its constants), in declaration order; the path parameters and the calibrators' status
+    parameter as :func:`_parameters` lists them. An empty list has no type a parameter
+    file can state, and a default the node computes as it starts (a time stamp) none to
+    write: both are left out, the latter named in ``computed``."""
+    import importlib
+    namespace = vars(importlib.import_module(module))
+    path = ROOT / (module.replace('.', '/') + '.py')
+    values = {}
+    calls = sorted((c for c in ast.walk(ast.parse(path.read_text())) if isinstance(c, ast.Call)),
+                   key=lambda c: (c.lineno, c.col_offset))
+    for call in calls:
+        if getattr(call.func, 'attr', '') == 'declare_parameter' and len(call.args) > 1:
+            try:
+                value = eval(compile(ast.Expression(call.args[1]), str(path), 'eval'),
+                             {**namespace, 'np': np})
+            except NameError:       # a local of the node's __init__
+                (computed if computed is not None else []).append(
+                    ast.literal_eval(call.args[0]))
+                continue
+            value = value.tolist() if isinstance(value, np.ndarray) else value
+            value = list(value) if isinstance(value, tuple) else value
+            if value != []:
+                values[ast.literal_eval(call.args[0])] = value
+        elif getattr(call.func, 'id', '') == 'declare_paths':
+            values.update({folder: PATH_DEFAULTS[folder]
+                           for folder in map(ast.literal_eval, call.args[1:])})
+        elif getattr(call.func, 'id', '') == 'CalibratorStatus':
+            values['max_calibration_age_days'] = DEFAULT_MAX_AGE_DAYS
+    return values
+
+
+def parameter_file(name: str, module: str) -> str:
+    """config/<name>.yaml: the node's parameters with their defaults, in the format
+    ``--ros-args --params-file`` and launch files read."""
+    import yaml
+    computed = []
+    values = _values(module, computed)
+    header = (f'# {name} ({module}): every parameter with its default, as the code declares '
+              'it.\n# Edit a copy and pass it: ros2 run machine_alignment '
+              f'{name} --ros-args --params-file {name}.yaml\n# (written by '
+              'test/test_node_parameters.py; docs/nodes.md says what each one means)\n')
+    if computed:
+        header += f'# Left out, computed as the node starts: {", ".join(computed)}\n'
+    return header + yaml.safe_dump({name: {'ros__parameters': values}}, sort_keys=False,
+                                   default_flow_style=False)
+
+
+def test_every_node_has_a_parameter_file_with_the_code_defaults():
+    import yaml
+    for name, module in sorted(_nodes().items()):
+        path = CONFIG / f'{name}.yaml'
+        text = parameter_file(name, module)
+        if os.environ.get('MACHINE_ALIGN_WRITE_DOCS'):
+            CONFIG.mkdir(exist_ok=True)
+            path.write_text(text)
+        assert path.exists() and path.read_text() == text, \
+            f'{path} differs from the code: run MACHINE_ALIGN_WRITE_DOCS=1 pytest {__file__}'
+        # Read back (YAML, as rcl's parser types it), each value as the code declares it.
+        loaded = yaml.safe_load(path.read_text())[name]['ros__parameters']
+        declared = _values(module)
+        assert loaded == declared, name
+        for key, value in loaded.items():
+            first = value[0] if isinstance(value, list) else value
+            expected = declared[key][0] if isinstance(declared[key], list) else declared[key]
+            assert type(first) is type(expected), (name, key)

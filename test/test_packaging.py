@@ -81,7 +81,12 @@ def test_launch_file_matches_the_launcher_graph(name, launch_stand_ins):
     folders = {name: Configuration(name) for name in ('output_dir', 'record_dir')}
     graph = GRAPHS[name](**folders)
     assert [scripts[n['executable']] for n in nodes] == [spec.module for spec in graph]
-    assert [n.get('parameters', [{}])[0] for n in nodes] == [spec.parameters for spec in graph]
-    assert any(Configuration('output_dir') in n.get('parameters', [{}])[0].values()
+    # Each node's parameter file (every default) first, then the graph's own values.
+    assert [Path(n['parameters'][0]).name for n in nodes] == [
+        f'{n["executable"]}.yaml' for n in nodes]
+    assert all(Path(n['parameters'][0]).is_file() for n in nodes)
+    assert [(n['parameters'][1:] or [{}])[0] for n in nodes] == [spec.parameters
+                                                                  for spec in graph]
+    assert any(Configuration('output_dir') in (n['parameters'][1:] or [{}])[0].values()
                for n in nodes)
     assert all(n['package'] == 'machine_alignment' for n in nodes)
