@@ -157,6 +157,32 @@ def cut_run_count(path: str | os.PathLike, topic: str | None = None) -> int | No
     return sum(1 for recorded, *_ in _journal_records(journal) if topic in (None, recorded))
 
 
+def recover_cut_run(path: str | os.PathLike, out: str | os.PathLike | None = None) -> Path:
+    """Write a cut run's journal (bag directory ``path``) as a complete bag ``out``
+    (default ``<path>_recovered``), which any MCAP or rosbag2 tool opens (Foxglove, ``ros2
+    bag``). The cut run is left as it is. Returns ``out``.
+
+    Raises
+    ------
+    BagError
+        ``path`` is not a cut run, it holds no complete message, or ``out`` exists."""
+    path = Path(path)
+    journal = _journal(path)
+    if journal is None:
+        raise BagError(f'{path} is not a cut run (it has metadata.yaml, or no journal): '
+                       'nothing to recover')
+    records = list(_journal_records(journal))
+    if not records:
+        raise BagError(f'{path} was cut before its first message: nothing to recover')
+    out = Path(out) if out is not None else path.with_name(f'{path.name}_recovered')
+    with BagWriter(out) as bag:
+        for topic, msgtype, _, _ in records:
+            bag.add_topic(topic, msgtype)
+        for topic, _, stamp, cdr in records:
+            bag.write(topic, stamp, cdr)
+    return out
+
+
 def _require_bag(path: Path) -> None:
     """BagError unless ``path`` is a rosbag2 bag directory (or an existing bag file)."""
     if not path.exists():

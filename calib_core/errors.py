@@ -27,3 +27,8 @@ class CalibrationError(MachineAlignmentError):
 
 class BagError(MachineAlignmentError):
     """A bag is missing, truncated, or not in rosbag2 MCAP layout."""
+
+
+class RunCancelled(MachineAlignmentError):
+    """The operator cancelled the run: the machine stopped before its next move, what was
+    measured is in the run's bag, the calibration in force is unchanged."""

@@ -10,6 +10,7 @@ from typing import Callable
 import rclpy
 from alignment_msgs.msg import Progress
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
 
 from calib_core.errors import CalibrationError
 
@@ -26,7 +27,10 @@ class LiveClient:
         if domain is None:
             domain = int(os.environ.get('ROS_DOMAIN_ID', '0') or 0)
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain)
+        # No rclpy signal handler: it would shut the context down on Ctrl-C, and the call
+        # needs it to ask the node to cancel (Python's KeyboardInterrupt comes as usual).
+        rclpy.init(context=self.context, domain_id=domain,
+                   signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -41,13 +45,17 @@ class LiveClient:
 
     def call(self, service_type, service: str, request, progress_topic: str | None = None,
              on_progress: Callable | None = None, timeout: float = 600.0,
-             wait: float = 30.0):
+             wait: float = 30.0, cancel: str | None = None):
         """The response of ``service`` to ``request``; ``on_progress(step, total, message)``
         for every Progress message on ``progress_topic`` meanwhile.
 
         The server is watched while the call runs: a node that is stopped leaves the graph
         at once, one that is killed when DDS's liveliness lease runs out (20 s with Fast
         DDS's default), and the call then ends instead of waiting out ``timeout``.
+
+        Ctrl-C while it runs calls ``cancel`` (the node's std_srvs/Trigger cancel, where
+        given) and goes on waiting for the answer, which then says the run was cancelled; a
+        second Ctrl-C stops waiting.
 
         Raises
         ------
@@ -71,8 +79,14 @@ class LiveClient:
                 left = timeout - (time.monotonic() - start)
                 if left <= 0:
                     raise CalibrationError(f'{service} did not answer within {timeout:g} s')
-                self.executor.spin_until_future_complete(
-                    future, timeout_sec=min(self.WATCH_PERIOD, left))
+                try:
+                    self.executor.spin_until_future_complete(
+                        future, timeout_sec=min(self.WATCH_PERIOD, left))
+                except KeyboardInterrupt:
+                    if cancel is None:
+                        raise
+                    self._cancel(cancel)
+                    cancel = None           # a second Ctrl-C stops waiting
                 # Two misses in a row: one can be a discovery update in flight.
                 missed = 0 if future.done() or client.service_is_ready() else missed + 1
                 if missed >= 2:
@@ -85,3 +99,19 @@ class LiveClient:
             self.node.destroy_client(client)
             if subscription is not None:
                 self.node.destroy_subscription(subscription)
+
+    def _cancel(self, service: str) -> None:
+        """Ask ``service`` (a std_srvs/Trigger cancel) to stop the run, and say what it
+        answered."""
+        from std_srvs.srv import Trigger
+        client = self.node.create_client(Trigger, service)
+        try:
+            answer = None
+            if client.wait_for_service(timeout_sec=5.0):
+                future = client.call_async(Trigger.Request())
+                self.executor.spin_until_future_complete(future, timeout_sec=10.0)
+                answer = future.result()
+            print(f'cancel: {answer.message if answer else f"{service} did not answer"}; '
+                  'waiting for the run to stop (Ctrl-C again to stop waiting)', flush=True)
+        finally:
+            self.node.destroy_client(client)

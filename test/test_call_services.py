@@ -16,14 +16,24 @@ OPERATOR_PREFIXES = ('vision_calibrator/', 'stage_calibrator/', 'hexapod_calibra
 
 
 def _served() -> dict:
-    """service name -> (type name, node file) of every create_service call in a node."""
+    """service name -> (type name, node file) of every create_service call in a node, and
+    the ``<node>/cancel`` (Trigger) that a node's CalibratorStatus serves."""
     served = {}
     for path in ROOT.glob('*/nodes/*.py'):
+        name, status = None, False
         for node in ast.walk(ast.parse(path.read_text())):
             if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
                     and node.func.attr == 'create_service' and len(node.args) >= 2
                     and isinstance(node.args[1], ast.Constant)):
                 served[node.args[1].value] = (ast.unparse(node.args[0]), path.name)
+            elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                  and node.func.attr == '__init__' and node.args
+                  and isinstance(node.args[0], ast.Constant)):
+                name = node.args[0].value       # super().__init__('<node name>')
+            elif isinstance(node, ast.Call) and getattr(node.func, 'id', '') == 'CalibratorStatus':
+                status = True
+        if status:
+            served[f'{name}/cancel'] = ('Trigger', path.name)
     return served
 
 

@@ -220,6 +220,44 @@ def test_calibrated_frames_on_tf_static_and_the_status_on_diagnostics(graph):
     assert all(running.alive())
 
 
+def test_ctrl_c_in_call_cancels_the_run_safely(graph):
+    """Ctrl-C in `machine-align call` during a calibration: the calibrator stops before its
+    next move and answers why; the calibration in force is unchanged; the run's bag is
+    complete and holds the stops measured; the node serves the next request."""
+    import signal
+    import subprocess
+    import sys
+    from alignment_msgs.msg import HexapodMeasurement
+    running, node, out = graph
+    in_force = (out / 'calibration' / 'hexapod_geometry.yaml').read_bytes()
+    bags_before = set((out / 'runs').iterdir())
+    seen = []
+    node.create_subscription(HexapodMeasurement, '/hexapod_calibrator/measurements',
+                             seen.append, 100)
+    caller = subprocess.Popen(
+        [sys.executable, '-m', 'machine_alignment.cli', 'call', 'hexapod_calibrator/calibrate'],
+        env={**os.environ, 'ROS_DOMAIN_ID': DOMAIN}, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while len(seen) < 5 and time.time() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    assert len(seen) >= 5, 'the run did not start measuring'
+    caller.send_signal(signal.SIGINT)
+    stdout, stderr = caller.communicate(timeout=60)
+    assert caller.returncode == 2, (stdout, stderr)
+    assert 'the run stops before its next move' in stdout, stdout
+    assert 'cancelled by the operator' in stderr and 'Traceback' not in stderr, stderr
+    assert (out / 'calibration' / 'hexapod_geometry.yaml').read_bytes() == in_force
+    [bag] = set((out / 'runs').iterdir()) - bags_before
+    assert (bag / 'metadata.yaml').exists()
+    measured = [m for t, _, m in decode_bag(bag, ['/hexapod_calibrator/measurements'])]
+    assert len(seen) <= len(measured) < 2 * 20 + 2 * 10
+    # Nothing runs now: a cancel says so, and the node takes the next request.
+    done = machine_align(DOMAIN, 'call', 'hexapod_calibrator/cancel')
+    assert done.returncode == 2 and 'nothing is running' in done.stderr, done.stderr
+    assert all(running.alive())
+
+
 def test_every_bag_of_these_runs_decodes_in_foxglove(graph):
     """What the runs above recorded (hexapod, hexapod_analysis) opens in Foxglove: its own
     decoders read every channel and message as this suite's reader does."""

@@ -20,6 +20,7 @@ from calib_core.bags import cut_run_count, decode_bag  # noqa: E402
 from calib_core.nodes.qos import LATCHED  # noqa: E402
 from calib_core.storage import read_calibration, write_calibration  # noqa: E402
 from dds import running  # noqa: E402
+from foxglove import assert_foxglove_reads  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry  # noqa: E402
 from hexapod_calib.core.procedure import HexapodPlan  # noqa: E402
 from hexapod_calib.core.records import (  # noqa: E402
@@ -88,6 +89,14 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
     identification_stops = sum(phase.startswith('identify_') for phase, *_ in recovered)
     assert 0 < identification_stops <= plan.num_poses * plan.iterations
     assert f'{len(recovered)} recorded stops, {identification_stops} used' in replay, replay
+    # Written as a complete bag, the cut run opens in Foxglove with every message it held.
+    assert cli_main(['recover', str(bag)]) == 0
+    complete = bag.with_name(f'{bag.name}_recovered')
+    assert f'written to {complete}' in capsys.readouterr().out
+    seen_by_foxglove = assert_foxglove_reads([complete])[complete.name]
+    assert seen_by_foxglove[MEASUREMENTS_TOPIC] == len(recovered)
+    assert sum(seen_by_foxglove.values()) == cut_run_count(bag)
+    assert cli_main(['recover', str(complete)]) == 2      # complete already: refused
 
     # Restarted, the calibrator publishes the calibration in force (latched), and its
     # folders cannot be redirected by a peer on the domain.

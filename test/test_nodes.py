@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 DOMAIN = str(130 + os.getpid() % 30)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -13,7 +14,9 @@ import rclpy  # noqa: E402
 from alignment_msgs.srv import (  # noqa: E402
     AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration)
 from sensor_msgs.msg import Image  # noqa: E402
+from tf2_msgs.msg import TFMessage  # noqa: E402
 
+from calib_core.nodes.status import TF_STATIC_QOS  # noqa: E402
 from machine_alignment.cli import main as cli_main  # noqa: E402
 from machine_alignment.launcher import printer_graph  # noqa: E402
 from foxglove import assert_foxglove_reads  # noqa: E402
@@ -87,6 +90,24 @@ def test_calibration_service_and_concurrent_request(graph):
         refused = call(node, client, RunCalibration.Request(plan_yaml=plan), timeout=5.0)
         assert not refused.success and why in refused.message   # within 5 s: nothing moved
     assert not (out / 'calibration' / 'vision.v2.yaml').exists()  # previous stays in force
+    # The calibrated camera on /tf_static, as a TF listener joining now looks it up: the
+    # gantry's zero and axis on the plate, the image axes on the carriage, from the file.
+    frames = []
+    node.create_subscription(TFMessage, '/tf_static', frames.append, TF_STATIC_QOS)
+    deadline = time.time() + 10
+    while not frames and time.time() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.2)
+    assert frames
+    links = {(t.header.frame_id, t.child_frame_id): t.transform for t in frames[-1].transforms}
+    content = yaml.safe_load((out / 'calibration' / 'vision.yaml').read_text())
+    gantry, camera = content['gantry2plate'], content['camera2plate']
+    to_gantry, to_camera = links[('plate', 'gantry')], links[('carriage', 'camera')]
+    assert [to_gantry.translation.x, to_gantry.translation.y] == pytest.approx(
+        [gantry['offset_x'], gantry['offset_y']], abs=1e-12)
+    assert 2 * np.arctan2(to_gantry.rotation.z, to_gantry.rotation.w) == pytest.approx(
+        gantry['axis_angle'], abs=1e-12)
+    assert 2 * np.arctan2(to_camera.rotation.z, to_camera.rotation.w) == pytest.approx(
+        camera['angle'] - gantry['axis_angle'], abs=1e-12)
     assert all(running.alive())
 
 

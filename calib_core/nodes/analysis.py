@@ -90,7 +90,8 @@ class AnalysisService:
         has the keys :func:`analysis_as_message` reads, ``draw(png_path)`` writes the
         figure, ``result`` is what ``apply`` takes.
     status : calib_core.nodes.status.CalibratorStatus, optional
-        Hears each report published (the loop's verdict on the node's diagnostics).
+        Hears each report published (the loop's verdict on the node's diagnostics); its
+        cancel is reset as each analysis starts.
     """
 
     def __init__(self, node, kind: str, lock: threading.Lock,
@@ -102,6 +103,7 @@ class AnalysisService:
         self.collect, self.apply, self.topic, self.progress = collect, apply, topic, progress
         self.options, self.loop = tuple(options), loop
         self.publisher = node.create_publisher(ResidualAnalysis, topic, LATCHED)
+        self.status = status
         if status is not None:
             self.publisher = status.tap(self.publisher, 'analysis')
 
@@ -110,6 +112,8 @@ class AnalysisService:
             response.success, response.message = False, 'a calibration or analysis is running'
             return response
         logger = self.node.get_logger()
+        if self.status is not None:
+            self.status.started()
         try:
             if request.apply and isinstance(self.apply, str):
                 raise InvalidInputError(f'apply refused: {self.apply}; call again without '

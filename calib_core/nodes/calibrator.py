@@ -11,7 +11,7 @@ import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 
 from calib_core.errors import (
-    CalibrationError, InvalidInputError, MachineAlignmentError, OutOfTravelError)
+    CalibrationError, InvalidInputError, MachineAlignmentError, OutOfTravelError, RunCancelled)
 from calib_core.files import load_request_yaml
 from calib_core.nodes.conversions import failed_result
 from calib_core.storage import read_calibration
@@ -20,7 +20,9 @@ from calib_core.storage import read_calibration
 READ_ONLY = ParameterDescriptor(read_only=True)
 # Failures that are the request's own (a malformed plan, a move outside the stroke),
 # refused before the machine is trusted with it: they say nothing about the machine.
-REFUSED_REQUESTS = (InvalidInputError, OutOfTravelError, TypeError, yaml.YAMLError)
+# A run the operator cancelled says nothing about the machine either.
+REFUSED_REQUESTS = (InvalidInputError, OutOfTravelError, RunCancelled, TypeError,
+                    yaml.YAMLError)
 
 
 # The folder parameters and their defaults: calibration files, bags.
@@ -107,6 +109,8 @@ class CalibrationService:
             return response
         logger = self.node.get_logger()
         refused = False     # the request itself was at fault, not the machine or the fit
+        if self.status is not None:
+            self.status.started()
         try:
             response.result = self.run(parse_plan(request.plan_yaml))
             response.success, response.message = True, 'ok'

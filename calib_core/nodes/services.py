@@ -30,3 +30,7 @@ OPERATOR_SERVICES = {
     'five_axis_calibrator/analyze_residuals': ('AnalyzeResiduals', None, 'options'),
     'aligner/align': ('Align', None, 'model'),
 }
+# Every calibrator's cancel: its run (calibration or analysis) stops before the next move.
+OPERATOR_SERVICES.update({f'{node}/cancel': ('Trigger', None, 'nothing') for node in (
+    'vision_calibrator', 'stage_calibrator', 'hexapod_calibrator', 'grid_calibrator',
+    'platform_calibrator', 'five_axis_calibrator')})

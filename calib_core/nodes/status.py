@@ -15,8 +15,12 @@ the node is doing, and rates it:
 - OK otherwise.
 
 The node hands its latched result and analysis publishers to :meth:`CalibratorStatus.tap`
-and its calibration services a :meth:`CalibratorStatus.finished` callback; nothing else
-changes in the node.
+and its calibration services a :meth:`CalibratorStatus.finished` callback.
+
+It also serves ``<node>/cancel`` (std_srvs/Trigger): the run in progress stops at its next
+safe point, before the next move (the node calls :meth:`CalibratorStatus.check_cancelled`
+there), and answers its caller with the reason; the run's bag keeps what was measured and
+the calibration in force is unchanged.
 """
 from __future__ import annotations
 
@@ -26,10 +30,12 @@ from typing import Callable
 
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from calib_core.errors import MachineAlignmentError
+from calib_core.errors import MachineAlignmentError, RunCancelled
 from calib_core.frames import Frame
 from calib_core.nodes.scene import TF_STATIC_TOPIC, transform_message
 from calib_core.storage import read_calibration
@@ -87,7 +93,38 @@ class CalibratorStatus:
         self._frames_sent: list[Frame] = []
         self._tf_pub = node.create_publisher(TFMessage, TF_STATIC_TOPIC, TF_STATIC_QOS)
         self._diagnostics_pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+        self._cancel = threading.Event()
+        # Its own group: answered while the run's callback holds the node's.
+        node.create_service(Trigger, f'{node.get_name()}/cancel', self._on_cancel,
+                            callback_group=ReentrantCallbackGroup())
         node.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+
+    # -- cancelling a run -----------------------------------------------------------------
+
+    def started(self) -> None:
+        """A run (calibration or analysis) starts: an earlier cancel does not apply to it."""
+        self._cancel.clear()
+
+    def check_cancelled(self) -> None:
+        """Called before each move of a run: the safe point where a cancel stops it.
+
+        Raises
+        ------
+        RunCancelled
+            The operator called ``<node>/cancel`` since the run started."""
+        if self._cancel.is_set():
+            raise RunCancelled('cancelled by the operator before the next move; what was '
+                               'measured is in the run\'s bag, the calibration in force is '
+                               'unchanged')
+
+    def _on_cancel(self, request, response):
+        if not self.busy.locked():
+            response.success, response.message = False, 'nothing is running'
+            return response
+        self._cancel.set()
+        self.node.get_logger().warning('cancel requested: the run stops before its next move')
+        response.success, response.message = True, 'the run stops before its next move'
+        return response
 
     # -- what the node hands over ---------------------------------------------------------
 

@@ -195,6 +195,7 @@ class FiveAxisCalibratorNode(Node):
                 g('frames'), {k: overrides[k] for k in PLANNED_KEYS if k in overrides})
 
     def _move(self, pose):
+        self.status.check_cancelled()       # the safe point: before the next move
         reached = call_service(self.move_client, MoveFiveAxis.Request(
             pose=[float(v) for v in pose]), 'five-axis move', self.timeout)
         self.pose = np.array(reached.pose)

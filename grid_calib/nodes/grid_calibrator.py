@@ -30,6 +30,7 @@ reads its bag: every reading with its time in the run and, where logged, its tem
 leave-one-out, so ``holdout_fraction`` and ``seed`` are refused.
 """
 import threading
+import time
 
 import numpy as np
 from alignment_msgs.msg import (
@@ -66,6 +67,7 @@ PLAN_KEYS = ('half', 'pitch', 'columns', 'rows', 'first_centre', 'approach',
 ANALYSIS_TOPIC = '/grid_calibrator/analysis'
 # How long a run waits for the latched calibration of a vision calibrator it sees (s).
 VISION_WAIT_S = 2.0
+PLACEMENT_POLL_S = 0.5     # s: how often a wait for the operator looks for a cancel
 
 
 def grid_loop(data, config: LoopConfig, progress=None):
@@ -234,6 +236,7 @@ class GridCalibratorNode(Node):
                 'nominal pixel size and camera angle (no vision calibration received)')
 
     def _move(self, x, y) -> np.ndarray:
+        self.status.check_cancelled()       # the safe point: before the next move
         reached = call_service(self.move_client, MoveGantry.Request(x=float(x), y=float(y)),
                                'gantry move', self.timeout)
         self._gantry_state = GantryState(header=self._header(), x=reached.x, y=reached.y)
@@ -262,9 +265,12 @@ class GridCalibratorNode(Node):
             header=self._header(), region=int(region), placement=placement,
             centre_x=float(centre[0]), centre_y=float(centre[1]),
             marks_per_side=2 * plan.half + 1, pitch=plan.pitch), self.placement_pub)
-        if not self._placed.wait(self.placement_timeout):
-            raise CalibrationError(f'no confirmation of the {placement} placement of region '
-                                   f'{region} within {self.placement_timeout:.0f} s')
+        deadline = time.monotonic() + self.placement_timeout
+        while not self._placed.wait(PLACEMENT_POLL_S):     # a cancel ends the wait too
+            self.status.check_cancelled()
+            if time.monotonic() > deadline:
+                raise CalibrationError(f'no confirmation of the {placement} placement of '
+                                       f'region {region} within {self.placement_timeout:.0f} s')
 
     def _record_reading(self, run, region, placement, mark, reading) -> None:
         self.temperatures.record(run)

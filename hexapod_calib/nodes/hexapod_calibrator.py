@@ -128,6 +128,8 @@ class HexapodCalibratorNode(Node):
             'm', identification.get('num_poses', 0), path, content.get('version', 0))
 
     def _call(self, client, request, what):
+        if client is self.move_client:
+            self.status.check_cancelled()       # the safe point: before the next move
         return call_service(client, request, what, self.timeout)
 
     def _move_legs(self, lengths):

@@ -25,6 +25,8 @@ COMMANDS = {
                                    'their result before anything moves'),
     'export': ('export', 'add_parser', 'a recorded calibration run as the CSV that analyze '
                                        'and calibrate --data read'),
+    'recover': ('recover', 'add_parser', 'a run cut by a kill written as a complete bag for '
+                                         'Foxglove and ros2 bag'),
     'call': ('call', 'add_parser', 'trigger a service on a running graph (calibrate, '
                                    'analyze_residuals, align, confirm a plate placement), '
                                    'showing its progress'),
@@ -87,6 +89,8 @@ def main(argv=None) -> int:
         return _fail(f'{where}{exc.strerror or exc}')
     except cv2.error as exc:
         return _fail(f'OpenCV refused the input: {exc.err or exc}')
+    except KeyboardInterrupt:
+        return _fail('interrupted (Ctrl-C)', 130)
     except Exception as exc:  # a bug: still one line, with what to report
         return _fail(f'internal error {exc!r}; please report it with the command line', 3)
 

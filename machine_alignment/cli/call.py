@@ -95,9 +95,13 @@ def cmd_call(args) -> int:
         if not args.quiet and (step == total or step - shown['step'] >= max(total // 10, 1)):
             shown['step'] = step
             print(f'  {step}/{total} {message}', flush=True)
+    # Ctrl-C cancels a run that moves the machine: the node's cancel stops it safely.
+    node = args.service.split('/')[0]
+    cancel = (f'{node}/cancel' if f'{node}/cancel' in SERVICES and service_type is not Trigger
+              else None)
     with LiveClient('machine_align_call', args.domain) as client:
         response = client.call(service_type, args.service, request, progress_topic, show,
-                               timeout=args.timeout)
+                               timeout=args.timeout, cancel=cancel)
     if not response.success:
         raise CalibrationError(f'{args.service}: {response.message}')
     if service_type is RunCalibration:

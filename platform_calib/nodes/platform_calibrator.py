@@ -149,6 +149,7 @@ class PlatformCalibratorNode(Node):
                             g('target_error'), g('max_poses'), g('step'))
 
     def _move(self, feeds):
+        self.status.check_cancelled()       # the safe point: before the next move
         self._moved_at = self.get_clock().now()
         reached = call_service(self.move_client, MovePlatform.Request(
             feeds=[float(v) for v in feeds]), 'platform move', self.timeout)

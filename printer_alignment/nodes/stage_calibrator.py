@@ -158,6 +158,7 @@ class StageCalibratorNode(Node):
 
     def _move(self, q):
         """Command the chain inputs (m); the inputs reached and the chains' last directions."""
+        self.status.check_cancelled()       # the safe point: before the next move
         reached = call_service(self.move_client, MoveStage.Request(q=[float(v) for v in q]),
                                'stage move', self.timeout)
         return np.array(reached.q), np.array(reached.direction)

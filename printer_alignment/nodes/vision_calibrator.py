@@ -161,6 +161,8 @@ class VisionCalibratorNode(Node):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='plate')
 
     def _call(self, client, request, what):
+        if client is self.move_client:
+            self.status.check_cancelled()       # the safe point: before the next move
         return call_service(client, request, what, self.timeout)
 
     def _detect_dots(self):
