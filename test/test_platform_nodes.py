@@ -149,6 +149,30 @@ def test_the_calibrator_plans_its_own_poses_and_takes_a_planned_set(graph):
     assert all(running_graph.alive())
 
 
+def test_a_parameter_set_at_run_time_meets_the_plan_checks(graph):
+    """`ros2 param set` from a peer: an absurd pose count and an unknown method are refused
+    with the plan's own message (they were accepted, and the next plain calibrate started
+    a million-pose run); a sound value is taken."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    running, node, _ = graph
+    setter = node.create_client(SetParameters, '/platform_calibrator/set_parameters')
+
+    def set_one(name, value):
+        kind = (ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+                if isinstance(value, int) else
+                ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))
+        return call(node, setter, SetParameters.Request(
+            parameters=[Parameter(name=name, value=kind)])).results[0]
+    huge = set_one('poses', 1_000_000)
+    assert not huge.successful and 'poses' in huge.reason and '10000' in huge.reason, huge.reason
+    bogus = set_one('method', 'bogus')
+    assert not bogus.successful and 'method must be one of' in bogus.reason, bogus.reason
+    assert set_one('poses', 25).successful
+    assert set_one('poses', 20).successful
+    assert all(running.alive())
+
+
 def test_every_bag_of_these_runs_decodes_in_foxglove(graph):
     """What the runs above recorded (platform, platform_analysis) opens in Foxglove: its own
     decoders read every channel and message as this suite's reader does."""

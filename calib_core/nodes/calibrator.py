@@ -12,6 +12,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 
 from calib_core.errors import (
     CalibrationError, InvalidInputError, MachineAlignmentError, OutOfTravelError, RunCancelled)
+from calib_core.checks import brief
 from calib_core.files import load_request_yaml
 from calib_core.nodes.conversions import failed_result
 from calib_core.storage import read_calibration
@@ -73,6 +74,39 @@ def call_service(client, request, what: str, timeout: float):
     if not response.success:
         raise CalibrationError(f'{what} failed: {response.message}')
     return response
+
+
+def check_when_set(node, plan_keys, build: Callable[[dict], object],
+                   checks: dict[str, Callable] | None = None) -> None:
+    """Refuse a parameter set at run time (``ros2 param set``, any peer on the domain) that
+    the node would refuse at start-up or in a request: a plan parameter's new value is
+    tried by ``build`` (the node's own plan from its parameters, ``build(overrides)``, which
+    raises on a bad plan), each other one by its entry in ``checks`` (name -> a function
+    raising on a bad value). The caller gets the plan's message, its value quoted short.
+    Register after every parameter is declared."""
+    from rcl_interfaces.msg import SetParametersResult
+    checks = checks or {}
+
+    def on_set(parameters):
+        overrides = {p.name: p.value for p in parameters if p.name in plan_keys}
+        try:
+            if overrides:
+                build(overrides)
+            for parameter in parameters:
+                if parameter.name in checks:
+                    checks[parameter.name](parameter.value)
+        except (MachineAlignmentError, TypeError, ValueError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+    node.add_on_set_parameters_callback(on_set)
+
+
+def one_of(name: str, allowed) -> Callable:
+    """A check for :func:`check_when_set`: the value must be one of ``allowed``."""
+    def check(value):
+        if value not in allowed:
+            raise InvalidInputError(f'{name} must be one of {list(allowed)}, not {brief(value)}')
+    return check
 
 
 def parse_plan(text: str) -> dict:

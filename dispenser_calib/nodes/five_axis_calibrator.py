@@ -58,7 +58,8 @@ from calib_core.checks import MAX_SEED, whole_number
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, declare_paths, parse_plan, publish_calibration_in_force)
+    CalibrationService, call_service, check_when_set, declare_paths, parse_plan,
+    publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.images import image_from_message
 from calib_core.nodes.qos import LATCHED
@@ -168,6 +169,8 @@ class FiveAxisCalibratorNode(Node):
         self.create_service(MeasureNeedle, 'five_axis_calibrator/measure_needle',
                             self.on_measure_needle, callback_group=group)
         publish_calibration_in_force(self, 'five_axis', self.result_pub, self._in_force)
+        # A peer's `ros2 param set` meets the same checks as a request's plan.
+        check_when_set(self, PLAN_KEYS, self._plan_from_parameters)
 
     def _triples(self, name: str) -> np.ndarray:
         values = np.asarray(self.get_parameter(name).value, dtype=float)

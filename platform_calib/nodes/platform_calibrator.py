@@ -43,7 +43,8 @@ from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignm
 from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    READ_ONLY, CalibrationService, call_service, declare_paths, publish_calibration_in_force)
+    READ_ONLY, CalibrationService, call_service, check_when_set, declare_paths, one_of,
+    publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
@@ -131,6 +132,9 @@ class PlatformCalibratorNode(Node):
                                 self._loop_model, 'the platform\'s compensation has no place '
                                 'for feed effects', ANALYSIS_TOPIC, self._header, status=self.status),
                             callback_group=group)
+        # A peer's `ros2 param set` meets the same checks as a request's plan.
+        check_when_set(self, PLAN_KEYS, self._plan_from_parameters,
+                       {'method': one_of('method', METHODS)})
 
     def _in_force(self, content, path):
         self.model = read_geometry(path)

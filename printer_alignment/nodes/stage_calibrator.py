@@ -37,7 +37,7 @@ from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, declare_paths, publish_calibration_in_force)
+    CalibrationService, call_service, check_when_set, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED
 from calib_core.nodes.recording import RecordedRun
@@ -113,6 +113,8 @@ class StageCalibratorNode(Node):
                                             self._loop_model, self._apply_extended,
                                             ANALYSIS_TOPIC, self._header, status=self.status),
                             callback_group=group)
+        # A peer's `ros2 param set` meets the same checks as a request's plan.
+        check_when_set(self, PLAN_KEYS, self._plan)
 
     def _plan(self, overrides: dict) -> tuple[StagePlan, dict | None, Adaptive | None]:
         """The run to measure, for a planned one what it is predicted to give, and the
