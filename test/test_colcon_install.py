@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-DOMAIN = str(120 + os.getpid() % 10)   # each DDS test module has its own band
+DOMAIN = str(120 + os.getpid() % 5)   # each DDS test module has its own band
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 import rclpy  # noqa: E402

@@ -115,6 +115,8 @@ class AnalysisService:
         if self.status is not None:
             self.status.started()
         try:
+            if self.status is not None:
+                self.status.check_alone()
             if request.apply and isinstance(self.apply, str):
                 raise InvalidInputError(f'apply refused: {self.apply}; call again without '
                                         'apply for the report')

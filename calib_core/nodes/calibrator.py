@@ -146,6 +146,8 @@ class CalibrationService:
         if self.status is not None:
             self.status.started()
         try:
+            if self.status is not None:
+                self.status.check_alone()
             response.result = self.run(parse_plan(request.plan_yaml))
             response.success, response.message = True, 'ok'
         except (MachineAlignmentError, TypeError, ValueError, yaml.YAMLError) as exc:

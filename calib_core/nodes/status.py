@@ -8,7 +8,8 @@ The diagnostic status (name ``<node>: calibration``) says which calibration is i
 the node is doing, and rates it:
 
 - ERROR: the last calibration run failed or its gate refused the result (the previous
-  calibration stays in force, and the status says so); a request refused before it ran
+  calibration stays in force, and the status says so), or another node of this name is
+  on the domain (a second graph: the node refuses to calibrate until it is gone); a request refused before it ran
   (a malformed plan, a move outside the stroke) is shown but changes no level;
 - WARN: no calibration in force, one older than ``max_calibration_age_days``, or a last
   closed loop that left something unexplained;
@@ -35,7 +36,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from calib_core.errors import MachineAlignmentError, RunCancelled
+from calib_core.errors import CalibrationError, MachineAlignmentError, RunCancelled
 from calib_core.frames import Frame
 from calib_core.nodes.scene import TF_STATIC_TOPIC, transform_message
 from calib_core.storage import read_calibration
@@ -46,6 +47,7 @@ DIAGNOSTICS_PERIOD_S = 1.0
 TF_STATIC_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 DEFAULT_MAX_AGE_DAYS = 30.0
+TWIN_CHECK_PERIOD_S = 2.0    # s between looks for another node of this name
 _STAMP_FORMAT = '%Y%m%dT%H%M%S%f'     # calib_core.nodes.recording.run_stamp
 
 
@@ -98,6 +100,28 @@ class CalibratorStatus:
         node.create_service(Trigger, f'{node.get_name()}/cancel', self._on_cancel,
                             callback_group=ReentrantCallbackGroup())
         node.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
+        self.twin: str | None = None
+        node.create_timer(TWIN_CHECK_PERIOD_S, self._look_for_a_twin)
+
+    # -- another node of this name on the domain ------------------------------------------
+
+    def _look_for_a_twin(self) -> None:
+        """Two graphs on one domain both answer every request: both calibrators run, both
+        simulators or machines move. Once a second node of this name is seen, the node
+        refuses to calibrate (:meth:`check_alone`) until it is gone."""
+        name = self.node.get_name()
+        count = sum(1 for other in self.node.get_node_names() if other == name)
+        twin = (f'another {name} is on this ROS domain (ROS_DOMAIN_ID '
+                f'{self.node.context.get_domain_id()}): two graphs would both drive the '
+                'machine; stop one, or give each cell its own domain') if count > 1 else None
+        if twin and not self.twin:
+            self.node.get_logger().error(twin)
+        self.twin = twin
+
+    def check_alone(self) -> None:
+        """Raise CalibrationError while another node of this name is on the domain."""
+        if self.twin:
+            raise CalibrationError(self.twin)
 
     # -- cancelling a run -----------------------------------------------------------------
 
@@ -238,6 +262,9 @@ class CalibratorStatus:
             values['frames'] = ', '.join(f'{p}->{c}' for p, c, *_ in self._frames_sent)
         if refused is not None:
             values['last_request_refused'] = refused
+        if self.twin:
+            problems.insert(0, self.twin)
+            level = DiagnosticStatus.ERROR
         if failure is not None:
             values['last_failure'] = failure
             problems.insert(0, f'the last calibration failed ({failure}); the previous one '
