@@ -2,6 +2,7 @@
 with its bag and offline replay, alignment through the two-way camera, the closed loop."""
 import json
 import os
+import time
 
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E4
 from printer_alignment.core.records import stage_data_from_records, stage_record  # noqa: E402
 from printer_alignment.sim.camera import CameraOptics  # noqa: E402
 from printer_alignment.sim.gantry import GantryErrors  # noqa: E402
+from printer_alignment.nodes.mark_locator import VISION_UNITS  # noqa: E402
 from printer_alignment.sim.stage import TRUE_STAGE  # noqa: E402
 
 PLAN = 'sweep_points: 3\ngrid: [2, 2, 2]\n'
@@ -40,7 +42,8 @@ def _vision_in_force(directory):
         'gantry2plate': gantry,
         'report': {'pixel_size': {'pixel_size_std_m': 0.0, 'angle_std_rad': 0.0},
                    'gantry': {'parameters': gantry, 'std_devs': zero,
-                              'units': {k: '' for k in gantry}, 'residual_rms_m': 0.0,
+                              'units': {k: VISION_UNITS[k] for k in gantry},
+                              'residual_rms_m': 0.0,
                               'residual_max_m': 0.0, 'num_positions': 0}}})
 
 
@@ -147,6 +150,39 @@ def test_calibration_and_alignment_triggered_from_the_command_line(graph):
     aligned = machine_align(DOMAIN, 'call', 'aligner/align', 'parametric')
     assert aligned.returncode == 0, aligned.stderr
     assert 'aligned:' in aligned.stdout
+    assert all(running.alive())
+
+
+def test_a_forged_vision_result_is_not_used(graph):
+    """Another process publishing a vision result (latched, success, the pixel size 3.7 %
+    too large): the stage calibrator refuses to measure with it and names the publisher.
+    The stage file written above names the vision calibration it was computed with."""
+    from alignment_msgs.msg import CalibrationResult
+    import yaml
+    from calib_core.nodes.qos import LATCHED
+    running, node, out = graph
+    stage = yaml.safe_load((out / 'calibration' / 'stage.yaml').read_text())
+    vision = yaml.safe_load((out / 'calibration' / 'vision.yaml').read_text())
+    assert stage['vision_calibration']['version'] == vision['version']
+    assert stage['vision_calibration']['file'].endswith('vision.yaml')
+    forger = node.create_publisher(CalibrationResult, '/vision_calibrator/result', LATCHED)
+    camera = CameraOptics().camera2plate
+    gantry = GantryErrors().model.as_dict()
+    names = ['pixel_size', 'camera_angle', *gantry]
+    forger.publish(CalibrationResult(
+        kind='vision', success=True, names=names,
+        values=[camera.pixel_size * 1.037, camera.angle, *gantry.values()],
+        units=[VISION_UNITS[n] for n in names], residual_unit='m', version=99))
+    try:
+        time.sleep(1.0)
+        refused = call(node, node.create_client(RunCalibration, 'stage_calibrator/calibrate'),
+                       RunCalibration.Request(plan_yaml=PLAN), timeout=60.0)
+        assert not refused.success
+        assert 'stage_test_client also publish(es) on /vision_calibrator/result' in \
+            refused.message, refused.message
+        assert yaml.safe_load((out / 'calibration' / 'stage.yaml').read_text()) == stage
+    finally:
+        node.destroy_publisher(forger)
     assert all(running.alive())
 
 

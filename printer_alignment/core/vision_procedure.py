@@ -156,6 +156,27 @@ def check_vision_calibration(report: dict, nominal_camera: CameraToPlate,
     gate.enforce()
 
 
+def check_vision_parameters(values: dict, residual_rms_m: float) -> None:
+    """The gate's checks a vision calibration received from another node can be held to
+    without its nominal lens and screws (which only vision_calibrator knows): a positive
+    pixel size and leads, axes within MAX_ANGLE_RAD of the plate's and of square, the
+    camera positions fitted to MAX_POSITION_RESIDUAL_RMS_M.
+
+    Raises
+    ------
+    CalibrationError
+        Every failure named."""
+    gate = SanityGate('the vision calibration received')
+    gate.residual(residual_rms_m * 1e6, MAX_POSITION_RESIDUAL_RMS_M * 1e6, 'um',
+                  'the paper\'s model fits the camera positions to a few um')
+    for name, unit in (('pixel_size', 'm/px'), ('lead_x', 'm/rev'), ('lead_y', 'm/rev')):
+        gate.within(name, values[name], 1e-12, np.inf, unit, 'positive')
+    for name in ('axis_angle', 'non_orthogonality'):
+        gate.within(name, values[name], -MAX_ANGLE_RAD, MAX_ANGLE_RAD, 'rad',
+                    'a built gantry is square to a fraction of a degree')
+    gate.enforce()
+
+
 def observation_from_message(msg) -> GantryObservation:
     """A GantryObservation from an alignment_msgs/VisionObservation, live (rclpy) or decoded
     from a bag (rosbags): only attribute access is used, so no ROS import is needed.

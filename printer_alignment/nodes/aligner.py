@@ -163,7 +163,8 @@ class AlignerNode(Node):
                 'position_error_m': float(np.linalg.norm(after.mean(axis=0)
                                                          - stencil.mean(axis=0))),
                 'orientation_error_rad': float(abs(angle_left)),
-                'mark_errors_m': np.linalg.norm(after - stencil, axis=1).tolist()}}
+                'mark_errors_m': np.linalg.norm(after - stencil, axis=1).tolist()},
+            'vision_calibration': dict(self.locator.source)}
         with self._lock:
             calibration = self._stage_result
         if calibration is not None:

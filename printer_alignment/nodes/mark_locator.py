@@ -12,28 +12,61 @@ camera position plus its calibrated pixel offset.
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 from alignment_msgs.msg import CalibrationResult
 from alignment_msgs.srv import DetectMarks, MoveGantry, SelectView
 
-from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import call_service
 from calib_core.nodes.qos import LATCHED
 from printer_alignment.core.geometry import (
     NOMINAL_LEADS, CameraToPlate, GantryModel)
 from printer_alignment.core.records import VISION_RESULT_TOPIC
+from printer_alignment.core.vision_procedure import check_vision_parameters
 from printer_alignment.nodes.conversions import marks_from_message
 
 GANTRY_KEYS = ('lead_x', 'lead_y', 'axis_angle', 'non_orthogonality', 'offset_x', 'offset_y')
 
 
+# The units a vision result states for what the locator uses (SI, as vision_calibrator
+# writes them): a result in other units is another node's, or a forgery.
+VISION_UNITS = {'pixel_size': 'm/px', 'camera_angle': 'rad', 'lead_x': 'm/rev',
+                'lead_y': 'm/rev', 'axis_angle': 'rad', 'non_orthogonality': 'rad',
+                'offset_x': 'm', 'offset_y': 'm'}
+# The only node whose vision results are used.
+VISION_PUBLISHER = 'vision_calibrator'
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'     # rmw's name for an endpoint not yet matched to a node
+
+
 def vision_from_message(msg):
-    """(CameraToPlate, GantryModel) from a vision CalibrationResult message."""
+    """(CameraToPlate, GantryModel) from a vision CalibrationResult message, checked: its
+    kind, every value present, finite and in the units vision_calibrator states, and within
+    the bounds of the vision gate that hold without the nominal lens and screws.
+
+    Raises
+    ------
+    InvalidInputError, CalibrationError
+        Any of these fails (the message says which)."""
+    if msg.kind != 'vision':
+        raise InvalidInputError(f'a {msg.kind!r} result on the vision topic, not a vision one')
     values = dict(zip(msg.names, msg.values))
+    units = dict(zip(msg.names, msg.units))
     missing = [k for k in ('pixel_size', 'camera_angle') + GANTRY_KEYS if k not in values]
     if missing:
         raise InvalidInputError(f'vision result lacks {", ".join(missing)}')
+    wrong = [f'{k} in {units.get(k)!r}' for k, unit in VISION_UNITS.items()
+             if units.get(k) != unit]
+    if wrong:
+        raise InvalidInputError(f'vision result in other units: {", ".join(wrong)} (SI '
+                                'expected: ' + ', '.join(f'{k} {u}' for k, u in VISION_UNITS.items())
+                                + ')')
+    if not all(np.isfinite(values[k]) for k in VISION_UNITS):
+        raise InvalidInputError('vision result holds values that are not finite')
+    if msg.residual_unit != 'm':
+        raise InvalidInputError(f'vision result residual in {msg.residual_unit!r}, not m')
+    check_vision_parameters(values, msg.rms_residual)
     return (CameraToPlate(values['pixel_size'], values['camera_angle']),
             GantryModel(**{k: values[k] for k in GANTRY_KEYS}))
 
@@ -48,6 +81,7 @@ class MarkLocator:
         self.node, self.timeout = node, timeout
         self.lattice, self.approach = lattice, approach
         self._vision = None
+        self.source: dict = {}       # file and version of the vision calibration in use
         self._lock = threading.Lock()
         self._vision_arrived = threading.Event()
         self.move_client = node.create_client(MoveGantry, 'gantry/move', callback_group=callback_group)
@@ -62,23 +96,46 @@ class MarkLocator:
         if not msg.success:
             return
         try:
+            self._only_the_vision_calibrator()
             vision = vision_from_message(msg)
-        except InvalidInputError as exc:
+        except MachineAlignmentError as exc:
             self.node.get_logger().error(f'ignoring vision result: {exc}')
             return
         with self._lock:
             self._vision = vision
+            self.source = {'file': msg.file_path, 'version': int(msg.version)}
         self._vision_arrived.set()
+
+    def _only_the_vision_calibrator(self, wait: float = 0.0) -> None:
+        """CalibrationError while a node other than vision_calibrator publishes on the
+        vision result topic: whose latched result arrived cannot be told apart then. A
+        publisher just discovered may not have its node's name yet; it is waited for up to
+        ``wait`` s, and not counted if it has none by then."""
+        deadline = time.monotonic() + wait
+        while True:
+            names = {info.node_name for info in
+                     self.node.get_publishers_info_by_topic(VISION_RESULT_TOPIC)}
+            if UNKNOWN_NODE not in names or time.monotonic() >= deadline:
+                break
+            time.sleep(0.1)
+        others = sorted(names - {VISION_PUBLISHER, UNKNOWN_NODE})
+        if others:
+            raise CalibrationError(
+                f'{", ".join(others)} also publish(es) on {VISION_RESULT_TOPIC}: a vision '
+                f'calibration is taken from {VISION_PUBLISHER} alone; stop the other '
+                'publisher')
 
     @property
     def vision(self):
-        """The vision calibration in force. A latched message can arrive after the first
-        service call when discovery is slow, so it is awaited up to the service timeout."""
+        """The vision calibration in force, checked (:func:`vision_from_message`) and from
+        vision_calibrator alone. A latched message can arrive after the first service call
+        when discovery is slow, so it is awaited up to the service timeout."""
         if not self._vision_arrived.wait(self.timeout):
             raise CalibrationError(
                 'no vision calibration in force: vision_calibrator has not published '
                 f'{VISION_RESULT_TOPIC} within {self.timeout:g} s (calibrate the vision '
                 'system first)')
+        self._only_the_vision_calibrator(wait=2.0)
         with self._lock:
             return self._vision
 

@@ -193,8 +193,10 @@ class StageCalibratorNode(Node):
             check_stage_calibration(report)   # else nothing is put in force
             if prediction is not None:
                 report['plan_prediction'] = prediction
-            path, version, content = run.save('stage', {'models': models_as_dict(models),
-                                                        'report': report})
+            # Which vision calibration measured the Marks, for whoever reads this one.
+            path, version, content = run.save('stage', {
+                'models': models_as_dict(models), 'report': report,
+                'vision_calibration': dict(self.locator.source)})
             result = stage_result_message(report, models, self._header(), str(path), version)
             run.record(RESULT_TOPIC, result, self.result_pub)
             self.temperatures.record(run)
