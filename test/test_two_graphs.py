@@ -46,3 +46,26 @@ def test_a_second_calibrator_of_the_same_name_is_refused(tmp_path):
             time.sleep(1.0)
         assert 'another hexapod_calibrator' not in answer.message, answer.message
         assert not answer.success and 'hexapod/move' in answer.message, answer.message
+
+
+def test_a_burst_of_50_calls_from_one_client_is_all_answered(tmp_path):
+    """50 calls at once from one client (default QoS): every one answered, the refused ones
+    at once (27 to 40 of them were never answered, and their callers waited out their
+    timeout)."""
+    from std_srvs.srv import Trigger
+    spec = [NodeSpec('hexapod_calib.nodes.hexapod_calibrator',
+                     {'output_dir': str(tmp_path / 'a'), 'record_dir': str(tmp_path / 'a')})]
+    with running(spec, DOMAIN, tmp_path, 'burst_probe') as (_, node):
+        for service, kind, request in (
+                ('hexapod_calibrator/cancel', Trigger, Trigger.Request()),
+                ('hexapod_calibrator/calibrate', RunCalibration,
+                 RunCalibration.Request(plan_yaml='speed: 3'))):
+            client = node.create_client(kind, service)
+            assert client.wait_for_service(timeout_sec=30.0)
+            futures = [client.call_async(request) for _ in range(50)]
+            deadline = time.time() + 30
+            while not all(f.done() for f in futures) and time.time() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            answered = [f.result() for f in futures if f.done()]
+            assert len(answered) == 50, f'{service}: {len(answered)} of 50 answered'
+            assert not any(a.success for a in answered)

@@ -9,8 +9,9 @@ the node is doing, and rates it:
 
 - ERROR: the last calibration run failed or its gate refused the result (the previous
   calibration stays in force, and the status says so), or another node of this name is
-  on the domain (a second graph: the node refuses to calibrate until it is gone); a request refused before it ran
-  (a malformed plan, a move outside the stroke) is shown but changes no level;
+  on the domain (a second graph: the node refuses to calibrate until it is gone); a
+  request refused before it ran (a malformed plan, a move outside the stroke) is shown but
+  changes no level;
 - WARN: no calibration in force, one older than ``max_calibration_age_days``, or a last
   closed loop that left something unexplained;
 - OK otherwise.
@@ -38,6 +39,7 @@ from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import CalibrationError, MachineAlignmentError, RunCancelled
 from calib_core.frames import Frame
+from calib_core.nodes.qos import SERVICES
 from calib_core.nodes.scene import TF_STATIC_TOPIC, transform_message
 from calib_core.storage import read_calibration
 
@@ -98,7 +100,7 @@ class CalibratorStatus:
         self._cancel = threading.Event()
         # Its own group: answered while the run's callback holds the node's.
         node.create_service(Trigger, f'{node.get_name()}/cancel', self._on_cancel,
-                            callback_group=ReentrantCallbackGroup())
+                            qos_profile=SERVICES, callback_group=ReentrantCallbackGroup())
         node.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
         self.twin: str | None = None
         node.create_timer(TWIN_CHECK_PERIOD_S, self._look_for_a_twin)

@@ -62,7 +62,7 @@ from calib_core.nodes.calibrator import (
     publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.images import image_from_message
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import IMAGE_TYPE, compressed_image
 from calib_core.nodes.spin import run_node
@@ -156,18 +156,18 @@ class FiveAxisCalibratorNode(Node):
         self.calibration_service = CalibrationService(
             self, 'five-axis', self._run, self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'five_axis_calibrator/calibrate',
-                            self.calibration_service, callback_group=group)
+                            self.calibration_service, callback_group=group, qos_profile=SERVICES)
         self.create_service(AnalyzeResiduals, 'five_axis_calibrator/analyze_residuals',
                             AnalysisService(
                                 self, 'five_axis', self.calibration_service.busy, self._sweep,
                                 'the five-axis calibration file has no place for rotary-axis '
                                 'effects yet', ANALYSIS_TOPIC, self._header, self._progress,
                                 options=SWEEP_KEYS, status=self.status),
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         self.create_service(LocateWorkpiece, 'five_axis_calibrator/locate', self.on_locate,
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         self.create_service(MeasureNeedle, 'five_axis_calibrator/measure_needle',
-                            self.on_measure_needle, callback_group=group)
+                            self.on_measure_needle, callback_group=group, qos_profile=SERVICES)
         publish_calibration_in_force(self, 'five_axis', self.result_pub, self._in_force)
         # A peer's `ros2 param set` meets the same checks as a request's plan.
         check_when_set(self, PLAN_KEYS, self._plan_from_parameters)

@@ -25,6 +25,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.nodes.qos import SERVICES
 from calib_core.nodes.images import image_as_message
 from calib_core.nodes.spin import run_node
 from dispenser_calib.core.localisation import reached
@@ -65,12 +66,16 @@ class FiveAxisSimNode(Node):
         self.captures = 0
         self.rng = np.random.default_rng(self.seed + 90)
         self._lock = threading.Lock()
-        self.create_service(MoveFiveAxis, 'five_axis/move', self.on_move)
-        self.create_service(CaptureDots, 'five_axis/capture_board', self.on_capture)
-        self.create_service(CaptureDots, 'five_axis/capture_features', self.on_features)
-        self.create_service(CaptureFrame, 'five_axis/capture_frame', self.on_frame)
-        self.create_service(Trigger, 'five_axis/dispense', self.on_dispense)
-        self.create_service(CaptureDots, 'five_axis/capture_dispensed', self.on_dispensed)
+        self.create_service(MoveFiveAxis, 'five_axis/move', self.on_move, qos_profile=SERVICES)
+        self.create_service(CaptureDots, 'five_axis/capture_board', self.on_capture,
+                            qos_profile=SERVICES)
+        self.create_service(CaptureDots, 'five_axis/capture_features', self.on_features,
+                            qos_profile=SERVICES)
+        self.create_service(CaptureFrame, 'five_axis/capture_frame', self.on_frame,
+                            qos_profile=SERVICES)
+        self.create_service(Trigger, 'five_axis/dispense', self.on_dispense, qos_profile=SERVICES)
+        self.create_service(CaptureDots, 'five_axis/capture_dispensed', self.on_dispensed,
+                            qos_profile=SERVICES)
 
     def on_move(self, request, response):
         try:

@@ -49,7 +49,7 @@ from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, check_when_set, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from calib_core.nodes.status import CalibratorStatus
@@ -161,9 +161,9 @@ class GridCalibratorNode(Node):
         self.calibration_service = CalibrationService(
             self, 'grid', self._run, self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'grid_calibrator/calibrate',
-                            self.calibration_service, callback_group=group)
+                            self.calibration_service, callback_group=group, qos_profile=SERVICES)
         self.create_service(Trigger, 'grid_calibrator/confirm_placement',
-                            self.on_confirm_placement, callback_group=group)
+                            self.on_confirm_placement, callback_group=group, qos_profile=SERVICES)
         self._measured = None         # (grid, regions) of the last completed run
         self.create_service(AnalyzeResiduals, 'grid_calibrator/analyze_residuals',
                             AnalysisService(
@@ -172,7 +172,7 @@ class GridCalibratorNode(Node):
                                 'during the run is not a property of the stage)',
                                 ANALYSIS_TOPIC, self._header, loop=grid_loop,
                                 status=self.status),
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         publish_calibration_in_force(
             self, 'grid', self.result_pub,
             lambda content, path: grid_result_message(content, self._header(), path,

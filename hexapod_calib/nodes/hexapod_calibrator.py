@@ -28,7 +28,7 @@ from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
     READ_ONLY, CalibrationService, call_service, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import POSE_TYPE, frame_of
 from calib_core.nodes.spin import run_node
@@ -102,14 +102,14 @@ class HexapodCalibratorNode(Node):
             self, 'hexapod', lambda overrides: self._run(HexapodPlan.from_mapping(overrides)),
             self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', calibration,
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         publish_calibration_in_force(self, CALIBRATION_NAME, self.result_pub,
                                      self._message_in_force)
         self.create_service(AnalyzeResiduals, 'hexapod_calibrator/analyze_residuals',
                             AnalysisService(self, 'hexapod', calibration.busy,
                                             self._loop_model, self._apply_extended,
                                             ANALYSIS_TOPIC, self._header, status=self.status),
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='base')

@@ -18,7 +18,7 @@ from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import READ_ONLY
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.scene import TF_TOPIC, frame_of, transform_message
 from calib_core.nodes.spin import run_node
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry
@@ -49,7 +49,7 @@ class HexapodSimNode(Node):
         self.legs_pub = self.create_publisher(JointState, '/hexapod/leg_lengths', 10)
         self.truth_pub = self.create_publisher(PoseStamped, '/sim/truth/hexapod_pose', LATCHED)
         self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
-        self.create_service(MoveHexapod, 'hexapod/move', self.on_move)
+        self.create_service(MoveHexapod, 'hexapod/move', self.on_move, qos_profile=SERVICES)
         self.create_timer(1.0 / rate, self.publish_legs)
         self._settled = self.get_clock().now().to_msg()
         self.publish_truth()

@@ -17,7 +17,7 @@ from std_msgs.msg import Header
 
 from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import READ_ONLY
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
 from hexapod_calib.core.records import pose_from_message
 from hexapod_calib.nodes.conversions import pose_as_message
@@ -42,7 +42,7 @@ class PoseSensorSimNode(Node):
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, '/pose_sensor/pose', 10)
         self.create_service(MeasurePose, 'pose_sensor/measure', self.on_measure,
-                            callback_group=ReentrantCallbackGroup())
+                            callback_group=ReentrantCallbackGroup(), qos_profile=SERVICES)
 
     def on_truth(self, msg):
         with self._changed:

@@ -15,7 +15,7 @@ from rclpy.node import Node
 from rclpy.time import Time
 from std_msgs.msg import Header
 
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
 from platform_calib.nodes.conversions import planar_pose_as_message, planar_pose_from_message
 
@@ -39,7 +39,7 @@ class LaserTrackerSimNode(Node):
         self.create_subscription(PoseStamped, '/sim/truth/platform_pose', self.on_truth,
                                  LATCHED, callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(MeasurePose, 'laser_tracker/measure', self.on_measure,
-                            callback_group=ReentrantCallbackGroup())
+                            callback_group=ReentrantCallbackGroup(), qos_profile=SERVICES)
 
     def on_truth(self, msg):
         with self._changed:

@@ -46,7 +46,7 @@ from calib_core.nodes.calibrator import (
     READ_ONLY, CalibrationService, call_service, check_when_set, declare_paths, one_of,
     publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.scene import POSE_TYPE, pose_stamped
 from calib_core.nodes.spin import run_node
@@ -120,9 +120,9 @@ class PlatformCalibratorNode(Node):
         self.calibration_service = CalibrationService(
             self, 'platform', self._run, self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'platform_calibrator/calibrate',
-                            self.calibration_service, callback_group=group)
+                            self.calibration_service, callback_group=group, qos_profile=SERVICES)
         self.create_service(RegisterScreen, 'platform_calibrator/register', self.on_register,
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         publish_calibration_in_force(self, 'platform', self.result_pub, self._in_force)
         # The identification stops of the last completed run and their covariates.
         self._identified, self._identified_covariates = [], {}
@@ -131,7 +131,7 @@ class PlatformCalibratorNode(Node):
                                 self, 'platform', self.calibration_service.busy,
                                 self._loop_model, 'the platform\'s compensation has no place '
                                 'for feed effects', ANALYSIS_TOPIC, self._header, status=self.status),
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         # A peer's `ros2 param set` meets the same checks as a request's plan.
         check_when_set(self, PLAN_KEYS, self._plan_from_parameters,
                        {'method': one_of('method', METHODS)})

@@ -17,7 +17,7 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from calib_core.errors import MachineAlignmentError
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
 from platform_calib.core.compensation import mark_positions
 from platform_calib.core.registration import compose
@@ -49,8 +49,9 @@ class PlatformSimNode(Node):
         self.rng = np.random.default_rng(seed + 31)
         self._lock = threading.Lock()
         self.truth_pub = self.create_publisher(PoseStamped, '/sim/truth/platform_pose', LATCHED)
-        self.create_service(MovePlatform, 'platform/move', self.on_move)
-        self.create_service(MeasureMarks, 'platform/measure_marks', self.on_marks)
+        self.create_service(MovePlatform, 'platform/move', self.on_move, qos_profile=SERVICES)
+        self.create_service(MeasureMarks, 'platform/measure_marks', self.on_marks,
+                            qos_profile=SERVICES)
         self._publish_truth()
 
     def _publish_truth(self):

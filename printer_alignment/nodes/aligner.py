@@ -23,7 +23,7 @@ from std_msgs.msg import String
 
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import call_service, declare_paths
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
@@ -78,7 +78,8 @@ class AlignerNode(Node):
         self.create_subscription(StageState, STATE_TOPIC, self._on_state, 10,
                                  callback_group=group)
         self.report_pub = self.create_publisher(String, REPORT_TOPIC, LATCHED)
-        self.create_service(Align, 'aligner/align', self.on_align, callback_group=group)
+        self.create_service(Align, 'aligner/align', self.on_align, callback_group=group,
+                            qos_profile=SERVICES)
 
     def _on_stage(self, msg):
         if not msg.success:

@@ -33,7 +33,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from calib_core.nodes.images import image_as_message
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.geometry import CameraToPlate
 from printer_alignment.sim.camera import CameraOptics, CameraSim
@@ -91,7 +91,8 @@ class CameraSimNode(Node):
         self.create_subscription(PointStamped, 'sim/truth/camera_position', self.on_truth, LATCHED)
         if isinstance(scene, StageScene):
             self.create_subscription(StagePose, 'sim/truth/stage_pose', self.on_stage, LATCHED)
-            self.create_service(SelectView, 'camera/select_view', self.on_select_view)
+            self.create_service(SelectView, 'camera/select_view', self.on_select_view,
+                                qos_profile=SERVICES)
         if isinstance(scene, PlacedPlate):
             self.create_subscription(GridPlacement, PLACEMENT_TOPIC, self.on_placement, LATCHED)
             self.confirm_client = self.create_client(Trigger, 'grid_calibrator/confirm_placement')

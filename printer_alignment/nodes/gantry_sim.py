@@ -21,7 +21,7 @@ from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import MachineAlignmentError
 from calib_core.frames import planar
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
 from calib_core.schema import CELSIUS_ZERO_K
@@ -68,7 +68,7 @@ class GantrySimNode(Node):
         self.truth_pub = self.create_publisher(PointStamped, 'sim/truth/camera_position', LATCHED)
         self.temperature_pub = self.create_publisher(Temperature, TEMPERATURE_TOPIC, 10)
         self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
-        self.create_service(MoveGantry, 'gantry/move', self.on_move)
+        self.create_service(MoveGantry, 'gantry/move', self.on_move, qos_profile=SERVICES)
         self.create_timer(1.0 / rate, self.publish_state)
         self.publish_state()
 

@@ -16,6 +16,7 @@ from sensor_msgs.msg import Image
 
 from calib_core.errors import MachineAlignmentError
 from calib_core.marks import SHAPES, DetectorConfig, detect_marks
+from calib_core.nodes.qos import SERVICES
 from calib_core.nodes.images import image_from_message
 from calib_core.nodes.spin import run_node
 from printer_alignment.nodes.conversions import marks_as_message
@@ -49,7 +50,7 @@ class MarkDetectorNode(Node):
         self.create_subscription(Image, 'camera/image_raw', self.on_image, LATEST_IMAGE,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(DetectMarks, 'mark_detector/detect', self.on_detect,
-                            callback_group=MutuallyExclusiveCallbackGroup())
+                            callback_group=MutuallyExclusiveCallbackGroup(), qos_profile=SERVICES)
 
     def on_image(self, msg):
         with self._new_image:

@@ -39,7 +39,7 @@ from calib_core.nodes.analysis import AnalysisService, write_extended_calibratio
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, check_when_set, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from calib_core.nodes.status import CalibratorStatus
@@ -101,7 +101,7 @@ class StageCalibratorNode(Node):
             self, 'stage', lambda overrides: self._run(*self._plan(overrides)), self._header,
             busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'stage_calibrator/calibrate',
-                            self.calibration_service, callback_group=group)
+                            self.calibration_service, callback_group=group, qos_profile=SERVICES)
         self._data = self._content = None    # StageData and file content of the last run
         publish_calibration_in_force(
             self, 'stage', self.result_pub,
@@ -112,7 +112,7 @@ class StageCalibratorNode(Node):
                             AnalysisService(self, 'stage', self.calibration_service.busy,
                                             self._loop_model, self._apply_extended,
                                             ANALYSIS_TOPIC, self._header, status=self.status),
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         # A peer's `ros2 param set` meets the same checks as a request's plan.
         check_when_set(self, PLAN_KEYS, self._plan)
 

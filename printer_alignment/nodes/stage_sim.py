@@ -14,7 +14,7 @@ from rclpy.node import Node
 from std_msgs.msg import Header
 
 from calib_core.errors import MachineAlignmentError
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.sim.stage import TRUE_STAGE, StageSim
@@ -37,7 +37,7 @@ class StageSimNode(Node):
         self._lock = threading.Lock()
         self.state_pub = self.create_publisher(StageState, 'stage/state', 10)
         self.truth_pub = self.create_publisher(StagePose, 'sim/truth/stage_pose', LATCHED)
-        self.create_service(MoveStage, 'stage/move', self.on_move)
+        self.create_service(MoveStage, 'stage/move', self.on_move, qos_profile=SERVICES)
         self.create_timer(1.0 / rate, self.publish_state)
         self.publish_state()
 

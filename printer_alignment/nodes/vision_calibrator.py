@@ -42,7 +42,7 @@ from calib_core.nodes.analysis import AnalysisService, write_extended_calibratio
 from calib_core.nodes.calibrator import (
     CalibrationService, call_service, check_when_set, declare_paths, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
-from calib_core.nodes.qos import LATCHED
+from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from calib_core.nodes.status import CalibratorStatus
@@ -123,15 +123,15 @@ class VisionCalibratorNode(Node):
             self, 'vision', lambda overrides: self._run(self._plan_from_parameters(overrides)),
             self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate',
-                            self.calibration_service, callback_group=group)
+                            self.calibration_service, callback_group=group, qos_profile=SERVICES)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_pixel_size',
-                            self.on_pixel_size, callback_group=group)
+                            self.on_pixel_size, callback_group=group, qos_profile=SERVICES)
         self.intrinsics_pub = self.create_publisher(CalibrationResult, INTRINSICS_TOPIC, LATCHED)
         self.create_service(RunCalibration, 'vision_calibrator/calibrate_intrinsics',
                             CalibrationService(self, 'intrinsics', self._run_intrinsics,
                                                self._header, self.calibration_service.busy,
                                                status=self.status),
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         self._calibration = None   # (VisionCalibration, file content) of the last run
         self._publish_calibration_in_force()
         self.create_service(AnalyzeResiduals, 'vision_calibrator/analyze_residuals',
@@ -139,7 +139,7 @@ class VisionCalibratorNode(Node):
                                             self._measure_for_analysis, self._apply_extended,
                                             ANALYSIS_TOPIC, self._header,
                                             options=ANALYSIS_OPTIONS, status=self.status),
-                            callback_group=group)
+                            callback_group=group, qos_profile=SERVICES)
         # A peer's `ros2 param set` meets the same checks as a request's plan.
         check_when_set(self, ('pitch', 'nx', 'ny', 'x_range', 'y_range'),
                        self._plan_from_parameters)
