@@ -16,8 +16,11 @@ from machine_alignment.launcher import Graph, NodeSpec  # noqa: E402
 
 
 def test_a_second_calibrator_of_the_same_name_is_refused(tmp_path):
+    # No hexapod here: a calibration that gets past the refusal fails at its first move,
+    # after call_timeout_s.
     first = [NodeSpec('hexapod_calib.nodes.hexapod_calibrator',
-                      {'output_dir': str(tmp_path / 'a'), 'record_dir': str(tmp_path / 'a')})]
+                      {'output_dir': str(tmp_path / 'a'), 'record_dir': str(tmp_path / 'a'),
+                       'call_timeout_s': 1.0})]
     second = [NodeSpec('hexapod_calib.nodes.hexapod_calibrator',
                        {'output_dir': str(tmp_path / 'b'), 'record_dir': str(tmp_path / 'b')})]
     with running(first, DOMAIN, tmp_path, 'two_graphs_probe') as (_, node):
