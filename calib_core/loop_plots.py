@@ -103,17 +103,28 @@ def effect_panels(machine: MachineModel, result: LoopResult) -> list:
             declared = tuple('image_radius' if key == 'normalized' else key
                              for key in LIBRARY[name].requires)
             candidates = [k for k in varying if k.startswith(declared)] or varying
-            own = [k for k in candidates if k.endswith(f'_{machine.channels[c]}')]
-            shared = [k for k in candidates
-                      if not any(k.endswith(f'_{other}') for other in machine.channels)]
-            candidates = own + shared or candidates
             if candidates:
-                # Equally smooth (rows in the same order): the finer covariate says more.
-                covariate = min(candidates, key=lambda k: (
-                    round(_roughness(term[:, c], result.covariates[k]), 9),
-                    -len(np.unique(result.covariates[k]))))
-                panels.append((name, int(c), covariate))
+                panels.append((name, int(c), _smoothest(term[:, c], candidates, result,
+                                                        machine.channels[c],
+                                                        machine.channels)))
     return panels
+
+
+def _smoothest(term: np.ndarray, candidates: list, result: LoopResult, channel: str,
+               channels) -> str:
+    """The covariate ``term`` (n,) follows most smoothly (a squareness on x against y, not
+    x); among those as smooth (within 10 %), the channel's own (a leg's play against its
+    own load, not another leg's equally smooth one), then one of no channel, then the
+    finer."""
+    rough = {k: _roughness(term, result.covariates[k]) for k in candidates}
+    best = min(rough.values())
+    smooth = [k for k in candidates if rough[k] <= 1.1 * best + 1e-9]
+
+    def preference(k):
+        own = k.endswith(f'_{channel}')
+        shared = not any(k.endswith(f'_{other}') for other in channels)
+        return (not own, not shared, -len(np.unique(result.covariates[k])))
+    return min(smooth, key=preference)
 
 
 def _channel_scale(machine: MachineModel, c: int) -> tuple[float, str]:
@@ -131,19 +142,40 @@ def _abscissa(machine: MachineModel, result: LoopResult, covariate: str):
     return z * scale, f'{covariate} ({unit})' if unit else covariate
 
 
+def _period(machine, result, effect: str, c: int, covariate: str) -> float | None:
+    """The fitted period (m or rad) of a periodic ``effect`` on channel ``c`` where it is
+    drawn against that channel's position, else None."""
+    entry = next((e for e in result.report.get('effects_added', []) if e['name'] == effect),
+                 {})
+    period = entry.get('parameters', {}).get(f'period_{machine.channels[c]}')
+    own_position = covariate.endswith(f'_{machine.channels[c]}')
+    return float(period) if period and own_position else None
+
+
 def _draw_effect(ax, machine, result, effect: str, c: int, covariate: str) -> None:
-    """The base model's residual and the partial residual of ``effect`` on channel ``c``
-    against ``covariate``, with the fitted effect drawn over them."""
+    """The partial residual of ``effect`` on channel ``c`` (what the extended model leaves
+    plus the effect) against ``covariate``, with the fitted effect at every row over it.
+
+    The fitted effect is drawn as points, the values it takes at the rows: a line through
+    rows sorted by one covariate zigzags wherever the effect is not a function of it
+    alone, or is sampled more sparsely than it varies. A periodic effect is drawn
+    against the position modulo its fitted period, so the rows trace one period. The base
+    model's residual is left to the covariate panels: refitted with the effect, the base
+    model absorbs part of it, and the two would sit apart by that part."""
     factor, unit = _channel_scale(machine, c)
     x, label = _abscissa(machine, result, covariate)
+    period = _period(machine, result, effect, c, covariate)
+    if period is not None:
+        scale, _ = _covariate_scale(machine, covariate, covariate.split('_')[0])
+        x = np.mod(x, period * scale)
+        label = f'{label.rsplit(" (", 1)[0]} modulo the fitted period {period * scale:.4g}' \
+                f' ({label.rsplit(" (", 1)[1]}'
     term = result.effect_terms[effect][:, c] * factor
-    ax.plot(x, result.channel_before[:, c] * factor, '.', ms=3, color='tab:red', alpha=0.4,
-            label='base model')
-    ax.plot(x, (result.channel_after[:, c]) * factor + term, '.', ms=3, color='tab:blue',
-            alpha=0.6, label='after + this effect')
-    order = np.argsort(x, kind='stable')
-    style = 'k_' if len(np.unique(np.round(x, 9))) < _FEW_VALUES else 'k-'
-    ax.plot(x[order], term[order], style, lw=1.5, ms=14, label='fitted effect')
+    ax.plot(x, result.channel_after[:, c] * factor + term, '.', ms=4, color='tab:blue',
+            alpha=0.6, label='partial residual: after + this effect')
+    few = len(np.unique(np.round(x, 9))) < _FEW_VALUES
+    ax.plot(x, term, 'k_' if few else 'k.', ms=14 if few else 4,
+            label='fitted effect at each row')
     ax.set_xlabel(label)
     ax.set_ylabel(f'{machine.channels[c]} residual ({unit})')
     ax.set_title(f'{effect} on {machine.channels[c]}', fontsize=9)
