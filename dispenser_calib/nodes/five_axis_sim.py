@@ -23,12 +23,15 @@ from alignment_msgs.srv import CaptureDots, CaptureFrame, MoveFiveAxis
 from rclpy.node import Node
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import MachineAlignmentError
-from calib_core.nodes.qos import SERVICES
 from calib_core.nodes.images import image_as_message
+from calib_core.nodes.qos import SERVICES
+from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
 from dispenser_calib.core.localisation import reached
+from dispenser_calib.core.model import nominal_frames
 from dispenser_calib.core.procedure import NEEDLE_TIP, PART_CAD, check_stroke
 from dispenser_calib.core.data import board_points
 from dispenser_calib.sim.images import render_board
@@ -63,6 +66,7 @@ class FiveAxisSimNode(Node):
         self.seed, self.noise, self.bad = int(g('seed')), float(g('noise_px')), float(g('bad_fraction'))
         self.truth = true_model(self.seed)
         self.pose = np.zeros(5)
+        self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
         self.captures = 0
         self.rng = np.random.default_rng(self.seed + 90)
         self._lock = threading.Lock()
@@ -89,6 +93,10 @@ class FiveAxisSimNode(Node):
             return response
         with self._lock:
             self.pose = pose
+        # The machine's frames at this pose through its nominal kinematics (as its
+        # controller would publish them).
+        self.tf_pub.publish(transform_message(self.get_clock().now().nanoseconds,
+                                              nominal_frames(pose)))
         response.success, response.message, response.pose = True, 'ok', [float(v) for v in pose]
         return response
 

@@ -15,9 +15,12 @@ from alignment_msgs.srv import MeasureMarks, MovePlatform
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.frames import planar
 from calib_core.nodes.qos import LATCHED, SERVICES
+from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
 from platform_calib.core.compensation import mark_positions
 from platform_calib.core.registration import compose
@@ -49,15 +52,19 @@ class PlatformSimNode(Node):
         self.rng = np.random.default_rng(seed + 31)
         self._lock = threading.Lock()
         self.truth_pub = self.create_publisher(PoseStamped, '/sim/truth/platform_pose', LATCHED)
+        self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
         self.create_service(MovePlatform, 'platform/move', self.on_move, qos_profile=SERVICES)
         self.create_service(MeasureMarks, 'platform/measure_marks', self.on_marks,
                             qos_profile=SERVICES)
         self._publish_truth()
 
     def _publish_truth(self):
-        self.truth_pub.publish(PoseStamped(
-            header=Header(stamp=self.get_clock().now().to_msg(), frame_id='base'),
-            pose=planar_pose_as_message(self.sim.pose)))
+        now = self.get_clock().now()
+        self.truth_pub.publish(PoseStamped(header=Header(stamp=now.to_msg(), frame_id='base'),
+                                           pose=planar_pose_as_message(self.sim.pose)))
+        # The platform where the simulated machine put it, under the calibrator's base.
+        self.tf_pub.publish(transform_message(now.nanoseconds, [
+            ('base', 'platform', *planar(*self.sim.pose))]))
 
     def on_move(self, request, response):
         try:

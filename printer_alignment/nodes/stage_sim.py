@@ -12,9 +12,12 @@ from alignment_msgs.msg import StagePose, StageState
 from alignment_msgs.srv import MoveStage
 from rclpy.node import Node
 from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.frames import planar
 from calib_core.nodes.qos import LATCHED, SERVICES
+from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.sim.stage import TRUE_STAGE, StageSim
@@ -37,6 +40,7 @@ class StageSimNode(Node):
         self._lock = threading.Lock()
         self.state_pub = self.create_publisher(StageState, 'stage/state', 10)
         self.truth_pub = self.create_publisher(StagePose, 'sim/truth/stage_pose', LATCHED)
+        self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
         self.create_service(MoveStage, 'stage/move', self.on_move, qos_profile=SERVICES)
         self.create_timer(1.0 / rate, self.publish_state)
         self.publish_state()
@@ -53,6 +57,10 @@ class StageSimNode(Node):
         self.truth_pub.publish(StagePose(header=Header(stamp=header.stamp, frame_id='plate'),
                                          x=float(pose[0]), y=float(pose[1]),
                                          theta=float(pose[2])))
+        # The stage's platform where the simulated stage put it (the plate frame).
+        self.tf_pub.publish(transform_message(
+            header.stamp.sec * 10**9 + header.stamp.nanosec,
+            [('plate', 'stage_platform', *planar(*pose))]))
 
     def on_move(self, request, response):
         try:
