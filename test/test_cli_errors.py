@@ -255,7 +255,7 @@ def test_bad_input_is_one_clear_line_and_exit_2(files, capsys):
 
 
 def test_output_that_cannot_be_written_fails_before_the_work(files, capsys, monkeypatch):
-    from machine_alignment.cli import analyze
+    from machine_alignment.cli import analyze_run as analyze
     ran = []
     monkeypatch.setattr(analyze, 'analyze', lambda *a, **k: ran.append(1))
     assert main(['analyze', 'axis', '--data', str(files['axis']), '--json',

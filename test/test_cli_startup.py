@@ -21,7 +21,8 @@ def _imported_after(argv: list) -> list:
     return eval(result.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize('argv', [['--help'], ['detect', '--help']])
+@pytest.mark.parametrize('argv', [['--help'], ['detect', '--help'], ['analyze', '--help'],
+                                  ['analyze', 'hexapod', '--help']])
 def test_help_imports_no_science_stack(argv):
     assert _imported_after(argv) == []
 
