@@ -306,11 +306,11 @@ def _grid(run: DemoRun) -> int:
         return 1
     errors = np.array([[s['error_x'], s['error_y']] for s in report['sites']])
     # G's symmetric shear O is half the Y axis's turn from square (the turn of the whole
-    # is each placement's): the gantry model's non-orthogonality t = 2 O.
+    # is each placement's): the gantry model's non-orthogonality is twice it.
     square = 2 * report['non_orthogonality_rad']
     print(f'      {len(errors)} sites in {report["stitching"]["regions"]} regions stitched '
           f'({report["stitching"]["method"]}); stage error up to '
-          f'{np.abs(errors).max() * 1e6:.2f} um; non-orthogonality t = 2 O = '
+          f'{np.abs(errors).max() * 1e6:.2f} um; non-orthogonality (twice the map\'s shear) = '
           f'{square * 1e6:.1f} urad (the simulated gantry: '
           f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)')
     sites = np.array([[s['x'], s['y']] for s in report['sites']])
