@@ -934,10 +934,11 @@ def test_polarity_vote_traces_one_mask_where_the_other_cannot_win(rng, monkeypat
         image = np.clip(np.round(image + rng.normal(0, noise, image.shape)), 0, 255)
         flat = cv2.GaussianBlur(image.astype(np.uint8), (5, 5), 1.0)
         histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
-        levels = dict(zip(('dark', 'bright'), mask_levels(histogram, 1.5 * noise)))
+        guard = 1.5 * noise
+        levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard)))
         counts = {p: mark_shaped(flat, levels[p], p) for p in ('dark', 'bright')}
         traced.clear()
-        polarity, mask, _ = segmentation._vote(flat, histogram, levels, config)
+        polarity, mask, _ = segmentation._vote(flat, histogram, levels, config, guard)
         assert polarity == ('bright' if counts['bright'] > counts['dark'] else 'dark')
         assert np.array_equal(mask, segmentation._mask(flat, levels[polarity], polarity))
         complementary = levels['dark'] == levels['bright']

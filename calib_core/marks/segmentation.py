@@ -128,11 +128,11 @@ def segment(image, noise_scaled, config):
     from calib_core.marks.levels import mask_levels  # numba loads with the first frame
     levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard)))
     if config.polarity == 'auto':
-        polarity, mask, (contours, boxes, _) = _vote(flat, histogram, levels, config)
+        polarity, mask, (contours, boxes, _) = _vote(flat, histogram, levels, config, guard)
     else:
         polarity = config.polarity
         mask = _mask(flat, levels[polarity], polarity)
-        contours, boxes, _ = _blobs(mask)
+        contours, boxes, _ = _regions_split(flat, mask, _blobs(mask), polarity, guard, config)
     from calib_core.marks.labels import boxes_overlap, paint_labels
     if boxes_overlap(boxes):
         labels = cv2.connectedComponents(mask, connectivity=8)[1]
@@ -143,7 +143,56 @@ def segment(image, noise_scaled, config):
     return polarity, labels, boxes, seeds, flat
 
 
-def _vote(flat, histogram, levels, config):
+def _regions_split(flat, mask, blobs, polarity, guard, config):
+    """The blobs of ``mask`` (as :func:`_blobs` gives them), with each region that is no
+    Mark cut again at a level of its own: a plate on a light table or in a round field of
+    view is one blob of the frame's threshold, darker than its surround, and its dots lie
+    inside it darker still. A region is a blob too large for a Mark in either direction or
+    one at the frame's border (where a Mark is refused as clipped anyway); its level is taken from its own
+    pixels' histogram as the frame's is (:func:`levels.mask_levels`), kept where it leaves
+    the region's background out (the region's class above the level is most of it). The
+    cut stands where it gives at least twice the Mark-shaped blobs the frame's threshold
+    gave (see below); ``mask`` is then cut in place and its blobs traced again."""
+    contours, boxes, holes = blobs
+    height, width = flat.shape
+    original = mask.copy()
+    largest = 2 * SIZE_SLACK[1] * config.max_size_px
+    margin = config.border_margin_px
+    cut = False
+    from calib_core.marks.levels import mask_levels
+    for contour, (x0, y0, w, h) in zip(contours, boxes):
+        at_border = x0 <= margin or y0 <= margin or x0 + w >= width - margin \
+            or y0 + h >= height - margin
+        if not (w > largest or h > largest or at_border):
+            continue
+        region = np.zeros((h, w), np.uint8)
+        cv2.drawContours(region, [contour], -1, 1, cv2.FILLED, offset=(-x0, -y0))
+        pixels = flat[y0:y0 + h, x0:x0 + w]
+        histogram = cv2.calcHist([pixels], [0], region, [256], [0, 256]).ravel()
+        dark, bright = mask_levels(histogram, guard)
+        level = dark if polarity == 'dark' else bright
+        marks = (histogram[:int(level) + 1] if polarity == 'dark'
+                 else histogram[int(level) + 1:]).sum()
+        if not 0 < marks < 0.5 * histogram.sum():
+            continue            # one class only: nothing inside stands out of the region
+        window = mask[y0:y0 + h, x0:x0 + w]
+        inside = region.view(bool)
+        window[inside] = _mask(pixels, level, polarity)[inside]
+        cut = True
+    if not cut:
+        return contours, boxes, holes
+    split = _blobs(mask)
+    # Kept where the regions held the Marks: the frame's threshold found at most half as
+    # many (none, on a light table). A dense grid on a dark table has its Marks already;
+    # a level of the table's own then finds only what lies on it.
+    before = _mark_shaped(contours, boxes, flat.shape, config)
+    if _mark_shaped(*split[:2], flat.shape, config) >= max(2 * before, 1):
+        return split
+    mask[:] = original
+    return contours, boxes, holes
+
+
+def _vote(flat, histogram, levels, config, guard):
     """The polarity whose mask has more Mark-shaped blobs (ties go to dark Marks), its
     mask and its blobs (as _blobs gives them).
 
@@ -158,7 +207,7 @@ def _vote(flat, histogram, levels, config):
     votes = []
     for polarity in order:
         mask = _mask(flat, levels[polarity], polarity)
-        blobs = _blobs(mask)
+        blobs = _regions_split(flat, mask, _blobs(mask), polarity, guard, config)
         vote = (_mark_shaped(*blobs[:2], flat.shape, config), polarity == 'dark')
         votes.append((vote, polarity, mask, blobs))
         # The other mask has at most this one's holes in Mark-shaped blobs.
