@@ -69,6 +69,7 @@ test: setup
 
 bench: setup
 	$(BIN)/python -m machine_alignment.bench.vision --out bench_results
+	$(BIN)/python -m machine_alignment.bench.mark_scenes --out bench_results
 	$(BIN)/python -m machine_alignment.bench.hexapod --out bench_results
 	$(BIN)/python -m machine_alignment.bench.closed_loop --out bench_results
 	$(BIN)/python -m machine_alignment.bench.closed_loop_axis --out bench_results

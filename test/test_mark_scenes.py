@@ -9,7 +9,7 @@ import pytest
 from calib_core.marks import detect_marks
 from calib_core.sim.render import MarkShape
 from machine_alignment.bench.vision import CONTRAST, cramer_rao
-from scenes import BLUR, DOT, NOISE, PLATE, RADIUS, dot_plate, uneven_light
+from calib_core.sim.scenes import BLUR, DOT, NOISE, PLATE, RADIUS, dot_plate, uneven_light
 
 SEEDS = range(4)
 
@@ -65,3 +65,4 @@ def test_a_defocused_plate_on_a_light_table():
     errors = np.concatenate([_errors('light_table', seed, blur=2.5) for seed in SEEDS])
     ok, numbers = _within(errors, _bound(2.5))
     assert ok, numbers
+

@@ -157,13 +157,15 @@ def _regions_split(flat, mask, blobs, polarity, guard, config):
     height, width = flat.shape
     original = mask.copy()
     largest = 2 * SIZE_SLACK[1] * config.max_size_px
+    smallest = 4 * SIZE_SLACK[0] * config.min_size_px
     margin = config.border_margin_px
     cut = False
     from calib_core.marks.levels import mask_levels
     for contour, (x0, y0, w, h) in zip(contours, boxes):
         at_border = x0 <= margin or y0 <= margin or x0 + w >= width - margin \
             or y0 + h >= height - margin
-        if not (w > largest or h > largest or at_border):
+        # A region holds a Mark with its surround: smaller ones (specks at the border) none.
+        if not (w > largest or h > largest or at_border) or min(w, h) < smallest:
             continue
         region = np.zeros((h, w), np.uint8)
         cv2.drawContours(region, [contour], -1, 1, cv2.FILLED, offset=(-x0, -y0))

@@ -1,8 +1,10 @@
-"""Frames of a dot plate as a camera at a machine sees it, rendered here with exact centres
-(not by the suite's renderer): 24 dark dots of 9 px radius on a grey plate, blur 1 px,
-noise 2 grey levels, in the scenes the detector must hold in (issue 55): the plate on a
-dark or a light table, in a round field of view, under uneven light, defocused, a cable
-across it, plates smaller than the frame at several positions."""
+"""Frames of a dot plate as a camera at a machine sees it, rendered with exact centres by
+supersampling (independently of calib_core.sim.render, whose model the detector shares):
+24 dark dots of 9 px radius on a grey plate, blur 1 px, noise 2 grey levels, in the scenes
+a detector meets at a machine (issue 55): the plate on a dark or a light table, in a round
+field of view, under uneven light, with a specular hot spot, defocused, a cable across
+it, plates smaller than the frame at several positions. Used by the tests and
+``machine_alignment.bench.mark_scenes``."""
 from __future__ import annotations
 
 import cv2
@@ -10,7 +12,8 @@ import numpy as np
 
 PLATE, DOT = 150.0, 40.0        # grey levels
 RADIUS, BLUR, NOISE = 9.0, 1.0, 2.0
-SUPERSAMPLING = 16
+SUPERSAMPLING = 16          # 8 left a coverage step of 1/64 (0.9 grey levels on the edge)
+HOT_SPOT = 90.0             # grey levels at the highlight's peak
 
 
 def _coverage(shape, centres, radius):
@@ -38,9 +41,10 @@ def dot_plate(kind: str, seed: int, shape=(480, 640), columns: int = 6, rows: in
     """A frame (uint8) of ``kind`` and its dots' true centres (k, 2) px.
 
     kind: 'plain' (the plate fills the view), 'dark_table', 'light_table', 'round_view'
-    (white outside a circle), 'uneven' (45 % less light across the plate), 'cable' (a dark
-    cable across the plate between two rows), 'small_plate' (a plate of ``columns`` x
-    ``rows`` dots at ``centre`` on a dark table)."""
+    (white outside a circle), 'uneven' (45 % less light across the plate), 'hot_spot' (a
+    specular highlight of +90 grey levels, 25 px wide, over the edge of the ninth dot),
+    'cable' (a dark cable across the plate between two rows), 'small_plate' (a plate of
+    ``columns`` x ``rows`` dots at ``centre`` on a dark table)."""
     rng = np.random.default_rng(seed)
     height, width = shape
     cx, cy = (np.array(centre, float) if centre is not None
@@ -65,6 +69,9 @@ def dot_plate(kind: str, seed: int, shape=(480, 640), columns: int = 6, rows: in
         light = uneven_light(xs, width)
     cover = _coverage(shape, centres, RADIUS)
     frame = (surround * (1 - cover) + DOT * cover) * light
+    if kind == 'hot_spot':
+        hu, hv = centres[8] + [14.0, 6.0]
+        frame = frame + HOT_SPOT * np.exp(-((xs - hu) ** 2 + (ys - hv) ** 2) / (2 * 12.5 ** 2))
     if kind == 'cable':
         frame = np.where(np.abs(ys - cy - 0.03 * (xs - cx)) < 5, 25.0, frame)
     frame = cv2.GaussianBlur(frame, (0, 0), blur) + rng.normal(0, NOISE, shape)
