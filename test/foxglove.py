@@ -52,6 +52,15 @@ def assert_foxglove_reads(bags: list[Path]) -> dict:
     return seen
 
 
+def assert_runs_decode(runs: Path, kinds: set) -> None:
+    """Every complete bag in the folder ``runs`` decodes in Foxglove as in this suite
+    (:func:`assert_foxglove_reads`), and among them a run of each of ``kinds`` (the bag
+    names' prefixes: ``hexapod``, ``hexapod_analysis``, ...)."""
+    bags = sorted(b for b in runs.iterdir() if (b / 'metadata.yaml').exists())
+    seen = {name.rsplit('_', 1)[0] for name in assert_foxglove_reads(bags)}
+    assert seen >= kinds, seen
+
+
 def _same(theirs, ours, where: str) -> None:
     """Foxglove's JSON of a message against rosbags' object: every field equal (floats to
     the last bit, long arrays on the first 16 values Foxglove kept)."""
