@@ -170,6 +170,9 @@ def test_a_parameter_set_at_run_time_meets_the_plan_checks(graph):
     assert not bogus.successful and 'method must be one of' in bogus.reason, bogus.reason
     assert set_one('poses', 25).successful
     assert set_one('poses', 20).successful
+    # One it reads when it starts: refused, not accepted and ignored.
+    started = set_one('temperature_topic', '/elsewhere')
+    assert not started.successful and 'read when the node starts' in started.reason
     assert all(running.alive())
 
 

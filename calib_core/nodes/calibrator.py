@@ -4,6 +4,7 @@ force at start-up, call another node's service with a timeout, and serve a RunCa
 request one at a time, answering every failure with an error instead of crashing."""
 from __future__ import annotations
 
+import math
 import threading
 from typing import Callable
 
@@ -19,6 +20,8 @@ from calib_core.storage import read_calibration
 
 
 READ_ONLY = ParameterDescriptor(read_only=True)
+# rclpy's own parameters, which it reads as they change.
+RCLPY_PARAMETERS = {'use_sim_time'}
 # Failures that are the request's own (a malformed plan, a move outside the stroke),
 # refused before the machine is trusted with it: they say nothing about the machine.
 # A run the operator cancelled says nothing about the machine either.
@@ -79,15 +82,23 @@ def call_service(client, request, what: str, timeout: float):
 def check_when_set(node, plan_keys, build: Callable[[dict], object],
                    checks: dict[str, Callable] | None = None) -> None:
     """Refuse a parameter set at run time (``ros2 param set``, any peer on the domain) that
-    the node would refuse at start-up or in a request: a plan parameter's new value is
-    tried by ``build`` (the node's own plan from its parameters, ``build(overrides)``, which
-    raises on a bad plan), each other one by its entry in ``checks`` (name -> a function
-    raising on a bad value). The caller gets the plan's message, its value quoted short.
-    Register after every parameter is declared."""
+    the node would refuse at start-up or in a request, or would not use: a plan
+    parameter's new value is tried by ``build`` (the node's own plan from its parameters,
+    ``build(overrides)``, which raises on a bad plan), each one the node reads at every
+    request by its entry in ``checks`` (name -> a function raising on a bad value); every
+    other parameter of the node is read at start-up only, and a new value is refused
+    (accepted, it was reported and not used). The caller gets the message, a value quoted
+    short. Register after every parameter is declared."""
     from rcl_interfaces.msg import SetParametersResult
     checks = checks or {}
+    at_run_time = set(plan_keys) | set(checks) | RCLPY_PARAMETERS
 
     def on_set(parameters):
+        fixed = sorted(p.name for p in parameters if p.name not in at_run_time)
+        if fixed:
+            return SetParametersResult(successful=False, reason=(
+                f'{", ".join(fixed)}: read when the node starts; restart it with the new '
+                'value (--ros-args -p or a parameter file)'))
         overrides = {p.name: p.value for p in parameters if p.name in plan_keys}
         try:
             if overrides:
@@ -106,6 +117,39 @@ def one_of(name: str, allowed) -> Callable:
     def check(value):
         if value not in allowed:
             raise InvalidInputError(f'{name} must be one of {list(allowed)}, not {brief(value)}')
+    return check
+
+
+def positive(name: str, count: int = 1) -> Callable:
+    """A check for :func:`check_when_set`: ``count`` finite positive numbers (one number
+    where ``count`` is 1)."""
+    def check(value):
+        values = [value] if count == 1 else list(value)
+        if len(values) != count or not all(isinstance(v, (int, float)) and math.isfinite(v)
+                                           and v > 0 for v in values):
+            raise InvalidInputError(f'{name} must be {count} finite positive number(s), not '
+                                    f'{brief(value)}')
+    return check
+
+
+def bounded(name: str, limit: float) -> Callable:
+    """A check for :func:`check_when_set`: a finite number within +-``limit``."""
+    def check(value):
+        if not (isinstance(value, (int, float)) and math.isfinite(value)
+                and abs(value) <= limit):
+            raise InvalidInputError(f'{name} must be finite and within +-{limit:g}, not '
+                                    f'{brief(value)}')
+    return check
+
+
+def interval(name: str) -> Callable:
+    """A check for :func:`check_when_set`: [low, high] with low < high, finite (m)."""
+    def check(value):
+        values = list(value)
+        if not (len(values) == 2 and all(math.isfinite(v) for v in values)
+                and values[0] < values[1]):
+            raise InvalidInputError(f'{name} must be [low, high] with low < high (m), not '
+                                    f'{brief(value)}')
     return check
 
 

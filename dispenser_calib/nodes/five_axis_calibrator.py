@@ -58,7 +58,7 @@ from calib_core.checks import MAX_SEED, whole_number
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, check_when_set, declare_paths, parse_plan,
+    CalibrationService, call_service, check_when_set, declare_paths, one_of, parse_plan,
     publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.images import image_from_message
@@ -170,7 +170,8 @@ class FiveAxisCalibratorNode(Node):
                             self.on_measure_needle, callback_group=group, qos_profile=SERVICES)
         publish_calibration_in_force(self, 'five_axis', self.result_pub, self._in_force)
         # A peer's `ros2 param set` meets the same checks as a request's plan.
-        check_when_set(self, PLAN_KEYS, self._plan_from_parameters)
+        check_when_set(self, PLAN_KEYS, self._plan_from_parameters,
+                       {'frame_format': one_of('frame_format', ('jpeg', 'png'))})
 
     def _triples(self, name: str) -> np.ndarray:
         values = np.asarray(self.get_parameter(name).value, dtype=float)

@@ -47,7 +47,8 @@ from calib_core.frames import planar
 from calib_core.image_plane import NOMINAL_PIXEL_SIZE, CameraToPlate
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, check_when_set, declare_paths, publish_calibration_in_force)
+    CalibrationService, bounded, call_service, check_when_set, declare_paths, interval, positive,
+    publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
@@ -178,7 +179,11 @@ class GridCalibratorNode(Node):
             lambda content, path: grid_result_message(content, self._header(), path,
                                                       content.get('version', 0)))
         # A peer's `ros2 param set` meets the same checks as a request's plan.
-        check_when_set(self, PLAN_KEYS, self._plan_from_parameters)
+        check_when_set(self, PLAN_KEYS, self._plan_from_parameters, {
+            'x_range': interval('x_range'), 'y_range': interval('y_range'),
+            'pixel_size': positive('pixel_size'), 'camera_angle': bounded('camera_angle', np.pi),
+            # Any topic name: where the run looks for the vision calibration.
+            'vision_result_topic': lambda topic: None})
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='machine')

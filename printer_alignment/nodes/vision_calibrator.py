@@ -40,7 +40,8 @@ from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignm
 from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, check_when_set, declare_paths, publish_calibration_in_force)
+    CalibrationService, call_service, check_when_set, declare_paths, positive,
+    publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
@@ -142,7 +143,8 @@ class VisionCalibratorNode(Node):
                             callback_group=group, qos_profile=SERVICES)
         # A peer's `ros2 param set` meets the same checks as a request's plan.
         check_when_set(self, ('pitch', 'nx', 'ny', 'x_range', 'y_range'),
-                       self._plan_from_parameters)
+                       self._plan_from_parameters,
+                       {'focal_px': positive('focal_px'), 'image_size': positive('image_size', 2)})
 
     def _publish_calibration_in_force(self):
         def as_message(content, path):
