@@ -13,6 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from calib_core.errors import CalibrationError
+from calib_core.nodes.qos import SERVICES
 
 
 class LiveClient:
@@ -67,7 +68,7 @@ class LiveClient:
             subscription = self.node.create_subscription(
                 Progress, progress_topic,
                 lambda msg: on_progress(msg.step, msg.total, msg.message), 10)
-        client = self.node.create_client(service_type, service)
+        client = self.node.create_client(service_type, service, qos_profile=SERVICES)
         try:
             if not client.wait_for_service(timeout_sec=wait):
                 raise CalibrationError(f'service {service} is not available (is its graph '
