@@ -117,6 +117,12 @@ def test_calibration_service_writes_geometry_records_and_replays(graph):
     # platform and where it was sent on /tf, one message per stop.
     shown = [msg for topic, _, msg in decode_bag(bag, ['/hexapod_calibrator/measured_pose'])]
     frames = [msg for topic, _, msg in decode_bag(bag, ['/tf'])]
+    # The calibrated joints the run put in force, beside its result.
+    [static] = [msg for topic, _, msg in decode_bag(bag, ['/tf_static'])]
+    assert len(static.transforms) == 12
+    assert [static.transforms[0].transform.translation.x,
+            static.transforms[0].transform.translation.y] == pytest.approx(
+        list(geometry.base_joints[0][:2]), abs=1e-12)
     assert len(shown) == len(frames) == len(records)
     assert shown[-1].header.frame_id == 'base'
     assert [shown[-1].pose.position.x, shown[-1].pose.position.y, shown[-1].pose.position.z] \
@@ -157,7 +163,9 @@ def test_analyze_residuals_after_the_run(graph):
         rclpy.spin_once(node, timeout_sec=0.2)
     assert received and received[-1].report_json == analysis.report_json
     bags = [b for b in (out / 'runs').iterdir() if 'analysis' in b.name]
-    assert [topic for topic, _, _ in decode_bag(bags[0])] == ['/hexapod_calibrator/analysis']
+    # The report, and the frames of the refitted geometry it put in force.
+    assert [topic for topic, _, _ in decode_bag(bags[0])] == ['/hexapod_calibrator/analysis',
+                                                               '/tf_static']
     assert all(running.alive())
 
 

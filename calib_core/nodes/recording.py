@@ -4,7 +4,8 @@
 before the first stop, so a run that fails or is killed still replays what it measured; a
 run refused before it recorded anything (a plan outside the stroke) leaves no bag.
 Beside the run's own messages, a calibrator records each stop's machine frames on ``/tf``
-(:mod:`calib_core.nodes.scene`) so a viewer shows the machine moving."""
+(:mod:`calib_core.nodes.scene`) so a viewer shows the machine moving, and the calibrated
+frames the run put in force on ``/tf_static``."""
 from __future__ import annotations
 
 import shutil
@@ -14,7 +15,7 @@ from pathlib import Path
 from rclpy.serialization import serialize_message
 
 from calib_core.bags import BagWriter
-from calib_core.nodes.scene import TF_TOPIC, TF_TYPE, transforms_cdr
+from calib_core.nodes.scene import TF_STATIC_TOPIC, TF_TOPIC, TF_TYPE, transforms_cdr
 from calib_core.storage import write_calibration
 
 
@@ -34,10 +35,11 @@ class RecordedRun:
         Names the bag (``<kind>_<stamp>``) and goes into the calibration file.
     topics : dict
         Topic -> message type (``pkg/msg/Name``) of everything the run records (``/tf``
-        is always declared)."""
+        and ``/tf_static`` are always declared)."""
 
     def __init__(self, node, kind: str, topics: dict[str, str]):
-        self.node, self.kind, self.topics = node, kind, {TF_TOPIC: TF_TYPE, **topics}
+        self.node, self.kind = node, kind
+        self.topics = {TF_TOPIC: TF_TYPE, TF_STATIC_TOPIC: TF_TYPE, **topics}
         self.stamp = run_stamp()
         self.bag_path = Path(node.get_parameter('record_dir').value) / f'{kind}_{self.stamp}'
         self._bag = None
@@ -57,11 +59,18 @@ class RecordedRun:
             shutil.rmtree(self.bag_path, ignore_errors=True)
 
     def record(self, topic: str, msg, publisher=None) -> None:
-        """Publish ``msg`` (if a publisher is given) and write it to the bag, stamped now."""
+        """Publish ``msg`` (if a publisher is given) and write it to the bag, stamped now.
+        A publisher that puts calibrated frames in force (a CalibratorStatus tap) has its
+        /tf_static message written beside it."""
+        before = getattr(publisher, 'static_frames', None)
         if publisher is not None:
             publisher.publish(msg)
-        self._bag.write(topic, self.node.get_clock().now().nanoseconds, serialize_message(msg))
+        now = self.node.get_clock().now().nanoseconds
+        self._bag.write(topic, now, serialize_message(msg))
         self._recorded += 1
+        frames = getattr(publisher, 'static_frames', None)
+        if frames is not None and frames is not before:
+            self._bag.write(TF_STATIC_TOPIC, now, serialize_message(frames))
 
     def record_frames(self, frames: list) -> None:
         """The machine's frames at this stop on ``/tf``: (parent, child, translation (3,)

@@ -54,14 +54,20 @@ _STAMP_FORMAT = '%Y%m%dT%H%M%S%f'     # calib_core.nodes.recording.run_stamp
 
 
 class _Tap:
-    """A publisher that also tells the status what it published."""
+    """A publisher that also tells the status what it published. ``static_frames`` is the
+    last /tf_static message the status sent (None before any), which a recorded run
+    writes to its bag beside the result that put the frames in force."""
 
-    def __init__(self, publisher, seen: Callable):
-        self._publisher, self._seen = publisher, seen
+    def __init__(self, publisher, seen: Callable, status: 'CalibratorStatus'):
+        self._publisher, self._seen, self._status = publisher, seen, status
 
     def publish(self, message) -> None:
         self._publisher.publish(message)
         self._seen(message)
+
+    @property
+    def static_frames(self):
+        return self._status.frames_message
 
 
 class CalibratorStatus:
@@ -95,6 +101,7 @@ class CalibratorStatus:
         self._loop: dict | None = None
         self._doing = ''
         self._frames_sent: list[Frame] = []
+        self.frames_message: TFMessage | None = None
         self._tf_pub = node.create_publisher(TFMessage, TF_STATIC_TOPIC, TF_STATIC_QOS)
         self._diagnostics_pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self._cancel = threading.Event()
@@ -159,7 +166,7 @@ class CalibratorStatus:
         'result' (CalibrationResult), 'analysis' (ResidualAnalysis) or 'progress'."""
         seen = {'result': self._result, 'analysis': self._analysis,
                 'progress': self._progress}[kind]
-        return _Tap(publisher, seen)
+        return _Tap(publisher, seen, self)
 
     def finished(self, success: bool, message: str = '', refused: bool = False) -> None:
         """A calibration run ended. A failure stays the node's ERROR until a run succeeds;
@@ -226,7 +233,8 @@ class CalibratorStatus:
                                          f'frames to publish ({exc!r})')
             return
         now = self.node.get_clock().now().nanoseconds
-        self._tf_pub.publish(transform_message(now, frames))
+        self.frames_message = transform_message(now, frames)
+        self._tf_pub.publish(self.frames_message)
         self._frames_sent = frames
 
     # -- what it says ---------------------------------------------------------------------
