@@ -314,7 +314,8 @@ def _simplify(machine, splits: list, current: Fit, config: LoopConfig, evidence:
     """Each added effect replaced by a candidate with fewer parameters where that does as
     well on the held-out rows of every split (pooled RMS within :data:`MIN_HELDOUT_GAIN`)
     or where the effect's own terms, added to the candidate, are not significant (the data
-    do not ask for its extra parameters), repeated until no replacement is left.
+    do not ask for its extra parameters) and the held-out RMS is within its own sampling
+    spread, repeated until no replacement is left.
 
     Forward selection adds the best candidate of its round given the effects it has then:
     a drift over a run, half of it seen as a difference between directions before the
@@ -361,7 +362,11 @@ def _simplify(machine, splits: list, current: Fit, config: LoopConfig, evidence:
                                                 fit)['sum_of_squares']
                 ratio = float(np.sqrt(sum_of_squares / pooled['sum_of_squares']))
                 beyond = _p_value_beyond(machine, fit, name, primary.train, config.alpha)
-                if ((ratio <= 1 + MIN_HELDOUT_GAIN or beyond >= config.alpha)
+                # Not significant beyond it, and no worse held out than the held-out RMS's
+                # own spread (two standard errors of an RMS over that many values).
+                spread = 2 / np.sqrt(2 * pooled['count'])
+                if ((ratio <= 1 + MIN_HELDOUT_GAIN
+                     or (beyond >= config.alpha and ratio <= 1 + spread))
                         and (best is None or ratio < best[0])):
                     best = (ratio, alternative, entry, beyond)
             if best is None:
