@@ -4,6 +4,8 @@ a callback while the call runs. Used by ``machine-align call`` and the demo."""
 from __future__ import annotations
 
 import os
+import signal
+import threading
 import time
 from typing import Callable
 
@@ -69,25 +71,32 @@ class LiveClient:
                 Progress, progress_topic,
                 lambda msg: on_progress(msg.step, msg.total, msg.message), 10)
         client = self.node.create_client(service_type, service, qos_profile=SERVICES)
+        # Ctrl-C is noted here and acted on between waits: raised inside rclpy's wait (C++),
+        # a KeyboardInterrupt came out as a pybind11 RuntimeError now and then.
+        interrupts = []
+        previous = (signal.signal(signal.SIGINT, lambda *_: interrupts.append(True))
+                    if threading.current_thread() is threading.main_thread() else None)
         try:
             if not client.wait_for_service(timeout_sec=wait):
                 raise CalibrationError(f'service {service} is not available (is its graph '
                                        f'running on ROS domain {self.context.get_domain_id()}?)')
+            if interrupts:
+                raise KeyboardInterrupt
             future = client.call_async(request)
             start = time.monotonic()
-            missed = 0
+            missed, cancelled = 0, False
             while not future.done():
                 left = timeout - (time.monotonic() - start)
                 if left <= 0:
                     raise CalibrationError(f'{service} did not answer within {timeout:g} s')
-                try:
-                    self.executor.spin_until_future_complete(
-                        future, timeout_sec=min(self.WATCH_PERIOD, left))
-                except KeyboardInterrupt:
-                    if cancel is None:
-                        raise
-                    self._cancel(cancel)
-                    cancel = None           # a second Ctrl-C stops waiting
+                self.executor.spin_until_future_complete(
+                    future, timeout_sec=min(self.WATCH_PERIOD, left))
+                if interrupts and not future.done():
+                    if cancel is None or len(interrupts) > 1:
+                        raise KeyboardInterrupt   # no cancel, or a second Ctrl-C
+                    if not cancelled:
+                        self._cancel(cancel)
+                        cancelled = True
                 # Two misses in a row: one can be a discovery update in flight.
                 missed = 0 if future.done() or client.service_is_ready() else missed + 1
                 if missed >= 2:
@@ -97,6 +106,8 @@ class LiveClient:
                         'output or the node\'s log); nothing was received from it')
             return future.result()
         finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
             self.node.destroy_client(client)
             if subscription is not None:
                 self.node.destroy_subscription(subscription)
