@@ -148,18 +148,18 @@ def _regions_split(flat, mask, blobs, polarity, guard, config):
     Mark cut again at a level of its own: a plate on a light table or in a round field of
     view is one blob of the frame's threshold, darker than its surround, and its dots lie
     inside it darker still. A region is a blob too large for a Mark in either direction or
-    one at the frame's border (where a Mark is refused as clipped anyway); its level is taken from its own
-    pixels' histogram as the frame's is (:func:`levels.mask_levels`), kept where it leaves
-    the region's background out (the region's class above the level is most of it). The
-    cut stands where it gives at least twice the Mark-shaped blobs the frame's threshold
-    gave (see below); ``mask`` is then cut in place and its blobs traced again."""
+    one at the frame's border (where a Mark is refused as clipped anyway); its level is
+    taken from its own pixels' histogram as the frame's is (:func:`levels.mask_levels`),
+    kept where it leaves the region's background out (the region's class above the level
+    is most of it). The cut stands where it gives at least twice the Mark-shaped blobs the
+    frame's threshold gave (see below); ``mask`` is then cut in place and its blobs traced
+    again."""
     contours, boxes, holes = blobs
     height, width = flat.shape
-    original = mask.copy()
+    cut = None          # the mask with the regions cut, copied at the first cut
     largest = 2 * SIZE_SLACK[1] * config.max_size_px
     smallest = 4 * SIZE_SLACK[0] * config.min_size_px
     margin = config.border_margin_px
-    cut = False
     from calib_core.marks.levels import mask_levels
     for contour, (x0, y0, w, h) in zip(contours, boxes):
         at_border = x0 <= margin or y0 <= margin or x0 + w >= width - margin \
@@ -177,20 +177,20 @@ def _regions_split(flat, mask, blobs, polarity, guard, config):
                  else histogram[int(level) + 1:]).sum()
         if not 0 < marks < 0.5 * histogram.sum():
             continue            # one class only: nothing inside stands out of the region
-        window = mask[y0:y0 + h, x0:x0 + w]
+        cut = mask.copy() if cut is None else cut
+        window = cut[y0:y0 + h, x0:x0 + w]
         inside = region.view(bool)
         window[inside] = _mask(pixels, level, polarity)[inside]
-        cut = True
-    if not cut:
+    if cut is None:
         return contours, boxes, holes
-    split = _blobs(mask)
+    split = _blobs(cut)
     # Kept where the regions held the Marks: the frame's threshold found at most half as
     # many (none, on a light table). A dense grid on a dark table has its Marks already;
     # a level of the table's own then finds only what lies on it.
     before = _mark_shaped(contours, boxes, flat.shape, config)
     if _mark_shaped(*split[:2], flat.shape, config) >= max(2 * before, 1):
+        mask[:] = cut
         return split
-    mask[:] = original
     return contours, boxes, holes
 
 
