@@ -26,7 +26,7 @@ def turning(axis_from, axis_to) -> np.ndarray:
     a = np.asarray(axis_from, dtype=float) / np.linalg.norm(axis_from)
     b = np.asarray(axis_to, dtype=float) / np.linalg.norm(axis_to)
     cross = np.cross(a, b)
-    angle = np.arctan2(np.linalg.norm(cross), a @ b)
-    if np.linalg.norm(cross) < 1e-15:
+    sine = np.linalg.norm(cross)
+    if sine < 1e-15:
         return quaternion()     # same direction (a calibrated axis is never reversed)
-    return quaternion(cross / np.linalg.norm(cross) * angle)
+    return quaternion(cross / sine * np.arctan2(sine, a @ b))
