@@ -22,7 +22,7 @@ from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E4
 from printer_alignment.core.records import stage_data_from_records, stage_record  # noqa: E402
 from printer_alignment.sim.camera import CameraOptics  # noqa: E402
 from printer_alignment.sim.gantry import GantryErrors  # noqa: E402
-from printer_alignment.nodes.mark_locator import VISION_UNITS  # noqa: E402
+from printer_alignment.core.vision_calibration import VISION_UNITS  # noqa: E402
 from printer_alignment.sim.stage import TRUE_STAGE  # noqa: E402
 
 PLAN = 'sweep_points: 3\ngrid: [2, 2, 2]\n'

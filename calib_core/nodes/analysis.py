@@ -112,11 +112,9 @@ class AnalysisService:
             response.success, response.message = False, 'a calibration or analysis is running'
             return response
         logger = self.node.get_logger()
-        if self.status is not None:
-            self.status.started()
         try:
             if self.status is not None:
-                self.status.check_alone()
+                self.status.start_run()
             if request.apply and isinstance(self.apply, str):
                 raise InvalidInputError(f'apply refused: {self.apply}; call again without '
                                         'apply for the report')

@@ -187,11 +187,9 @@ class CalibrationService:
             return response
         logger = self.node.get_logger()
         refused = False     # the request itself was at fault, not the machine or the fit
-        if self.status is not None:
-            self.status.started()
         try:
             if self.status is not None:
-                self.status.check_alone()
+                self.status.start_run()
             response.result = self.run(parse_plan(request.plan_yaml))
             response.success, response.message = True, 'ok'
         except (MachineAlignmentError, TypeError, ValueError, yaml.YAMLError) as exc:

@@ -19,9 +19,13 @@ from calib_core.nodes.scene import TF_STATIC_TOPIC, TF_TOPIC, TF_TYPE, transform
 from calib_core.storage import write_calibration
 
 
+# A run's stamp: UTC, sorting in time order (calibration files keep it as ``created``).
+STAMP_FORMAT = '%Y%m%dT%H%M%S%f'
+
+
 def run_stamp() -> str:
     """UTC time stamp naming a run's bag, files and reports (sorts in time order)."""
-    return datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%S%f')
+    return datetime.now(timezone.utc).strftime(STAMP_FORMAT)
 
 
 class RecordedRun:

@@ -40,6 +40,7 @@ from tf2_msgs.msg import TFMessage
 from calib_core.errors import CalibrationError, MachineAlignmentError, RunCancelled
 from calib_core.frames import Frame
 from calib_core.nodes.qos import SERVICES
+from calib_core.nodes.recording import STAMP_FORMAT
 from calib_core.nodes.scene import TF_STATIC_TOPIC, transform_message
 from calib_core.storage import read_calibration
 
@@ -50,7 +51,6 @@ TF_STATIC_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 DEFAULT_MAX_AGE_DAYS = 30.0
 TWIN_CHECK_PERIOD_S = 2.0    # s between looks for another node of this name
-_STAMP_FORMAT = '%Y%m%dT%H%M%S%f'     # calib_core.nodes.recording.run_stamp
 
 
 class _Tap:
@@ -82,14 +82,16 @@ class CalibratorStatus:
     frames : callable, optional
         The calibrated frames of a calibration file's content: (parent, child, translation
         (3,) m, quaternion (x, y, z, w)) each; None where the calibration fixes no frame.
-    busy : threading.Lock, optional
-        Held while the node runs a calibration: hand it to the node's CalibrationService
-        (a new one where none is given)."""
 
-    def __init__(self, node, name: str, frames: Callable[[dict], list[Frame]] | None = None,
-                 busy: threading.Lock | None = None):
+    Attributes
+    ----------
+    busy : threading.Lock
+        Held while the node runs a calibration or an analysis: hand it to the node's
+        CalibrationService."""
+
+    def __init__(self, node, name: str, frames: Callable[[dict], list[Frame]] | None = None):
         self.node, self.name, self.frames = node, name, frames
-        self.busy = busy or threading.Lock()
+        self.busy = threading.Lock()
         node.declare_parameter('max_calibration_age_days', DEFAULT_MAX_AGE_DAYS)
         self.max_age_days = float(node.get_parameter('max_calibration_age_days').value)
         if not self.max_age_days > 0:
@@ -100,7 +102,6 @@ class CalibratorStatus:
         self._refused: str | None = None
         self._loop: dict | None = None
         self._doing = ''
-        self._frames_sent: list[Frame] = []
         self.frames_message: TFMessage | None = None
         self._tf_pub = node.create_publisher(TFMessage, TF_STATIC_TOPIC, TF_STATIC_QOS)
         self._diagnostics_pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
@@ -134,9 +135,11 @@ class CalibratorStatus:
 
     # -- cancelling a run -----------------------------------------------------------------
 
-    def started(self) -> None:
-        """A run (calibration or analysis) starts: an earlier cancel does not apply to it."""
+    def start_run(self) -> None:
+        """A run (calibration or analysis) starts: an earlier cancel does not apply to it,
+        and it may not run beside a twin (:meth:`check_alone` raises)."""
         self._cancel.clear()
+        self.check_alone()
 
     def check_cancelled(self) -> None:
         """Called before each move of a run: the safe point where a cancel stops it.
@@ -235,7 +238,6 @@ class CalibratorStatus:
         now = self.node.get_clock().now().nanoseconds
         self.frames_message = transform_message(now, frames)
         self._tf_pub.publish(self.frames_message)
-        self._frames_sent = frames
 
     # -- what it says ---------------------------------------------------------------------
 
@@ -268,8 +270,9 @@ class CalibratorStatus:
                 problems.append(f'the last closed loop left {len(loop["unexplained"])} '
                                 'structure(s) unexplained')
                 level = DiagnosticStatus.WARN
-        if self._frames_sent:
-            values['frames'] = ', '.join(f'{p}->{c}' for p, c, *_ in self._frames_sent)
+        if self.frames_message is not None:
+            values['frames'] = ', '.join(f'{t.header.frame_id}->{t.child_frame_id}'
+                                         for t in self.frames_message.transforms)
         if refused is not None:
             values['last_request_refused'] = refused
         if self.twin:
@@ -296,7 +299,7 @@ class CalibratorStatus:
 def _age_days(created: str, now: datetime) -> float | None:
     """Days since a calibration's ``created`` stamp (UTC), or None where it has none."""
     try:
-        made = datetime.strptime(created, _STAMP_FORMAT).replace(tzinfo=timezone.utc)
+        made = datetime.strptime(created, STAMP_FORMAT).replace(tzinfo=timezone.utc)
     except ValueError:
         return None
     return (now - made).total_seconds() / 86400.0

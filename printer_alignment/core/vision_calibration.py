@@ -14,6 +14,13 @@ from calib_core.least_squares import FitResult, fit
 from calib_core.parameters import Parameter, ParameterSet
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 
+# The units of a vision calibration's parameters (SI), as its reports and results state
+# them: the camera's scale and turn, then the gantry model's.
+CAMERA_UNITS = {'pixel_size': 'm/px', 'camera_angle': 'rad'}
+GANTRY_UNITS = {'lead_x': 'm/rev', 'lead_y': 'm/rev', 'axis_angle': 'rad',
+                'non_orthogonality': 'rad', 'offset_x': 'm', 'offset_y': 'm'}
+VISION_UNITS = {**CAMERA_UNITS, **GANTRY_UNITS}
+
 
 def _check_uv(uv, what: str) -> np.ndarray:
     uv = np.asarray(uv, dtype=float)
@@ -129,8 +136,7 @@ class GantryResult:
         norm = np.linalg.norm(residual, axis=1)
         return {'parameters': self.model.as_dict(),
                 'std_devs': self.fit.std_devs,
-                'units': {'lead_x': 'm/rev', 'lead_y': 'm/rev', 'axis_angle': 'rad',
-                          'non_orthogonality': 'rad', 'offset_x': 'm', 'offset_y': 'm'},
+                'units': dict(GANTRY_UNITS),
                 'residual_rms_m': float(np.sqrt(np.mean(norm ** 2))),
                 'residual_max_m': float(norm.max()),
                 'condition_number': self.fit.condition_number,

@@ -24,17 +24,13 @@ from calib_core.nodes.qos import LATCHED
 from printer_alignment.core.geometry import (
     NOMINAL_LEADS, CameraToPlate, GantryModel)
 from printer_alignment.core.records import VISION_RESULT_TOPIC
+from printer_alignment.core.vision_calibration import VISION_UNITS
 from printer_alignment.core.vision_procedure import check_vision_parameters
 from printer_alignment.nodes.conversions import marks_from_message
 
 GANTRY_KEYS = ('lead_x', 'lead_y', 'axis_angle', 'non_orthogonality', 'offset_x', 'offset_y')
 
 
-# The units a vision result states for what the locator uses (SI, as vision_calibrator
-# writes them): a result in other units is another node's, or a forgery.
-VISION_UNITS = {'pixel_size': 'm/px', 'camera_angle': 'rad', 'lead_x': 'm/rev',
-                'lead_y': 'm/rev', 'axis_angle': 'rad', 'non_orthogonality': 'rad',
-                'offset_x': 'm', 'offset_y': 'm'}
 # The only node whose vision results are used.
 VISION_PUBLISHER = 'vision_calibrator'
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'     # rmw's name for an endpoint not yet matched to a node
@@ -49,6 +45,8 @@ def vision_from_message(msg):
     ------
     InvalidInputError, CalibrationError
         Any of these fails (the message says which)."""
+    # A result in units other than vision_calibrator's (VISION_UNITS) is another node's,
+    # or a forgery.
     if msg.kind != 'vision':
         raise InvalidInputError(f'a {msg.kind!r} result on the vision topic, not a vision one')
     values = dict(zip(msg.names, msg.values))

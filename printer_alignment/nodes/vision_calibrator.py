@@ -56,7 +56,8 @@ from printer_alignment.core.loop_models import GantryData, GantryLoopModel
 from printer_alignment.core.records import (
     INTRINSICS_RESULT_TOPIC as INTRINSICS_TOPIC, VISION_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC,
     VISION_RESULT_TOPIC as RESULT_TOPIC)
-from printer_alignment.core.vision_calibration import calibrate_pixel_size, locate_camera
+from printer_alignment.core.vision_calibration import (
+    CAMERA_UNITS, calibrate_pixel_size, locate_camera)
 from printer_alignment.core.vision_procedure import (
     MAX_PITCH_M, VisionCalibration, VisionPlan, observation_from_message,
     run_vision_calibration)
@@ -77,7 +78,7 @@ def _result_message(pixel_size, camera_angle, report, header, file_path, version
                   **gantry['parameters']}
     std = {'pixel_size': report['pixel_size']['pixel_size_std_m'],
            'camera_angle': report['pixel_size']['angle_std_rad'], **gantry['std_devs']}
-    units = {'pixel_size': 'm/px', 'camera_angle': 'rad', **gantry['units']}
+    units = {**CAMERA_UNITS, **gantry['units']}
     return calibration_result_as_message(
         'vision', header, parameters, std, units, report, gantry['residual_rms_m'],
         gantry['residual_max_m'], 'm', gantry['num_positions'], file_path, version)
