@@ -26,8 +26,13 @@ The three machines after them:
    ``platform_calibrator/register`` (exact compensation, marks measured after the move).
 9. Five-axis dispenser: ``five_axis_calibrator/calibrate`` on rendered camera frames,
    ``measure_needle`` from dispensed dots, ``locate`` a part and place its path.
-Last, one summary table (machine, before, after, the paper's figure, the figure file),
-printed and written as ``summary.md`` and ``summary.json``.
+Last, one summary table (machine, before, after, the paper's figure, the simulated
+instruments' noise, the figure file), printed and written as ``summary.md`` and
+``summary.json``.
+
+The simulated instruments run at the noise the sources report (:data:`INSTRUMENTS`), so
+the demo's numbers compare with the papers'; ``low_noise`` runs them ten times quieter,
+and the table says so.
 """
 from __future__ import annotations
 
@@ -36,7 +41,7 @@ import json
 import os
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import matplotlib
@@ -72,12 +77,54 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (after the backend is chosen)
 
 
+@dataclass(frozen=True)
+class Instrument:
+    """One simulated instrument's noise in the demo: the sim node and its parameter, the
+    value the source reports (SI, 1 sigma per axis), and how the summary names it."""
+
+    module: str
+    parameter: str
+    source: float
+    label: str
+    unit: str
+    per_si: float       # display units per SI unit
+
+
+_GANTRY = Instrument('printer_alignment.nodes.gantry_sim', 'landing_sigma', 12.5e-6 / 50,
+                     'camera positions (gantry landing; the source: 1/50 px at 12.5 um)',
+                     'um', 1e6)
+# The sources' figures: the printer paper's Mark-centre accuracy and stage repeatability
+# (3.3 um unidirectional), the hexapod paper's CMM (0.6 um), the five-axis paper's dot-centre
+# noise (0.1 px, giving its 0.17 px reprojection); the platform paper gives none, so the
+# tracker has the rebuilt simulation's 10 um (SEEDS_CDE.md, platform, PROPOSED).
+INSTRUMENTS = {
+    'printer': (_GANTRY,),
+    'stage': (_GANTRY, Instrument('printer_alignment.nodes.stage_sim', 'landing_sigma', 1.2e-6,
+                                  'stage landing per chain (the source: 3.3 um repeatability)',
+                                  'um', 1e6)),
+    'hexapod': (Instrument('hexapod_calib.nodes.pose_sensor_sim', 'position_noise', 0.6e-6,
+                           'pose sensor (the source\'s CMM: 0.6 um)', 'um', 1e6),
+                Instrument('hexapod_calib.nodes.pose_sensor_sim', 'angle_noise', 6e-6,
+                           'pose sensor angles', 'urad', 1e6)),
+    'grid': (_GANTRY,),
+    'platform': (Instrument('platform_calib.nodes.laser_tracker_sim', 'position_noise', 10e-6,
+                            'laser tracker (no figure in the source; the rebuilt 10 um)',
+                            'um', 1e6),
+                 Instrument('platform_calib.nodes.laser_tracker_sim', 'angle_noise', 20e-6,
+                            'tracker angles', 'urad', 1e6)),
+    'five_axis': (Instrument('dispenser_calib.nodes.five_axis_sim', 'noise_px', 0.1,
+                             'dot centres (the source: 0.1 px)', 'px', 1.0),),
+}
+LOW_NOISE_FACTOR = 0.1      # a low-noise run's instruments against the sources'
+
+
 @dataclass
 class DemoRun:
     """The demo's folder and ROS domain, its numbered steps and its summary rows."""
 
     out: Path
     domain: str
+    low_noise: bool = False
     total_steps: int = 9
     steps_done: int = 0
     rows: list = field(default_factory=list)
@@ -86,13 +133,33 @@ class DemoRun:
         self.steps_done += 1
         print(f'[{self.steps_done}/{self.total_steps}] {text}', flush=True)
 
-    def row(self, machine: str, before: str, after: str, paper: str, figure: str) -> None:
+    def noisy(self, machine: str, spec: list) -> list:
+        """``spec`` (a graph) with ``machine``'s instruments at the demo's noise."""
+        values = {(i.module, i.parameter): self._noise(i) for i in INSTRUMENTS[machine]}
+        return [replace(node, parameters={
+            **node.parameters, **{p: v for (m, p), v in values.items() if m == node.module}})
+            for node in spec]
+
+    def _noise(self, instrument: Instrument) -> float:
+        return instrument.source * (LOW_NOISE_FACTOR if self.low_noise else 1.0)
+
+    def noise_text(self, machine: str) -> str:
+        """What the summary says of ``machine``'s simulated instruments."""
+        text = '; '.join(f'{i.label} {self._noise(i) * i.per_si:.3g} {i.unit}'
+                         for i in INSTRUMENTS[machine])
+        return text + (f' (low-noise run: {LOW_NOISE_FACTOR:g} x the sources\')'
+                       if self.low_noise else '')
+
+    def row(self, machine: str, before: str, after: str, paper: str, figure: str,
+            noise: str) -> None:
         """One line of the closing summary; ``figure`` relative to the demo folder."""
         self.rows.append({'machine': machine, 'before': before, 'after': after,
-                          'paper': paper, 'figure': figure})
+                          'paper': paper, 'noise (1 sigma, simulated)': noise,
+                          'figure': figure})
 
     def summary(self) -> str:
-        header = ['machine', 'before', 'after', 'paper', 'figure']
+        header = ['machine', 'before', 'after', 'paper', 'noise (1 sigma, simulated)',
+                  'figure']
         lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
         lines += ['| ' + ' | '.join(row[k] or '-' for k in header) + ' |' for row in self.rows]
         return '\n'.join(lines) + '\n'
@@ -159,7 +226,8 @@ def _print_analysis(response) -> None:
 def _printer(run: DemoRun) -> int:
     out, domain = run.out, run.domain
     run.step(f'starting the simulated printer (ROS_DOMAIN_ID={domain}); logs in {out}/logs/<phase>')
-    graph_spec = printer_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
+    graph_spec = run.noisy('printer', printer_graph(output_dir=str(out / 'calibration'),
+                                                   record_dir=str(out / 'runs')))
     start = time.monotonic()
     with Graph(graph_spec, env={'ROS_DOMAIN_ID': domain},
                log_dir=str(out / 'logs' / 'printer')) as graph:
@@ -207,14 +275,16 @@ def _printer(run: DemoRun) -> int:
             f'max {report["before"]["max_um"]:.1f} um, RMS {report["before"]["rms_um"]:.1f} um',
             f'max {report["after"]["max_um"]:.2f} um, RMS {report["after"]["rms_um"]:.2f} um'
             + loop, '', ', '.join(filter(None, ['vision_evaluation.png',
-                                                  _loop_figure(analysis, out)])))
+                                                  _loop_figure(analysis, out)])),
+            run.noise_text('printer'))
     return 0
 
 
 def _hexapod(run: DemoRun) -> int:
     out, domain = run.out, run.domain
     run.step('starting the simulated hexapod cell and calibrating it')
-    spec = hexapod_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'))
+    spec = run.noisy('hexapod', hexapod_graph(output_dir=str(out / 'calibration'),
+                                              record_dir=str(out / 'runs')))
     start = time.monotonic()
     with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / 'hexapod')) as graph:
         response, analysis = _run_service(graph, 'hexapod_calibrator/calibrate',
@@ -255,16 +325,16 @@ def _hexapod(run: DemoRun) -> int:
             f'max {after["max_displacement_m"] * 1e6:.1f} um / '
             f'{after["max_angle_rad"] * 1e6:.0f} urad; {inside * 100:.0f} % of the 42 '
             'parameters within 3 sigma of truth', '12.1 um / 1100 urad',
-            _loop_figure(analysis, out))
+            _loop_figure(analysis, out), run.noise_text('hexapod'))
     return 0
 
 
-def run_demo(out: Path) -> int:
+def run_demo(out: Path, low_noise: bool = False) -> int:
     out = out.resolve()
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
-    run = DemoRun(out, str(100 + os.getpid() % 100))
+    run = DemoRun(out, str(100 + os.getpid() % 100), low_noise)
     os.environ['ROS_DOMAIN_ID'] = run.domain
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     started = time.monotonic()
@@ -299,7 +369,8 @@ def _grid(run: DemoRun) -> int:
     out, domain = run.out, run.domain
     run.step('grid-plate self-calibration of the camera gantry (a 5 x 5 mark plate over 2 '
           'regions, the simulated operator places it)')
-    spec = grid_graph(str(out / 'calibration'), str(out / 'runs'), half=2, columns=2, rows=1)
+    spec = run.noisy('grid', grid_graph(str(out / 'calibration'), str(out / 'runs'), half=2,
+                                        columns=2, rows=1))
     with _graph('grid', spec, out, domain) as graph:
         report = _calibrated(graph, 'grid', 'grid_calibrator/calibrate')
     if report is None:
@@ -319,7 +390,8 @@ def _grid(run: DemoRun) -> int:
     run.row(f'grid plate ({len(errors)} sites, {report["stitching"]["regions"]} regions)',
             f'stage error up to {np.abs(errors).max() * 1e6:.2f} um at the sites',
             f'mapped; non-orthogonality {square * 1e6:.1f} urad (simulated '
-            f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)', '', 'grid_map.png')
+            f'{GantryErrors().model.non_orthogonality * 1e6:.1f} urad)', '', 'grid_map.png',
+            run.noise_text('grid'))
     return 0
 
 
@@ -327,8 +399,8 @@ def _platform(run: DemoRun) -> int:
     out, domain = run.out, run.domain
     run.step('the screen-registration platform: identification by the laser tracker, then '
           'registration of a screen')
-    with _graph('platform', platform_graph(str(out / 'calibration'), str(out / 'runs')), out,
-                domain) as graph:
+    spec = run.noisy('platform', platform_graph(str(out / 'calibration'), str(out / 'runs')))
+    with _graph('platform', spec, out, domain) as graph:
         report = _calibrated(graph, 'platform', 'platform_calibrator/calibrate', '{poses: 20}')
         if report is None:
             return 1
@@ -353,7 +425,8 @@ def _platform(run: DemoRun) -> int:
             f'screen placed {before * 1e3:.2f} mm off',
             f'median {evaluation["evaluate_calibrated"]["median_m"] * 1e6:.1f} um; marks '
             f'{answer.measured_error * 1e6:.1f} um off after the move',
-            '0.21-1.96 mm -> about 0.10 mm', 'platform_evaluation.png')
+            '0.21-1.96 mm -> about 0.10 mm', 'platform_evaluation.png',
+            run.noise_text('platform'))
     return 0
 
 
@@ -401,8 +474,8 @@ def _five_axis(run: DemoRun) -> int:
     out, domain = run.out, run.domain
     run.step('the five-axis dispenser: calibration from rendered camera frames, the needle '
           'measured from dispensed dots, a part located and its path placed')
-    with _graph('five_axis', five_axis_graph(str(out / 'calibration'), str(out / 'runs')), out,
-                domain) as graph:
+    spec = run.noisy('five_axis', five_axis_graph(str(out / 'calibration'), str(out / 'runs')))
+    with _graph('five_axis', spec, out, domain) as graph:
         report = _calibrated(graph, 'five-axis', 'five_axis_calibrator/calibrate',
                              '{frames: true}')
         if report is None:
@@ -433,7 +506,7 @@ def _five_axis(run: DemoRun) -> int:
     run.row(f'five-axis dispenser ({report["held_out"]["images"]} held-out images)',
             f'{report["held_out"]["rms_px_nominal"]:.1f} px RMS (nominal model)',
             f'{report["held_out"]["rms_px_calibrated"]:.4f} px RMS', '0.17 px',
-            figure.name)
+            figure.name, run.noise_text('five_axis'))
     return 0
 
 
@@ -477,8 +550,9 @@ def _plot_five_axis_evaluation(path: Path, calibration: dict) -> None:
 def _stage(run: DemoRun) -> int:
     out, domain = run.out, run.domain
     run.step('the XY-Theta stage: self-calibration with the camera, then alignment')
-    spec = stage_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
-                       substrate_shift=(0.25e-3, -0.15e-3, float(np.deg2rad(0.04))))
+    spec = run.noisy('stage', stage_graph(
+        output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
+        substrate_shift=(0.25e-3, -0.15e-3, float(np.deg2rad(0.04)))))
     start = time.monotonic()
     with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / 'stage')) as graph:
         response, analysis = _run_service(graph, 'stage_calibrator/calibrate',
@@ -517,5 +591,5 @@ def _stage(run: DemoRun) -> int:
     run.row('XY-Theta stage (one alignment of a substrate 0.3 mm off, camera-measured)',
             f'{left["nominal"]:.2f} um left (nominal model)',
             f'{left["parametric"]:.2f} um (parametric), {left["stepwise"]:.2f} um (stepwise)',
-            'max 12.3 um', _loop_figure(analysis, out))
+            'max 12.3 um', _loop_figure(analysis, out), run.noise_text('stage'))
     return 0

@@ -47,6 +47,23 @@ def test_rendered_frame_gives_every_dot_named_at_its_ellipse_centre():
     assert np.abs(image.pixels - expected).max() < TOLERANCE['detected_px']
 
 
+def test_dot_centre_noise_moves_each_detected_centre_by_its_sigma():
+    """``centre_noise_px`` (the source's 0.1 px dot-centre noise) draws each dot that far
+    off its true image, per frame: the detected centres scatter about the truth by it
+    (the detector's own floor, about 0.003 px, adds nothing visible)."""
+    truth, nominal = true_model(0), nominal_model()
+    pose = _tilted_stop()
+    board, indices = board_points()
+    where = {tuple(i): k for k, i in enumerate(indices)}
+    expected = project(truth, board, pose[None], DOT_RADIUS)[0]
+    image = observe_frame(render_board(truth, pose, IMAGE_SIZE, seed=3, centre_noise_px=0.1),
+                          pose, nominal, 'tilted')
+    scatter = image.pixels - expected[[where[tuple(i)] for i in image.indices]]
+    assert len(scatter) == len(indices)
+    assert np.allclose(scatter.std(axis=0), 0.1, rtol=0.2)
+    assert np.all(np.abs(scatter.mean(axis=0)) < 0.03)
+
+
 @pytest.mark.parametrize('shift_pitches', [0.3, 0.7, 1.3])
 def test_naming_survives_a_prediction_off_by_more_than_half_a_pitch(shift_pitches):
     """The full board in view: the whole-pitch lattice shift is unique and corrects it."""

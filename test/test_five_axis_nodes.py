@@ -129,8 +129,11 @@ def test_a_run_on_rendered_frames_finds_and_names_the_dots_itself(graph):
     """frames: the machine returns camera frames of planned stops (rendered: perspective,
     distortion, noise; 10 % of them with one dot hidden and one drawn 15-30 px off), the
     calibrator finds the dots with the Mark detector and names them with the calibration in
-    force. Tolerances: 0.05 px mean reprojection (the detector's floor on these frames is
-    about 0.003 px, the held-out poses add none), 0.1 px held out."""
+    force. Each dot is drawn 0.1 px (1 sigma per axis, the source's dot-centre noise) off
+    its true image, so a right calibration leaves a mean reprojection of 0.1 sqrt(pi/2) =
+    0.125 px and a held-out RMS of 0.1 sqrt(2) = 0.141 px (the detector's own floor on
+    these frames is about 0.003 px). Tolerances: 0.14 px mean, 0.16 px held out; a dot
+    mis-named or a parameter wrong by a fraction of a pixel exceeds them."""
     _, node, out = graph
     client = node.create_client(RunCalibration, 'five_axis_calibrator/calibrate')
     # 14 planned stops (every one seen at 60 degrees or less) keep the run short.
@@ -138,8 +141,8 @@ def test_a_run_on_rendered_frames_finds_and_names_the_dots_itself(graph):
         plan_yaml='{frames: true, design: I, stops: 14, evaluation: 2}'), timeout=300.0)
     assert response.success, response.message
     report = json.loads(response.result.report_json)
-    assert report['mean_reprojection_px'] < 0.05
-    assert report['held_out']['rms_px_calibrated'] < 0.1
+    assert 0.11 < report['mean_reprojection_px'] < 0.14
+    assert report['held_out']['rms_px_calibrated'] < 0.16
     # What a viewer shows: every stop's camera frame (JPEG) and the machine's frames on
     # /tf at the commanded pose, one message per stop, beside the observations.
     import cv2

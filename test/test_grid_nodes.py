@@ -31,7 +31,12 @@ PLAN = {'half': 1, 'pitch': 7.5e-3, 'columns': 2, 'rows': 1}     # 2 regions of 
 # The shop's temperature cycles by +-4 K over 5 s (the run takes seconds where a machine's
 # takes hours) and the screws grow by 20 ppm/K, which the rotary encoders do not see.
 SCREW_EXPANSION_PER_K = 20e-6
-GANTRY = {'cycle_amplitude': 4.0, 'cycle_period': 5.0, 'screw_expansion': SCREW_EXPANSION_PER_K}
+# The gantry lands where its model says (landing_sigma 0, the sources' 0.25 um by default):
+# 2 regions of 3 x 3 marks hold too few readings to find a growth of about 0.6 um under
+# that scatter in every region; the loop's power at the sources' noise is measured in
+# bench_results/closed_loop.md, the live graph's plumbing here.
+GANTRY = {'cycle_amplitude': 4.0, 'cycle_period': 5.0, 'screw_expansion': SCREW_EXPANSION_PER_K,
+          'landing_sigma': 0.0}
 
 
 @pytest.fixture(scope='module')

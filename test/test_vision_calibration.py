@@ -91,6 +91,26 @@ def test_gantry_refuses_targets_outside_travel():
         gantry.move(float('nan'), 0.0)
 
 
+def test_gantry_landing_scatters_the_true_position_by_its_sigma():
+    """A move lands ``landing_sigma`` (1 sigma per axis) off the model's position, drawn
+    again only when the gantry moves; a negative or non-finite sigma is refused."""
+    exact, scattered = GantrySim(), GantrySim(landing_sigma=0.5e-6, seed=4)
+    offsets = []
+    for x in np.linspace(0.01, 0.19, 400):
+        exact.move(x, 0.05)
+        scattered.move(x, 0.05)
+        offsets.append(scattered.true_camera_position() - exact.true_camera_position())
+    offsets = np.array(offsets)
+    assert np.allclose(offsets.std(axis=0), 0.5e-6, rtol=0.12)
+    assert np.all(np.abs(offsets.mean(axis=0)) < 0.1e-6)
+    still = scattered.true_camera_position()
+    scattered.move(*scattered.axis_position)          # no motion: the carriage stays put
+    assert np.array_equal(scattered.true_camera_position(), still)
+    for sigma in (-1e-6, np.nan):
+        with pytest.raises(InvalidInputError, match='landing_sigma'):
+            GantrySim(landing_sigma=sigma)
+
+
 def test_calibration_files_are_versioned(tmp_path):
     first, v1 = write_calibration(tmp_path, 'vision', {'a': 1})
     second, v2 = write_calibration(tmp_path, 'vision', {'a': 2})

@@ -9,7 +9,8 @@ table: its CAD features ``part_cad`` (x y z per feature, m) placed at ``part_pos
 z m, rotation vector rad); ``five_axis/capture_features`` (CaptureDots: i the feature's
 number) returns the features in view with the same noise. ``five_axis/capture_frame``
 (CaptureFrame) returns the camera's frame of the board instead, rendered (perspective,
-distortion, ``frame_noise`` grey levels; about 1 s a frame); with probability
+distortion, each dot drawn ``noise_px`` off, ``frame_noise`` grey levels; about 1 s a
+frame); with probability
 ``bad_fraction`` one dot is hidden and another drawn 15-30 px off (dust).
 The needle (its true tip ``needle_tip``, m in the camera frame) dispenses a test dot where
 it touches the table (``five_axis/dispense``, std_srvs/Trigger);
@@ -125,7 +126,7 @@ class FiveAxisSimNode(Node):
         occluded = (tuple(indices[hidden]),) if bad else ()
         displaced = {tuple(indices[dust]): offset} if bad else None
         frame = render_board(self.truth, pose, IMAGE_SIZE, self.frame_noise, seed, occluded,
-                             displaced)
+                             displaced, centre_noise_px=self.noise)
         response.success, response.message = True, 'ok'
         response.image = image_as_message(
             frame, Header(stamp=self.get_clock().now().to_msg(), frame_id='camera'))

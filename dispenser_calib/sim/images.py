@@ -64,12 +64,16 @@ def _coverage(mark: MarkShape, ideal: np.ndarray) -> np.ndarray:
 
 
 def render_board(model: DispenserModel, pose: np.ndarray, size, noise: float = 2.0,
-                 seed: int = 0, occluded: tuple = (), displaced: dict | None = None) -> np.ndarray:
+                 seed: int = 0, occluded: tuple = (), displaced: dict | None = None,
+                 centre_noise_px: float = 0.0) -> np.ndarray:
     """The camera's 8-bit frame (height, width) of the board at ``pose`` (5,): every dot
     whose ellipse lies inside the frame, rendered through the distortion, except the board
     indices in ``occluded``; the dots in ``displaced`` (index (i, j) -> (du, dv) px) drawn
     that far off (dust on the dot: a mis-detection); Gaussian noise of ``noise`` grey
-    levels. Poses outside the strokes are refused."""
+    levels. Each dot is drawn ``centre_noise_px`` (1 sigma per axis, drawn per frame from
+    ``seed``) off its true image: what the source's dot-centre noise (0.1 px) stands for,
+    from print, illumination and focus, which a clean rendering alone does not have. Poses
+    outside the strokes are refused."""
     check_stroke(pose)
     width, height = (int(s) for s in size)
     frame = np.full((height, width), BACKGROUND)
@@ -77,10 +81,12 @@ def render_board(model: DispenserModel, pose: np.ndarray, size, noise: float = 2
     distorted = project(model, board, pose[None])[0]
     k, distortion = model.camera_matrix, model.distortion
     hidden = {tuple(i) for i in occluded}
-    for point, index, (u, v) in zip(board, indices, distorted):
+    jitter = np.random.default_rng(seed + 81).normal(0.0, centre_noise_px, (len(board), 2))
+    for point, index, (u, v), (du, dv) in zip(board, indices, distorted, jitter):
         if tuple(index) in hidden or not np.isfinite(u):
             continue
         mark = dot_ellipse(model, pose, point)
+        mark = replace(mark, u=mark.u + du, v=mark.v + dv)
         shift = (displaced or {}).get(tuple(index))
         if shift is not None:
             mark = replace(mark, u=mark.u + shift[0], v=mark.v + shift[1])

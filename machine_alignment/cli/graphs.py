@@ -46,7 +46,7 @@ def cmd_launch(args) -> int:
 
 def cmd_demo(args) -> int:
     stop_on_sigterm()
-    return run_demo(Path(args.out))
+    return run_demo(Path(args.out), args.low_noise)
 
 
 def add_parser(sub) -> None:
@@ -63,4 +63,7 @@ def add_parser(sub) -> None:
 
     demo = sub.add_parser('demo', help=command_help('demo'))
     demo.add_argument('--out', default='out/demo', help="folder for the demo's calibrations, bags, logs and figures")
+    demo.add_argument('--low-noise', action='store_true',
+                      help="the simulated instruments ten times quieter than the sources' "
+                           '(by default they run at the noise the sources report)')
     demo.set_defaults(func=cmd_demo)

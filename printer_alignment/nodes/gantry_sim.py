@@ -6,7 +6,9 @@ simulator only, the true camera position on ``sim/truth/camera_position``. Servi
 ``gantry/move`` moves to an absolute axis position (m) and refuses targets outside the
 travel. Its temperature changes as it runs (a warm-up and the shop's cycle: see
 MachineTemperature), and its screws grow by ``screw_expansion`` (1/K), which the encoders
-do not see.
+do not see. Each move lands within ``landing_sigma`` (m, 1 sigma per axis; by default
+0.25 um, the 1/50 px the source cites for its Mark centres at its 12.5 um pixels, so the
+camera-measured positions scatter as the source's did), drawn from ``seed``.
 """
 import dataclasses
 import threading
@@ -46,6 +48,8 @@ class GantrySimNode(Node):
         self.declare_parameter('cycle_amplitude', 0.0)        # K, the shop's cycle
         self.declare_parameter('cycle_period', 1800.0)        # s
         self.declare_parameter('screw_expansion', 0.0)        # 1/K, unseen by the encoders
+        self.declare_parameter('landing_sigma', 0.25e-6)      # m, 1 sigma: 1/50 px of 12.5 um
+        self.declare_parameter('seed', 0)                     # of the landing scatter
         p = {n: self.get_parameter(n).value for n in ('x_min', 'x_max', 'y_min', 'y_max')}
         if not (p['x_min'] < p['x_max'] and p['y_min'] < p['y_max']):
             raise ValueError(f'invalid travel {p}')
@@ -61,7 +65,9 @@ class GantrySimNode(Node):
             raise ValueError(f'|screw_expansion| must be below 1e-3 1/K, not {expansion}')
         errors = GantryErrors.ideal() if self.get_parameter('ideal').value else GantryErrors()
         errors = dataclasses.replace(errors, screw_expansion=expansion)
-        self.gantry = GantrySim(errors, Travel(**p))
+        self.gantry = GantrySim(errors, Travel(**p),
+                                float(self.get_parameter('landing_sigma').value),
+                                int(self.get_parameter('seed').value))
         self._started = self.get_clock().now()
         self._lock = threading.Lock()
         self.state_pub = self.create_publisher(GantryState, 'gantry/state', 10)

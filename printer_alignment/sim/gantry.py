@@ -11,7 +11,8 @@ direction of the last move) and lead-screw periodic error e(theta) = A sin(2 pi 
 axis positions in m converted with the nominal leads, as a real drive does. Optionally the
 screws expand as the machine warms, their leads R (1 + k dT), which the rotary encoders do
 not see: the carriage runs ahead of the reading by k dT times its distance from the
-screws' zero.
+screws' zero. A move lands within ``landing_sigma`` (m, 1 sigma per axis) of where the
+model puts it: the machine's repeatability, which no calibration removes.
 """
 from __future__ import annotations
 
@@ -87,9 +88,16 @@ class Travel:
 class GantrySim:
     """State of the simulated gantry. Moves are instantaneous; use :meth:`move`."""
 
-    def __init__(self, errors: GantryErrors = GantryErrors(), travel: Travel = Travel()):
+    def __init__(self, errors: GantryErrors = GantryErrors(), travel: Travel = Travel(),
+                 landing_sigma: float = 0.0, seed: int | None = None):
+        if not (np.isfinite(landing_sigma) and 0.0 <= landing_sigma < 1e-3):
+            raise InvalidInputError(
+                f'landing_sigma must be a length in m in [0, 1e-3), not {landing_sigma}')
         self.errors = errors
         self.travel = travel
+        self.landing_sigma = float(landing_sigma)
+        self._rng = np.random.default_rng(seed)
+        self._landing = np.zeros(2)   # m: where this move's carriage came to rest, off the model
         self.revs = np.zeros(2)
         self._direction = np.ones(2)  # +1: last moved towards +, -1: towards -
         self.warming = 0.0            # K above the temperature of the leads in the model
@@ -120,6 +128,8 @@ class GantrySim:
         moved = step != 0
         self._direction[moved] = np.sign(step[moved])
         self.revs = target
+        if moved.any() and self.landing_sigma > 0:
+            self._landing = self._rng.normal(0.0, self.landing_sigma, 2)
         return self.axis_position
 
     def true_camera_position(self) -> np.ndarray:
@@ -134,7 +144,8 @@ class GantrySim:
             e.model.lead_y * grown * theta[1]
             + e.periodic_amplitude_y * np.sin(2 * np.pi * theta[1] + e.periodic_phase_y)
             - 0.5 * e.backlash_y * self._direction[1]])
-        return e.model.matrix() @ screw + np.array([e.model.offset_x, e.model.offset_y])
+        return (e.model.matrix() @ screw + np.array([e.model.offset_x, e.model.offset_y])
+                + self._landing)
 
 
 def measure_positions(gantry: GantrySim, targets: np.ndarray, noise: float = 0.3e-6,
