@@ -13,7 +13,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 .PHONY: setup demo test bench mutants clean
 
-setup: $(VENV)/.stamp-compiled $(VENV)/.stamp-foxglove
+setup: $(VENV)/.stamp-compiled $(VENV)/.stamp-foxglove $(VENV)/.stamp-chromium
 
 $(BIN)/python:
 	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' || { \
@@ -56,6 +56,17 @@ $(VENV)/.stamp-foxglove: tools/foxglove/package.json tools/foxglove/package-lock
 	@if command -v npm > /dev/null; then \
 	  cd tools/foxglove && npm ci --no-audit --no-fund --loglevel=error && touch $@; \
 	else echo "make: no npm: the Foxglove decoder test will be skipped (apt install nodejs npm)"; fi
+
+# Debian's Chromium, for the test that renders the HTML reports headless: installed where
+# this machine can (root with apt-get); elsewhere the step says so and that test is skipped.
+$(VENV)/.stamp-chromium: | $(BIN)/python
+	@if command -v chromium > /dev/null; then touch $@; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get > /dev/null; then \
+	  mkdir -p build && { apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
+	    apt-get install -y -qq --no-install-recommends chromium; } > build/apt.log 2>&1 \
+	  && touch $@ || { tail -n 20 build/apt.log; \
+	    echo "make: chromium not installed: the HTML report's browser test will be skipped"; }; \
+	else echo "make: no chromium (apt install chromium): the HTML report's browser test will be skipped"; fi
 
 demo: setup
 	$(BIN)/machine-align demo --out out/demo

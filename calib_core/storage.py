@@ -45,7 +45,8 @@ def next_version(directory: str | os.PathLike, name: str) -> int:
 
 
 def write_calibration(directory: str | os.PathLike, name: str, content: dict) -> tuple[Path, int]:
-    """Write a new version of calibration ``name`` and make it current.
+    """Write a new version of calibration ``name`` and make it current, with its page to
+    hand on beside it (``<name>.v<version>.html``, :mod:`calib_core.html_report`).
 
     Returns
     -------
@@ -60,6 +61,10 @@ def write_calibration(directory: str | os.PathLike, name: str, content: dict) ->
     text = yaml.safe_dump({'version': version, **content}, sort_keys=False)
     path = write_atomic(directory / f'{name}.v{version}.yaml', text)
     write_atomic(directory / f'{name}.yaml', text)
+    # Imported here: the page's module writes through this one.
+    from calib_core.html_report import write_html
+    write_html(path.with_suffix('.html'), {'version': version, **content},
+               f'{name} calibration, version {version}')
     return path, version
 
 

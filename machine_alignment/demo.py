@@ -88,11 +88,11 @@ class Instrument:
     label: str
     unit: str
     per_si: float       # display units per SI unit
+    note: str = ''      # where the source's figure comes from
 
 
 _GANTRY = Instrument('printer_alignment.nodes.gantry_sim', 'landing_sigma', 12.5e-6 / 50,
-                     'camera positions (gantry landing; the source: 1/50 px at 12.5 um)',
-                     'um', 1e6)
+                     'gantry landing', 'um', 1e6, 'the source: 1/50 px at 12.5 um')
 # The sources' figures: the printer paper's Mark-centre accuracy and stage repeatability
 # (3.3 um unidirectional), the hexapod paper's CMM (0.6 um), the five-axis paper's dot-centre
 # noise (0.1 px, giving its 0.17 px reprojection); the platform paper gives none, so the
@@ -100,20 +100,20 @@ _GANTRY = Instrument('printer_alignment.nodes.gantry_sim', 'landing_sigma', 12.5
 INSTRUMENTS = {
     'printer': (_GANTRY,),
     'stage': (_GANTRY, Instrument('printer_alignment.nodes.stage_sim', 'landing_sigma', 1.2e-6,
-                                  'stage landing per chain (the source: 3.3 um repeatability)',
-                                  'um', 1e6)),
+                                  'stage landing per chain', 'um', 1e6,
+                                  'the source: 3.3 um repeatability')),
     'hexapod': (Instrument('hexapod_calib.nodes.pose_sensor_sim', 'position_noise', 0.6e-6,
-                           'pose sensor (the source\'s CMM: 0.6 um)', 'um', 1e6),
+                           'pose sensor', 'um', 1e6, "the source's CMM: 0.6 um"),
                 Instrument('hexapod_calib.nodes.pose_sensor_sim', 'angle_noise', 6e-6,
                            'pose sensor angles', 'urad', 1e6)),
     'grid': (_GANTRY,),
     'platform': (Instrument('platform_calib.nodes.laser_tracker_sim', 'position_noise', 10e-6,
-                            'laser tracker (no figure in the source; the rebuilt 10 um)',
-                            'um', 1e6),
+                            'laser tracker', 'um', 1e6,
+                            'no figure in the source: the rebuilt simulation\'s'),
                  Instrument('platform_calib.nodes.laser_tracker_sim', 'angle_noise', 20e-6,
                             'tracker angles', 'urad', 1e6)),
     'five_axis': (Instrument('dispenser_calib.nodes.five_axis_sim', 'noise_px', 0.1,
-                             'dot centres (the source: 0.1 px)', 'px', 1.0),),
+                             'dot centres', 'px', 1.0, 'the source: 0.1 px'),),
 }
 LOW_NOISE_FACTOR = 0.1      # a low-noise run's instruments against the sources'
 
@@ -146,7 +146,7 @@ class DemoRun:
     def noise_text(self, machine: str) -> str:
         """What the summary says of ``machine``'s simulated instruments."""
         text = '; '.join(f'{i.label} {self._noise(i) * i.per_si:.3g} {i.unit}'
-                         for i in INSTRUMENTS[machine])
+                         + (f' ({i.note})' if i.note else '') for i in INSTRUMENTS[machine])
         return text + (f' (low-noise run: {LOW_NOISE_FACTOR:g} x the sources\')'
                        if self.low_noise else '')
 

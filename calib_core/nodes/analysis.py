@@ -13,7 +13,9 @@ from typing import Callable
 import yaml
 from alignment_msgs.msg import ResidualAnalysis
 
-from calib_core.closed_loop import LoopConfig, MachineModel, analyze, why_not_in_force
+from calib_core.closed_loop import (
+    LoopConfig, MachineModel, analyze, format_report, why_not_in_force)
+from calib_core.html_report import write_html
 from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import parse_plan
 from calib_core.nodes.qos import LATCHED
@@ -33,6 +35,15 @@ def analysis_as_message(report: dict, header, applied: bool = False,
         unexplained=[f'{u["kind"]} of {u["component"]} vs {u["covariate"]}'
                      for u in report['unexplained']],
         applied=applied, report_path=report_path, report_json=json.dumps(report))
+
+
+def printed_report(report: dict) -> str:
+    """The general loop's report as ``machine-align analyze`` prints it; '' for a machine
+    with its own loop (the grid's, per region), whose page shows its JSON."""
+    rows = report.get('rows')
+    if isinstance(rows, dict) and 'fitting' in rows and 'config' in report:
+        return format_report(report)
+    return ''
 
 
 def write_extended_calibration(directory, name: str, content: dict, result,
@@ -158,6 +169,8 @@ class AnalysisService:
             f'{self.kind}_{stamp}.json'
         write_atomic(path, json.dumps(report, indent=2) + '\n')
         draw(path.with_suffix('.png'))
+        write_html(path.with_suffix('.html'), report, f'{self.kind} closed-loop analysis',
+                   [path.with_suffix('.png')], printed_report(report))
         message = analysis_as_message(report, self.header(), bool(applied_to), str(path))
         with RecordedRun(self.node, f'{self.kind}_analysis',
                          {self.topic: 'alignment_msgs/msg/ResidualAnalysis'}) as run:

@@ -30,7 +30,7 @@ from hexapod_calib.core.description import read_description
 from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
-from machine_alignment.cli.common import parse_size, progress, write_json_and_plot
+from machine_alignment.cli.common import parse_size, progress, write_report
 from platform_calib.core.geometry import nominal_geometry as nominal_platform
 from platform_calib.core.geometry import read_geometry as read_platform
 from platform_calib.core.identification import PoseData as PlatformPoseData
@@ -158,7 +158,8 @@ def cmd_analyze(args) -> int:
               f' deg apart (+- {np.degrees(identified["squareness_std_rad"]):.4f} deg); position '
               f'error RMS {identified["position_error_m"]["rms"] * 1e6:.0f} um, orientation '
               f'{identified["orientation_error_rad"]["rms"] * 1e6:.0f} urad')
-    write_json_and_plot(args.json, report, lambda png: plot_loop(png, machine, result))
+    write_report(args.json, report, lambda png: plot_loop(png, machine, result),
+                 format_report(report))
     return 0
 
 
@@ -196,7 +197,7 @@ def cmd_analyze_grid(args) -> int:
         print(f'all regions, held out: RMS {summary["rms_before"] * 1e9:.2f} -> '
               f'{summary["rms_after"] * 1e9:.2f} nm, max {summary["max_before"] * 1e9:.2f} -> '
               f'{summary["max_after"] * 1e9:.2f} nm')
-    write_json_and_plot(args.json, dict(summary, data=str(args.data)),
+    write_report(args.json, dict(summary, data=str(args.data)),
                         lambda png: plot_grid_loop(png, summary, details))
     return 0
 

@@ -15,7 +15,7 @@ from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
 from machine_alignment.cli import command_help
 from machine_alignment.cli import camera, five_axis, grid, platform
-from machine_alignment.cli.common import print_pose_summary, quantity, ranged, read_run, write_json
+from machine_alignment.cli.common import print_pose_summary, quantity, ranged, read_run, write_report
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
     stage_data_from_records, stage_record)
@@ -42,7 +42,7 @@ def cmd_calibrate_vision(args) -> int:
         report['max_difference_to_live'] = {n: abs(live[n] - v) for n, v in g['parameters'].items()}
         print('same as the live run: max |difference| '
               f'{max(report["max_difference_to_live"].values()):.3g} (SI units)')
-    write_json(args.json, report)
+    write_report(args.json, report)
     return 0
 
 
@@ -82,7 +82,7 @@ def cmd_calibrate_stage(args) -> int:
              if n not in p['fixed'] and p['std_devs'][n] > 0), default=0.0)
         print(f'same as the live run: max |difference| {report["max_difference_to_live"]:.3g} '
               f'(SI units), {report["max_difference_to_live_sigma"]:.2g} sigma')
-    write_json(args.json, report)
+    write_report(args.json, report)
     return 0
 
 
@@ -135,7 +135,7 @@ def _write_hexapod_outputs(args, geometry, report, nominal, description=None,
         write_geometry(args.out, geometry, {'std_devs': report['std_devs'],
                                             'residual_rms_m': report['residual_rms_m']})
         print(f'wrote {args.out}')
-    write_json(args.json, report)
+    write_report(args.json, report)
 
 
 def _calibrate_hexapod_from_bag(args) -> int:

@@ -32,14 +32,21 @@ def write_json(path, content) -> None:
         print(f'wrote {path}')
 
 
-def write_json_and_plot(path, content, plot) -> None:
-    """The report as JSON at ``path`` and ``plot(png_path)``'s figure beside it (same
-    name, .png); nothing without a path."""
-    if path:
-        write_json(path, content)
-        figure = Path(path).with_suffix('.png')
-        plot(figure)
-        print(f'wrote {figure}')
+def write_report(path, content: dict, plot=None, text: str = '') -> None:
+    """The report as JSON at ``path``, ``plot(png_path)``'s figure beside it (same name,
+    .png) and the page to hand on (.html: the figure embedded, ``text`` the report as
+    printed); nothing without a path."""
+    if not path:
+        return
+    from calib_core.html_report import write_html      # only when a report is written
+    write_json(path, content)
+    figures = []
+    if plot is not None:
+        figures.append(Path(path).with_suffix('.png'))
+        plot(figures[0])
+        print(f'wrote {figures[0]}')
+    title = f'{content.get("machine") or content.get("kind") or Path(path).stem} report'
+    print(f'wrote {write_html(Path(path).with_suffix(".html"), content, title, figures, text)}')
 
 
 def parse_size(text: str) -> tuple[int, int]:

@@ -35,7 +35,7 @@ from dispenser_calib.sim.machine import (  # noqa: E402
     points_in_view, true_model)
 from machine_alignment.cli import command_help
 from machine_alignment.cli.common import (  # noqa: E402
-    parse_size, quantity, ranged, read_run, write_json, write_json_and_plot)
+    parse_size, quantity, ranged, read_run, write_json, write_report)
 
 
 def cmd_simulate(args) -> int:
@@ -204,7 +204,7 @@ def cmd_calibrate(args) -> int:
     if args.out:
         write_model(args.out, result.model, {'std_devs': report['std_devs']})
         print(f'wrote {args.out}')
-    write_json_and_plot(args.json, report, lambda png: _plot(png, images, result))
+    write_report(args.json, report, lambda png: _plot(png, images, result))
     return 0
 
 

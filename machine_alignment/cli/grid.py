@@ -21,7 +21,7 @@ from grid_calib.core.reference_map import write_reference  # noqa: E402
 from grid_calib.core.stitching import METHODS  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from machine_alignment.cli.common import (  # noqa: E402
-    bag_temperature_log, ranged, read_run, write_json_and_plot)
+    bag_temperature_log, ranged, read_run, write_report)
 
 
 def _vectors(ax, where_mm, vectors_m, spacing_mm, title):
@@ -130,7 +130,7 @@ def cmd_calibrate_grid(args) -> int:
             report['max_difference_to_live_m'] = float(np.abs(live - stitched.stage_error).max())
             print(f'  same as the live run: max |G difference| '
                   f'{report["max_difference_to_live_m"]:.3g} m')
-    write_json_and_plot(args.json, report, lambda png: _plot(png, calibration))
+    write_report(args.json, report, lambda png: _plot(png, calibration))
     if args.json:
         table = Path(args.json).with_name(Path(args.json).stem + '_map.csv')
         write_reference(table, stitched.site_positions, stitched.stage_error,

@@ -17,7 +17,7 @@ from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
 from machine_alignment.cli import command_help
 from machine_alignment.cli.common import (  # noqa: E402
-    quantity, ranged, read_run, write_json, write_json_and_plot)
+    quantity, ranged, read_run, write_report)
 from platform_calib.core.compensation import (  # noqa: E402
     METHODS, SCREEN, PSOSettings, compensate, composite_error)
 from platform_calib.core.geometry import (  # noqa: E402
@@ -78,7 +78,7 @@ def cmd_calibrate_platform(args) -> int:
     if args.out:
         write_geometry(args.out, result.geometry, {'std_devs': report['std_devs']})
         print(f'wrote {args.out}')
-    write_json(args.json, report)
+    write_report(args.json, report)
     return 0
 
 
@@ -167,7 +167,7 @@ def cmd_compensate_platform(args) -> int:
     report = {'method': args.method, 'screen_m': list(SCREEN), 'targets': rows,
               'pso': vars(settings) if args.method == 'pso' else None,
               'pso_order2_stable': settings.order2_stable() if args.method == 'pso' else None}
-    write_json_and_plot(args.json, report, lambda png: _plot(
+    write_report(args.json, report, lambda png: _plot(
         png, targets, before, after, args.method, [h for h in history if h]))
     if args.csv:
         write_columns(args.csv, ['x_m', 'y_m', 'theta_rad', 'feed1_m', 'feed2_m', 'feed3_m',
