@@ -25,6 +25,10 @@ _FIGURE_WORDS = ('before', 'after', 'held_out', 'evaluat', 'rms', 'max_', 'media
                  'predicted', 'realised', 'repeatab', 'residual')
 _UNIT_SUFFIXES = {'_m': 'm', '_rad': 'rad', '_px': 'px', '_um': 'um', '_urad': 'urad',
                   '_s': 's', '_k': 'K', '_mm': 'mm', '_deg': 'deg', '_arcsec': 'arcsec'}
+# Parts of a report that are settings or per-split detail, not its key figures (they stay
+# in the printed report and the JSON).
+_NOT_FIGURES = {'config', 'held_out_by_split', 'base_parameters', 'rounds', 'candidates',
+                'effects_added', 'selection_frequency', 'skipped', 'rejected'}
 _MAX_FIGURES = 60          # key-figure rows: the rest stays in the JSON at the end
 _MAX_LIST = 12             # numbers shown of a list before "... (n values)"
 
@@ -35,7 +39,7 @@ h1{font-size:1.5rem}h2{font-size:1.15rem;margin-top:2rem;border-bottom:1px solid
 table{border-collapse:collapse;margin:.5rem 0;font-size:.9rem}
 td,th{border:1px solid #ddd;padding:.2rem .5rem;text-align:left;vertical-align:top}
 th{background:#f3f3f3}td.num{text-align:right;font-variant-numeric:tabular-nums}
-pre{background:#f7f7f7;padding:.6rem;overflow-x:auto;font-size:.8rem}
+pre{background:#f7f7f7;padding:.6rem;white-space:pre-wrap;font-size:.8rem}
 img{max-width:100%;border:1px solid #ddd}.meta{color:#555}.none{color:#777}
 """
 
@@ -124,7 +128,7 @@ def key_figures(report: dict) -> list[tuple[str, str]]:
             if key in report:
                 rows.append((f'held-out {key.replace("_", " ")}', quantity(report[key], unit)))
     for path, mapping in _walk(report):
-        if len(path) > 4 or 'effects_added' in path or 'candidates' in path:
+        if len(path) > 4 or _NOT_FIGURES & set(path):
             continue
         for key, value in mapping.items():
             if not isinstance(value, (int, float)) or isinstance(value, bool):

@@ -66,6 +66,8 @@ def test_one_call_measures_every_placement_and_writes_the_map(graph):
     assert 'nominal pixel size' in report['camera']       # no vision calibration in force
     content = read_calibration(out / 'calibration', 'grid')
     assert len(content['stage_error']) == 18 and Path(content['bag']).exists()
+    # The page to hand on, beside the versioned file.
+    assert 'grid calibration, version 1' in (out / 'calibration' / 'grid.v1.html').read_text()
     rclpy.spin_once(node, timeout_sec=1.0)
     assert results and results[-1].version == 1
     assert {(p.region, p.placement) for p in placements} >= {(1, 'shifted')}
@@ -95,6 +97,8 @@ def test_analyze_residuals_on_the_last_run(graph):
             assert abs(error) < 4 * effect['std_devs'][f'expansion_{axis}'], effect
     assert 0 < analysis.rms_after < 0.5 * analysis.rms_before < 50e-6
     assert Path(analysis.report_path).with_suffix('.png').stat().st_size > 10_000
+    page = Path(analysis.report_path).with_suffix('.html').read_text()
+    assert 'grid closed-loop analysis' in page and 'data:image/png;base64,' in page
     refused = call(node, client, AnalyzeResiduals.Request(plan_yaml='holdout_fraction: 0.2'))
     assert not refused.success and 'leave-one-out' in refused.message
     applied = call(node, client, AnalyzeResiduals.Request(apply=True))
