@@ -11,7 +11,7 @@ INTERFACES := tf2_msgs alignment_msgs
 MSG_SOURCES := $(wildcard interfaces/*/msg/*.msg interfaces/*/srv/*.srv interfaces/*/CMakeLists.txt interfaces/*/package.xml)
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup demo test bench mutants clean
+.PHONY: setup demo test bench figures mutants clean
 
 setup: $(VENV)/.stamp-compiled $(VENV)/.stamp-foxglove $(VENV)/.stamp-chromium
 
@@ -70,6 +70,11 @@ $(VENV)/.stamp-chromium: | $(BIN)/python
 
 demo: setup
 	$(BIN)/machine-align demo --out out/demo
+
+# The figures docs/ embeds, from one named run of the current code (about 4 minutes):
+# the demo (its log becomes bench_results/demo_run.log), the hexapod loop route, real run a.
+figures: setup
+	$(BIN)/python -m machine_alignment.figures --out out/figures
 
 # Two workers, one test module each (a module's DDS graph stays on its own ROS domain);
 # one BLAS thread per worker: two workers already fill the two cores, and OpenBLAS's

@@ -11,6 +11,8 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from calib_core.figures import save_figure  # noqa: E402
+
 
 def _values(per_target: dict, key: str) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in per_target[key]], float)
@@ -48,5 +50,5 @@ def plot_iso230_2(path, before: dict, after: dict, after_label: str) -> None:
     _panel(axes[1], after, f'ISO 230-2, {after_label}')
     axes[0].legend(fontsize=8, loc='best')
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, [__file__])
     plt.close(fig)

@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 
 from calib_core.closed_loop import LoopResult, MachineModel  # noqa: E402
 from calib_core.effects import LIBRARY  # noqa: E402
-from calib_core.figures import arrow_key  # noqa: E402
+from calib_core.figures import arrow_key, save_figure  # noqa: E402
 
 _SCALES = {'m': (1e6, 'um'), 'px': (1.0, 'px'), 'rad': (1e6, 'urad')}
 _MAX_COVARIATE_PANELS = 8
@@ -292,5 +292,5 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     fig.suptitle(f'{report["machine"]}: added {names}; held-out RMS '
                  f'{report["rms_before"] * factor:.3g} -> {report["rms_after"] * factor:.3g} {unit}')
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))   # room for the title
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, [__file__])
     plt.close(fig)

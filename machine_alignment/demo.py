@@ -52,7 +52,7 @@ from alignment_msgs.srv import (
 
 from calib_core.bags import decode_bag
 from calib_core.errors import CalibrationError
-from calib_core.figures import arrow_key
+from calib_core.figures import RUN_VARIABLE, arrow_key, save_figure
 from calib_core.storage import read_calibration, write_atomic
 from dispenser_calib.core.calibration import reprojection
 from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model
@@ -335,6 +335,10 @@ def run_demo(out: Path, low_noise: bool = False) -> int:
         shutil.rmtree(out)
     out.mkdir(parents=True)
     run = DemoRun(out, str(100 + os.getpid() % 100), low_noise)
+    # The run every figure it draws names (nodes inherit it); `make figures` names its own.
+    os.environ.setdefault(RUN_VARIABLE, time.strftime('make demo %Y-%m-%dT%H:%M:%SZ',
+                                                      time.gmtime()))
+    print(f'run: {os.environ[RUN_VARIABLE]}', flush=True)
     os.environ['ROS_DOMAIN_ID'] = run.domain
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     started = time.monotonic()
@@ -442,7 +446,7 @@ def _plot_grid_map(path: Path, sites: np.ndarray, errors: np.ndarray) -> None:
     ax.margins(0.1, 0.3)                   # room for the arrows at the edges
     ax.set_title('stage error map from the grid plate (self-calibrated, 2 regions)', fontsize=10)
     fig.subplots_adjust(bottom=0.24)       # the arrow key sits below the axes
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, [__file__])
     plt.close(fig)
 
 
@@ -466,7 +470,7 @@ def _plot_platform_evaluation(path: Path, runs: Path) -> None:
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which='both')
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, [__file__])
     plt.close(fig)
 
 
@@ -543,7 +547,7 @@ def _plot_five_axis_evaluation(path: Path, calibration: dict) -> None:
                     fontsize=10)
     fig.suptitle('five-axis dispenser: held-out images, nominal against calibrated', fontsize=11)
     fig.tight_layout(rect=(0, 0.08, 1, 1))      # room for the arrow key below the axes
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, [__file__])
     plt.close(fig)
 
 

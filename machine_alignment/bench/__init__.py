@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from calib_core.figures import RUN_VARIABLE
 from calib_core.storage import write_atomic
+
+# The run the figures a bench draws name (calib_core.figures.save_figure), unless the one
+# running it named it.
+os.environ.setdefault(RUN_VARIABLE, time.strftime('make bench %Y-%m-%dT%H:%M:%SZ',
+                                                  time.gmtime()))
 
 
 def main_with_out(run: Callable[[Path], object], description: str, argv=None) -> int:

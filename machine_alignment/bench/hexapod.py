@@ -15,6 +15,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
+from calib_core.figures import save_figure  # noqa: E402
 from hexapod_calib.core.calibration import PoseData, identify, pose_errors  # noqa: E402
 from hexapod_calib.core.geometry import nominal_geometry  # noqa: E402
 from hexapod_calib.core.kinematics import forward_kinematics, inverse_kinematics  # noqa: E402
@@ -145,7 +146,7 @@ def plot_calibration(out: Path, rows: list, table: list) -> None:
     fig.suptitle('Hexapod calibration with 30 poses: accuracy over '
                  f'{len(rows)} simulated hexapods, and parameter recovery (seed 1)')
     fig.tight_layout()
-    fig.savefig(out / 'hexapod_calibration.png', dpi=110)
+    save_figure(fig, out / 'hexapod_calibration.png', [__file__], dpi=110)
     plt.close(fig)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
+from calib_core.figures import save_figure  # noqa: E402
 from dispenser_calib.core.calibration import calibrate
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7
 from dispenser_calib.core.model import NAMES, DispenserModel, nominal_model, place
@@ -134,7 +135,7 @@ def plot(path: Path, results: dict) -> None:
     fig.suptitle('Five-axis plans: E_B0A and the part\'s placement, predicted before anything '
                  'moves and realised')
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, [__file__])
     plt.close(fig)
 
 

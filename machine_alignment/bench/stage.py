@@ -9,7 +9,8 @@ import numpy as np
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 
-from calib_core.storage import write_atomic
+from calib_core.figures import save_figure  # noqa: E402
+from calib_core.storage import write_atomic  # noqa: E402
 from machine_alignment.bench import main_with_out, write_results
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import ParametricModel, calibrate_stage
@@ -41,7 +42,7 @@ def plot_alignment(path: Path, by_model: dict, rp_position: float, rp_angle: flo
     fig.suptitle(f'XY-Theta stage: {len(next(iter(values.values())))} alignments on the '
                  'simulated stage, error against truth')
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, [__file__], dpi=100)
     plt.close(fig)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.figures import arrow_key
+from calib_core.figures import arrow_key, save_figure
 from printer_alignment.core.geometry import NOMINAL_LEADS, CameraToPlate, GantryModel
 from calib_core.marks import detect_marks
 from printer_alignment.core.vision_calibration import plate_position
@@ -67,5 +67,5 @@ def plot_errors(path, targets, before, after, title: str) -> None:
     axes[2].legend()
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, [__file__])
     plt.close(fig)
