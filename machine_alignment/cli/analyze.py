@@ -60,7 +60,10 @@ def add_parser(sub) -> None:
                                  help='units of the LinuxCNC compensation file written beside '
                                       'the JSON (the machine\'s units)')
         if name == 'platform':
-            machine.add_argument('--geometry', help='nominal geometry YAML (default: built-in)')
+            described = machine.add_mutually_exclusive_group()
+            described.add_argument('--geometry', help='nominal geometry YAML (default: built-in)')
+            described.add_argument('--description', help='your machine\'s description YAML '
+                                                          '(feed1..feed3 in its actuators\' unit)')
         if name == 'rotary':
             machine.add_argument('--a-column', default='a', help='the tilt axis A\'s column')
             machine.add_argument('--c-column', default='c', help='the rotary table C\'s column')

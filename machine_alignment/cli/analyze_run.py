@@ -31,6 +31,7 @@ from hexapod_calib.core.geometry import read_geometry
 from hexapod_calib.core.loop_models import HexapodLoopModel
 from hexapod_calib.core.statics import leg_forces
 from machine_alignment.cli.common import parse_size, progress, write_report
+from platform_calib.core.description import read_description as read_platform_description
 from platform_calib.core.geometry import nominal_geometry as nominal_platform
 from platform_calib.core.geometry import read_geometry as read_platform
 from platform_calib.core.identification import PoseData as PlatformPoseData
@@ -52,6 +53,9 @@ def _loop_machine(args, dropped: dict):
     if args.machine == 'stage':
         return StageLoopModel(StageData.from_csv(args.data, dropped))
     if args.machine == 'platform':
+        if args.description:
+            platform = read_platform_description(args.description)
+            return PlatformLoopModel(platform.read(args.data, dropped), platform.geometry)
         nominal = read_platform(args.geometry) if args.geometry else nominal_platform()
         return PlatformLoopModel(PlatformPoseData.from_csv(args.data, dropped), nominal)
     if args.machine == 'rotary' and args.calibration:

@@ -22,7 +22,8 @@ from machine_alignment.cli import command_help
 from machine_alignment.cli.common import check_writable, parse_size, ranged, write_json
 from machine_alignment.cli.platform import read_targets
 from platform_calib.core.geometry import nominal_geometry, read_geometry
-from platform_calib.core.planning import plan_platform
+from platform_calib.core.description import read_description as read_platform_description
+from platform_calib.core.planning import HOME, WORKING_SPAN, default_working, plan_platform
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import StagePlan, write_stage_plan
 from printer_alignment.core.stage_planning import (
@@ -31,10 +32,24 @@ from printer_alignment.core.stage_planning import (
 
 def cmd_plan_platform(args) -> int:
     check_writable(args.out, '--out')
-    nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
+    if args.geometry and args.description:
+        raise MachineAlignmentError('give --geometry or --description, not both')
+    description = read_platform_description(args.description) if args.description else None
+    settings, noise_text = {}, 'tracker 10 um / 20 urad, feeds 1 um'
+    if description:
+        m, box = description.measurement, description.box()
+        settings = {'span': (*box['translation'], box['rotation']), 'home': box['home'],
+                    'tracker_noise': (m.instrument.position_sigma_m,) * 2
+                    + (m.instrument.angle_sigma_rad,),
+                    'feed_noise': float(np.hypot(m.actuators.sigma_m, m.repeatability_m))}
+        noise_text = (f'{m.instrument.name} {m.instrument.position_sigma_m * 1e6:.3g} um / '
+                      f'{m.instrument.angle_sigma_rad * 1e6:.3g} urad, feeds '
+                      f'{settings["feed_noise"] * 1e6:.3g} um, as described')
+    nominal = (description.geometry if description else
+               read_geometry(args.geometry) if args.geometry else nominal_geometry())
     working = read_targets(args.working) if args.working else None
     plan = plan_platform(nominal, args.poses, working, args.criterion, args.candidates,
-                         margin=args.margin, seed=args.seed)
+                         margin=args.margin, seed=args.seed, **settings)
     report = plan.report()
     errors = report['predicted_mark_error_m']
     sigmas = report['predicted_parameter_sigmas']
@@ -42,7 +57,7 @@ def cmd_plan_platform(args) -> int:
     print(f'{args.poses} poses chosen ({"test-pose (I)" if args.criterion == "I" else "D"}-'
           f'optimal) from {plan.candidates} candidates with the feeds {args.margin * 1e3:g} mm '
           'inside the stroke')
-    print(f'predicted before anything moves (tracker 10 um / 20 urad, feeds 1 um, first '
+    print(f'predicted before anything moves ({noise_text}, first '
           f'order): mark error at the {"given" if working is not None else "200 random"} '
           f'working poses RMS {errors["rms"] * 1e6:.2f} um, median {errors["median"] * 1e6:.2f} '
           f'um, max {errors["max"] * 1e6:.2f} um (1 sigma); least determined parameter '
@@ -52,7 +67,12 @@ def cmd_plan_platform(args) -> int:
         f.writelines(f'{x:.12g},{y:.12g},{t:.12g}\n' for x, y, t in plan.poses)
     print(f'wrote {args.out} (x, y m, theta rad: the targets simulate platform --plan and the '
           'calibrator measure)')
-    write_json(args.json, {**report, 'poses': plan.poses.tolist()})
+    box = {'home': list(settings.get('home', HOME)),
+           'half_widths_x_y_theta': list(settings.get('span', WORKING_SPAN))}
+    write_json(args.json, {**report, 'poses': plan.poses.tolist(), 'box': box,
+                           'working_poses': (working if working is not None else default_working(
+                               box['half_widths_x_y_theta'], args.seed, box['home'])).tolist(),
+                           'noise': noise_text})
     return 0
 
 
@@ -172,6 +192,9 @@ def add_parser(sub) -> None:
     platform.add_argument('--poses', type=ranged(int, 6, 10000), required=True,
                           help='how many poses to measure (at least 6 for 18 parameters)')
     platform.add_argument('--geometry', help='nominal geometry YAML (default: the built-in)')
+    platform.add_argument('--description', help="your machine's description YAML: poses in its "
+                                                'workspace, predicted at its tracker\'s and '
+                                                "feeds' noise")
     platform.add_argument('--working', help='CSV x, y (m), theta (rad): the poses the '
                                             'platform will work at (default: 200 random '
                                             'within +-5 mm, +-5 deg)')

@@ -20,6 +20,7 @@ from machine_alignment.cli.common import (  # noqa: E402
     quantity, ranged, read_run, write_report)
 from platform_calib.core.compensation import (  # noqa: E402
     METHODS, SCREEN, PSOSettings, compensate, composite_error)
+from platform_calib.core.description import likely_causes, read_description  # noqa: E402
 from platform_calib.core.geometry import (  # noqa: E402
     nominal_geometry, read_geometry, write_geometry)
 from platform_calib.core.identification import PoseData, check_identification, identify  # noqa: E402
@@ -32,15 +33,28 @@ from platform_calib.sim.platform import (  # noqa: E402
 
 
 def cmd_simulate_platform(args) -> int:
-    nominal = nominal_geometry()
-    truth = true_geometry(args.seed, args.scale)
-    sim = PlatformSim(truth, args.seed, screw_amplitude=(args.screw,) * 3,
-                      backlash=(args.backlash,) * 3)
-    targets = read_targets(args.plan) if args.plan else plan_poses(args.poses, args.seed)
-    measure_poses(sim, targets, nominal).to_csv(args.out)
+    description = read_description(args.description) if args.description else None
+    nominal = description.geometry if description else nominal_geometry()
+    truth = true_geometry(args.seed, args.scale, nominal)
+    if description:
+        m = description.measurement
+        sim = PlatformSim(truth, args.seed, np.hypot(m.actuators.sigma_m, m.repeatability_m),
+                          (m.instrument.position_sigma_m,) * 2 + (m.instrument.angle_sigma_rad,),
+                          (args.screw,) * 3, (args.backlash,) * 3, feed_scale=args.lead_ratio)
+        targets = (read_targets(args.plan) if args.plan
+                   else description.random_poses(args.poses, args.seed))
+    else:
+        sim = PlatformSim(truth, args.seed, screw_amplitude=(args.screw,) * 3,
+                          backlash=(args.backlash,) * 3, feed_scale=args.lead_ratio)
+        targets = read_targets(args.plan) if args.plan else plan_poses(args.poses, args.seed)
+    # The feeds as the user's actuators report them.
+    measure_poses(sim, targets, nominal).to_csv(
+        args.out, description.measurement.actuators.m_per_unit if description else 1.0)
+    where = ('within the described workspace' if description else 'within +-5 mm, +-5 deg')
+    unit = description.measurement.actuators.unit if description else 'm'
     print(f'wrote {args.out} ({len(targets)} poses '
-          + (f'planned in {args.plan}' if args.plan else 'within +-5 mm, +-5 deg')
-          + ': feeds from the sensors, poses from the tracker)')
+          + (f'planned in {args.plan}' if args.plan else where)
+          + f': feeds from the sensors (in {unit}), poses from the tracker)')
     if args.truth:
         write_geometry(args.truth, truth)
         print(f'wrote {args.truth} (the simulation\'s true geometry)')
@@ -48,7 +62,12 @@ def cmd_simulate_platform(args) -> int:
 
 
 def cmd_calibrate_platform(args) -> int:
-    nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
+    if args.geometry and args.description:
+        raise InvalidInputError('give --geometry or --description (it holds the geometry), '
+                                'not both')
+    description = read_description(args.description) if args.description else None
+    nominal = (description.geometry if description else
+               read_geometry(args.geometry) if args.geometry else nominal_geometry())
     recorded = None
     if args.bag:
         stops, recorded = read_run(args.bag, MEASUREMENTS_TOPIC,
@@ -56,9 +75,15 @@ def cmd_calibrate_platform(args) -> int:
                                    'platform measurements', RESULT_TOPIC)
         data = data_of([s for s in stops if s.phase == 'identify'])
     else:
-        data = PoseData.from_csv(args.data)
+        data = description.read(args.data) if description else PoseData.from_csv(args.data)
     result = identify(data, nominal)
     report = result.report()
+    if description:
+        report['description'] = {'file': description.source,
+                                 'residual_limit_m': description.residual_limit(),
+                                 'position_bound_m': description.position_bound(),
+                                 'expected_closure_rms_m': description.expected_closure_rms()}
+        print(f'  machine description {description.source}: {description.expected_text()}')
     if args.bag:
         report['evaluation'] = evaluate(stops)
         for phase, row in report['evaluation'].items():
@@ -74,7 +99,8 @@ def cmd_calibrate_platform(args) -> int:
           + ', '.join(f'{c:.3g}' for c in result.condition))
     for name, value in report['parameters'].items():
         print(f'  {name:>7} = {quantity(value, report["std_devs"][name], report["units"][name])}')
-    check_identification(result, nominal)
+    check_identification(result, nominal, description,
+                         likely_causes(data, description) if description else None)
     if args.out:
         write_geometry(args.out, result.geometry, {'std_devs': report['std_devs']})
         print(f'wrote {args.out}')
@@ -197,6 +223,13 @@ def add_simulate_parser(simulated) -> None:
                                'effect the model lacks, e.g. 10e-6)')
     platform.add_argument('--backlash', type=ranged(float, 0.0, 1e-3, 'm'), default=0.0,
                           help='backlash of every feed, m (e.g. 8e-6)')
+    platform.add_argument('--lead-ratio', type=ranged(float, 0.5, 2.0), nargs=3,
+                          default=(1.0, 1.0, 1.0), metavar=('R1', 'R2', 'R3'),
+                          help="each feed's true lead over its nominal (1.06: 6 %% long; the "
+                               'sensors read the nominal)')
+    platform.add_argument('--description', help="your machine's description YAML (geometry, "
+                                                'tracker, feeds\' unit, workspace; '
+                                                'docs/machine_description.md)')
     platform.set_defaults(func=cmd_simulate_platform)
 
 
@@ -207,6 +240,9 @@ def add_calibrate_parser(what) -> None:
     source.add_argument('--data', help='CSV: feed1..feed3 (m), x, y (m), theta (rad)')
     source.add_argument('--bag', help='a run recorded by platform_calibrator')
     platform.add_argument('--geometry', help='nominal geometry YAML (default: the built-in)')
+    platform.add_argument('--description', help="your machine's description YAML: its geometry, "
+                                                "and the gate from its tracker's and feeds' "
+                                                "noise; feeds read in the actuators' unit")
     platform.add_argument('--out', help='identified geometry YAML to write')
     platform.add_argument('--json', help='report to write')
     platform.set_defaults(func=cmd_calibrate_platform)

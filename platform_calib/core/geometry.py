@@ -118,13 +118,18 @@ def read_geometry(path) -> PlatformGeometry:
     ------
     InvalidInputError
         Unreadable, not YAML, or a parameter missing or not a number."""
-    content = read_yaml(path, 'a platform geometry')
+    return geometry_from_mapping(read_yaml(path, 'a platform geometry'), str(path))
+
+
+def geometry_from_mapping(content, where: str) -> PlatformGeometry:
+    """The geometry in a mapping laid out as :func:`write_geometry`'s file (``parameters``,
+    ``branch``, ``stroke_m``): the file's own, or a machine description's section."""
     try:
         values = [float(content['parameters'][n]) for n in parameter_names()]
         branch = np.asarray(content.get('branch', [-1, -1, -1]), dtype=float)
         stroke = tuple(float(v) for v in content.get('stroke_m', (0.0, 0.040)))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InvalidInputError(f'{path}: a platform geometry needs parameters '
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise InvalidInputError(f'{where}: a platform geometry needs parameters '
                                 f'{", ".join(parameter_names())} as numbers ({exc!r})') from None
     nominal = nominal_geometry()
     return PlatformGeometry(nominal.base, nominal.alpha, nominal.length, nominal.joints,

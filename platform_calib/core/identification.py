@@ -65,10 +65,14 @@ class PoseData:
         return len(self.poses)
 
     @classmethod
-    def from_csv(cls, path, dropped: dict | None = None) -> 'PoseData':
-        """Columns feed1, feed2, feed3 (m), x, y (m), theta (rad); optional direction1..3,
-        time, temperature (covariates with NaN are left out and named in ``dropped``)."""
+    def from_csv(cls, path, dropped: dict | None = None,
+                 feed_m_per_unit: float = 1.0) -> 'PoseData':
+        """Columns feed1, feed2, feed3 (m, or units of ``feed_m_per_unit`` m: revolutions
+        of a lead), x, y (m), theta (rad); optional direction1..3, time, temperature
+        (covariates with NaN are left out and named in ``dropped``)."""
         columns = read_columns(path, list(COLUMNS), dropped)
+        for name in ('feed1', 'feed2', 'feed3'):
+            columns[name] = columns[name] * feed_m_per_unit
         covariates = {k: columns[k] for k in COVARIATE_COLUMNS if k in columns}
         if all(c in columns for c in DIRECTION_COLUMNS):
             covariates['direction'] = np.column_stack([columns[c] for c in DIRECTION_COLUMNS])
@@ -76,11 +80,13 @@ class PoseData:
                    np.column_stack([columns['feed1'], columns['feed2'], columns['feed3']]),
                    covariates or None)
 
-    def to_csv(self, path) -> None:
+    def to_csv(self, path, feed_m_per_unit: float = 1.0) -> None:
+        """The CSV :meth:`from_csv` reads, the feeds in units of ``feed_m_per_unit`` m."""
         extra = dict(self.covariates or {})
         direction = extra.pop('direction', None)
         names = list(COLUMNS) + (list(DIRECTION_COLUMNS) if direction is not None else [])
-        columns = [self.feeds, self.poses] + ([direction] if direction is not None else [])
+        columns = ([self.feeds / feed_m_per_unit, self.poses]
+                   + ([direction] if direction is not None else []))
         write_columns(path, names + sorted(extra), columns + [extra[k] for k in sorted(extra)])
 
 
@@ -235,10 +241,14 @@ MAX_DIRECTION_CHANGE_RAD = 0.2    # feed directions
 MAX_LENGTH_CHANGE = 0.2           # links, relative
 
 
-def check_identification(result: Identification, nominal: PlatformGeometry) -> None:
+def check_identification(result: Identification, nominal: PlatformGeometry,
+                         description=None, causes: str | None = None) -> None:
     """Refuse an identification that cannot be the platform: closure residual RMS over
     :data:`MAX_CLOSURE_RMS_M`, a parameter beyond its bound from the nominal, or a standard
-    deviation that is not finite (poses that leave no redundancy).
+    deviation that is not finite (poses that leave no redundancy). With a ``description``
+    (:class:`platform_calib.core.description.PlatformDescription`) the residual limit is
+    its declared noise's and the position bound a share of its size; ``causes`` names the
+    likely causes of a residual refused (most likely first).
 
     Raises
     ------
@@ -246,8 +256,13 @@ def check_identification(result: Identification, nominal: PlatformGeometry) -> N
         Every failure named; nothing may be written."""
     gate = SanityGate('the platform identification')
     report = result.report()
-    gate.residual(report['residual_rms_m'] * 1e6, MAX_CLOSURE_RMS_M * 1e6, 'um',
-                  'a laser tracker and feed sensors close the loop to about 10 um')
+    limit, shift = MAX_CLOSURE_RMS_M, MAX_POSITION_SHIFT_M
+    expected = 'a laser tracker and feed sensors close the loop to about 10 um'
+    if description is not None:
+        limit, shift = description.residual_limit(), description.position_bound()
+        expected = description.expected_text()
+    gate.residual(report['residual_rms_m'] * 1e6, limit * 1e6, 'um', expected,
+                  **({'causes': causes} if causes else {}))
     identified, start = result.geometry, nominal
     for i in range(3):
         k = i + 1
@@ -255,8 +270,8 @@ def check_identification(result: Identification, nominal: PlatformGeometry) -> N
                                  (f'y_A{k}', identified.base[i, 1], start.base[i, 1]),
                                  (f'x_C{k}', identified.joints[i, 0], start.joints[i, 0]),
                                  (f'y_C{k}', identified.joints[i, 1], start.joints[i, 1])):
-            gate.within(name, value, ref - MAX_POSITION_SHIFT_M, ref + MAX_POSITION_SHIFT_M,
-                        'm', f'within {MAX_POSITION_SHIFT_M * 1e3:g} mm of the nominal')
+            gate.within(name, value, ref - shift, ref + shift, 'm',
+                        f'within {shift * 1e3:.3g} mm of the nominal')
         turned = start.alpha[i] + np.angle(np.exp(1j * (identified.alpha[i] - start.alpha[i])))
         gate.within(f'alpha{k}', turned, start.alpha[i] - MAX_DIRECTION_CHANGE_RAD,
                     start.alpha[i] + MAX_DIRECTION_CHANGE_RAD, 'rad',

@@ -33,6 +33,7 @@ TRACKER_NOISE = (10e-6, 10e-6, 20e-6)
 FEED_NOISE = 1e-6
 # The registration's working area: the screen placed within a few mm and degrees.
 WORKING_SPAN = (5e-3, 5e-3, np.deg2rad(5.0))
+HOME = (0.0, 0.0, 0.0)          # the pose the working box is centred on (x m, y m, theta rad)
 # Feeds kept this far inside the stroke: the true platform is not the nominal one (links
 # and joints off by up to a mm move a feed by about as much).
 STROKE_MARGIN = 2e-3
@@ -66,11 +67,12 @@ class PoseDesign:
 
 
 def candidate_poses(nominal: PlatformGeometry, count: int, span=WORKING_SPAN,
-                    margin: float = STROKE_MARGIN, seed: int = 0) -> np.ndarray:
-    """Up to ``count`` random poses within +-``span`` whose nominal feeds stay ``margin``
-    (m) inside the stroke (those outside are dropped, so fewer may come back)."""
+                    margin: float = STROKE_MARGIN, seed: int = 0, home=HOME) -> np.ndarray:
+    """Up to ``count`` random poses within +-``span`` of ``home`` (x m, y m, theta rad)
+    whose nominal feeds stay ``margin`` (m) inside the stroke (those outside are dropped,
+    so fewer may come back)."""
     rng = np.random.default_rng(seed + 91)
-    poses = rng.uniform(-1, 1, (count, 3)) * np.asarray(span, float)
+    poses = np.asarray(home, float) + rng.uniform(-1, 1, (count, 3)) * np.asarray(span, float)
     feeds = inverse(nominal, poses, check=False)
     low, high = nominal.stroke
     inside = np.all(np.isfinite(feeds) & (feeds >= low + margin) & (feeds <= high - margin), 1)
@@ -116,10 +118,11 @@ def working_sensitivity(geometry: PlatformGeometry, targets, screen=SCREEN) -> n
 def plan_platform(nominal: PlatformGeometry, count: int, working=None,
                   criterion: str = 'I', candidates: int = 3000, span=WORKING_SPAN,
                   margin: float = STROKE_MARGIN, seed: int = 0,
-                  tracker_noise=TRACKER_NOISE, feed_noise: float = FEED_NOISE) -> PoseDesign:
+                  tracker_noise=TRACKER_NOISE, feed_noise: float = FEED_NOISE,
+                  home=HOME) -> PoseDesign:
     """The ``count`` poses to measure, chosen from ``candidates`` random ones inside the
-    stroke, and their predicted result. ``working`` (W, 3): the poses the platform will
-    work at (default: 200 random ones in the same span).
+    stroke within ``span`` of ``home``, and their predicted result. ``working`` (W, 3):
+    the poses the platform will work at (default: 200 random ones in the same box).
 
     Raises
     ------
@@ -127,12 +130,12 @@ def plan_platform(nominal: PlatformGeometry, count: int, working=None,
         Fewer than 6 poses, too few reachable candidates, a working pose out of reach."""
     if count < 6:
         raise InvalidInputError(f'the 18 parameters need at least 6 poses; asked for {count}')
-    pool = candidate_poses(nominal, candidates, span, margin, seed)
+    pool = candidate_poses(nominal, candidates, span, margin, seed, home)
     if len(pool) < count:
         raise InvalidInputError(f'only {len(pool)} of {candidates} candidate poses keep the '
                                 f'feeds {margin * 1e3:g} mm inside the stroke: widen the '
                                 'candidates or ask for fewer poses')
-    working = default_working(span, seed) if working is None else working
+    working = default_working(span, seed, home) if working is None else working
     sensitivity = working_sensitivity(nominal, working)
     rows, noise = identification_rows(nominal, pool, tracker_noise, feed_noise)
     design = exchange(whiten(rows, noise), count, criterion, sensitivity)
@@ -140,9 +143,10 @@ def plan_platform(nominal: PlatformGeometry, count: int, working=None,
                       sensitivity, criterion, len(pool))
 
 
-def default_working(span=WORKING_SPAN, seed: int = 0) -> np.ndarray:
-    """200 random working poses within +-``span`` (x m, y m, theta rad)."""
-    return np.random.default_rng(seed + 92).uniform(-1, 1, (200, 3)) * np.asarray(span)
+def default_working(span=WORKING_SPAN, seed: int = 0, home=HOME) -> np.ndarray:
+    """200 random working poses within +-``span`` of ``home`` (x m, y m, theta rad)."""
+    return np.asarray(home, float) + (np.random.default_rng(seed + 92).uniform(-1, 1, (200, 3))
+                                      * np.asarray(span))
 
 
 def _predicted(poses, rows, noise, sensitivity, criterion: str, candidates: int) -> PoseDesign:

@@ -34,8 +34,10 @@ class PlatformSim:
 
     Effects the 18-parameter model lacks, off by default: each ball screw's periodic error
     (``screw_amplitude`` (3,) m, once per ``lead`` m of feed) and ``backlash`` (3,) m (the
-    slide lags the drive by half of it against the last direction of motion). The drive
-    reports the commanded feed; the slide is where these put it."""
+    slide lags the drive by half of it against the last direction of motion), and each
+    feed's true lead over its nominal (``feed_scale`` (3,): the slide travels that many
+    times the feed read). The drive reports the commanded feed; the slide is where these
+    put it."""
 
     geometry: PlatformGeometry
     seed: int = 0
@@ -44,6 +46,7 @@ class PlatformSim:
     screw_amplitude: tuple = (0.0, 0.0, 0.0)
     backlash: tuple = (0.0, 0.0, 0.0)
     lead: float = 5e-3
+    feed_scale: tuple = (1.0, 1.0, 1.0)
 
     def __post_init__(self):
         self.feeds = inverse(self.geometry, np.zeros(3))[0]
@@ -55,7 +58,7 @@ class PlatformSim:
     def slides(self, feeds, direction) -> np.ndarray:
         """Where the slides are for commanded ``feeds`` (3,) (m) last moved in
         ``direction`` (3,)."""
-        return (feeds + np.asarray(self.screw_amplitude)
+        return (feeds * np.asarray(self.feed_scale) + np.asarray(self.screw_amplitude)
                 * np.sin(2 * np.pi * feeds / self.lead + self.phase)
                 - np.asarray(self.backlash) / 2 * direction)
 
