@@ -11,6 +11,11 @@ The geometry is written as an atomic, versioned YAML file in the form of DESIGN.
 run is recorded to an MCAP bag. One calibration at a time; a failed or interrupted run
 leaves the previous calibration in force.
 
+With ``description`` (a machine description YAML, docs/machine_description.md) the node
+calibrates the user's hexapod: its nominal geometry, plans in its workspace (a request's
+plan keys still override), the prediction at its instrument's noise, and the gate against
+what it declares.
+
 Service ``hexapod_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
 the last run's stops, each with its time and, where a sensor publishes it on
 ``temperature_topic``, the machine's temperature (recorded in the run's bag).
@@ -38,6 +43,7 @@ from calib_core.parameters import ParameterSet
 from calib_core.storage import write_calibration
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from hexapod_calib.core.calibration import PoseData, check_identification
+from hexapod_calib.core.description import read_description
 from hexapod_calib.core.geometry import (
     HexapodGeometry, calibrated_frames, nominal_geometry, read_geometry)
 from hexapod_calib.core.loop_models import HexapodLoopModel
@@ -68,6 +74,7 @@ class HexapodCalibratorNode(Node):
         super().__init__('hexapod_calibrator')
         declare_paths(self, 'output_dir', 'record_dir')
         self.declare_parameter('nominal_geometry', '', READ_ONLY)
+        self.declare_parameter('description', '', READ_ONLY)   # the user's machine description
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('payload_mass', 0.0, READ_ONLY)
         self.declare_parameter('payload_centre', [0.0, 0.0, 0.0], READ_ONLY)
@@ -83,7 +90,15 @@ class HexapodCalibratorNode(Node):
         if not self.timeout > 0:
             raise InvalidInputError('call_timeout_s must be > 0')
         path = self.get_parameter('nominal_geometry').value
-        self.nominal = read_geometry(path) if path else nominal_geometry()
+        described = self.get_parameter('description').value
+        if path and described:
+            raise InvalidInputError('give nominal_geometry or description (it holds the '
+                                    'geometry), not both')
+        # A described machine: its geometry, its workspace for plans, its instrument for
+        # the prediction and the gate (docs/machine_description.md).
+        self.description = read_description(described) if described else None
+        self.nominal = (self.description.geometry if self.description else
+                        read_geometry(path) if path else nominal_geometry())
         self._settled = None
         self._last_measurement = None  # the sensor's message, recorded as it came
         group = ReentrantCallbackGroup()
@@ -99,7 +114,7 @@ class HexapodCalibratorNode(Node):
             self.create_publisher(Progress, '/hexapod_calibrator/progress', 10), 'progress')
         self.measurement_pub = self.create_publisher(HexapodMeasurement, MEASUREMENTS_TOPIC, 10)
         calibration = CalibrationService(
-            self, 'hexapod', lambda overrides: self._run(HexapodPlan.from_mapping(overrides)),
+            self, 'hexapod', lambda overrides: self._run(self._plan(overrides)),
             self._header, busy=self.status.busy, status=self.status)
         self.create_service(RunCalibration, 'hexapod_calibrator/calibrate', calibration,
                             callback_group=group, qos_profile=SERVICES)
@@ -113,6 +128,11 @@ class HexapodCalibratorNode(Node):
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='base')
+
+    def _plan(self, overrides: dict) -> HexapodPlan:
+        """The plan keys asked for, over the described workspace (home, box, strokes)."""
+        workspace = (self.description.workspace or {}) if self.description else {}
+        return HexapodPlan.from_mapping({**workspace, **overrides})
 
     def _message_in_force(self, content: dict, path: str) -> CalibrationResult:
         """The result message of a geometry file: an identification's (with its sigmas
@@ -168,7 +188,12 @@ class HexapodCalibratorNode(Node):
     def _run(self, plan: HexapodPlan) -> CalibrationResult:
         self._settled = self.get_clock().now().to_msg()
         poses = plan.poses(self.nominal)  # a plan that cannot work fails here, before a bag exists
-        prediction = predict(self.nominal, *poses)
+        noise = ()
+        if self.description:
+            declared = self.description.measurement
+            noise = (declared.instrument.position_sigma_m, declared.instrument.angle_sigma_rad,
+                     declared.actuators.sigma_m)
+        prediction = predict(self.nominal, *poses, *noise)
         moved = prediction['predicted_displacement_m']
         self.get_logger().info(f'plan of {len(poses[0])} poses: displacement error predicted '
                                f'{moved["rms"] * 1e6:.2f} um RMS, {moved["max"] * 1e6:.2f} um '
@@ -184,8 +209,15 @@ class HexapodCalibratorNode(Node):
                 plan, self.nominal, self._move_legs, self._measure, self._progress,
                 lambda *stop: self._record(run, stops, *stop), poses)
             # else nothing is put in force
-            check_identification(calibration.report['identification'], self.nominal)
+            check_identification(calibration.report['identification'], self.nominal,
+                                 self.description)
             calibration.report['plan'] = prediction
+            if self.description:
+                calibration.report['description'] = {
+                    'file': self.description.source,
+                    'residual_limit_m': self.description.residual_limit(),
+                    'parameter_bound_m': self.description.parameter_bound(),
+                    'expected': self.description.expected_text()}
             path, version, _ = run.save(CALIBRATION_NAME, {
                 **calibration.geometry.as_dict(), 'nominal': self.nominal.as_dict(),
                 'report': calibration.report})
