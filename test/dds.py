@@ -38,3 +38,20 @@ def machine_align(domain: str, *argv: str, timeout: float = 300.0):
     return subprocess.run([sys.executable, '-m', 'machine_alignment.cli', *argv],
                           env={**os.environ, 'ROS_DOMAIN_ID': domain}, capture_output=True,
                           text=True, timeout=timeout)
+
+
+def in_process_node(node_class, monkeypatch, tmp_path, **parameters):
+    """``node_class()`` in this process with discovery off (nothing else sees it) and
+    ``parameters`` (its output_dir and record_dir in ``tmp_path``); the caller destroys it
+    and shuts rclpy down. A node that refuses to start has shut rclpy down already."""
+    import rclpy
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')     # read by rclpy.init
+    arguments = ['--ros-args', '-p', f'output_dir:={tmp_path}', '-p', f'record_dir:={tmp_path}']
+    for name, value in parameters.items():
+        arguments += ['-p', f'{name}:={value}']
+    rclpy.init(args=arguments)
+    try:
+        return node_class()
+    except Exception:
+        rclpy.shutdown()
+        raise

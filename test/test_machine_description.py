@@ -172,29 +172,16 @@ def test_the_whole_route_on_a_model_of_the_users_machine(tmp_path, capsys):
     assert errors['rms_displacement_m'] < 1.2e-3
 
 
-def _calibrator_node(monkeypatch, tmp_path, **parameters):
-    """A hexapod_calibrator in this process, discovery off, with ``parameters``."""
-    import rclpy
-    from hexapod_calib.nodes.hexapod_calibrator import HexapodCalibratorNode
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')     # read by rclpy.init
-    arguments = ['--ros-args', '-p', f'output_dir:={tmp_path}', '-p', f'record_dir:={tmp_path}']
-    for name, value in parameters.items():
-        arguments += ['-p', f'{name}:={value}']
-    rclpy.init(args=arguments)
-    try:
-        return HexapodCalibratorNode()
-    except Exception:
-        rclpy.shutdown()
-        raise
-
-
 def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
     """``description`` at start-up: the node's nominal is the described 0.8 m geometry, its
     plans lie in the described workspace (a request's keys still override) and it refuses
     a nominal geometry beside it."""
     import rclpy
+    from dds import in_process_node
+    from hexapod_calib.nodes.hexapod_calibrator import HexapodCalibratorNode
     description = read_description(EXAMPLE)
-    node = _calibrator_node(monkeypatch, tmp_path, description=str(EXAMPLE))
+    node = in_process_node(HexapodCalibratorNode, monkeypatch, tmp_path,
+                           description=str(EXAMPLE))
     try:
         assert node.description is not None
         np.testing.assert_array_equal(node.nominal.base_joints,
@@ -206,5 +193,5 @@ def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
         node.destroy_node()
         rclpy.shutdown()
     with pytest.raises(InvalidInputError, match='not both'):
-        _calibrator_node(monkeypatch, tmp_path, description=str(EXAMPLE),
-                         nominal_geometry=str(EXAMPLE))
+        in_process_node(HexapodCalibratorNode, monkeypatch, tmp_path,
+                        description=str(EXAMPLE), nominal_geometry=str(EXAMPLE))

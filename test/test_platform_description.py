@@ -141,3 +141,22 @@ def test_the_plan_lies_in_the_described_box_and_is_measured_there(tmp_path):
     data = _simulate(tmp_path, 'planned', '--plan', str(plan), '--scale', '2', '--seed', '5')
     assert cli_main(['calibrate', 'platform', '--description', str(USER), '--data', str(data),
                      '--json', str(tmp_path / 'cal.json')]) == 0
+
+
+def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
+    """``description`` at start-up: the node's nominal is the described 0.6 m platform and
+    its gate the description's; a nominal geometry beside it is refused."""
+    import rclpy
+    from dds import in_process_node
+    from platform_calib.nodes.platform_calibrator import PlatformCalibratorNode
+    node = in_process_node(PlatformCalibratorNode, monkeypatch, tmp_path, description=str(USER))
+    try:
+        np.testing.assert_array_equal(node.nominal.vector(),
+                                      read_description(USER).geometry.vector())
+        assert node.description.position_bound() == pytest.approx(0.0424, rel=0.01)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    with pytest.raises(InvalidInputError, match='not both'):
+        in_process_node(PlatformCalibratorNode, monkeypatch, tmp_path, description=str(USER),
+                        nominal_geometry=str(USER))

@@ -16,6 +16,10 @@ tracker). The geometry is written as an atomic, versioned ``platform`` file (rea
 ``/platform_calibrator/result``, and the run recorded to MCAP (``machine-align calibrate
 platform --bag`` solves it again).
 
+With ``description`` (a machine description YAML, docs/machine_description.md) the nominal
+geometry and the identification's gate are the described platform's; the poses stay
+within ``span`` about the zero pose (set it to the described box).
+
 Service ``platform_calibrator/register`` (RegisterScreen) measures the screen's two marks
 (``platform/measure_marks``), computes the pose that puts them on target (the marks of the
 screen at the platform's zero) and the feeds by ``method`` (exact, lm, pso: the source's
@@ -54,6 +58,7 @@ from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from platform_calib.core.compensation import METHODS, composite_error, mark_positions
+from platform_calib.core.description import read_description
 from platform_calib.core.geometry import calibrated_frames, nominal_geometry, read_geometry
 from platform_calib.core.identification import check_identification
 from platform_calib.core.kinematics import inverse
@@ -93,13 +98,21 @@ class PlatformCalibratorNode(Node):
         self.declare_parameter('step', 4)
         self.declare_parameter('method', 'exact')
         self.declare_parameter('nominal_geometry', '', READ_ONLY)     # YAML; empty: the built-in
+        self.declare_parameter('description', '', READ_ONLY)   # the user's machine description
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self._plan_from_parameters({})                      # a bad plan stops the start
         if self.get_parameter('method').value not in METHODS:
             raise ValueError(f'method must be one of {METHODS}')
         path = self.get_parameter('nominal_geometry').value
-        self.nominal = read_geometry(path) if path else nominal_geometry()
+        described = self.get_parameter('description').value
+        if path and described:
+            raise InvalidInputError('give nominal_geometry or description (it holds the '
+                                    'geometry), not both')
+        # A described platform: its geometry and the gate from its declared noise and size.
+        self.description = read_description(described) if described else None
+        self.nominal = (self.description.geometry if self.description else
+                        read_geometry(path) if path else nominal_geometry())
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.model, self.feeds = None, None
         group = ReentrantCallbackGroup()
@@ -201,7 +214,8 @@ class PlatformCalibratorNode(Node):
             result, evaluation, _, prediction = run_platform_calibration(
                 plan, self.nominal, self._move, self._track,
                 lambda stop: self._record(run, stop), self._progress)
-            check_identification(result, self.nominal)   # else nothing is put in force
+            # else nothing is put in force
+            check_identification(result, self.nominal, self.description)
             report = {**result.report(), 'evaluation': evaluation,
                       **({'plan': prediction} if prediction else {})}
             geometry = result.geometry
