@@ -16,7 +16,8 @@ the machine's channels. :func:`analyze`
    remaining residual against every covariate for structure no candidate explained.
 
 Modules: ``model`` (MachineModel, LoopConfig), ``fitting``, ``identifiability``,
-``selection`` (:func:`analyze`), ``report`` (LoopResult, :func:`format_report`).
+``trial`` (one candidate on one split), ``selection`` (:func:`analyze`), ``evidence``,
+``channels``, ``linearised``, ``report`` (LoopResult, :func:`format_report`).
 """
 from calib_core.closed_loop.fitting import evaluate, refit
 from calib_core.closed_loop.model import LoopConfig, MachineModel, scalar_covariates, select_rows

@@ -43,7 +43,7 @@ def _term_spread(prepared, values: np.ndarray, covariance: np.ndarray, context: 
 
 
 def undetermined_reason(machine, current: Fit, entry: dict, rows) -> str | None:
-    """Why the candidate scored in ``entry`` (by :func:`_try_candidate` on ``rows``) is not
+    """Why the candidate scored in ``entry`` (by :func:`.trial.try_candidate` on ``rows``) is not
     identifiable from the data, or None.
 
     The noise is the one its F-test used. Three checks: its parameters add as many

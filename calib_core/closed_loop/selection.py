@@ -4,15 +4,12 @@ size) on several hold-out splits; effects chosen often enough are built into the
 model and pruned while the held-out error allows (:func:`analyze`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from calib_core.effects import LIBRARY
 from calib_core.errors import CalibrationError, InvalidInputError
-from calib_core.closed_loop.channels import (
-    channel_groups, channel_p_values, determined_channels)
 from calib_core.closed_loop.fitting import (
     Fit, cross_validated_rms, fit_model, heldout_errors, holdout_split, model_residuals,
     residuals_by_channel, without_effects)
@@ -21,11 +18,12 @@ from calib_core.closed_loop.evidence import (
     MIN_HELDOUT_GAIN, describe_gain, earns_its_place, matching_candidate, pooled_gain,
     seen_not_added)
 from calib_core.closed_loop.identifiability import (
-    minimum_residuals, pure_error_variance, undetermined_reason)
+    minimum_residuals, undetermined_reason)
 from calib_core.closed_loop.linearised import LinearisedModel
 from calib_core.closed_loop.model import (
     LoopConfig, MachineModel, covariate_columns, prepare_effect)
 from calib_core.closed_loop.report import LoopResult, loop_result
+from calib_core.closed_loop.trial import judge, prefer_the_simpler, try_candidate
 
 
 @dataclass
@@ -69,107 +67,6 @@ def _make_split(machine, config: LoopConfig, k: int):
     return holdout, train, folds, fit_model(machine, base, [], [], train)
 
 
-def _try_candidate(machine, current: Fit, name: str, train, context, channel_residuals,
-                   alpha: float, channels: tuple | None = None, undetermined: dict | None = None):
-    """Prepare effect ``name`` on the current residuals and refit it jointly (replacing
-    any effect it supersedes). Returns a scored entry, or a string: why it was not tested.
-
-    Without ``channels``, the effect is fitted on every channel it may act on and then,
-    if the data determine it on some of them only (:mod:`.channels`), refitted and scored
-    on those; its p-value then also counts the choice among the channels. With
-    ``channels``, it is fitted there and ``undetermined`` (channel -> why) is reported."""
-    prepared = prepare_effect(LIBRARY[name], machine, context, channel_residuals, channels)
-    if isinstance(prepared, str):
-        return prepared
-    if undetermined:
-        prepared = replace(prepared, notes=dict(prepared.notes,
-                                                channels_not_determined=dict(undetermined)))
-    effects, values = without_effects(current, prepared.effect.supersedes)
-    extra = len(prepared.names) - (current.parameter_count - len(current.base.free_names)
-                                   - sum(len(v) for v in values))
-    size = current.parameter_count + extra
-    residual_count = current.residuals.size
-    if extra <= 0:
-        return 'it adds no parameter to the model in force'
-    if residual_count < minimum_residuals(size):
-        return (f'too little data to test it: {residual_count} residuals for {size} '
-                f'parameters, {minimum_residuals(size)} needed')
-    try:
-        extended = fit_model(machine, current.base, effects + [prepared],
-                        values + [prepared.initial], train)
-    except (ValueError, np.linalg.LinAlgError) as error:
-        return f'the joint fit failed: {error}'
-    rss0, rss1 = current.rss, extended.rss
-    noise, dof = pure_error_variance(machine, extended, train, extra, residual_count - size)
-    f_stat = max(rss0 - rss1, 0.0) / extra / max(noise, 1e-300)
-    groups = channel_groups(prepared, machine.channels)
-    entry = {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
-             'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
-             'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train))),
-             'extra': extra, 'noise': noise, 'dof': dof,
-             'channels': tuple(groups or ()) if prepared.separable else None}
-    if channels is not None:
-        return entry
-    k = len(extended.effects) - 1
-    columns = extended.effect_slice(k)
-    p_values = channel_p_values(prepared, groups, extended.values[k],
-                                extended.covariance(noise)[columns, columns], dof)
-    decision = determined_channels(p_values, alpha)
-    if decision is None:
-        return entry
-    kept, dropped = decision
-    narrowed = _try_candidate(
-        machine, current, name, train, context, channel_residuals, alpha, kept,
-        {c: f'its term is not significant there (p = {p:.2g})' for c, p in dropped.items()})
-    if isinstance(narrowed, str):
-        return entry
-    narrowed['p_value_raw'] = min(1.0, narrowed['p_value_raw'] * len(p_values))
-    return narrowed
-
-
-def _judge(machine, current: Fit, entry: dict, train, min_effect: float, alpha: float,
-           tested: int) -> str:
-    """Status of a scored candidate: 'candidate', or why it cannot be added."""
-    entry['p_value'] = min(1.0, entry['p_value_raw'] * max(tested, 1))
-    entry['significant'] = bool(entry['p_value'] < alpha)
-    if not entry['significant']:
-        return 'not significant'
-    entry['reason'] = undetermined_reason(machine, current, entry, train)
-    if entry['reason']:
-        return 'not identifiable'
-    if entry['size'] < min_effect:
-        return 'below the minimum effect size'
-    return 'candidate'
-
-
-def _nested_terms_p_value(general: dict, special: dict) -> float:
-    """p-value of the terms a candidate has beyond one it supersedes, both fitted in the
-    same round (nested models: F-test of the extra terms against the general one's noise)."""
-    extra = general['extra'] - special['extra']
-    if extra <= 0:
-        return 1.0
-    gain = max(special['fit'].rss - general['fit'].rss, 0.0)
-    f_stat = gain / extra / max(general['noise'], 1e-300)
-    return float(stats.f.sf(f_stat, extra, general['dof']))
-
-
-def _prefer_the_simpler(accepted: list, alpha: float) -> list:
-    """The accepted candidates less those that supersede another accepted one without
-    their extra terms being significant at ``alpha``: a reversal that changes along the
-    travel is not claimed over a constant one for a 1-sigma slope that happened to lower
-    the cross-validated error. The general effect is tried again in the next round, on top
-    of the simple one, where only its extra terms are tested."""
-    by_name = {e['effect']: e for e in accepted}
-    kept = []
-    for entry in accepted:
-        special = [by_name[n] for n in entry['prepared'].effect.supersedes if n in by_name]
-        entry['nested_p_value'] = min((_nested_terms_p_value(entry, s) for s in special),
-                                      default=None)
-        if entry['nested_p_value'] is None or entry['nested_p_value'] < alpha:
-            kept.append(entry)
-    return kept
-
-
 def _select(machine, config: LoopConfig, k: int, min_effect: float, progress=None) -> _Split:
     """Forward selection on hold-out split ``k`` (steps 2 and 3 of the module's list)."""
     holdout, train, folds, base_fit = _make_split(machine, config, k)
@@ -184,7 +81,7 @@ def _select(machine, config: LoopConfig, k: int, min_effect: float, progress=Non
         for i, name in enumerate(remaining):
             if progress:
                 progress(i, len(remaining), f'round {len(rounds) + 1}: {name}')
-            entry = _try_candidate(machine, current, name, train, context, channel_residuals,
+            entry = try_candidate(machine, current, name, train, context, channel_residuals,
                                    config.alpha)
             if isinstance(entry, str):
                 skipped[name] = entry
@@ -192,7 +89,7 @@ def _select(machine, config: LoopConfig, k: int, min_effect: float, progress=Non
             skipped.pop(name, None)
             scored.append(entry)
         for entry in scored:
-            entry['status'] = _judge(machine, current, entry, train, min_effect, config.alpha,
+            entry['status'] = judge(machine, current, entry, train, min_effect, config.alpha,
                                      len(scored))
             if entry['status'] == 'not identifiable':
                 not_identifiable[entry['effect']] = entry['reason']
@@ -203,7 +100,7 @@ def _select(machine, config: LoopConfig, k: int, min_effect: float, progress=Non
         rounds.append({'cv_rms_current': current_cv, 'candidates': [
             {k: entry[k] for k in ('effect', 'f_statistic', 'p_value', 'cv_rms', 'significant',
                                    'size', 'status')} for entry in scored]})
-        accepted = _prefer_the_simpler(
+        accepted = prefer_the_simpler(
             [e for e in scored if e['status'] == 'candidate' and e['cv_rms'] < current_cv],
             config.alpha)
         if not accepted:
@@ -260,7 +157,7 @@ def _build(machine, splits: list, chosen: list, config: LoopConfig):
             continue
         kept, undetermined = channels or (None, None)
         context = machine.context(current.base, primary.train)
-        entry = _try_candidate(machine, current, name, primary.train, context,
+        entry = try_candidate(machine, current, name, primary.train, context,
                                residuals_by_channel(machine, current, primary.train),
                                config.alpha, kept, undetermined)
         if isinstance(entry, str):
@@ -304,7 +201,7 @@ def _p_value_beyond(machine, fit: Fit, name: str, train, alpha: float) -> float:
     """p-value of effect ``name``'s terms added to ``fit`` (replacing what it supersedes):
     1 where it adds no parameter or cannot be tested."""
     context = machine.context(fit.base, train)
-    entry = _try_candidate(machine, fit, name, train, context,
+    entry = try_candidate(machine, fit, name, train, context,
                            residuals_by_channel(machine, fit, train), alpha)
     return 1.0 if isinstance(entry, str) else entry['p_value_raw']
 
@@ -347,11 +244,11 @@ def _simplify(machine, splits: list, current: Fit, config: LoopConfig, evidence:
                 prepared = prepare_effect(LIBRARY[alternative], machine, context, residuals)
                 if isinstance(prepared, str) or len(prepared.names) >= size:
                     continue    # not simpler: no joint fit needed to know
-                entry = _try_candidate(machine, reduced, alternative, primary.train, context,
+                entry = try_candidate(machine, reduced, alternative, primary.train, context,
                                        residuals, config.alpha)
                 # The selection's own rules (no minimum size: it stands in for an effect
                 # that passed it).
-                if (isinstance(entry, str) or entry['extra'] >= size or _judge(
+                if (isinstance(entry, str) or entry['extra'] >= size or judge(
                         machine, reduced, entry, primary.train, 0.0, config.alpha, 1)
                         != 'candidate'):
                     continue
@@ -415,13 +312,13 @@ def _second_look(machine, splits: list, final: Fit, config: LoopConfig, min_effe
                 continue
             hinted = dict(context, period_hint={channel: item['period']}) \
                 if 'period' in item else context
-            entry = _try_candidate(machine, final, name, primary.train, hinted, residuals,
+            entry = try_candidate(machine, final, name, primary.train, hinted, residuals,
                                    config.alpha, (channel,), {})
             if isinstance(entry, str):
                 notes[key] = f'{name} on {channel} not tested: {entry}'
                 continue
             # The selection's own rules, the effect's own searches its only trials.
-            status = _judge(machine, final, entry, primary.train, min_effect, config.alpha, 1)
+            status = judge(machine, final, entry, primary.train, min_effect, config.alpha, 1)
             why = {'candidate': None, 'not identifiable': entry.get('reason'),
                    'not significant': f'not significant jointly with the model '
                                       f'(p = {entry["p_value"]:.2g})',

@@ -188,6 +188,13 @@ def cmd_plan_stage(args) -> int:
 def add_parser(sub) -> None:
     plan = sub.add_parser('plan', help=command_help('plan'))
     what = plan.add_subparsers(dest='what', required=True)
+    _add_platform(what)
+    _add_hexapod(what)
+    _add_five_axis(what)
+    _add_stage(what)
+
+
+def _add_platform(what) -> None:
     platform = what.add_parser('platform', help='poses for the platform\'s identification')
     platform.add_argument('--poses', type=ranged(int, 6, 10000), required=True,
                           help='how many poses to measure (at least 6 for 18 parameters)')
@@ -211,6 +218,8 @@ def add_parser(sub) -> None:
     platform.add_argument('--json', help='the prediction to write')
     platform.set_defaults(func=cmd_plan_platform)
 
+
+def _add_hexapod(what) -> None:
     hexapod = what.add_parser('hexapod', help='poses for the hexapod\'s identification')
     hexapod.add_argument('--poses', type=ranged(int, 7, 10000), required=True,
                          help='how many poses to measure (at least 7; 13 or more)')
@@ -238,6 +247,8 @@ def add_parser(sub) -> None:
     hexapod.add_argument('--json', help='the prediction to write')
     hexapod.set_defaults(func=cmd_plan_hexapod)
 
+
+def _add_five_axis(what) -> None:
     five_axis = what.add_parser('five-axis', help='stops for the five-axis dispenser\'s '
                                                   'vision calibration')
     five_axis.add_argument('--stops', type=ranged(int, 8, 124), required=True,
@@ -262,6 +273,8 @@ def add_parser(sub) -> None:
     five_axis.add_argument('--json', help='the prediction to write')
     five_axis.set_defaults(func=cmd_plan_five_axis)
 
+
+def _add_stage(what) -> None:
     stage = what.add_parser('stage', help='stops for the XY-Theta stage\'s calibration run')
     stage.add_argument('--stops', type=ranged(int, 1, 729), required=True,
                        help='stops to choose beside home and the sweeps')

@@ -145,6 +145,15 @@ def add_parser(sub) -> None:
     simulated = simulate.add_subparsers(dest='what', required=True)
     platform.add_simulate_parser(simulated)
     five_axis.add_simulate_parser(simulated)
+    _add_hexapod(simulated)
+    _add_stage(simulated)
+    _add_gantry(simulated)
+    _add_camera(simulated)
+    _add_grid(simulated)
+    _add_axis(simulated)
+
+
+def _add_hexapod(simulated) -> None:
     hexapod_sim = simulated.add_parser('hexapod', help='pose files from the simulated hexapod')
     hexapod_sim.add_argument('--out', required=True, help='directory')
     hexapod_sim.add_argument('--poses', type=ranged(int, 1, 100000), default=30, help='calibration poses to measure')
@@ -162,6 +171,8 @@ def add_parser(sub) -> None:
     hexapod_sim.add_argument('--no-play', action='store_true', help='legs without joint play')
     hexapod_sim.set_defaults(func=cmd_simulate_hexapod)
 
+
+def _add_stage(simulated) -> None:
     stage_sim = simulated.add_parser('stage', help='a calibration run of the simulated '
                                                     'XY-Theta stage (stage CSV)')
     stage_sim.add_argument('--out', required=True, help='CSV to write')
@@ -172,6 +183,8 @@ def add_parser(sub) -> None:
     stage_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     stage_sim.set_defaults(func=cmd_simulate_stage)
 
+
+def _add_gantry(simulated) -> None:
     gantry_sim = simulated.add_parser('gantry', help='camera gantry positions measured by the '
                                                       'calibrated camera (gantry CSV)')
     gantry_sim.add_argument('--out', required=True, help='CSV to write')
@@ -181,6 +194,8 @@ def add_parser(sub) -> None:
     gantry_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     gantry_sim.set_defaults(func=cmd_simulate_gantry)
 
+
+def _add_camera(simulated) -> None:
     camera_sim = simulated.add_parser('camera', help='a tilted grid target seen by a camera '
                                                       '(correspondence CSV)')
     camera_sim.add_argument('--out', required=True, help='CSV to write')
@@ -193,6 +208,8 @@ def add_parser(sub) -> None:
     camera_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
     camera_sim.set_defaults(func=cmd_simulate_camera)
 
+
+def _add_grid(simulated) -> None:
     grid_sim = simulated.add_parser('grid', help='an imperfect grid plate measured at three '
                                                   'placements on a stage (marks CSV)')
     grid_sim.add_argument('--out', required=True, help='CSV to write')
@@ -216,6 +233,8 @@ def add_parser(sub) -> None:
                                                              'gives the same data')
     grid_sim.set_defaults(func=cmd_simulate_grid)
 
+
+def _add_axis(simulated) -> None:
     axis_sim = simulated.add_parser('axis', help='an ISO 230-2 laser-interferometer test of '
                                                   'a simulated axis')
     axis_sim.add_argument('--out', required=True, help='CSV to write')
