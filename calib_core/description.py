@@ -139,3 +139,55 @@ def read_measurement(content: dict, where: str, default_instrument: Instrument,
                                                 default_actuator_sigma_m))
     repeatability = _number(content, 'repeatability_m', where, 0.0)
     return Measurement(measured_by, read_by, repeatability, declared)
+
+
+def workspace_section(content: dict, where: str, keys: tuple) -> dict | None:
+    """A description's ``workspace`` mapping with exactly ``keys``, or None without one."""
+    section = content.get('workspace')
+    if section is None:
+        return None
+    check_keys(section, keys, f'{where}: workspace')
+    missing = [k for k in keys if k not in section]
+    if missing:
+        raise InvalidInputError(f'{where}: workspace lacks {", ".join(missing)}')
+    return section
+
+
+def workspace_numbers(value, count: int, name: str, where: str, positive: bool) -> tuple:
+    """``count`` finite numbers (all > 0 if ``positive``) of workspace entry ``name``."""
+    try:
+        values = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InvalidInputError(f'{where}: workspace {name} must be {count} numbers') from None
+    if values.shape != (count,) or not np.all(np.isfinite(values)) or (
+            positive and not np.all(values > 0)):
+        raise InvalidInputError(f'{where}: workspace {name} must be {count} finite '
+                                f'{"positive " if positive else ""}number(s), not {value!r}')
+    return tuple(float(v) for v in values)
+
+
+def likely_causes(travel_ratio: float, actuators: Actuators, moving: str, model: str,
+                  command: str) -> str:
+    """The likely causes of a residual far above the declared noise, most likely first,
+    from how far the actuators travelled against what the measured poses need
+    (``travel_ratio``, median over the actuators): a unit slip where that is about 1000x
+    or 1/1000 (and only then), the declared lead off where it is more than 20 % from 1,
+    then the instrument, the nominal geometry and effects ``model`` lacks (``command``
+    names them). ``moving`` names the actuators (legs, feeds)."""
+    causes = []
+    if 1e3 / 3 < travel_ratio < 3e3:
+        causes.append(f'the {moving} move 1000x as far as the measured poses need: the '
+                      'readings are in a unit 1000x smaller than declared (mm read as m: '
+                      'actuators: {unit: mm})')
+    elif 1e-3 / 3 < travel_ratio < 3e-3:
+        causes.append(f'the {moving} move 1/1000 as far as the measured poses need: the '
+                      'readings are in a unit 1000x larger than declared (m read as mm: '
+                      'actuators: {unit: m})')
+    elif abs(travel_ratio - 1) > 0.2:
+        causes.append(f'the {moving} move {travel_ratio:.3g}x as far as the measured poses '
+                      f"need: the actuators' m_per_unit ({actuators.m_per_unit:g} m per "
+                      f'{actuators.unit}) is off')
+    causes += ['the instrument is noisier than declared',
+               "the nominal geometry is not this machine's",
+               f'effects the {model} lacks ({command} names them)']
+    return '; '.join(f'{k + 1}. {c}' for k, c in enumerate(causes))

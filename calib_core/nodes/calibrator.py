@@ -41,6 +41,21 @@ def declare_paths(node, *names: str) -> None:
         node.declare_parameter(name, PATH_DEFAULTS[name], READ_ONLY)
 
 
+def described_machine(node, read_description: Callable, read_geometry: Callable,
+                      built_in: Callable) -> tuple:
+    """(description or None, nominal geometry) from the node's start-up parameters
+    ``description`` (a machine description file: its geometry) and ``nominal_geometry`` (a
+    geometry file); neither: ``built_in()``. Both given is refused."""
+    path = node.get_parameter('nominal_geometry').value
+    described = node.get_parameter('description').value
+    if path and described:
+        raise InvalidInputError('give nominal_geometry or description (it holds the '
+                                'geometry), not both')
+    description = read_description(described) if described else None
+    return description, (description.geometry if description else
+                         read_geometry(path) if path else built_in())
+
+
 def publish_calibration_in_force(node, name: str, publisher, as_message: Callable) -> None:
     """At start-up, publish (latched) the current calibration ``name`` in the node's
     ``output_dir``, built by ``as_message(content, path)``, so a restarted calibrator

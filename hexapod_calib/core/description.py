@@ -28,7 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.description import (
-    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_measurement)
+    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_measurement,
+    workspace_numbers, workspace_section)
+from calib_core.description import likely_causes as causes_from_travel
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
 from hexapod_calib.core.geometry import HexapodGeometry, as_poses
@@ -99,62 +101,27 @@ def read_description(path) -> HexapodDescription:
     return HexapodDescription(geometry, measurement, where, _workspace(content, where))
 
 
-def _triple(value, count: int, name: str, where: str, positive: bool) -> tuple:
-    try:
-        values = np.asarray(value, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise InvalidInputError(f'{where}: workspace {name} must be {count} numbers') from None
-    if values.shape != (count,) or not np.all(np.isfinite(values)) or (
-            positive and not np.all(values > 0)):
-        raise InvalidInputError(f'{where}: workspace {name} must be {count} finite '
-                                f'{"positive " if positive else ""}numbers, not {value!r}')
-    return tuple(float(v) for v in values)
-
-
 def _workspace(content: dict, where: str) -> dict | None:
     """The workspace section as :class:`HexapodPlan` settings, or None."""
-    section = content.get('workspace')
+    section = workspace_section(content, where, WORKSPACE_KEYS)
     if section is None:
         return None
-    check_keys(section, WORKSPACE_KEYS, f'{where}: workspace')
-    missing = [k for k in WORKSPACE_KEYS if k not in section]
-    if missing:
-        raise InvalidInputError(f'{where}: workspace lacks {", ".join(missing)}')
-    home = as_poses(_triple(section['home'], 6, 'home', where, False), 'workspace home')[0]
-    stroke = _triple(section['stroke_m'], 2, 'stroke_m', where, False)
+    home = as_poses(workspace_numbers(section['home'], 6, 'home', where, False), 'workspace home')[0]
+    stroke = workspace_numbers(section['stroke_m'], 2, 'stroke_m', where, False)
     if not stroke[0] < stroke[1]:
         raise InvalidInputError(f'{where}: workspace stroke_m must be [shortest, longest]')
     return {'home': tuple(home.tolist()),
-            'translation': _triple(section['translation_m'], 3, 'translation_m', where, True),
-            'rotation': _triple(section['rotation_rad'], 3, 'rotation_rad', where, True),
+            'translation': workspace_numbers(section['translation_m'], 3, 'translation_m', where, True),
+            'rotation': workspace_numbers(section['rotation_rad'], 3, 'rotation_rad', where, True),
             'stroke': stroke}
 
 
-UNIT_SLIPS = ((1e3, 'the legs move 1000x as far as the measured poses need: the readings are '
-                    'in a unit 1000x smaller than declared (mm read as m: actuators: '
-                    '{unit: mm})'),
-              (1e-3, 'the legs move 1/1000 as far as the measured poses need: the readings '
-                     'are in a unit 1000x larger than declared (m read as mm: actuators: '
-                     '{unit: m})'))
-
-
 def likely_causes(data, description: HexapodDescription) -> str:
-    """The likely causes of a residual far above the declared noise, most likely first: a
-    unit slip where the legs' travel and the poses' disagree by about 1000x (and only
-    then), a lead off where they disagree by more than 20 %, then the instrument, the
-    nominal geometry and effects the model lacks."""
+    """The likely causes of a residual far above the declared noise, most likely first
+    (:func:`calib_core.description.likely_causes`, from the legs' travel against the
+    poses')."""
     needed = inverse_kinematics(description.geometry, data.measured)
     ratio = float(np.median(np.ptp(data.leg_lengths, axis=0)
                             / np.maximum(np.ptp(needed, axis=0), 1e-12)))
-    causes = []
-    for factor, text in UNIT_SLIPS:
-        if factor / 3 < ratio < factor * 3:
-            causes.append(text)
-    if not causes and abs(ratio - 1) > 0.2:
-        causes.append(f'the legs move {ratio:.3g}x as far as the measured poses need: the '
-                      f'actuators\' m_per_unit ({description.measurement.actuators.m_per_unit:g}'
-                      f' m per {description.measurement.actuators.unit}) is off')
-    causes += ['the instrument is noisier than declared', 'the nominal geometry is not this '
-               'machine\'s', 'effects the 42-parameter model lacks (machine-align analyze '
-               'hexapod names them)']
-    return '; '.join(f'{k + 1}. {c}' for k, c in enumerate(causes))
+    return causes_from_travel(ratio, description.measurement.actuators, 'legs',
+                              '42-parameter model', 'machine-align analyze hexapod')

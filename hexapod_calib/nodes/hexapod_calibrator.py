@@ -31,7 +31,8 @@ from std_msgs.msg import Header
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    READ_ONLY, CalibrationService, call_service, declare_paths, publish_calibration_in_force)
+    READ_ONLY, CalibrationService, call_service, declare_paths, described_machine,
+    publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
@@ -89,16 +90,10 @@ class HexapodCalibratorNode(Node):
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         if not self.timeout > 0:
             raise InvalidInputError('call_timeout_s must be > 0')
-        path = self.get_parameter('nominal_geometry').value
-        described = self.get_parameter('description').value
-        if path and described:
-            raise InvalidInputError('give nominal_geometry or description (it holds the '
-                                    'geometry), not both')
         # A described machine: its geometry, its workspace for plans, its instrument for
         # the prediction and the gate (docs/machine_description.md).
-        self.description = read_description(described) if described else None
-        self.nominal = (self.description.geometry if self.description else
-                        read_geometry(path) if path else nominal_geometry())
+        self.description, self.nominal = described_machine(
+            self, read_description, read_geometry, nominal_geometry)
         self._settled = None
         self._last_measurement = None  # the sensor's message, recorded as it came
         group = ReentrantCallbackGroup()

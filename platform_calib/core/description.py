@@ -30,7 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.description import (
-    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_measurement)
+    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_measurement,
+    workspace_numbers, workspace_section)
+from calib_core.description import likely_causes as causes_from_travel
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
 from platform_calib.core.geometry import PlatformGeometry, geometry_from_mapping
@@ -117,54 +119,23 @@ def read_description(path) -> PlatformDescription:
     return PlatformDescription(geometry, measurement, where, _workspace(content, where))
 
 
-def _numbers(value, count: int, name: str, where: str, positive: bool) -> tuple:
-    try:
-        values = np.asarray(value, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise InvalidInputError(f'{where}: workspace {name} must be {count} numbers') from None
-    if values.shape != (count,) or not np.all(np.isfinite(values)) or (
-            positive and not np.all(values > 0)):
-        raise InvalidInputError(f'{where}: workspace {name} must be {count} finite '
-                                f'{"positive " if positive else ""}number(s), not {value!r}')
-    return tuple(float(v) for v in values)
-
-
 def _workspace(content: dict, where: str) -> dict | None:
-    section = content.get('workspace')
+    section = workspace_section(content, where, WORKSPACE_KEYS)
     if section is None:
         return None
-    check_keys(section, WORKSPACE_KEYS, f'{where}: workspace')
-    missing = [k for k in WORKSPACE_KEYS if k not in section]
-    if missing:
-        raise InvalidInputError(f'{where}: workspace lacks {", ".join(missing)}')
-    return {'home': _numbers(section['home'], 3, 'home', where, False),
-            'translation': _numbers(section['translation_m'], 2, 'translation_m', where, True),
-            'rotation': _numbers(section['rotation_rad'], 1, 'rotation_rad', where, True)[0]}
+    return {'home': workspace_numbers(section['home'], 3, 'home', where, False),
+            'translation': workspace_numbers(section['translation_m'], 2, 'translation_m',
+                                             where, True),
+            'rotation': workspace_numbers(section['rotation_rad'], 1, 'rotation_rad', where,
+                                          True)[0]}
 
 
 def likely_causes(data: PoseData, description: PlatformDescription) -> str:
     """The likely causes of a closure residual far above the declared noise, most likely
-    first: a unit slip where the feeds' travel and the poses' disagree by about 1000x (and
-    only then), a lead off where they disagree by more than 20 %, then the instrument, the
-    nominal geometry and effects the model lacks."""
+    first (:func:`calib_core.description.likely_causes`, from the feeds' travel against the
+    poses')."""
     needed = inverse(description.geometry, data.poses, check=False)
     ratio = float(np.median(np.ptp(data.feeds, axis=0)
                             / np.maximum(np.ptp(needed, axis=0), 1e-12)))
-    actuators = description.measurement.actuators
-    causes = []
-    if 1e3 / 3 < ratio < 3e3:
-        causes.append('the feeds move 1000x as far as the measured poses need: the readings '
-                      'are in a unit 1000x smaller than declared (mm read as m: actuators: '
-                      '{unit: mm})')
-    elif 1e-3 / 3 < ratio < 3e-3:
-        causes.append('the feeds move 1/1000 as far as the measured poses need: the readings '
-                      'are in a unit 1000x larger than declared (m read as mm: actuators: '
-                      '{unit: m})')
-    elif abs(ratio - 1) > 0.2:
-        causes.append(f'the feeds move {ratio:.3g}x as far as the measured poses need: the '
-                      f'actuators\' m_per_unit ({actuators.m_per_unit:g} m per '
-                      f'{actuators.unit}) is off')
-    causes += ['the instrument is noisier than declared', 'the nominal geometry is not this '
-               "machine's", 'effects the 18-parameter model lacks (machine-align analyze '
-               'platform names them)']
-    return '; '.join(f'{k + 1}. {c}' for k, c in enumerate(causes))
+    return causes_from_travel(ratio, description.measurement.actuators, 'feeds',
+                              '18-parameter model', 'machine-align analyze platform')

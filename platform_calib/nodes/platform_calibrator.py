@@ -47,8 +47,8 @@ from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignm
 from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    READ_ONLY, CalibrationService, call_service, check_when_set, declare_paths, one_of,
-    publish_calibration_in_force)
+    READ_ONLY, CalibrationService, call_service, check_when_set, declare_paths,
+    described_machine, one_of, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
@@ -104,15 +104,9 @@ class PlatformCalibratorNode(Node):
         self._plan_from_parameters({})                      # a bad plan stops the start
         if self.get_parameter('method').value not in METHODS:
             raise ValueError(f'method must be one of {METHODS}')
-        path = self.get_parameter('nominal_geometry').value
-        described = self.get_parameter('description').value
-        if path and described:
-            raise InvalidInputError('give nominal_geometry or description (it holds the '
-                                    'geometry), not both')
         # A described platform: its geometry and the gate from its declared noise and size.
-        self.description = read_description(described) if described else None
-        self.nominal = (self.description.geometry if self.description else
-                        read_geometry(path) if path else nominal_geometry())
+        self.description, self.nominal = described_machine(
+            self, read_description, read_geometry, nominal_geometry)
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.model, self.feeds = None, None
         group = ReentrantCallbackGroup()
