@@ -58,33 +58,6 @@ INSTRUMENTS = {
 LOW_NOISE_FACTOR = 0.1      # a low-noise run's instruments against the sources'
 
 
-_GANTRY = Instrument('printer_alignment.nodes.gantry_sim', 'landing_sigma', 12.5e-6 / 50,
-                     'gantry landing', 'um', 1e6, 'the source: 1/50 px at 12.5 um')
-# The sources' figures: the printer paper's Mark-centre accuracy and stage repeatability
-# (3.3 um unidirectional), the hexapod paper's CMM (0.6 um), the five-axis paper's dot-centre
-# noise (0.1 px, giving its 0.17 px reprojection); the platform paper gives none, so the
-# tracker has the rebuilt simulation's 10 um (SEEDS_CDE.md, platform, PROPOSED).
-INSTRUMENTS = {
-    'printer': (_GANTRY,),
-    'stage': (_GANTRY, Instrument('printer_alignment.nodes.stage_sim', 'landing_sigma', 1.2e-6,
-                                  'stage landing per chain', 'um', 1e6,
-                                  'the source: 3.3 um repeatability')),
-    'hexapod': (Instrument('hexapod_calib.nodes.pose_sensor_sim', 'position_noise', 0.6e-6,
-                           'pose sensor', 'um', 1e6, "the source's CMM: 0.6 um"),
-                Instrument('hexapod_calib.nodes.pose_sensor_sim', 'angle_noise', 6e-6,
-                           'pose sensor angles', 'urad', 1e6)),
-    'grid': (_GANTRY,),
-    'platform': (Instrument('platform_calib.nodes.laser_tracker_sim', 'position_noise', 10e-6,
-                            'laser tracker', 'um', 1e6,
-                            'no figure in the source: the rebuilt simulation\'s'),
-                 Instrument('platform_calib.nodes.laser_tracker_sim', 'angle_noise', 20e-6,
-                            'tracker angles', 'urad', 1e6)),
-    'five_axis': (Instrument('dispenser_calib.nodes.five_axis_sim', 'noise_px', 0.1,
-                             'dot centres', 'px', 1.0, 'the source: 0.1 px'),),
-}
-LOW_NOISE_FACTOR = 0.1      # a low-noise run's instruments against the sources'
-
-
 @dataclass
 class DemoRun:
     """The demo's folder and ROS domain, its numbered steps and its summary rows."""
@@ -141,7 +114,7 @@ def calibrate_offline(argv: list[str]) -> int:
 
 
 def run_service(graph, service: str, progress_topic: str, timeout: float = 600.0,
-                 analysis: str = '', plan: str = ''):
+                analysis: str = '', plan: str = ''):
     """Call a RunCalibration service on a running graph, printing its progress; then, if
     the calibration succeeded and ``analysis`` names an AnalyzeResiduals service, run the
     closed loop with ``apply``. Returns (calibration response, analysis response), None

@@ -22,8 +22,8 @@ def hexapod(run: DemoRun) -> int:
     start = time.monotonic()
     with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / 'hexapod')) as graph:
         response, analysis = run_service(graph, 'hexapod_calibrator/calibrate',
-                                          '/hexapod_calibrator/progress',
-                                          analysis='hexapod_calibrator/analyze_residuals')
+                                         '/hexapod_calibrator/progress',
+                                         analysis='hexapod_calibrator/analyze_residuals')
     if response is None or not response.success:
         print(f'hexapod calibration failed: {response.message if response else "timeout"}')
         return 1

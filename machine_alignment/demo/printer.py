@@ -30,8 +30,8 @@ def printer(run: DemoRun) -> int:
     with Graph(graph_spec, env={'ROS_DOMAIN_ID': domain},
                log_dir=str(out / 'logs' / 'printer')) as graph:
         response, analysis = run_service(graph, 'vision_calibrator/calibrate',
-                                          '/vision_calibrator/progress', timeout=300.0,
-                                          analysis='vision_calibrator/analyze_residuals')
+                                         '/vision_calibrator/progress', timeout=300.0,
+                                         analysis='vision_calibrator/analyze_residuals')
     if response is None or not response.success:
         print(f'calibration failed: {response.message if response else "timeout"}')
         return 1
@@ -87,8 +87,8 @@ def stage(run: DemoRun) -> int:
     start = time.monotonic()
     with Graph(spec, env={'ROS_DOMAIN_ID': domain}, log_dir=str(out / 'logs' / 'stage')) as graph:
         response, analysis = run_service(graph, 'stage_calibrator/calibrate',
-                                          '/stage_calibrator/progress', timeout=900.0,
-                                          analysis='stage_calibrator/analyze_residuals')
+                                         '/stage_calibrator/progress', timeout=900.0,
+                                         analysis='stage_calibrator/analyze_residuals')
         if response is None or not response.success:
             print(f'stage calibration failed: {response.message if response else "timeout"}')
             return 1
