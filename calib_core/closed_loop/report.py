@@ -45,24 +45,12 @@ def _merged(splits: list, attribute: str, keep: list) -> dict:
     return out
 
 
-def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequency: dict,
-                not_identifiable: dict, rejected: dict, min_effect: float,
-                seen: list = (), tried: dict | None = None,
-                structure: list | None = None) -> LoopResult:
-    """The report and arrays of :func:`analyze` (step 4 of the module's list): ``seen``
-    are the effects chosen on some split and not added (they lead ``unexplained``),
-    ``tried`` what trying an effect on a flagged structure gave, by (kind, component,
-    covariate), ``structure`` the structure tests' findings on ``final`` where they ran
-    already."""
-    primary = splits[0]
-    every = np.arange(len(machine))
-    holdout, train = primary.holdout, primary.train
-    before_all = evaluate(machine, primary.base_fit, every)
-    after_all = evaluate(machine, final, every)
-    context = machine.context(final.base, every)
-    covariates = covariate_columns(machine, context)
-    effect_terms = {prepared.effect.name: prepared.term(np.asarray(values, float), context)
-                    for prepared, values in zip(final.effects, final.values)}
+def _unexplained(machine, config, final: Fit, train, covariates: dict, outliers: dict,
+                 seen: list, tried: dict | None, structure: list | None) -> list:
+    """What the extended model leaves: the effects seen and not added first, then the
+    structure tests' findings on the fitting rows (each with its unit, likely causes and
+    what trying the matching candidate gave) and, where settings were repeated, the lack
+    of fit between the cells."""
     unexplained = [dict(item) for item in structure] if structure is not None else \
         structure_tests(machine.channels, residuals_by_channel(machine, final, train),
                         {k: v[train] for k, v in covariates.items()}, config.alpha)
@@ -72,7 +60,6 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
             item['unit'] = own[item['component'].removeprefix('residual_')]
             along = next((c for c in machine.channels if item['covariate'].endswith(f'_{c}')), None)
             item['covariate_unit'] = own.get(along, '')
-    outliers = find_outliers(machine, after_all, covariates, min_effect)
     groups = machine.replicates()
     if groups is not None:
         # A gross row (the first approach's transient) is named under outliers; in a cell
@@ -91,9 +78,12 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         why = (tried or {}).get((item['kind'], item['component'], item['covariate']))
         if why:
             item['candidate_tried'] = why
-    unexplained = list(seen) + unexplained
-    std = final.std_devs()
-    nb = len(final.base.free_names)
+    return list(seen) + unexplained
+
+
+def _effects_added(final: Fit, std: np.ndarray, evidence: dict, frequency: dict) -> list:
+    """Each added effect described: values and sigmas, what is not determined, aliases of
+    a period on a regular grid, and its evidence with how often it was chosen."""
     effects_added = []
     for k, prepared in enumerate(final.effects):
         item = evidence[prepared.effect.name]
@@ -111,6 +101,13 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         entry['evidence'] = dict(item['evidence'],
                                  selection_frequency=frequency.get(prepared.effect.name, 0.0))
         effects_added.append(entry)
+    return effects_added
+
+
+def _pooled_held_out(machine, splits: list, final: Fit) -> tuple:
+    """The held-out error before and after pooled over every split (the final model
+    refitted on each split's fitting rows), the figures per split, and which rows were
+    held out at least once."""
     by_split, pooled_before, pooled_after = [], [], []
     for split in splits:
         rows = np.flatnonzero(split.holdout)
@@ -122,9 +119,35 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
         by_split.append({'rms_before': before['rms'], 'rms_after': after['rms'],
                          'max_before': before['max'], 'max_after': after['max'],
                          'held_out': int(len(rows))})
-    held_before = error_summary(machine, np.concatenate(pooled_before))
-    held_after = error_summary(machine, np.concatenate(pooled_after))
-    held_once = np.any([split.holdout for split in splits], axis=0)
+    return (error_summary(machine, np.concatenate(pooled_before)),
+            error_summary(machine, np.concatenate(pooled_after)), by_split,
+            np.any([split.holdout for split in splits], axis=0))
+
+
+def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequency: dict,
+                not_identifiable: dict, rejected: dict, min_effect: float,
+                seen: list = (), tried: dict | None = None,
+                structure: list | None = None) -> LoopResult:
+    """The report and arrays of :func:`analyze` (step 4 of the module's list): ``seen``
+    are the effects chosen on some split and not added (they lead ``unexplained``),
+    ``tried`` what trying an effect on a flagged structure gave, by (kind, component,
+    covariate), ``structure`` the structure tests' findings on ``final`` where they ran
+    already."""
+    primary = splits[0]
+    every = np.arange(len(machine))
+    holdout, train = primary.holdout, primary.train
+    before_all = evaluate(machine, primary.base_fit, every)
+    after_all = evaluate(machine, final, every)
+    context = machine.context(final.base, every)
+    covariates = covariate_columns(machine, context)
+    effect_terms = {prepared.effect.name: prepared.term(np.asarray(values, float), context)
+                    for prepared, values in zip(final.effects, final.values)}
+    outliers = find_outliers(machine, after_all, covariates, min_effect)
+    unexplained = _unexplained(machine, config, final, train, covariates, outliers, seen,
+                               tried, structure)
+    std = final.std_devs()
+    nb = len(final.base.free_names)
+    held_before, held_after, by_split, held_once = _pooled_held_out(machine, splits, final)
     names = final.names()
     report = {
         'machine': machine.name,
@@ -139,7 +162,7 @@ def loop_result(machine, config, splits: list, final: Fit, evidence: dict, frequ
                    'alpha': config.alpha, 'max_effects': config.max_effects,
                    'seed': config.seed, 'splits': config.splits,
                    'min_frequency': config.min_frequency, 'min_effect': min_effect},
-        'effects_added': effects_added,
+        'effects_added': _effects_added(final, std, evidence, frequency),
         'rms_before': held_before['rms'], 'max_before': held_before['max'],
         'rms_after': held_after['rms'], 'max_after': held_after['max'],
         'held_out_by_split': by_split,
@@ -196,6 +219,98 @@ def _in_small_units(value: float, unit: str) -> tuple[float, str]:
     return (value * 1e6, {'m': 'um', 'rad': 'urad'}[unit]) if unit in ('m', 'rad') else (value, unit)
 
 
+def _effect_lines(effect: dict, factor: float, unit: str) -> list:
+    """An added effect: its values and evidence, then what it leaves undetermined."""
+    vague = effect.get('parameters_not_determined', {})
+    values = ', '.join(f'{k} {v:.4g} +- {effect["std_devs"][k]:.2g} {effect["units"][k]}'
+                       for k, v in effect['parameters'].items() if k not in vague)
+    evidence = effect['evidence']
+    found = evidence.get('from_structure')
+    how = f'chosen in {evidence["selection_frequency"]:.0%} of splits'
+    if found:
+        how = (f'for the {found["kind"]} the structure test found in {found["component"]} '
+               f'against {found["covariate"]}')
+    elif 'replaces' in evidence:
+        how = (f'in place of {evidence["replaces"]}, as good on held-out rows with fewer '
+               f'parameters (x {evidence["heldout_ratio_to_replaced"]:.3f})')
+    lines = [f'  added {effect["name"]} ({how}, p = {evidence["p_value"]:.2g}, '
+             f'explains {evidence["explained_rms"] * factor:.3g} {unit} RMS): {values}']
+    for name, why in vague.items():
+        lines.append(f'    {name} not determined: {why}')
+    for channel, why in effect.get('channels_not_determined', {}).items():
+        lines.append(f'    {effect["name"]} on {channel}: not determined, {why}; '
+                     f'nothing added there')
+    for channel in effect.get('legs_with_mean_play', []):
+        lines.append(f'    {effect["name"]} on {channel}: the mean of the others (its load '
+                     f'changes side too rarely to fit its own)')
+    for why in effect.get('channels_not_tested', []):
+        lines.append(f'    {effect["name"]} not tested on {why}')
+    for channel, aliases in effect.get('aliases_m', {}).items():
+        lines.append(f'    period_{channel}: the targets lie every '
+                     f'{effect["grid_spacing_m"][channel] * 1e3:.4g} mm, where '
+                     f'{", ".join(f"{p * 1e3:.4g}" for p in aliases)} mm take the same '
+                     f'values: the screw\'s lead decides (irregular targets would tell them '
+                     f'apart)')
+    return lines
+
+
+def _held_out_lines(report: dict, factor: float, unit: str) -> list:
+    """The held-out error pooled over the splits, and its spread over them."""
+    spread = report.get('held_out_by_split', [])
+    rows = report['rows']
+    lines = [f'  held out, pooled over the {len(spread)} splits ({rows["held_out_pooled"]} '
+             f'rows held out, {rows["held_out_at_least_once"]} of {rows["total"]} at least '
+             f'once): RMS {report["rms_before"] * factor:.3g} -> '
+             f'{report["rms_after"] * factor:.3g} {unit}, max '
+             f'{report["max_before"] * factor:.3g} -> {report["max_after"] * factor:.3g} {unit}']
+    ratios = [s['rms_after'] / s['rms_before'] for s in spread if s['rms_before'] > 0]
+    if len(ratios) > 1:
+        lines.append(f'  held-out RMS after / before over the {len(spread)} splits: '
+                     f'{min(ratios):.2f} to {max(ratios):.2f}')
+    return lines
+
+
+def _outlier_lines(outliers: dict, factor: float, unit: str) -> list:
+    if not outliers.get('count'):
+        return []
+    described = '; '.join(
+        f'row {o["row"]} ({", ".join(f"{k} {v:.4g}" for k, v in o["covariates"].items())}):'
+        f' {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
+    return [f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
+            f'{outliers["limit_sigmas"]:.3g} robust sigma '
+            f'({outliers["limit"] * factor:.3g} {unit}; '
+            f'robust sigma {outliers["robust_sigma"] * factor:.3g} {unit}) '
+            f'under the extended model, e.g. {described}']
+
+
+def _unexplained_lines(item: dict, report_unit: str, factor: float, unit: str) -> list:
+    """One unexplained item: an effect seen and not added, with its evidence, or
+    structure no candidate explains, with its likely causes."""
+    if item['kind'] == SEEN_NOT_ADDED:
+        where = f' on {", ".join(item["channels"])}' if item['channels'] else ''
+        gain = (f', held-out RMS pooled over the splits {-item["pooled_gain"]:+.1%} with it'
+                if 'pooled_gain' in item else '')
+        return [f'  UNEXPLAINED (seen, not added) {item["effect"]}{where}: chosen in '
+                f'{item["splits_chosen"]} of {item["splits"]} splits (p = '
+                f'{item["p_value"]:.2g}, explains {item["structure_rms"] * factor:.3g} '
+                f'{unit} RMS there{gain}); kept out: {item["why_not_added"]}']
+    period = ''
+    if 'period' in item:
+        period = (f' (period {np.degrees(item["period"]):.4g} deg)'
+                  if item.get('covariate_unit') == 'rad' else
+                  f' (period {item["period"] * 1e3:.4g} mm)')
+    size, label = _in_small_units(item['structure_rms'], item.get('unit', report_unit))
+    scatter = ''
+    if 'pure_error_sigma' in item:
+        repeat, _ = _in_small_units(item['pure_error_sigma'], item.get('unit', report_unit))
+        scatter = f' while the repeats scatter {repeat:.3g} {label}'
+    lines = [f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
+             f'{item["covariate"]}: {size:.3g} {label} RMS{scatter} '
+             f'(p = {item["p_value"]:.2g}); could be {item["likely_causes"]}']
+    lines += [f'    {item[key]}' for key in ('candidate_tried', 'remedy') if key in item]
+    return lines
+
+
 def format_report(report: dict) -> str:
     """Lines for people: what was added and how consistently, the held-out error before
     and after, what the data cannot determine, what was rejected or skipped, and what
@@ -208,36 +323,7 @@ def format_report(report: dict) -> str:
              f'added when chosen in {config["min_frequency"]:.0%} of them and it explains at '
              f'least {config["min_effect"] * factor:.3g} {unit} RMS']
     for effect in report['effects_added']:
-        vague = effect.get('parameters_not_determined', {})
-        values = ', '.join(f'{k} {v:.4g} +- {effect["std_devs"][k]:.2g} {effect["units"][k]}'
-                           for k, v in effect['parameters'].items() if k not in vague)
-        evidence = effect['evidence']
-        found = evidence.get('from_structure')
-        how = f'chosen in {evidence["selection_frequency"]:.0%} of splits'
-        if found:
-            how = (f'for the {found["kind"]} the structure test found in {found["component"]} '
-                   f'against {found["covariate"]}')
-        elif 'replaces' in evidence:
-            how = (f'in place of {evidence["replaces"]}, as good on held-out rows with fewer '
-                   f'parameters (x {evidence["heldout_ratio_to_replaced"]:.3f})')
-        lines.append(f'  added {effect["name"]} ({how}, p = {evidence["p_value"]:.2g}, '
-                     f'explains {evidence["explained_rms"] * factor:.3g} {unit} RMS): {values}')
-        for name, why in vague.items():
-            lines.append(f'    {name} not determined: {why}')
-        for channel, why in effect.get('channels_not_determined', {}).items():
-            lines.append(f'    {effect["name"]} on {channel}: not determined, {why}; '
-                         f'nothing added there')
-        for channel in effect.get('legs_with_mean_play', []):
-            lines.append(f'    {effect["name"]} on {channel}: the mean of the others (its load '
-                         f'changes side too rarely to fit its own)')
-        for why in effect.get('channels_not_tested', []):
-            lines.append(f'    {effect["name"]} not tested on {why}')
-        for channel, aliases in effect.get('aliases_m', {}).items():
-            lines.append(f'    period_{channel}: the targets lie every '
-                         f'{effect["grid_spacing_m"][channel] * 1e3:.4g} mm, where '
-                         f'{", ".join(f"{p * 1e3:.4g}" for p in aliases)} mm take the same '
-                         f'values: the screw\'s lead decides (irregular targets would tell them '
-                         f'apart)')
+        lines += _effect_lines(effect, factor, unit)
     if not report['effects_added']:
         lines.append('  added nothing: no candidate effect is significant, identifiable and '
                      'chosen consistently')
@@ -246,17 +332,7 @@ def format_report(report: dict) -> str:
                      f'{report["max_after"] / report["max_before"]:.3g}) though over the '
                      f'splits it grew by less than the RMS fell: a few rows the effects do not '
                      f'describe (see outliers)')
-    spread = report.get('held_out_by_split', [])
-    rows = report['rows']
-    lines.append(f'  held out, pooled over the {len(spread)} splits ({rows["held_out_pooled"]} '
-                 f'rows held out, {rows["held_out_at_least_once"]} of {rows["total"]} at least '
-                 f'once): RMS {report["rms_before"] * factor:.3g} -> '
-                 f'{report["rms_after"] * factor:.3g} {unit}, max '
-                 f'{report["max_before"] * factor:.3g} -> {report["max_after"] * factor:.3g} {unit}')
-    ratios = [s['rms_after'] / s['rms_before'] for s in spread if s['rms_before'] > 0]
-    if len(ratios) > 1:
-        lines.append(f'  held-out RMS after / before over the {len(spread)} splits: '
-                     f'{min(ratios):.2f} to {max(ratios):.2f}')
+    lines += _held_out_lines(report, factor, unit)
     for name, reason in report.get('not_identifiable', {}).items():
         lines.append(f'  NOT IDENTIFIABLE {name}: {reason}')
     for name, reason in report.get('rejected', {}).items():
@@ -265,41 +341,7 @@ def format_report(report: dict) -> str:
         lines.append(f'  below the minimum effect size {name}: explains {size * factor:.3g} {unit} RMS')
     for name, reason in report['skipped'].items():
         lines.append(f'  not tested {name}: {reason}')
-    outliers = report.get('outliers', {})
-    if outliers.get('count'):
-        described = '; '.join(
-            f'row {o["row"]} ({", ".join(f"{k} {v:.4g}" for k, v in o["covariates"].items())}):'
-            f' {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
-        lines.append(f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
-                     f'{outliers["limit_sigmas"]:.3g} robust sigma '
-                     f'({outliers["limit"] * factor:.3g} {unit}; '
-                     f'robust sigma {outliers["robust_sigma"] * factor:.3g} {unit}) '
-                     f'under the extended model, e.g. {described}')
+    lines += _outlier_lines(report.get('outliers', {}), factor, unit)
     for item in report['unexplained']:
-        if item['kind'] == SEEN_NOT_ADDED:
-            where = f' on {", ".join(item["channels"])}' if item['channels'] else ''
-            gain = (f', held-out RMS pooled over the splits {-item["pooled_gain"]:+.1%} with it'
-                    if 'pooled_gain' in item else '')
-            lines.append(f'  UNEXPLAINED (seen, not added) {item["effect"]}{where}: chosen in '
-                         f'{item["splits_chosen"]} of {item["splits"]} splits (p = '
-                         f'{item["p_value"]:.2g}, explains {item["structure_rms"] * factor:.3g} '
-                         f'{unit} RMS there{gain}); kept out: {item["why_not_added"]}')
-            continue
-        period = ''
-        if 'period' in item:
-            period = (f' (period {np.degrees(item["period"]):.4g} deg)'
-                      if item.get('covariate_unit') == 'rad' else
-                      f' (period {item["period"] * 1e3:.4g} mm)')
-        size, label = _in_small_units(item['structure_rms'], item.get('unit', report['unit']))
-        scatter = ''
-        if 'pure_error_sigma' in item:
-            repeat, _ = _in_small_units(item['pure_error_sigma'], item.get('unit', report['unit']))
-            scatter = f' while the repeats scatter {repeat:.3g} {label}'
-        lines.append(f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
-                     f'{item["covariate"]}: {size:.3g} {label} RMS{scatter} '
-                     f'(p = {item["p_value"]:.2g}); could be {item["likely_causes"]}')
-        if 'candidate_tried' in item:
-            lines.append(f'    {item["candidate_tried"]}')
-        if 'remedy' in item:
-            lines.append(f'    {item["remedy"]}')
+        lines += _unexplained_lines(item, report['unit'], factor, unit)
     return '\n'.join(lines)
