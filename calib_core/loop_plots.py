@@ -204,76 +204,65 @@ def _draw_unexplained(ax, machine, result, item: dict) -> None:
     ax.legend(fontsize=7)
 
 
-def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
-    """Write the figure for ``result`` to ``path`` (PNG)."""
-    report = result.report
-    factor, unit = _SCALES.get(machine.unit, (1.0, machine.unit))
-    needed = {kind for e in report['effects_added'] for kind in LIBRARY[e['name']].requires}
+def _panel_covariates(machine: MachineModel, result: LoopResult) -> list:
+    """(name, values) of the covariates worth a panel: those the added effects act on
+    first, those where the loop changed the residuals most first among them, one panel per
+    covariate that looks different (a rotary axis's reading and its position differ by
+    microradians: the same panel twice)."""
+    needed = {kind for e in result.report['effects_added']
+              for kind in LIBRARY[e['name']].requires}
+
     def change(name):
         """How much the loop changed the residuals this covariate's panel shows."""
         moved = (_component(machine, name, result.residuals_before)
                  - _component(machine, name, result.residuals_after))
         return float(np.sqrt(np.mean(np.square(moved))))
-    # The covariates the added effects act on come first, those where the loop changed
-    # the residuals most first among them.
     covariates = sorted(((name, z) for name, z in result.covariates.items() if np.ptp(z) > 0),
                         key=lambda item: (item[0].split('_')[0] not in needed,
                                           -change(item[0])))
-    # One panel per covariate that looks different (a rotary axis's reading and its
-    # position differ by microradians: the same panel twice).
     distinct = []
     for name, z in covariates:
         if not any(np.shape(z) == np.shape(w)
                    and np.max(np.abs(np.subtract(z, w))) < 1e-3 * np.ptp(z)
                    for _, w in distinct):
             distinct.append((name, z))
-    effects = effect_panels(machine, result) if result.channel_after is not None else []
-    unexplained = [item for item in report.get('unexplained', [])
-                   if item['component'].removeprefix('residual_') in machine.channels
-                   and item['covariate'] in result.covariates][:1]
-    extra = len(effects) + len(unexplained)
-    covariates = distinct[:max(_MAX_COVARIATE_PANELS - extra, 3)]
-    workspace = machine.workspace()
-    panels = (extra + len(covariates) + 1
-              + (workspace is not None and result.residuals_after.shape[1] == 2))
-    cols = min(3, panels)
-    rows = int(np.ceil(panels / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.6 * rows), squeeze=False)
-    axes = axes.ravel()
-    held = result.holdout
-    for ax, (effect, c, covariate) in zip(axes, effects):
-        _draw_effect(ax, machine, result, effect, c, covariate)
-    for ax, item in zip(axes[len(effects):], unexplained):
-        _draw_unexplained(ax, machine, result, item)
-    for ax, (name, z) in zip(axes[extra:], covariates):
-        kind = name.split('_')[0]
-        scale, covariate_unit = _covariate_scale(machine, name, kind)
-        for shift, residuals, colour, label in (
-                (-0.12, result.residuals_before, 'tab:red', 'base model'),
-                (0.12, result.residuals_after, 'tab:blue', 'after loop')):
-            r = _component(machine, name, residuals) * factor
-            zz = np.broadcast_to(z[:, None], r.shape) if r.ndim == 2 else z
-            if kind == 'direction':   # a category: side by side at -1 and +1, not an axis
-                zz = zz + shift
-            elif kind == 'time':      # clock times (epoch s) read best from the first row
-                zz = (zz - np.min(z)) * scale
-            else:
-                zz = zz * scale
-            ax.plot(zz.ravel(), r.ravel(), '.', ms=3, color=colour, alpha=0.6, label=label)
-        if kind == 'direction':
-            ax.set_xticks([-1, 1], ['-1: from above', '+1: from below'])
-            ax.set_xlim(-1.6, 1.6)
-            ax.set_xlabel(name)
-        elif kind == 'time':
-            ax.set_xlabel(f'{name} since the first row ({covariate_unit})')
-        else:   # a count (sequence, cycle) has no unit to show
-            ax.set_xlabel(f'{name} ({covariate_unit})' if covariate_unit else name)
-        ax.set_ylabel(f'residual ({unit})')
-        ax.grid(alpha=0.3)
-    if covariates:
-        axes[extra].legend(loc='best', fontsize=8)
-    k = extra + len(covariates)
-    ax = axes[k]
+    return distinct
+
+
+def _draw_covariate(ax, machine: MachineModel, result: LoopResult, name: str, z, factor: float,
+                    unit: str) -> None:
+    """The residuals before and after against covariate ``name``: a direction side by
+    side at -1 and +1, a clock time from the first row, anything else in its unit."""
+    kind = name.split('_')[0]
+    scale, covariate_unit = _covariate_scale(machine, name, kind)
+    for shift, residuals, colour, label in (
+            (-0.12, result.residuals_before, 'tab:red', 'base model'),
+            (0.12, result.residuals_after, 'tab:blue', 'after loop')):
+        r = _component(machine, name, residuals) * factor
+        zz = np.broadcast_to(z[:, None], r.shape) if r.ndim == 2 else z
+        if kind == 'direction':   # a category: side by side at -1 and +1, not an axis
+            zz = zz + shift
+        elif kind == 'time':      # clock times (epoch s) read best from the first row
+            zz = (zz - np.min(z)) * scale
+        else:
+            zz = zz * scale
+        ax.plot(zz.ravel(), r.ravel(), '.', ms=3, color=colour, alpha=0.6, label=label)
+    if kind == 'direction':
+        ax.set_xticks([-1, 1], ['-1: from above', '+1: from below'])
+        ax.set_xlim(-1.6, 1.6)
+        ax.set_xlabel(name)
+    elif kind == 'time':
+        ax.set_xlabel(f'{name} since the first row ({covariate_unit})')
+    else:   # a count (sequence, cycle) has no unit to show
+        ax.set_xlabel(f'{name} ({covariate_unit})' if covariate_unit else name)
+    ax.set_ylabel(f'residual ({unit})')
+    ax.grid(alpha=0.3)
+
+
+def _draw_held_out(ax, machine: MachineModel, result: LoopResult, factor: float,
+                   unit: str) -> None:
+    """The held-out rows' errors before and after, one histogram on one scale."""
+    report, held = result.report, result.holdout
     before = machine.row_errors(result.residuals_before[held]) * factor
     after = machine.row_errors(result.residuals_after[held]) * factor
     bins = np.linspace(0, max(before.max(), after.max()) * 1.02, 30)
@@ -284,7 +273,39 @@ def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
     ax.set_xlabel(f'held-out error ({unit})')
     ax.set_ylabel('count')
     ax.legend(fontsize=8)
-    if workspace is not None and result.residuals_after.shape[1] == 2:
+
+
+def plot_loop(path, machine: MachineModel, result: LoopResult) -> None:
+    """Write the figure for ``result`` to ``path`` (PNG): the added effects' panels, the
+    first unexplained structure, the residuals against the covariates, the held-out
+    errors and, for two-channel machines, the residual vectors over the workspace."""
+    report = result.report
+    factor, unit = _SCALES.get(machine.unit, (1.0, machine.unit))
+    distinct = _panel_covariates(machine, result)
+    effects = effect_panels(machine, result) if result.channel_after is not None else []
+    unexplained = [item for item in report.get('unexplained', [])
+                   if item['component'].removeprefix('residual_') in machine.channels
+                   and item['covariate'] in result.covariates][:1]
+    extra = len(effects) + len(unexplained)
+    covariates = distinct[:max(_MAX_COVARIATE_PANELS - extra, 3)]
+    workspace = machine.workspace()
+    vectors = workspace is not None and result.residuals_after.shape[1] == 2
+    panels = extra + len(covariates) + 1 + vectors
+    cols = min(3, panels)
+    rows = int(np.ceil(panels / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.6 * rows), squeeze=False)
+    axes = axes.ravel()
+    for ax, (effect, c, covariate) in zip(axes, effects):
+        _draw_effect(ax, machine, result, effect, c, covariate)
+    for ax, item in zip(axes[len(effects):], unexplained):
+        _draw_unexplained(ax, machine, result, item)
+    for ax, (name, z) in zip(axes[extra:], covariates):
+        _draw_covariate(ax, machine, result, name, z, factor, unit)
+    if covariates:
+        axes[extra].legend(loc='best', fontsize=8)
+    k = extra + len(covariates)
+    _draw_held_out(axes[k], machine, result, factor, unit)
+    if vectors:
         _vectors(axes[k + 1], machine, result, workspace, factor, unit)
     for ax in axes[panels:]:
         ax.axis('off')
