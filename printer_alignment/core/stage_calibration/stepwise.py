@@ -35,6 +35,39 @@ def _fit_line(t: np.ndarray, points: np.ndarray):
     return coef[0]
 
 
+def _sweeps(q: np.ndarray) -> tuple:
+    """The rows of the home pose and of the X, Y and attitude sweeps in the inputs ``q``
+    (n, 3) m; a sweep the method needs missing is named."""
+    tol = 1e-9
+    home_rows = _rows(q, lambda q: np.all(np.abs(q) < tol, axis=1))
+    x_rows = _rows(q, lambda q: (np.abs(q[:, 1]) < tol) & (np.abs(q[:, 2]) < tol)
+                   & (np.abs(q[:, 0]) > tol))
+    y_rows = _rows(q, lambda q: (np.abs(q[:, 0]) < tol) & (np.abs(q[:, 1] - q[:, 2]) < tol)
+                   & (np.abs(q[:, 1]) > tol))
+    w_rows = _rows(q, lambda q: (np.abs(q[:, 0]) < tol) & (np.abs(q[:, 1] + q[:, 2]) < tol)
+                   & (np.abs(q[:, 1]) > tol))
+    for name, rows in (('home pose (q = 0)', home_rows), ('X sweep (q1 alone)', x_rows),
+                       ('Y sweep (q2 = q3)', y_rows), ('attitude sweep (q2 = -q3)', w_rows)):
+        need = 1 if name.startswith('home') else 3
+        if len(rows) < need:
+            raise CalibrationError(f'the stepwise calibration needs the {name}: '
+                                   f'{len(rows)} rows found, at least {need} needed')
+    return home_rows, x_rows, y_rows, w_rows
+
+
+def _attitude_table(w: np.ndarray, angle: np.ndarray) -> tuple:
+    """The attitude table over q3 - q2 (``w``, m; ``angle``, rad, of the attitude sweep):
+    one entry per commanded difference, through (0, 0), sorted; refused if not monotonic."""
+    table_w, table_theta = _unique_mean(np.append(w, 0.0)[:, None],
+                                        np.append(angle, 0.0)[:, None])
+    order = np.argsort(table_theta[:, 0])
+    table_w, table_theta = table_w[order, 0], table_theta[order, 0]
+    if np.any(np.diff(table_theta) <= 0):
+        raise CalibrationError('the attitude table is not monotonic in q3 - q2: the '
+                               'attitude sweep measurements are inconsistent')
+    return table_w, table_theta
+
+
 def stepwise_calibration(data: StageData):
     """The paper's stepwise self-calibration.
 
@@ -50,20 +83,7 @@ def stepwise_calibration(data: StageData):
         If a sweep the method needs is missing from the data (names it).
     """
     q = data.q
-    tol = 1e-9
-    home_rows = _rows(q, lambda q: np.all(np.abs(q) < tol, axis=1))
-    x_rows = _rows(q, lambda q: (np.abs(q[:, 1]) < tol) & (np.abs(q[:, 2]) < tol)
-                   & (np.abs(q[:, 0]) > tol))
-    y_rows = _rows(q, lambda q: (np.abs(q[:, 0]) < tol) & (np.abs(q[:, 1] - q[:, 2]) < tol)
-                   & (np.abs(q[:, 1]) > tol))
-    w_rows = _rows(q, lambda q: (np.abs(q[:, 0]) < tol) & (np.abs(q[:, 1] + q[:, 2]) < tol)
-                   & (np.abs(q[:, 1]) > tol))
-    for name, rows in (('home pose (q = 0)', home_rows), ('X sweep (q1 alone)', x_rows),
-                       ('Y sweep (q2 = q3)', y_rows), ('attitude sweep (q2 = -q3)', w_rows)):
-        need = 1 if name.startswith('home') else 3
-        if len(rows) < need:
-            raise CalibrationError(f'the stepwise calibration needs the {name}: '
-                                   f'{len(rows)} rows found, at least {need} needed')
+    home_rows, x_rows, y_rows, w_rows = _sweeps(q)
     home = data.marks[home_rows].mean(axis=0)
     angle, shift = relative_motions(data.marks, home)
 
@@ -107,14 +127,7 @@ def stepwise_calibration(data: StageData):
         d=(d1, d_mid - distance / 2, d_mid + distance / 2), alpha1=alpha1,
         stage2plate=(float(origin[0]), float(origin[1]), home_angle))
 
-    # Attitude table over q3 - q2, one entry per commanded difference, through (0, 0).
-    table_w, table_theta = _unique_mean(np.append(w, 0.0)[:, None],
-                                        np.append(angle[w_rows], 0.0)[:, None])
-    order = np.argsort(table_theta[:, 0])
-    table_w, table_theta = table_w[order, 0], table_theta[order, 0]
-    if np.any(np.diff(table_theta) <= 0):
-        raise CalibrationError('the attitude table is not monotonic in q3 - q2: the '
-                               'attitude sweep measurements are inconsistent')
+    table_w, table_theta = _attitude_table(w, angle[w_rows])
 
     home_pose = np.array([origin[0], origin[1], home_angle])
     poses = np.column_stack([rotate_points(angle, home_pose[:2]) + shift, home_angle + angle])
