@@ -15,6 +15,23 @@ from calib_core.marks.segmentation import (
     estimate_noise, moment_overlap, moment_shapes, scaling_range, segment)
 
 
+def _levels(image: np.ndarray, config: DetectorConfig) -> tuple:
+    """The frame's lowest and highest value, its full scale (None where nothing is
+    clipped: no Mark needs the saturation check) and its noise sigma; a saturated or
+    uniform frame is refused. The frame stays in its own type; each Mark's pixels become
+    float in its fit."""
+    low, high = float(image.min()), float(image.max())
+    full = full_scale(image)
+    if full is not None and high >= full and np.count_nonzero(image >= full) > image.size / 2:
+        raise DetectionError('image is saturated: more than half of the pixels are at full scale')
+    if full is not None and high < full:
+        full = None
+    noise = max(estimate_noise(image), 1e-12 * max(abs(high), 1.0))
+    if high - low < 2 * config.min_snr * noise or high == low:
+        raise DetectionError('image has no contrast (empty or uniform): no Mark can be seen')
+    return low, high, full, noise
+
+
 def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = '',
                  expected_count: int = 0) -> Detection:
     """Find Marks in ``image`` and measure their centres to sub-pixel accuracy.
@@ -43,17 +60,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     if shape not in ('',) + SHAPES:
         raise InvalidInputError(f'shape must be "circle", "cross" or "", not {shape!r}')
     image = check_image(image)
-    # The frame stays in its own type; each Mark's pixels become float in its fit.
-    low, high = float(image.min()), float(image.max())
-    full = full_scale(image)
-    if full is not None and high >= full and np.count_nonzero(image >= full) > image.size / 2:
-        raise DetectionError('image is saturated: more than half of the pixels are at full scale')
-    if full is not None and high < full:
-        full = None  # nothing is clipped: no Mark needs the saturation check
-    noise = max(estimate_noise(image), 1e-12 * max(abs(high), 1.0))
-    if high - low < 2 * config.min_snr * noise or high == low:
-        raise DetectionError('image has no contrast (empty or uniform): no Mark can be seen')
-
+    low, high, full, noise = _levels(image, config)
     # Segmentation sees the frame within its scaling range; the fits see every pixel.
     scale_low, scale_high = scaling_range(image, low, high, noise)
     segmented = image if (scale_low, scale_high) == (low, high) else np.clip(
