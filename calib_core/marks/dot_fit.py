@@ -14,12 +14,11 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy.special import erfcx
 
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
+from calib_core.marks.normal import VECTOR as _VECTOR
+from calib_core.marks.normal import normal_cdf_pdf as _normal_cdf_pdf
 
-_SQRT_HALF = math.sqrt(0.5)
-_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 # Marquardt's damping: its start, and the bounds beyond which a dot's fit gives up or
 # the damping stops shrinking.
 _DAMPING_START, _DAMPING_MAX, _DAMPING_MIN = 1e-3, 1e12, 1e-12
@@ -28,12 +27,6 @@ _DAMPING_START, _DAMPING_MAX, _DAMPING_MIN = 1e-3, 1e12, 1e-12
 # after it is second order in it, and another evaluation of all pixels would cost as much
 # as an iteration.
 STOP_SIGMAS = 0.1
-# Reassociation lets the compiler vectorise the normal equations' sums; NaN and infinity
-# keep their meaning, because a diverging trial is refused by its cost not being finite.
-_FAST = {'reassoc', 'contract', 'nsz', 'arcp'}
-# Numpy's error model: a division by zero gives infinity or NaN (refused as above) instead
-# of a check and a raise on every division, which keeps the pixel loops from vectorising.
-_VECTOR = {'fastmath': _FAST, 'error_model': 'numpy'}
 # The box-aperture profile: the narrower of the box's two widths across an edge (px) is
 # taken as at least this, where the profile's second differences over it would divide by
 # zero (an edge along a pixel axis). The error is its square; the differences magnify the
@@ -46,72 +39,6 @@ SHARPEST_BLUR = 1e-3
 # so: there the differences, of antiderivatives that grow as the distance squared, would
 # leave their rounding (1e-11 at 30 px).
 _FLAT_SIGMAS = 6.0
-
-
-# The Gaussian exp(-x^2 / 2) is taken at |x| <= this: beyond, its value there (2e-16),
-# and Phi's tails under 1e-17, are zero to the model. The bound lets a polynomial stand for
-# exp: (p(y / 2^k))^(2^k), with y / 2^k in [-1.13, 0] for k = _EXP_HALVINGS.
-_GAUSS_CLAMP = 8.5
-_EXP_HALVINGS = 5
-
-
-def _exp_coefficients(degree=11):
-    """Power-series coefficients (highest first) of exp(y) for y in [-c^2 / 2^(k + 1), 0]
-    (c = _GAUSS_CLAMP, k = _EXP_HALVINGS): a least-squares fit at Chebyshev nodes, within
-    4e-15 relatively, so the 2^k-th power of it is within 1e-13 of exp(-x^2 / 2)."""
-    low = -0.5 * _GAUSS_CLAMP ** 2 / 2 ** _EXP_HALVINGS
-    y = 0.5 * low * (1.0 - np.cos(np.pi * (np.arange(200) + 0.5) / 200))
-    series = np.polynomial.Polynomial.fit(y, np.exp(y), degree, domain=[low, 0.0])
-    return tuple(series.convert().coef[::-1].tolist())
-
-
-_EXP = _exp_coefficients()
-
-
-def _scaled_erfc_coefficients(degree=12):
-    """Power-series coefficients c (in s = 2 t - 1, t = 1 / (1 + x / 2)) of
-    ``erfc(x) = t exp(-x^2) sum_k c_k s^k`` for x >= 0: a Chebyshev fit of scipy's
-    erfcx(x) / t, within 1e-9 of erfc everywhere. The pixel model shares exp(-x^2) with
-    its slope, so the edge's coverage costs a division and a polynomial, not a libm erfc
-    (15 ns a call). The series is made exactly 1 at x = 0 (s = 1), so Phi has no step
-    there: the box profile's second differences over 1e-4 px would make a 1e-9 step one
-    of 4e-6."""
-    t = 0.5 * (1.0 - np.cos(np.pi * (np.arange(400) + 0.5) / 400))
-    series = np.polynomial.chebyshev.chebfit(2 * t - 1, erfcx(2 / t - 2) / t, degree)
-    power = np.polynomial.chebyshev.cheb2poly(series)
-    power[0] += 1.0 - power.sum()
-    return tuple(power[::-1].tolist())
-
-
-_ERFC = _scaled_erfc_coefficients()
-
-
-@njit(cache=True, **_VECTOR)
-def _gauss(x):
-    """exp(-x^2 / 2) within 1e-13 relatively, for |x| <= _GAUSS_CLAMP (its value there
-    beyond): a polynomial and squarings, which the compiler vectorises (libm's exp it
-    calls one pixel at a time)."""
-    y = -0.5 * min(x * x, _GAUSS_CLAMP * _GAUSS_CLAMP) * (0.5 ** _EXP_HALVINGS)
-    value = 0.0
-    for c in _EXP:
-        value = value * y + c
-    for _ in range(_EXP_HALVINGS):
-        value *= value
-    return value
-
-
-@njit(cache=True, **_VECTOR)
-def _normal_cdf_pdf(x):
-    """Phi(x) and phi(x) of the standard normal; Phi from the erfc fit sharing the
-    Gaussian (see _gauss: within 2e-16 of 0 and 1 beyond its clamp)."""
-    gauss = _gauss(x)
-    t = 1.0 / (1.0 + 0.5 * _SQRT_HALF * abs(x))
-    s = 2.0 * t - 1.0
-    series = 0.0
-    for c in _ERFC:
-        series = series * s + c
-    tail = 0.5 * t * gauss * series
-    return (tail if x < 0.0 else 1.0 - tail), gauss * _INV_SQRT_2PI
 
 
 @njit(cache=True, inline='always', **_VECTOR)
