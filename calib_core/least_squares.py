@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.parameters import ParameterSet
@@ -98,6 +97,8 @@ def fit(residual_fn: Callable[[ParameterSet], np.ndarray], initial: ParameterSet
                                f'({", ".join(names)})')
     derivative = '2-point' if jacobian_fn is None else (
         lambda x: np.asarray(jacobian_fn(initial.with_free_vector(x)), dtype=float))
+    # Imported here: scipy.optimize costs 0.4 s, and a command's --help should not wait.
+    from scipy.optimize import least_squares
     solution = least_squares(fun, x0, jac=derivative, method='trf', x_scale='jac')
     jac = solution.jac
     condition = check_identifiability(jac, names, max_condition)

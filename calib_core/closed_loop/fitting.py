@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.optimize import least_squares
 
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import ParameterSet
@@ -164,6 +163,8 @@ def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: 
         # Effects may touch every residual; the base's pattern groups its differences.
         dense = np.ones((sparsity.shape[0], len(start) - nb), bool)
         jac = grouped_differences(fun, np.hstack([sparsity, dense])[:, free])
+    # Imported here: scipy.optimize costs 0.4 s, and a command's --help should not wait.
+    from scipy.optimize import least_squares
     solution = least_squares(fun, x0, jac=jac if analytic or sparsity is not None else '2-point',
                              method='trf', x_scale='jac')
     b, parts = unpack(solution.x)

@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from calib_core.errors import CalibrationError
 from calib_core.sanity import SanityGate
@@ -174,6 +173,8 @@ def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50,
     def record(intermediate_result):
         history.append(float(np.mean(np.linalg.norm(intermediate_result.fun.reshape(-1, 2),
                                                     axis=1))))
+    # Imported here: scipy.optimize costs 0.4 s, and a command's --help should not wait.
+    from scipy.optimize import least_squares
     solution = least_squares(residual, start.values / scale, method='trf', x_scale='jac',
                              xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=max_iterations,
                              callback=record)

@@ -42,6 +42,17 @@ COMMANDS = {
 }
 
 
+def deferred(module: str, function: str):
+    """Subcommand function ``function`` of ``machine_alignment.cli.<module>``, imported when
+    the subcommand runs: the parsers (and ``--help``) never load the science stack behind
+    it."""
+    def run(args):
+        return getattr(importlib.import_module(f'machine_alignment.cli.{module}'),
+                       function)(args)
+    run.__name__ = run.__qualname__ = function
+    return run
+
+
 def command_help(name: str) -> str:
     """The one-line help of subcommand ``name``: the same in ``--help``'s list, whether the
     subcommand's module was imported or not."""

@@ -2,166 +2,9 @@
 a calibration offline from a recorded run or a dataset, with the code the nodes use."""
 from __future__ import annotations
 
-import numpy as np
-
-from calib_core.errors import MachineAlignmentError
-from hexapod_calib.core.calibration import (
-    DETERMINED_SIGMAS, PoseData, check_identification, identify, summarise_pose_errors,
-    undetermined_beyond)
-from hexapod_calib.core.description import likely_causes, read_description
-from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_geometry
-from hexapod_calib.core.procedure import identify_from_records
-from hexapod_calib.core.records import (
-    HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
-from machine_alignment.cli import command_help
 from machine_alignment.cli import camera, five_axis, grid, platform
-from machine_alignment.cli.common import print_pose_summary, quantity, ranged, read_run, write_report
-from printer_alignment.core.records import (
-    STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
-    stage_data_from_records, stage_record)
-from printer_alignment.core.stage_calibration import (
-    StageData, calibrate_stage, check_stage_calibration, models_as_dict)
-from printer_alignment.core.vision_procedure import (
-    calibrate_from_observations, observation_from_message)
-
-
-def cmd_calibrate_vision(args) -> int:
-    observations, recorded = read_run(args.bag, VISION_OBSERVATIONS_TOPIC,
-                                      'alignment_msgs/msg/VisionObservation',
-                                      observation_from_message,
-                                      'vision calibration observations', VISION_RESULT_TOPIC)
-    calibration = calibrate_from_observations(observations, args.pitch)
-    report = dict(calibration.report)
-    g = report['gantry']
-    print(f'{len(observations)} positions; pixel size '
-          f'{report["pixel_size"]["pixel_size_m"] * 1e6:.5f} um')
-    for name, value in g['parameters'].items():
-        print(f'  {name:>17} = {quantity(value, g["std_devs"][name], g["units"][name])}')
-    if recorded is not None:
-        live = recorded['gantry']['parameters']
-        report['max_difference_to_live'] = {n: abs(live[n] - v) for n, v in g['parameters'].items()}
-        print('same as the live run: max |difference| '
-              f'{max(report["max_difference_to_live"].values()):.3g} (SI units)')
-    write_report(args.json, report)
-    return 0
-
-
-def cmd_calibrate_stage(args) -> int:
-    """Rerun both stage calibrations from a run recorded by stage_calibrator (--bag) or a
-    stage CSV (--data)."""
-    recorded = None
-    if args.bag:
-        records, recorded = read_run(args.bag, STAGE_OBSERVATIONS_TOPIC,
-                                     'alignment_msgs/msg/StageObservation', stage_record,
-                                     'stage calibration observations', STAGE_RESULT_TOPIC)
-        data = stage_data_from_records(records)
-    else:
-        data = StageData.from_csv(args.data)
-    models, report = calibrate_stage(data)
-    s, p = report['stepwise'], report['parametric']
-    print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '
-          f'{s["R3"] * 1e3:.5f} mm/rev, alpha1 {s["alpha1"]:.6f} rad ({np.rad2deg(s["alpha1"]):.4f} deg), '
-          f'd3 - d2 {s["d3_minus_d2"] * 1e3:.3f} mm')
-    print(f'Parametric: Mark residual RMS {p["residual_rms_m"] * 1e6:.2f} um, max '
-          f'{p["residual_max_m"] * 1e6:.2f} um, condition number {p["condition_number"]:.3g}')
-    for name in p['parameters']:
-        if name not in p['fixed']:
-            print(f'  {name:>16} = '
-                  f'{quantity(p["parameters"][name], p["std_devs"][name], p["units"][name])}')
-    for name, why in p['weakly_determined'].items():
-        print(f'  weakly determined: {name}: {why}')
-    check_stage_calibration(report)
-    report['models'] = models_as_dict(models)
-    if recorded is not None:
-        live = recorded['parametric']['parameters']
-        report['max_difference_to_live'] = max(abs(live[n] - v) for n, v in p['parameters'].items())
-        # In units of each parameter's sigma: another numpy/scipy build ends the solver a
-        # hair away along the weakly determined directions, which is no difference at all.
-        report['max_difference_to_live_sigma'] = max(
-            (abs(live[n] - v) / p['std_devs'][n] for n, v in p['parameters'].items()
-             if n not in p['fixed'] and p['std_devs'][n] > 0), default=0.0)
-        print(f'same as the live run: max |difference| {report["max_difference_to_live"]:.3g} '
-              f'(SI units), {report["max_difference_to_live_sigma"]:.2g} sigma')
-    write_report(args.json, report)
-    return 0
-
-
-def cmd_calibrate_hexapod(args) -> int:
-    if args.bag:
-        return _calibrate_hexapod_from_bag(args)
-    if bool(args.geometry) == bool(args.description):
-        raise MachineAlignmentError('--data needs --geometry NOMINAL.yaml or --description '
-                                    'MACHINE.yaml (one of them)')
-    description = read_description(args.description) if args.description else None
-    nominal = description.geometry if description else read_geometry(args.geometry)
-    data = PoseData.from_csv(args.data, nominal, leg_m_per_unit=(
-        description.measurement.actuators.m_per_unit if description else 1.0))
-    identification = identify(data, nominal, fixed=args.fix or ())
-    report = identification.report()
-    report['data'] = str(args.data)
-    report['commanded_vs_measured'] = summarise_pose_errors(data.commanded, data.measured)
-    print(f'{len(data)} poses, 42 parameters ({len(args.fix or [])} fixed); leg-length residual '
-          f'RMS {report["residual_rms_m"] * 1e6:.3f} um, max {report["residual_max_m"] * 1e6:.3f} um, '
-          f'condition number {report["condition_number"]:.3g}')
-    print_pose_summary('commanded vs measured:', report['commanded_vs_measured'])
-    changes = report['change_from_initial']
-    for name in sorted(changes, key=lambda n: -abs(changes[n]))[:6]:
-        print(f'  {name:>12} changed {changes[name] * 1e6:+9.1f} um '
-              f'(+- {report["std_devs"].get(name, 0.0) * 1e6:.1f} um)')
-    if description:
-        report['description'] = {'file': description.source,
-                                 'residual_limit_m': description.residual_limit(),
-                                 'parameter_bound_m': description.parameter_bound(),
-                                 'expected_leg_rms_m': description.expected_leg_rms()}
-        print(f'  machine description {description.source}: {description.expected_text()}')
-        loose = undetermined_beyond(report, nominal, description.parameter_bound())
-        report['description']['not_determined_beyond_bound'] = loose
-        if loose:
-            print(f'  NOT DETERMINED by these poses, moved beyond the '
-                  f'{description.parameter_bound() * 1e3:.3g} mm bound within '
-                  f'{DETERMINED_SIGMAS:g} sigma: ' + ', '.join(
-                      f'{name} {change * 1e3:+.1f} +- {sigma * 1e3:.1f} mm'
-                      for name, (change, sigma) in loose.items())
-                  + ' (poses over a larger workspace or tilt determine them)')
-    _write_hexapod_outputs(args, identification.geometry, report, nominal, description,
-                           likely_causes(data, description) if description else None)
-    return 0
-
-
-def _write_hexapod_outputs(args, geometry, report, nominal, description=None,
-                           causes=None) -> None:
-    check_identification(report, nominal, description, causes)
-    if args.out:
-        write_geometry(args.out, geometry, {'std_devs': report['std_devs'],
-                                            'residual_rms_m': report['residual_rms_m']})
-        print(f'wrote {args.out}')
-    write_report(args.json, report)
-
-
-def _calibrate_hexapod_from_bag(args) -> int:
-    """Rerun the identification of a run recorded by hexapod_calibrator."""
-    records, recorded = read_run(args.bag, MEASUREMENTS_TOPIC,
-                                 'alignment_msgs/msg/HexapodMeasurement', measurement_record,
-                                 'hexapod calibration measurements', HEXAPOD_RESULT_TOPIC)
-    if args.geometry:
-        nominal = read_geometry(args.geometry)
-    elif recorded is not None:
-        nominal = HexapodGeometry.from_dict(recorded['nominal_geometry'], 'recorded nominal')
-    else:
-        raise MachineAlignmentError(f'{args.bag} has no result (interrupted run?): give the '
-                                    'nominal geometry with --geometry')
-    identification, history = identify_from_records(records, nominal)
-    report = {**identification.report(), 'iterations': history}
-    print(f'{len(records)} recorded stops, {identification.num_poses} used for identification '
-          f'in {len(history)} round(s); leg-length residual RMS '
-          f'{report["residual_rms_m"] * 1e6:.3f} um')
-    if recorded is not None:
-        live = recorded['identification']['parameters']
-        report['max_difference_to_live_m'] = max(abs(live[n] - v)
-                                                  for n, v in report['parameters'].items())
-        print(f'same as the live run: max |difference| {report["max_difference_to_live_m"]:.3g} m')
-    _write_hexapod_outputs(args, identification.geometry, report, nominal)
-    return 0
+from machine_alignment.cli import command_help, deferred
+from machine_alignment.cli.common import ranged
 
 
 def add_parser(sub) -> None:
@@ -175,7 +18,7 @@ def add_parser(sub) -> None:
     vision.add_argument('--bag', required=True, help='a run recorded by vision_calibrator/calibrate')
     vision.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), default=0.5e-3, help='dot pitch, m')
     vision.add_argument('--json', help='report to write (JSON, SI units)')
-    vision.set_defaults(func=cmd_calibrate_vision)
+    vision.set_defaults(func=deferred('calibrate_run', 'cmd_calibrate_vision'))
 
     stage = what.add_parser('stage', help='XY-Theta stage: stepwise and parametric, from a '
                                           'recorded run or a stage CSV')
@@ -184,7 +27,7 @@ def add_parser(sub) -> None:
     stage_source.add_argument('--data', help='CSV: q1..q3 (m), direction1..3, mark1_x, '
                                              'mark1_y, mark2_x, mark2_y (m)')
     stage.add_argument('--json', help='report to write (JSON, SI units)')
-    stage.set_defaults(func=cmd_calibrate_stage)
+    stage.set_defaults(func=deferred('calibrate_run', 'cmd_calibrate_stage'))
 
     hexapod = what.add_parser('hexapod', help='42-parameter hexapod geometry from measured poses')
     hexapod_source = hexapod.add_mutually_exclusive_group(required=True)
@@ -200,4 +43,4 @@ def add_parser(sub) -> None:
     hexapod.add_argument('--out', help='calibrated geometry YAML to write')
     hexapod.add_argument('--fix', nargs='*', help='parameter names to keep at their nominal value')
     hexapod.add_argument('--json', help='report to write (JSON, SI units)')
-    hexapod.set_defaults(func=cmd_calibrate_hexapod)
+    hexapod.set_defaults(func=deferred('calibrate_run', 'cmd_calibrate_hexapod'))

@@ -1,0 +1,51 @@
+"""``machine-align launch`` and ``machine-align demo``: the simulated machine graphs as
+separate processes, and the end-to-end demo on them.
+
+The subcommands' work; their parsers are in ``graphs.py``, which imports this module
+only when a subcommand runs (``--help`` stays light)."""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from calib_core.errors import CalibrationError
+from machine_alignment.demo import run_demo
+from machine_alignment.launcher import (
+    Graph, describe_exit, five_axis_graph, grid_graph, hexapod_graph, platform_graph,
+    printer_graph, stage_graph, stop_on_sigterm)
+
+
+def cmd_launch(args) -> int:
+    spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir),
+            'stage': lambda: stage_graph(args.output_dir, args.record_dir),
+            'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir),
+            'grid': lambda: grid_graph(args.output_dir, args.record_dir),
+            'platform': lambda: platform_graph(args.output_dir, args.record_dir),
+            'five-axis': lambda: five_axis_graph(args.output_dir, args.record_dir)}[args.graph]()
+    stop_on_sigterm()
+    graph = Graph(spec)
+    dead = []
+    try:
+        print(f'{args.graph} graph running: {", ".join(graph.names)} (Ctrl-C or SIGTERM to '
+              'stop)', flush=True)
+        while not (dead := graph.exited()):
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        graph.stop()
+    for line in graph.escalations:
+        print(f'machine-align launch: {line}', file=sys.stderr)
+    if dead:
+        # A graph with a node missing cannot calibrate: stop all of it and say which died.
+        raise CalibrationError(
+            'the ' + args.graph + ' graph stopped because '
+            + '; '.join(f'{name} ended ({describe_exit(code)})' for name, code in dead)
+            + '; the other nodes were stopped. See that node\'s output above.')
+    return 0
+
+
+def cmd_demo(args) -> int:
+    stop_on_sigterm()
+    return run_demo(Path(args.out), args.low_noise)
