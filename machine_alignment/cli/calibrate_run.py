@@ -1,8 +1,5 @@
-"""``machine-align calibrate vision|stage|hexapod`` (and ``camera``, in camera.py): rerun
-a calibration offline from a recorded run or a dataset, with the code the nodes use.
-
-The subcommands' work; their parsers are in ``calibrate.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``calibrate.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 import numpy as np

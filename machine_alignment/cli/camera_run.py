@@ -1,9 +1,5 @@
-"""``machine-align calibrate camera``: intrinsics and distortion with OpenCV from
-correspondences, photos of a target or random-dot markers, or a recorded
-``vision_calibrator/calibrate_intrinsics`` run.
-
-The subcommands' work; their parsers are in ``camera.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``camera.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 from calib_core.errors import MachineAlignmentError

@@ -1,9 +1,5 @@
-"""``machine-align evaluate hexapod|platform|five-axis|alignment``: check a calibration on data not
-used to fit it (a pose file, or the truth a simulation wrote), or plan recorded alignments
-again from their bag.
-
-The subcommands' work; their parsers are in ``evaluate.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``evaluate.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 import json

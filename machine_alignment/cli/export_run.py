@@ -1,16 +1,5 @@
-"""``machine-align export stage|platform|hexapod|five-axis|grid``: a calibrator's recorded run
-(MCAP bag) as the CSV that ``machine-align analyze`` (and ``calibrate --data``) reads, so
-the closed loop can be run, repeated and shared offline on any live run. A cut run gives
-the stops it recorded. Each row gets a ``time`` column (s since the run's first stop, from
-the stops' header stamps) and, where the run recorded the machine's temperature, a
-``temperature`` column (K), so a drift during the run can be tested, as the calibrator's
-own loop tests it. A five-axis bag (a
-calibration run or the sweep ``analyze_residuals`` records) gives the observations CSV of
-its images, which ``analyze rotary --calibration`` reads for a sweep; a grid bag the marks
-CSV of its complete regions, which ``analyze grid`` reads.
-
-The subcommands' work; their parsers are in ``export.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``export.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 import dataclasses

@@ -1,9 +1,5 @@
-"""``machine-align simulate|calibrate five-axis`` and ``machine-align locate``: the
-five-axis dispenser's vision calibration from board images (observations CSV) and the
-localisation of a workpiece's features through the calibrated chain (issue 23).
-
-The subcommands' work; their parsers are in ``five_axis.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``five_axis.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,8 +1,5 @@
-"""``machine-align launch`` and ``machine-align demo``: the simulated machine graphs as
-separate processes, and the end-to-end demo on them.
-
-The subcommands' work; their parsers are in ``graphs.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``graphs.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 import sys

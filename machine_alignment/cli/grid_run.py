@@ -1,9 +1,5 @@
-"""``machine-align calibrate grid``: self-calibration of a 2-D stage's measuring system
-with an imperfect grid plate at three placements, region by region, stitched into one
-frame, from a marks CSV or a run recorded by grid_calibrator.
-
-The subcommands' work; their parsers are in ``grid.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``grid.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 from pathlib import Path

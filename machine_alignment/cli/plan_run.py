@@ -1,8 +1,5 @@
-"""``machine-align plan platform|hexapod|five-axis|stage``: the poses to measure for an
-identification, chosen before anything moves, with what they are predicted to give.
-
-The subcommands' work; their parsers are in ``plan.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``plan.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,10 +1,5 @@
-"""``machine-align simulate|calibrate|compensate platform``: the 3-DOF screen-registration
-platform (issue 22): pose data from the simulated platform, the 18-parameter
-identification, and the feed compensation by the exact inverse, Levenberg-Marquardt or
-the source's particle swarm, with plots.
-
-The subcommands' work; their parsers are in ``platform.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``platform.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 from pathlib import Path

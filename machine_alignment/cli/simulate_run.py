@@ -1,8 +1,5 @@
-"""``machine-align simulate hexapod|stage|axis|gantry|camera|grid|platform|five-axis``: datasets measured on a simulated
-machine, in the formats the calibrate and analyze subcommands read.
-
-The subcommands' work; their parsers are in ``simulate.py``, which imports this module
-only when a subcommand runs (``--help`` stays light)."""
+"""The work of the subcommands ``simulate.py`` registers (its docstring says what they do),
+imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
 import dataclasses
