@@ -60,11 +60,13 @@ def write_calibration(directory: str | os.PathLike, name: str, content: dict) ->
     version = next_version(directory, name)
     text = yaml.safe_dump({'version': version, **content}, sort_keys=False)
     path = write_atomic(directory / f'{name}.v{version}.yaml', text)
-    write_atomic(directory / f'{name}.yaml', text)
-    # Imported here: the page's module writes through this one.
+    # The page before the file in force: a page that cannot be written leaves the previous
+    # calibration in force, not a new one whose run reported a failure. Imported here: the
+    # page's module writes through this one.
     from calib_core.html_report import write_html
     write_html(path.with_suffix('.html'), {'version': version, **content},
                f'{name} calibration, version {version}')
+    write_atomic(directory / f'{name}.yaml', text)
     return path, version
 
 
