@@ -92,6 +92,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.closed_loop_channels --out bench_results
 	$(BIN)/python -m machine_alignment.bench.closed_loop_rotary --out bench_results
 	$(BIN)/python -m machine_alignment.bench.closed_loop_speed --out bench_results
+	$(BIN)/python -m machine_alignment.bench.command_speed --out bench_results
 	$(BIN)/python -m machine_alignment.bench.stage --out bench_results
 	$(BIN)/python -m machine_alignment.bench.grid --out bench_results
 	$(BIN)/python -m machine_alignment.bench.grid_uncertainty --out bench_results

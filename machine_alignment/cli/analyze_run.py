@@ -13,7 +13,6 @@ from calib_core.controller_formats import (
     LINUXCNC_MAX_ENTRIES, resampled_for_linuxcnc, write_linuxcnc_comp)
 from calib_core.datasets import write_columns
 from calib_core.effects.smooth_map import compensation_grid
-from calib_core.iso230_2_plot import plot_iso230_2
 from calib_core.errors import MachineAlignmentError
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.data import read_observations
@@ -21,10 +20,8 @@ from dispenser_calib.core.model import read_model
 from dispenser_calib.core.rotary import LEVER
 from dispenser_calib.core.target_poses import poses_from_images, read_target_poses
 from grid_calib.core.data import read_marks
-from grid_calib.core.loop_plot import plot_grid_loop
 from grid_calib.core.residual_loop import analyze_travel
 from calib_core.iso230_2 import format_figures
-from calib_core.loop_plots import plot_loop
 from hexapod_calib.core.calibration import PoseData
 from hexapod_calib.core.description import read_description
 from hexapod_calib.core.geometry import read_geometry
@@ -112,6 +109,7 @@ def _axis_figures(machine, result, report: dict, json_path, units: str = 'mm') -
                   + (f'; {report["linuxcnc_comp_resampled"]}' if resampled else '') + ')')
         figure = Path(json_path).with_name(Path(json_path).stem + '_iso230_2.png')
         held = iso['method'].startswith('leave one cycle out')
+        from calib_core.iso230_2_plot import plot_iso230_2   # matplotlib: only for a figure
         plot_iso230_2(figure, iso['before'], iso['after'], 'after the extended model, '
                       + ('each cycle held out' if held else 'in-sample'))
         report['iso230_2_figure'] = str(figure)
@@ -141,6 +139,17 @@ def _map_grid(result, report: dict, json_path) -> None:
           f'command)')
 
 
+def _draw_loop(png, machine, result) -> None:
+    # Imported here: matplotlib (0.3 s) only when a figure is written (--json).
+    from calib_core.loop_plots import plot_loop
+    plot_loop(png, machine, result)
+
+
+def _draw_grid_loop(png, summary, details) -> None:
+    from grid_calib.core.loop_plot import plot_grid_loop     # matplotlib, as above
+    plot_grid_loop(png, summary, details)
+
+
 def cmd_analyze(args) -> int:
     dropped = {}
     machine = _loop_machine(args, dropped)
@@ -162,7 +171,7 @@ def cmd_analyze(args) -> int:
               f' deg apart (+- {np.degrees(identified["squareness_std_rad"]):.4f} deg); position '
               f'error RMS {identified["position_error_m"]["rms"] * 1e6:.0f} um, orientation '
               f'{identified["orientation_error_rad"]["rms"] * 1e6:.0f} urad')
-    write_report(args.json, report, lambda png: plot_loop(png, machine, result),
+    write_report(args.json, report, lambda png: _draw_loop(png, machine, result),
                  format_report(report))
     return 0
 
@@ -202,7 +211,7 @@ def cmd_analyze_grid(args) -> int:
               f'{summary["rms_after"] * 1e9:.2f} nm, max {summary["max_before"] * 1e9:.2f} -> '
               f'{summary["max_after"] * 1e9:.2f} nm')
     write_report(args.json, dict(summary, data=str(args.data)),
-                        lambda png: plot_grid_loop(png, summary, details))
+                 lambda png: _draw_grid_loop(png, summary, details))
     return 0
 
 
