@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.polynomial import legendre
-from scipy import stats
-from scipy.optimize import minimize_scalar
-from scipy.signal import lombscargle
+from scipy import special
 
 from calib_core.effects import CATEGORICAL_COVARIATES, resolvable_periods
 from calib_core.effects.periodic import search_trials
@@ -36,6 +34,10 @@ def _periodic_basis(z: np.ndarray, r: np.ndarray):
     span = float(np.ptp(z))
     f_low, f_high = 1 / longest, 1 / shortest
     freqs = np.linspace(f_low, f_high, int(min(20000, max(400, 20 * (f_high - f_low) * span))))
+    # Imported here: scipy.signal and scipy.optimize cost every command 1 s at start-up,
+    # and only a periodogram needs them.
+    from scipy.optimize import minimize_scalar
+    from scipy.signal import lombscargle
     power = lombscargle(z, r, 2 * np.pi * freqs, floating_mean=True)
     best = int(np.argmax(power))
     step = freqs[1] - freqs[0]
@@ -98,7 +100,7 @@ def structure_tests(channels, residuals: np.ndarray, covariates: dict, alpha: fl
                 f_stat = (float(r @ r) - rss1) / p / (rss1 / dof)
                 tests.append(dict(detail, covariate=name, component=f'residual_{component}',
                                   kind=kind,
-                                  p_value=min(1.0, float(stats.f.sf(f_stat, p, dof)) * trials),
+                                  p_value=min(1.0, float(special.fdtrc(p, dof, f_stat)) * trials),
                                   structure_rms=float(np.sqrt(np.mean(fitted ** 2))),
                                   residual_rms=float(np.sqrt(np.mean(r ** 2)))))
     count = max(len(tests), 1)
@@ -138,7 +140,7 @@ def lack_of_fit(residuals: np.ndarray, groups: np.ndarray, parameter_count: int,
     if dof_pure < 1 or dof_lack < 1 or pure <= 0:
         return None
     f_stat = (lack / dof_lack) / (pure / dof_pure)
-    p_value = float(stats.f.sf(f_stat, dof_lack, dof_pure))
+    p_value = float(special.fdtrc(dof_lack, dof_pure, f_stat))
     if p_value >= alpha:
         return None
     return {'structure_rms': float(np.sqrt(lack / r.size)),

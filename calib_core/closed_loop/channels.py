@@ -13,7 +13,7 @@ undetermined with their p-values.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 
 def channel_groups(prepared, channels: tuple) -> dict | None:
@@ -55,7 +55,7 @@ def channel_p_values(prepared, groups: dict | None, values: np.ndarray,
         block = covariance[np.ix_(index, index)]
         wald = float(theta @ np.linalg.pinv(block) @ theta)
         q = len(index)
-        p = float(stats.f.sf(wald / q, q, max(dof, 1)))
+        p = float(special.fdtrc(q, max(dof, 1), wald / q))
         out[channel] = min(1.0, p * prepared.trials_of(channel) * len(groups))
     return out
 

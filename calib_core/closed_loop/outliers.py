@@ -16,13 +16,13 @@ component, the same tail probability of the chi distribution for k components.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 MAD_CONSISTENCY = 1.4826
 """1 / Phi^-1(3/4): 1.4826 MAD estimates a normal distribution's standard deviation."""
 
 OUTLIER_SIGMAS = 5.0
-OUTLIER_TAIL = float(2 * stats.norm.sf(OUTLIER_SIGMAS))   # two-sided, 5.7e-7
+OUTLIER_TAIL = float(2 * special.ndtr(-OUTLIER_SIGMAS))   # two-sided, 5.7e-7
 
 
 def robust_scale(residuals: np.ndarray) -> np.ndarray:
@@ -35,7 +35,7 @@ def robust_scale(residuals: np.ndarray) -> np.ndarray:
 def whitened_limit(components: int) -> float:
     """Limit on the norm of ``components`` whitened residuals with the tail probability
     of a :data:`OUTLIER_SIGMAS` normal deviation (5.0 for one component)."""
-    return float(np.sqrt(stats.chi2.isf(OUTLIER_TAIL, components)))
+    return float(np.sqrt(special.chdtri(components, OUTLIER_TAIL)))
 
 
 def find_outliers(machine, residuals: np.ndarray, covariates: dict, min_effect: float) -> dict:

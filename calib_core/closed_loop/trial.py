@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy import stats
+from scipy.special import fdtrc      # the F distribution's survival function
 
 from calib_core.closed_loop.channels import (
     channel_groups, channel_p_values, determined_channels)
@@ -56,7 +56,7 @@ def try_candidate(machine, current: Fit, name: str, train, context, channel_resi
     f_stat = max(rss0 - rss1, 0.0) / extra / max(noise, 1e-300)
     groups = channel_groups(prepared, machine.channels)
     entry = {'effect': name, 'prepared': prepared, 'fit': extended, 'f_statistic': f_stat,
-             'p_value_raw': min(1.0, float(stats.f.sf(f_stat, extra, dof)) * prepared.trials),
+             'p_value_raw': min(1.0, float(fdtrc(extra, dof, f_stat)) * prepared.trials),
              'size': float(np.sqrt(max(rss0 - rss1, 0.0) / len(train))),
              'extra': extra, 'noise': noise, 'dof': dof,
              'channels': tuple(groups or ()) if prepared.separable else None}
@@ -102,7 +102,7 @@ def nested_terms_p_value(general: dict, special: dict) -> float:
         return 1.0
     gain = max(special['fit'].rss - general['fit'].rss, 0.0)
     f_stat = gain / extra / max(general['noise'], 1e-300)
-    return float(stats.f.sf(f_stat, extra, general['dof']))
+    return float(fdtrc(extra, general['dof'], f_stat))
 
 
 def prefer_the_simpler(accepted: list, alpha: float) -> list:

@@ -3,7 +3,6 @@ found from the data (down to zero: closed by the load's sign alone)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import binomtest
 
 from calib_core.effects.base import Effect, Prepared, both_signs
 
@@ -64,6 +63,8 @@ class LegPlay(Effect):
             cost = row_costs(side)
             differ = side != zero
             votes = int(np.sum(cost[differ] < base[differ]))
+            # Imported here: scipy.stats costs every command 0.7 s; only a play fit votes.
+            from scipy.stats import binomtest
             if (float(np.sum(cost)) < best_cost and
                     binomtest(votes, int(differ.sum()), alternative='greater').pvalue < 0.05):
                 best, best_cost = threshold, float(np.sum(cost))

@@ -3,7 +3,6 @@ the periods a sampling grid can and cannot resolve."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lombscargle
 
 from calib_core.effects.base import Effect, Prepared, bic
 
@@ -113,6 +112,8 @@ class Periodic(Effect):
         span = float(np.ptp(x))
         count = int(min(20000, max(200, 10 * (f_high - f_low) * span)))
         freqs = np.linspace(f_low, f_high, count)
+        # Imported here: scipy.signal costs every command 0.6 s, and only a search needs it.
+        from scipy.signal import lombscargle
         power = lombscargle(x, r - r.mean(), 2 * np.pi * freqs, floating_mean=True)
         if hint is not None and f_low <= 1 / hint <= f_high:
             # The hinted peak wins; its rivals were weighed by the search that found it.

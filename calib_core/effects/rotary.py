@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scipy import stats
+from scipy import special
 
 from calib_core.effects.base import Effect, Prepared
 
@@ -101,7 +101,7 @@ def select_orders(angle: np.ndarray, targets: np.ndarray, candidates, most: int,
         if dof <= 0:
             break
         f_stat = (rss - trial[best]) / (2 * q) / max(trial[best] / dof, 1e-300)
-        p = min(1.0, float(stats.f.sf(f_stat, 2 * q, dof)) * len(left))
+        p = min(1.0, float(special.fdtrc(2 * q, dof, f_stat)) * len(left))
         if not chosen:
             first = p
         if p >= (further if chosen else screen):
