@@ -195,3 +195,33 @@ def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
     with pytest.raises(InvalidInputError, match='not both'):
         in_process_node(HexapodCalibratorNode, monkeypatch, tmp_path,
                         description=str(EXAMPLE), nominal_geometry=str(EXAMPLE))
+
+
+def test_the_simulator_nodes_take_the_description(monkeypatch, tmp_path):
+    """hexapod_sim and pose_sensor_sim with ``description``: the described geometry
+    (perturbed as the built-in one is), strokes, home and actuator noise, and the
+    described instrument's noise (motion capture, 0.4 mm / 2 mrad)."""
+    import rclpy
+    from dds import in_process_node
+    from hexapod_calib.nodes.hexapod_sim import HexapodSimNode
+    from hexapod_calib.nodes.pose_sensor_sim import PoseSensorSimNode
+    description = read_description(EXAMPLE)
+    node = in_process_node(HexapodSimNode, monkeypatch, tmp_path, description=str(EXAMPLE))
+    try:
+        sim = node.sim
+        np.testing.assert_array_equal(sim.nominal.base_joints, description.geometry.base_joints)
+        assert (sim.stroke.minimum, sim.stroke.maximum) == pytest.approx((0.005, 0.185))
+        assert sim.truth.actuator_noise == pytest.approx(5e-6)
+        # The true joints lie a few mm from the described nominal, not at the built-in's.
+        offset = np.abs(sim.truth.geometry.base_joints - description.geometry.base_joints)
+        assert 0 < offset.max() < 0.01
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    node = in_process_node(PoseSensorSimNode, monkeypatch, tmp_path, description=str(EXAMPLE))
+    try:
+        assert (node.sensor.position_noise, node.sensor.angle_noise) == pytest.approx(
+            (0.4e-3, 2e-3))
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()

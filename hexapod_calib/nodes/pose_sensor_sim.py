@@ -4,6 +4,7 @@ It reads the true pose from ``/sim/truth/hexapod_pose`` (as a real instrument se
 platform) and adds its measurement noise (0.6 um and 6 urad per axis by default). Service
 ``pose_sensor/measure`` (MeasurePose) waits for a platform at rest since ``not_before`` and
 answers with the measured pose; each measurement is also published on ``/pose_sensor/pose``.
+With ``description`` (a machine description YAML) its noise is the described instrument's.
 """
 import threading
 
@@ -19,6 +20,7 @@ from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.nodes.calibrator import READ_ONLY
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
+from hexapod_calib.core.description import read_description
 from hexapod_calib.core.records import pose_from_message
 from hexapod_calib.nodes.conversions import pose_as_message
 from hexapod_calib.sim.hexapod import PoseSensorSim
@@ -30,11 +32,16 @@ class PoseSensorSimNode(Node):
         super().__init__('pose_sensor_sim')
         self.declare_parameter('position_noise', 0.6e-6, READ_ONLY)
         self.declare_parameter('angle_noise', 6e-6, READ_ONLY)
+        self.declare_parameter('description', '', READ_ONLY)   # its instrument's noise wins
         self.declare_parameter('seed', 1, READ_ONLY)
         self.declare_parameter('wait_timeout_s', 2.0)
-        self.sensor = PoseSensorSim(float(self.get_parameter('position_noise').value),
-                                    float(self.get_parameter('angle_noise').value),
-                                    int(self.get_parameter('seed').value))
+        noise = (float(self.get_parameter('position_noise').value),
+                 float(self.get_parameter('angle_noise').value))
+        described = self.get_parameter('description').value
+        if described:       # the user's instrument, as their machine description declares it
+            instrument = read_description(described).measurement.instrument
+            noise = (instrument.position_sigma_m, instrument.angle_sigma_rad)
+        self.sensor = PoseSensorSim(*noise, int(self.get_parameter('seed').value))
         self.timeout = float(self.get_parameter('wait_timeout_s').value)
         self._truth = None
         self._changed = threading.Condition()
