@@ -160,3 +160,28 @@ def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
     with pytest.raises(InvalidInputError, match='not both'):
         in_process_node(PlatformCalibratorNode, monkeypatch, tmp_path, description=str(USER),
                         nominal_geometry=str(USER))
+
+
+def test_the_simulator_nodes_take_the_description(monkeypatch, tmp_path):
+    """platform_sim and laser_tracker_sim with ``description``: the described 0.6 m
+    geometry (with true errors of the built-in kind), its feeds' noise with the
+    repeatability, and the described tracker's noise."""
+    import rclpy
+    from dds import in_process_node
+    from platform_calib.nodes.laser_tracker_sim import LaserTrackerSimNode
+    from platform_calib.nodes.platform_sim import PlatformSimNode
+    described = read_description(USER)
+    node = in_process_node(PlatformSimNode, monkeypatch, tmp_path, description=str(USER))
+    try:
+        offset = np.abs(node.sim.geometry.vector() - described.geometry.vector())
+        assert 0 < offset.max() < 0.01
+        assert node.sim.feed_noise == pytest.approx(np.hypot(2e-6, 5e-6))
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    node = in_process_node(LaserTrackerSimNode, monkeypatch, tmp_path, description=str(USER))
+    try:
+        np.testing.assert_allclose(node.noise, [25e-6, 25e-6, 50e-6])
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()

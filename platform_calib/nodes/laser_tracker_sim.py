@@ -3,7 +3,8 @@
 It reads the true pose from ``/sim/truth/platform_pose`` and adds its noise
 (``position_noise`` m and ``angle_noise`` rad per axis, 10 um and 20 urad by default).
 Service ``laser_tracker/measure`` (MeasurePose) waits for a pose published since
-``not_before`` and answers with the measured pose (rotation about z only).
+``not_before`` and answers with the measured pose (rotation about z only). With
+``description`` (a machine description YAML) its noise is the described instrument's.
 """
 import threading
 
@@ -15,8 +16,10 @@ from rclpy.node import Node
 from rclpy.time import Time
 from std_msgs.msg import Header
 
+from calib_core.nodes.calibrator import READ_ONLY
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
+from platform_calib.core.description import read_description
 from platform_calib.nodes.conversions import planar_pose_as_message, planar_pose_from_message
 
 
@@ -28,10 +31,15 @@ class LaserTrackerSimNode(Node):
         self.declare_parameter('angle_noise', 20e-6)
         self.declare_parameter('seed', 2)
         self.declare_parameter('wait_timeout_s', 2.0)
+        self.declare_parameter('description', '', READ_ONLY)   # its instrument's noise wins
         g = lambda n: self.get_parameter(n).value  # noqa: E731
         if g('position_noise') < 0 or g('angle_noise') < 0 or not g('wait_timeout_s') > 0:
             raise ValueError('noise must be >= 0 and wait_timeout_s > 0')
         self.noise = np.array([g('position_noise'), g('position_noise'), g('angle_noise')])
+        if g('description'):    # the user's tracker, as their machine description declares it
+            instrument = read_description(g('description')).measurement.instrument
+            self.noise = np.array([instrument.position_sigma_m] * 2
+                                  + [instrument.angle_sigma_rad])
         self.rng = np.random.default_rng(int(g('seed')))
         self.timeout = float(g('wait_timeout_s'))
         self._truth = None

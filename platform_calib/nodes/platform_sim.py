@@ -6,7 +6,10 @@ Service ``platform/move`` (MovePlatform) drives the three feeds (refused outside
 stroke: nothing moves) and answers with the feed sensors' reading; ``platform/measure_marks``
 (MeasureMarks) returns the two marks in the base frame with ``mark_noise``; the screen is
 mounted on the platform at ``screen_pose`` (x m, y m, theta rad). Truth on
-``/sim/truth/platform_pose`` (latched) for the laser tracker simulation.
+``/sim/truth/platform_pose`` (latched) for the laser tracker simulation. With
+``description`` (a machine description YAML, docs/machine_description.md) it simulates the
+user's platform: the described nominal geometry with the same kind of true errors, and
+its feeds' noise and repeatability.
 """
 import threading
 
@@ -19,10 +22,12 @@ from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import MachineAlignmentError
 from calib_core.frames import planar
+from calib_core.nodes.calibrator import READ_ONLY
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
 from platform_calib.core.compensation import mark_positions
+from platform_calib.core.description import read_description
 from platform_calib.core.registration import compose
 from platform_calib.nodes.conversions import planar_pose_as_message
 from platform_calib.sim.platform import PlatformSim, true_geometry
@@ -38,6 +43,7 @@ class PlatformSimNode(Node):
         self.declare_parameter('backlash', 0.0)
         self.declare_parameter('screen_pose', [0.8e-3, -0.5e-3, 0.0035])
         self.declare_parameter('mark_noise', 3e-6)
+        self.declare_parameter('description', '', READ_ONLY)   # the user's machine description
         g = lambda n: self.get_parameter(n).value  # noqa: E731
         screen = np.asarray(g('screen_pose'), dtype=float)
         if screen.shape != (3,) or not np.all(np.isfinite(screen)) or g('mark_noise') < 0 \
@@ -46,9 +52,16 @@ class PlatformSimNode(Node):
                              'backlash and mark_noise must be >= 0')
         seed = int(g('seed'))
         self.screen, self.mark_noise = screen, float(g('mark_noise'))
-        self.sim = PlatformSim(true_geometry(seed, float(g('scale'))), seed,
-                               screw_amplitude=(float(g('screw')),) * 3,
-                               backlash=(float(g('backlash')),) * 3)
+        described = {}
+        if g('description'):
+            description = read_description(g('description'))
+            m = description.measurement
+            described = {'feed_noise': float(np.hypot(m.actuators.sigma_m, m.repeatability_m))}
+            truth = true_geometry(seed, float(g('scale')), description.geometry)
+        else:
+            truth = true_geometry(seed, float(g('scale')))
+        self.sim = PlatformSim(truth, seed, screw_amplitude=(float(g('screw')),) * 3,
+                               backlash=(float(g('backlash')),) * 3, **described)
         self.rng = np.random.default_rng(seed + 31)
         self._lock = threading.Lock()
         self.truth_pub = self.create_publisher(PoseStamped, '/sim/truth/platform_pose', LATCHED)
