@@ -138,6 +138,13 @@ def test_the_plan_lies_in_the_described_box_and_is_measured_there(tmp_path):
     assert half == pytest.approx([0.015, 0.015, np.deg2rad(4.0)], rel=1e-4)
     assert np.all(np.abs(report['working_poses']) <= half + 1e-12)
     assert 'as described' in report['noise']
+    # Beside it, the calibrator's default (as many random poses of the box) predicted the
+    # same way: the plan is chosen to beat it.
+    default = report['default_plan']
+    assert default['design'] == 'random' and len(default['poses']) == 12
+    assert np.all(np.abs(default['poses']) <= half + 1e-12)
+    assert (report['predicted_mark_error_m']['rms']
+            < default['predicted_mark_error_m']['rms'])
     data = _simulate(tmp_path, 'planned', '--plan', str(plan), '--scale', '2', '--seed', '5')
     assert cli_main(['calibrate', 'platform', '--description', str(USER), '--data', str(data),
                      '--json', str(tmp_path / 'cal.json')]) == 0

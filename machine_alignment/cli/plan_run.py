@@ -22,7 +22,8 @@ from machine_alignment.cli.common import check_writable, parse_size, write_json
 from machine_alignment.cli.platform_run import read_targets
 from platform_calib.core.geometry import nominal_geometry, read_geometry
 from platform_calib.core.description import read_description as read_platform_description
-from platform_calib.core.planning import HOME, WORKING_SPAN, default_working, plan_platform
+from platform_calib.core.planning import (
+    HOME, WORKING_SPAN, candidate_poses, default_working, plan_platform, predict_platform)
 from printer_alignment.core.stage import NOMINAL_STAGE
 from printer_alignment.core.stage_calibration import StagePlan, write_stage_plan
 from printer_alignment.core.stage_planning import (
@@ -68,10 +69,20 @@ def cmd_plan_platform(args) -> int:
           'calibrator measure)')
     box = {'home': list(settings.get('home', HOME)),
            'half_widths_x_y_theta': list(settings.get('span', WORKING_SPAN))}
+    if working is None:
+        working = default_working(box['half_widths_x_y_theta'], args.seed, box['home'])
+    # For comparison: the calibrator's default, as many random poses of the same box
+    # (inside the stroke), predicted the same way.
+    random = candidate_poses(nominal, 20 * args.poses, box['half_widths_x_y_theta'],
+                             args.margin, args.seed + 500, box['home'])[:args.poses]
+    noise = {k: settings[k] for k in ('tracker_noise', 'feed_noise') if k in settings}
+    default = predict_platform(nominal, random, working, **noise).report()
+    print(f'the default plan ({len(random)} random poses of the same box) is predicted at '
+          f'{default["predicted_mark_error_m"]["rms"] * 1e6:.2f} um RMS')
     write_json(args.json, {**report, 'poses': plan.poses.tolist(), 'box': box,
-                           'working_poses': (working if working is not None else default_working(
-                               box['half_widths_x_y_theta'], args.seed, box['home'])).tolist(),
-                           'noise': noise_text})
+                           'working_poses': np.asarray(working).tolist(), 'noise': noise_text,
+                           'default_plan': {**default, 'design': 'random',
+                                            'poses': random.tolist()}})
     return 0
 
 
