@@ -259,7 +259,10 @@ def test_ctrl_c_in_call_cancels_the_run_safely(graph):
     [bag] = set((out / 'runs').iterdir()) - bags_before
     assert (bag / 'metadata.yaml').exists()
     measured = [m for t, _, m in decode_bag(bag, ['/hexapod_calibrator/measurements'])]
-    assert len(seen) <= len(measured) < 2 * 20 + 2 * 10
+    # The default plan's complete run measures 120 stops (30 poses in each of 2 rounds, 30
+    # evaluation poses with the nominal and the calibrated legs): fewer means it stopped
+    # early, however long the cancel took to arrive on a loaded machine (79 were seen).
+    assert len(seen) <= len(measured) < 2 * 30 + 2 * 30
     # Nothing runs now: a cancel says so, and the node takes the next request.
     done = machine_align(DOMAIN, 'call', 'hexapod_calibrator/cancel')
     assert done.returncode == 2 and 'nothing is running' in done.stderr, done.stderr
