@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.errors import InvalidInputError
+from calib_core.files import read_yaml
 
 # The unit an actuator reading is in -> m per unit; rev and count need m_per_unit.
 LENGTH_UNITS = {'m': 1.0, 'mm': 1e-3, 'um': 1e-6}
@@ -62,6 +63,21 @@ def check_keys(mapping, allowed: tuple, where: str) -> dict:
         raise InvalidInputError(f'{where}: unknown key(s) {", ".join(unknown)} '
                                 f'(known: {", ".join(allowed)})')
     return mapping
+
+
+SECTIONS = ('kind', 'geometry', 'instrument', 'actuators', 'repeatability_m', 'workspace')
+
+
+def read_description_file(path, kind: str) -> dict:
+    """The mapping of a ``kind`` machine description YAML: only the known sections, the
+    kind the one asked for and a geometry present (each error names the file and key)."""
+    content = read_yaml(path, f'a {kind} description YAML')
+    check_keys(content, SECTIONS, str(path))
+    if content.get('kind') != kind:
+        raise InvalidInputError(f'{path}: kind must be {kind}, not {content.get("kind")!r}')
+    if 'geometry' not in content:
+        raise InvalidInputError(f'{path}: geometry is missing')
+    return content
 
 
 def _section(content: dict, key: str, where: str, allowed: tuple) -> dict:

@@ -28,17 +28,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.description import (
-    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_measurement,
+    RESIDUAL_GATE_FACTOR, Instrument, Measurement, read_description_file, read_measurement,
     workspace_numbers, workspace_section)
 from calib_core.description import likely_causes as causes_from_travel
 from calib_core.errors import InvalidInputError
-from calib_core.files import read_yaml
 from hexapod_calib.core.geometry import HexapodGeometry, as_poses
 from hexapod_calib.core.kinematics import inverse_kinematics
 from hexapod_calib.core.planning import ACTUATOR_NOISE, ANGLE_NOISE, POSITION_NOISE
 from hexapod_calib.core.procedure import HexapodPlan
 
-KEYS = ('kind', 'geometry', 'instrument', 'actuators', 'repeatability_m', 'workspace')
 WORKSPACE_KEYS = ('home', 'translation_m', 'rotation_rad', 'stroke_m')
 SHIPPED_INSTRUMENT = Instrument('the shipped simulated pose sensor', POSITION_NOISE, ANGLE_NOISE)
 SHIPPED_ACTUATOR_SIGMA_M = ACTUATOR_NOISE
@@ -91,12 +89,9 @@ class HexapodDescription:
 
 def read_description(path) -> HexapodDescription:
     """A hexapod description YAML, validated (every error names the key)."""
-    content = read_yaml(path, 'a hexapod description YAML')
+    content = read_description_file(path, 'hexapod')
     where = str(path)
-    check_keys(content, KEYS, where)
-    if content.get('kind') != 'hexapod':
-        raise InvalidInputError(f'{where}: kind must be hexapod, not {content.get("kind")!r}')
-    geometry = HexapodGeometry.from_dict(content.get('geometry'), f'{where}: geometry')
+    geometry = HexapodGeometry.from_dict(content['geometry'], f'{where}: geometry')
     measurement = read_measurement(content, where, SHIPPED_INSTRUMENT, SHIPPED_ACTUATOR_SIGMA_M)
     return HexapodDescription(geometry, measurement, where, _workspace(content, where))
 
@@ -106,7 +101,8 @@ def _workspace(content: dict, where: str) -> dict | None:
     section = workspace_section(content, where, WORKSPACE_KEYS)
     if section is None:
         return None
-    home = as_poses(workspace_numbers(section['home'], 6, 'home', where, False), 'workspace home')[0]
+    home = as_poses(workspace_numbers(section['home'], 6, 'home', where, False),
+                    'workspace home')[0]
     stroke = workspace_numbers(section['stroke_m'], 2, 'stroke_m', where, False)
     if not stroke[0] < stroke[1]:
         raise InvalidInputError(f'{where}: workspace stroke_m must be [shortest, longest]')

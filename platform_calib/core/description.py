@@ -30,16 +30,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.description import (
-    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_measurement,
+    RESIDUAL_GATE_FACTOR, Instrument, Measurement, read_description_file, read_measurement,
     workspace_numbers, workspace_section)
 from calib_core.description import likely_causes as causes_from_travel
-from calib_core.errors import InvalidInputError
-from calib_core.files import read_yaml
 from platform_calib.core.geometry import PlatformGeometry, geometry_from_mapping
 from platform_calib.core.identification import MAX_POSITION_SHIFT_M, PoseData
 from platform_calib.core.kinematics import inverse
 
-KEYS = ('kind', 'geometry', 'instrument', 'actuators', 'repeatability_m', 'workspace')
 WORKSPACE_KEYS = ('home', 'translation_m', 'rotation_rad')
 # The shipped simulation's tracker and feed sensors (platform_calib.sim.platform).
 SHIPPED_INSTRUMENT = Instrument('the shipped simulated laser tracker', 10e-6, 20e-6)
@@ -107,13 +104,8 @@ class PlatformDescription:
 
 def read_description(path) -> PlatformDescription:
     """A platform description YAML, validated (every error names the key)."""
-    content = read_yaml(path, 'a platform description YAML')
+    content = read_description_file(path, 'platform')
     where = str(path)
-    check_keys(content, KEYS, where)
-    if content.get('kind') != 'platform':
-        raise InvalidInputError(f'{where}: kind must be platform, not {content.get("kind")!r}')
-    if 'geometry' not in content:
-        raise InvalidInputError(f'{where}: geometry is missing')
     geometry = geometry_from_mapping(content['geometry'], f'{where}: geometry')
     measurement = read_measurement(content, where, SHIPPED_INSTRUMENT, SHIPPED_FEED_SIGMA_M)
     return PlatformDescription(geometry, measurement, where, _workspace(content, where))
