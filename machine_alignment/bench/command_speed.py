@@ -29,15 +29,17 @@ def _machine_align(*argv: str) -> list[str]:
 def run_timed(argv: list[str]) -> tuple[float, float]:
     """(CPU s, wall s) of one run of ``argv`` as a child process; a failure is an error."""
     env = {**os.environ, 'OPENBLAS_NUM_THREADS': '1'}
-    start = time.perf_counter()
-    process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                               env=env)
-    _, status, usage = os.wait4(process.pid, 0)
-    wall = time.perf_counter() - start
-    process.returncode = os.waitstatus_to_exitcode(status)
-    if process.returncode:
-        raise RuntimeError(f'{" ".join(argv[2:])} failed: {process.stderr.read().decode()[-500:]}')
-    process.stderr.close()
+    # Its errors to a file, not a pipe: a pipe no one reads while waiting could fill and
+    # stop the child.
+    with tempfile.TemporaryFile() as errors:
+        start = time.perf_counter()
+        process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=errors, env=env)
+        _, status, usage = os.wait4(process.pid, 0)
+        wall = time.perf_counter() - start
+        process.returncode = os.waitstatus_to_exitcode(status)
+        if process.returncode:
+            errors.seek(0)
+            raise RuntimeError(f'machine-align {" ".join(argv[3:])} failed: {errors.read().decode()[-500:]}')
     return usage.ru_utime + usage.ru_stime, wall
 
 
