@@ -39,7 +39,8 @@ def run_timed(argv: list[str]) -> tuple[float, float]:
         process.returncode = os.waitstatus_to_exitcode(status)
         if process.returncode:
             errors.seek(0)
-            raise RuntimeError(f'machine-align {" ".join(argv[3:])} failed: {errors.read().decode()[-500:]}')
+            raise RuntimeError(f'machine-align {" ".join(argv[3:])} failed: '
+                               f'{errors.read().decode()[-500:]}')
     return usage.ru_utime + usage.ru_stime, wall
 
 
