@@ -5,7 +5,6 @@ dots, and the poses that place a dispensing path on the workpiece."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.model import (
@@ -31,6 +30,7 @@ def locate(model: DispenserModel, poses: np.ndarray, pixels: np.ndarray,
 
     def residual(point):
         return (project_rows(model, np.repeat(point[None], len(poses), 0), poses) - pixels).ravel()
+    from scipy.optimize import least_squares   # here: the planner's import stays light
     solution = least_squares(residual, start, method='lm', xtol=1e-15, ftol=1e-15)
     if np.linalg.matrix_rank(solution.jac, tol=1e-6 * np.abs(solution.jac).max()) < 3:
         raise CalibrationError('the views do not determine the feature (seen from one '

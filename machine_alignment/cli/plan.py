@@ -5,7 +5,7 @@ from __future__ import annotations
 from dispenser_calib.core.planning import DEPTH_OF_FIELD
 from machine_alignment.cli import command_help, deferred
 from machine_alignment.cli.common import ranged
-from printer_alignment.core.stage_planning import CAMERA_NOISE, LANDING_SIGMA
+from printer_alignment.core.stage import CAMERA_NOISE, LANDING_SIGMA
 
 
 def add_parser(sub) -> None:

@@ -51,8 +51,7 @@ def add_calibrate_parser(what) -> None:
 
 
 def add_compensate_parser(sub) -> None:
-    # Imported here: the compensation's module loads scipy's optimisers, which only
-    # `compensate` needs, not the other platform subcommands' parsers.
+    # Imported here: only `compensate` needs the compensation's methods.
     from platform_calib.core.compensation import METHODS
     compensate_parser = sub.add_parser('compensate', help=command_help('compensate'))
     what = compensate_parser.add_subparsers(dest='what', required=True)

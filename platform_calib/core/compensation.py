@@ -13,11 +13,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from pymoo.algorithms.soo.nonconvex.pso import PSO
-from pymoo.core.callback import Callback
-from pymoo.core.problem import Problem
-from pymoo.optimize import minimize
-from scipy.optimize import least_squares
 
 from calib_core.errors import InvalidInputError
 from platform_calib.core.geometry import PlatformGeometry
@@ -146,6 +141,7 @@ def _levenberg_marquardt(model, target, nominal_feeds, screen) -> Compensation:
         reached = forward(model, feeds[None], target[None])
         return mark_positions(reached, screen)[0].ravel() - goal
 
+    from scipy.optimize import least_squares   # here: only this method needs it
     solution = least_squares(residual, nominal_feeds, method='lm', xtol=1e-15, ftol=1e-15)
     return Compensation('lm', solution.x, 0.0, 0.0, converged=bool(solution.success),
                         message=solution.message)
@@ -165,18 +161,10 @@ def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compe
     low, high = model.stroke
     lower = np.maximum(-settings.bound, low - nominal_feeds)
     upper = np.minimum(settings.bound, high - nominal_feeds)
-    problem = _CostProblem(cost, lower, upper)
-    swarm = PSO(pop_size=settings.particles, w=settings.inertia, c1=settings.c1,
-                c2=settings.c2, adaptive=False, pertube_best=False,
-                # The source's update with no velocity clamp inside the bounds.
-                max_velocity_rate=1.0)
-    best_costs = _BestCost()
-    # An iteration evaluates the swarm and records its best (the initial swarm is the
-    # first), as the source counts them.
-    result = minimize(problem, swarm, ('n_gen', settings.iterations), seed=settings.seed,
-                      callback=best_costs, verbose=False)
-    best, correction = float(result.F[0]), np.asarray(result.X, dtype=float)
-    history = best_costs.history
+    # Imported here: pymoo loads scipy's optimisers, which the other methods and the
+    # CLI's parsers do not need.
+    from platform_calib.core.swarm import minimise_swarm
+    best, correction, history = minimise_swarm(cost, lower, upper, settings)
     window = max(len(history) // 4, 10)
     if len(history) <= window:
         converged = False
@@ -190,25 +178,3 @@ def _swarm(model, target, nominal_feeds, screen, settings: PSOSettings) -> Compe
                    + ('' if converged else ': not converged'))
     return Compensation('pso', nominal_feeds + correction, float(best), 0.0, history,
                         converged, message)
-
-
-class _CostProblem(Problem):
-    """A cost over the swarm's (n, 3) corrections, vectorised, within box bounds (m)."""
-
-    def __init__(self, cost, lower, upper):
-        super().__init__(n_var=len(lower), n_obj=1, xl=lower, xu=upper)
-        self.cost = cost
-
-    def _evaluate(self, x, out, *args, **kwargs):
-        out['F'] = self.cost(x)
-
-
-class _BestCost(Callback):
-    """The swarm's best cost after each generation (m)."""
-
-    def __init__(self):
-        super().__init__()
-        self.history = []
-
-    def notify(self, algorithm):
-        self.history.append(float(algorithm.opt[0].F[0]))

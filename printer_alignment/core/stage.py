@@ -40,6 +40,8 @@ NOMINAL_D = (0.268, 0.0395, 0.4315)     # m, d1, d2, d3
 LINK_LENGTH = 0.028                     # m, l1 = l2 = l3
 STROKE = 5e-3                           # m, inputs limited to [-STROKE, STROKE]
 APPROACH = 30e-6                        # m, length of the last, landing motion of a chain
+LANDING_SIGMA = 1.2e-6                  # m, a chain's landing repeatability (1 sigma), docs/stage.md
+CAMERA_NOISE = 0.3e-6                   # m, a Mark's measured plate coordinate (1 sigma)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

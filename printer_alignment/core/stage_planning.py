@@ -32,13 +32,11 @@ from calib_core.planning import (
     CRITERIA, augment, information, predicted_errors, sandwich_covariance, whiten)
 from printer_alignment.core.geometry import rotate_points
 from printer_alignment.core.stage import (
-    NOMINAL_STAGE, STROKE, StageGeometry, check_stroke, landing_directions)
+    CAMERA_NOISE, LANDING_SIGMA, NOMINAL_STAGE, STROKE, StageGeometry, check_stroke, landing_directions)
 from printer_alignment.core.stage_calibration.data import StagePlan
 from printer_alignment.core.stage_calibration.parametric import (
     PARAMETRIC_GAUGE, mark_names, predict_marks)
 
-LANDING_SIGMA = 1.2e-6     # m: a chain's landing repeatability (1 sigma), as in docs/stage.md
-CAMERA_NOISE = 0.3e-6      # m: a Mark's measured plate coordinate (1 sigma)
 WORKING_REACH = 0.8        # of the stroke: where the aligner works
 STEP = 1e-8                # m or rad: central-difference step of the parameters
 
