@@ -62,9 +62,13 @@ class ParameterSet:
         free = [p for p in self.parameters if p.free]
         if vector.shape != (len(free),):
             raise InvalidInputError(f'expected {len(free)} values, got shape {vector.shape}')
-        values = iter(vector)
-        return ParameterSet([Parameter(p.name, float(next(values)) if p.free else p.value,
-                                       p.unit, p.free) for p in self.parameters])
+        values = iter(vector.tolist())
+        # Built without __post_init__: the names are this set's, already checked (a fit
+        # makes thousands of these).
+        copy = ParameterSet.__new__(ParameterSet)
+        copy.parameters = [Parameter(p.name, next(values) if p.free else p.value, p.unit, p.free)
+                           for p in self.parameters]
+        return copy
 
     @classmethod
     def from_dict(cls, values: dict, units: dict) -> 'ParameterSet':

@@ -111,7 +111,9 @@ def _pooled_held_out(machine, splits: list, final: Fit) -> tuple:
     by_split, pooled_before, pooled_after = [], [], []
     for split in splits:
         rows = np.flatnonzero(split.holdout)
-        refitted = fit_model(machine, final.base, final.effects, final.values, split.train)
+        # With nothing added the final model is the base model: its fit is the split's.
+        refitted = (fit_model(machine, final.base, final.effects, final.values, split.train)
+                    if final.effects else split.base_fit)
         pooled_before.append(evaluate(machine, split.base_fit, rows))
         pooled_after.append(evaluate(machine, refitted, rows))
         before, after = (error_summary(machine, r)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.effects.base import Effect, Prepared, bic
+from calib_core.periodogram import explained_power
 
 
 def resolvable_periods(position: np.ndarray) -> tuple[float, float, str]:
@@ -112,9 +113,7 @@ class Periodic(Effect):
         span = float(np.ptp(x))
         count = int(min(20000, max(200, 10 * (f_high - f_low) * span)))
         freqs = np.linspace(f_low, f_high, count)
-        # Imported here: scipy.signal costs every command 0.6 s, and only a search needs it.
-        from scipy.signal import lombscargle
-        power = lombscargle(x, r - r.mean(), 2 * np.pi * freqs, floating_mean=True)
+        power = explained_power(x, r - r.mean(), freqs)
         if hint is not None and f_low <= 1 / hint <= f_high:
             # The hinted peak wins; its rivals were weighed by the search that found it.
             freqs = np.append(freqs, 1 / hint)

@@ -1,80 +1,97 @@
 """The work of ``machine-align analyze``: datasets read, the loop run, reports, figures and
 compensation tables written. Imported when the command runs, so that ``--help`` does not
-pay for the science stack."""
+pay for the science stack; each machine's modules are imported when that machine is
+analysed, so that one machine's command does not load the others' (up to a second)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from calib_core.axis import AxisData, AxisModel, iso230_2_before_after, write_compensation_table
 from calib_core.closed_loop import LoopConfig, analyze, format_report
-from calib_core.controller_formats import (
-    LINUXCNC_MAX_ENTRIES, resampled_for_linuxcnc, write_linuxcnc_comp)
-from calib_core.datasets import write_columns
-from calib_core.effects.smooth_map import compensation_grid
 from calib_core.errors import MachineAlignmentError
-from dispenser_calib.core.loop_model import RotaryLoopModel
-from dispenser_calib.core.data import read_observations
-from dispenser_calib.core.model import read_model
-from dispenser_calib.core.rotary import LEVER
-from dispenser_calib.core.target_poses import poses_from_images, read_target_poses
-from grid_calib.core.data import read_marks
-from grid_calib.core.residual_loop import analyze_travel
-from calib_core.iso230_2 import format_figures
-from hexapod_calib.core.calibration import PoseData
-from hexapod_calib.core.description import read_description
-from hexapod_calib.core.geometry import read_geometry
-from hexapod_calib.core.loop_models import HexapodLoopModel
-from hexapod_calib.core.statics import leg_forces
 from machine_alignment.cli.common import parse_size, progress, write_report
-from platform_calib.core.description import read_description as read_platform_description
-from platform_calib.core.geometry import nominal_geometry as nominal_platform
-from platform_calib.core.geometry import read_geometry as read_platform
-from platform_calib.core.identification import PoseData as PlatformPoseData
-from platform_calib.core.loop_model import PlatformLoopModel
-from printer_alignment.core.camera_calibration import read_correspondences
-from printer_alignment.core.loop_models import (
-    CameraLoopModel, GantryData, GantryLoopModel, StageLoopModel)
-from printer_alignment.core.stage_calibration import StageData
 
-def _loop_machine(args, dropped: dict):
-    """The closed loop's model of ``args.machine`` over ``args.data``."""
-    if args.machine == 'axis':
-        return AxisModel(AxisData.from_csv(args.data, dropped))
-    if args.machine == 'gantry':
-        return GantryLoopModel(GantryData.from_csv(args.data, dropped))
-    if args.machine == 'camera':
-        size = parse_size(args.image_size) if args.image_size else None
-        return CameraLoopModel(read_correspondences(args.data), size)
-    if args.machine == 'stage':
-        return StageLoopModel(StageData.from_csv(args.data, dropped))
-    if args.machine == 'platform':
-        if args.description:
-            platform = read_platform_description(args.description)
-            return PlatformLoopModel(platform.read(args.data, dropped), platform.geometry)
-        nominal = read_platform(args.geometry) if args.geometry else nominal_platform()
-        return PlatformLoopModel(PlatformPoseData.from_csv(args.data, dropped), nominal)
-    if args.machine == 'rotary' and args.calibration:
+
+def _axis(args, dropped):
+    from calib_core.axis import AxisData, AxisModel
+    return AxisModel(AxisData.from_csv(args.data, dropped))
+
+
+def _gantry(args, dropped):
+    from printer_alignment.core.loop_models import GantryData, GantryLoopModel
+    return GantryLoopModel(GantryData.from_csv(args.data, dropped))
+
+
+def _camera(args, dropped):
+    from printer_alignment.core.camera_calibration import read_correspondences
+    from printer_alignment.core.loop_models import CameraLoopModel
+    size = parse_size(args.image_size) if args.image_size else None
+    return CameraLoopModel(read_correspondences(args.data), size)
+
+
+def _stage(args, dropped):
+    from printer_alignment.core.loop_models import StageLoopModel
+    from printer_alignment.core.stage_calibration import StageData
+    return StageLoopModel(StageData.from_csv(args.data, dropped))
+
+
+def _platform(args, dropped):
+    from platform_calib.core.description import read_description
+    from platform_calib.core.geometry import nominal_geometry, read_geometry
+    from platform_calib.core.identification import PoseData
+    from platform_calib.core.loop_model import PlatformLoopModel
+    if args.description:
+        platform = read_description(args.description)
+        return PlatformLoopModel(platform.read(args.data, dropped), platform.geometry)
+    nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
+    return PlatformLoopModel(PoseData.from_csv(args.data, dropped), nominal)
+
+
+def _rotary(args, dropped):
+    from dispenser_calib.core.loop_model import RotaryLoopModel
+    if args.calibration:
+        from dispenser_calib.core.data import read_observations
+        from dispenser_calib.core.model import read_model
+        from dispenser_calib.core.target_poses import poses_from_images
         return RotaryLoopModel(poses_from_images(read_model(args.calibration),
                                                  read_observations(args.data)))
-    if args.machine == 'rotary':
-        return RotaryLoopModel(read_target_poses(args.data, args.a_column, args.c_column),
-                               LEVER if args.lever is None else args.lever)
+    from dispenser_calib.core.rotary import LEVER
+    from dispenser_calib.core.target_poses import read_target_poses
+    return RotaryLoopModel(read_target_poses(args.data, args.a_column, args.c_column),
+                           LEVER if args.lever is None else args.lever)
+
+
+def _hexapod(args, dropped):
+    from hexapod_calib.core.calibration import PoseData
+    from hexapod_calib.core.description import read_description
+    from hexapod_calib.core.geometry import read_geometry
+    from hexapod_calib.core.loop_models import HexapodLoopModel
     description = read_description(args.description) if args.description else None
     nominal = description.geometry if description else read_geometry(args.geometry)
     data = PoseData.from_csv(args.data, nominal, dropped, leg_m_per_unit=(
         description.measurement.actuators.m_per_unit if description else 1.0))
     forces = None
     if args.payload:
+        from hexapod_calib.core.statics import leg_forces
         mass, *centre = args.payload
         forces = leg_forces(nominal, data.commanded, mass, centre)
     return HexapodLoopModel(data, nominal, forces)
 
 
+LOOP_MACHINES = {'axis': _axis, 'gantry': _gantry, 'camera': _camera, 'stage': _stage,
+                 'platform': _platform, 'rotary': _rotary, 'hexapod': _hexapod}
+"""The closed loop's model of each machine over ``args.data``, its modules imported when
+it is asked for."""
+
+
 def _axis_figures(machine, result, report: dict, json_path, units: str = 'mm') -> None:
     """ISO 230-2 figures before and after, into the report and printed; the
     compensation table beside the JSON."""
+    from calib_core.axis import iso230_2_before_after, write_compensation_table
+    from calib_core.controller_formats import (
+        LINUXCNC_MAX_ENTRIES, resampled_for_linuxcnc, write_linuxcnc_comp)
+    from calib_core.iso230_2 import format_figures
     iso = iso230_2_before_after(machine, result.fit)
     table = iso.pop('compensation_table')
     report['iso230_2'] = iso
@@ -126,6 +143,8 @@ def _map_grid(result, report: dict, json_path) -> None:
     names = result.fit.names()
     if 'smooth_map' not in names or not json_path:
         return
+    from calib_core.datasets import write_columns
+    from calib_core.effects.smooth_map import compensation_grid
     k = names.index('smooth_map')
     prepared = result.fit.effects[k]
     low, high = (np.array(v) for v in prepared.notes['map_travel_m'])
@@ -152,7 +171,7 @@ def _draw_grid_loop(png, summary, details) -> None:
 
 def cmd_analyze(args) -> int:
     dropped = {}
-    machine = _loop_machine(args, dropped)
+    machine = LOOP_MACHINES[args.machine](args, dropped)
     config = LoopConfig(holdout_fraction=args.holdout, alpha=args.alpha, seed=args.seed,
                         max_effects=args.max_effects, splits=args.splits,
                         min_effect=args.min_effect)
@@ -179,6 +198,8 @@ def cmd_analyze(args) -> int:
 def cmd_analyze_grid(args) -> int:
     """The closed loop on each region's self-calibration (its own method: the base model
     holds a value per site and per mark, too many for the general loop's hold-out)."""
+    from grid_calib.core.data import read_marks
+    from grid_calib.core.residual_loop import analyze_travel
     grid, regions = read_marks(args.data, args.pitch)
     chosen = regions if args.region is None else {args.region: regions.get(args.region)}
     if None in chosen.values():

@@ -9,10 +9,8 @@ import os
 import sys
 from pathlib import Path
 
-from calib_core.bags import bag_topics, cut_run_count, decode_bag
 from calib_core.errors import MachineAlignmentError
 from calib_core.storage import write_atomic
-from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, temperature_log
 
 
 def progress(done: int, total: int, label: str) -> None:
@@ -86,6 +84,9 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     MachineAlignmentError
         The bag holds no such stops (a run of another kind, or a foreign bag), or cannot be
         read."""
+    # Imported here, as in bag_temperature_log: rosbags costs the commands that read no
+    # bag (every `analyze`) a tenth of a second.
+    from calib_core.bags import bag_topics, cut_run_count, decode_bag
     recovered = cut_run_count(bag, stop_topic)      # None for a complete bag
     if recovered == 0:
         raise MachineAlignmentError(f'{bag} is a run cut before its first stop: nothing to '
@@ -152,6 +153,8 @@ def ranged(kind, low: float | None = None, high: float | None = None, unit: str 
 def bag_temperature_log(bag):
     """The machine's temperature log a calibrator recorded in its run's bag
     (calib_core.temperature.temperature_log), or None where the run recorded none."""
+    from calib_core.bags import bag_topics, decode_bag
+    from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, temperature_log
     if bag_topics(bag).get(TEMPERATURE_TOPIC) != TEMPERATURE_TYPE:
         return None
     return temperature_log([msg for _, _, msg in decode_bag(bag, [TEMPERATURE_TOPIC])])
