@@ -4,7 +4,6 @@ plain-type form for files and messages."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, PchipInterpolator
 
 from calib_core.errors import InvalidInputError
 from printer_alignment.core.geometry import rotate_points
@@ -72,6 +71,10 @@ class StepwiseModel(StageModel):
         self.attitude_theta = np.asarray(attitude_theta, dtype=float)
         self.poses = np.asarray(poses, dtype=float)
         self.corrections = np.asarray(corrections, dtype=float)
+        # Imported here: scipy.interpolate costs 0.2 s, which the machines' other loop
+        # models and commands (the camera's, the gantry's) would pay for nothing.
+        from scipy.interpolate import (
+            LinearNDInterpolator, NearestNDInterpolator, PchipInterpolator)
         self._table = PchipInterpolator(self.attitude_theta, self.attitude_w, extrapolate=True)
         scaled = self._scaled(self.poses)
         self._linear = LinearNDInterpolator(scaled, self.corrections) if len(scaled) > 4 else None
