@@ -255,12 +255,15 @@ def test_stage_screw_error_on_one_chain_is_found_there_with_its_aliases(backlash
     lead is beyond their Nyquist period: the loop finds the error on chain 2 alone at a
     period that takes the same values at every target, and names the aliases, one of
     which is the true lead within 3 sigma; the amplitude is the true one within 3 sigma.
-    On seed 1 the loop does not add it: chosen on chain 2 in some splits, it is reported
-    as seen there and nowhere else."""
+    On seed 1 the loop does not add it, nor on seed 0 with backlash since the plate-frame
+    map joined the stage's candidates (one more candidate in the round's Bonferroni count:
+    chosen in 2 of 5 splits, 3 of 5 without the map; 17 of 20 seeds either way in
+    bench_results/closed_loop.md): chosen on chain 2 in some splits, it is reported as seen
+    there and nowhere else."""
     from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
     truth = TRUE_STAGE if backlash else dataclasses.replace(TRUE_STAGE, backlash=(0.0, 0.0, 0.0))
     lead = TRUE_STAGE.lead[1]
-    for seed in (0, 2):
+    for seed in ((2, 3) if backlash else (0, 2)):
         report = analyze(StageLoopModel(simulate_calibration_run(
             truth, seed=seed, screw=(0.0, 1.5e-6, 0.0)))).report
         effects = _added(report)
@@ -275,7 +278,8 @@ def test_stage_screw_error_on_one_chain_is_found_there_with_its_aliases(backlash
         amplitude = np.hypot(periodic['parameters']['cos_chain2'], periodic['parameters']['sin_chain2'])
         spread = max(periodic['std_devs']['cos_chain2'], periodic['std_devs']['sin_chain2'])
         assert abs(amplitude - 1.5e-6) < 3 * spread
-    quiet = analyze(StageLoopModel(simulate_calibration_run(
-        truth, seed=1, screw=(0.0, 1.5e-6, 0.0)))).report
-    assert 'periodic' not in _added(quiet)
-    assert all(item['component'] == 'residual_chain2' for item in quiet['unexplained'])
+    for seed in ((0, 1) if backlash else (1,)):
+        quiet = analyze(StageLoopModel(simulate_calibration_run(
+            truth, seed=seed, screw=(0.0, 1.5e-6, 0.0)))).report
+        assert 'periodic' not in _added(quiet)
+        assert all(item['component'] == 'residual_chain2' for item in quiet['unexplained'])

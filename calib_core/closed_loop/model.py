@@ -161,6 +161,8 @@ def covariate_columns(machine, context: dict) -> dict:
             out[key] = value
         elif key == 'normalized':
             out['image_radius'] = np.linalg.norm(value, axis=1)
+        elif key == 'map_position':        # the machine's XY, whatever its channels
+            out['map_x'], out['map_y'] = value[:, 0], value[:, 1]
         else:
             for c, name in enumerate(machine.channels):
                 out[f'{key}_{name}'] = value[:, c]

@@ -30,10 +30,18 @@ def map_columns(x: np.ndarray, low, high, degree: int) -> np.ndarray:
 
 
 class SmoothMap(Effect):
-    """Per axis a 2-D polynomial in both positions (Legendre products of total degree 2 to
-    d over the travel measured), d chosen from 2 to 4 by the Bayesian information criterion
-    on the residuals, at most one term per four distinct positions. Evaluated outside the
-    travel measured it extrapolates; the compensation grid stays inside it."""
+    """The machine's XY error as a 2-D polynomial per axis of its XY position (Legendre
+    products of total degree 2 to d over the travel measured), d chosen from 2 to 4 by the
+    Bayesian information criterion on the residuals, at most one term per four distinct
+    positions.
+
+    On an XY machine whose channels are its two axes (the gantry), the XY position is the
+    context's ``position`` and the map's axes are its channels. A machine whose channels
+    are other actuators (the stage's three chains) gives its place in its own XY frame as
+    ``map_position`` ((n, 2) m, the platform in the plate frame) and, as ``map_to_channels``
+    ((n, C, 2)), how much each channel must change to move it by a unit in x and in y: the
+    map is then the platform's error in that frame, passed to the chains. Evaluated outside
+    the travel measured it extrapolates; the compensation grid stays inside it."""
 
     name = 'smooth_map'
     meaning = ('a smooth 2-D error map over the travel (guide straightness, a bent bridge, '
@@ -42,9 +50,11 @@ class SmoothMap(Effect):
     degrees = (2, 3, 4)
 
     def _prepare(self, context, channels, channel_residuals):
-        x = np.asarray(context['position'], float)
-        if x.shape[1] != 2:
-            return f'needs exactly two axes, the model has {x.shape[1]} channel(s)'
+        framed = 'map_position' in context and 'map_to_channels' in context
+        x = np.asarray(context['map_position' if framed else 'position'], float)
+        if not framed and (x.ndim != 2 or x.shape[1] != 2):
+            return (f'needs the machine\'s XY position: {len(channels)} channel(s) and no '
+                    f'XY frame given')
         distinct = len(np.unique(np.round(x, 9), axis=0))
         low, high = x.min(axis=0), x.max(axis=0)
         if not np.all(high > low):
@@ -56,26 +66,37 @@ class SmoothMap(Effect):
         criterion = []
         for degree in usable:
             design = np.column_stack([np.ones(len(x)), map_columns(x, low, high, degree)])
-            criterion.append(sum(bic(design, channel_residuals[:, c]) for c in range(2)))
+            criterion.append(sum(bic(design, channel_residuals[:, c])
+                                 for c in range(channel_residuals.shape[1])))
         degree = usable[int(np.argmin(criterion))]
-        terms = map_terms(degree)
-        count = len(terms)
 
         def term(params, ctx):
-            columns = map_columns(ctx['position'], low, high, degree)
-            return np.column_stack([columns @ params[:count], columns @ params[count:]])
+            xy = ctx['map_position'] if framed else ctx['position']
+            error = map_error(params, degree, low, high, xy)                # (n, 2)
+            if not framed:
+                return error
+            return np.einsum('nca,na->nc', ctx['map_to_channels'], error)
 
-        names = tuple(f'map{i}{j}_{c}' for c in channels for i, j in terms)
-        notes = {'map_degree': degree, 'map_travel_m': [low.tolist(), high.tolist()]}
+        axes = ('x', 'y') if framed else channels
+        names = tuple(f'map{i}{j}_{a}' for a in axes for i, j in map_terms(degree))
+        notes = {'map_degree': degree, 'map_travel_m': [low.tolist(), high.tolist()],
+                 'map_frame': 'the machine\'s XY frame' if framed else 'the axes'}
         return Prepared(self, names, ('m',) * len(names), np.zeros(len(names)), term,
                         trials=float(len(usable)), notes=notes)
 
 
-def compensation_grid(prepared_term, values, low, high, step: float) -> np.ndarray:
+def map_error(values, degree: int, low, high, xy) -> np.ndarray:
+    """The map's error (m, (n, 2): x then y) at XY positions ``xy`` ((n, 2) m), its
+    parameters ``values`` the x axis's terms then the y axis's (:func:`map_terms`) over the
+    travel [``low``, ``high``]."""
+    count = len(map_terms(degree))
+    return map_columns(xy, low, high, degree) @ np.asarray(values, float).reshape(2, count).T
+
+
+def compensation_grid(values, degree: int, low, high, step: float) -> np.ndarray:
     """The map's correction on a regular grid over [low, high] (m, 2 each), ``step`` m apart:
     rows of x, y, correction_x, correction_y (m), the correction being minus the error."""
     xs = np.arange(low[0], high[0] + step / 2, step)
     ys = np.arange(low[1], high[1] + step / 2, step)
     grid = np.array([(x, y) for y in ys for x in xs])
-    error = prepared_term(np.asarray(values, float), {'position': grid})
-    return np.column_stack([grid, -error])
+    return np.column_stack([grid, -map_error(values, degree, low, high, grid)])

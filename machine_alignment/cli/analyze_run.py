@@ -149,13 +149,14 @@ def _map_grid(result, report: dict, json_path) -> None:
     prepared = result.fit.effects[k]
     low, high = (np.array(v) for v in prepared.notes['map_travel_m'])
     step = float(np.min(high - low)) / (MAP_GRID_POINTS - 1)
-    grid = compensation_grid(prepared.term, result.fit.values[k], low, high, step)
+    grid = compensation_grid(result.fit.values[k], prepared.notes['map_degree'], low, high,
+                             step)
     path = Path(json_path).with_name(Path(json_path).stem + '_map.csv')
     write_columns(path, ['x', 'y', 'correction_x', 'correction_y'], list(grid.T))
     report['compensation_map'] = str(path)
-    print(f'wrote {path} (x, y, correction_x, correction_y in m; {len(grid)} points '
-          f'{step * 1e3:.4g} mm apart over the travel measured; add the correction to the '
-          f'command)')
+    print(f'wrote {path} (x, y, correction_x, correction_y in m, in '
+          f'{prepared.notes["map_frame"]}; {len(grid)} points {step * 1e3:.4g} mm apart over '
+          f'the travel measured; add the correction to the target)')
 
 
 def _draw_loop(png, machine, result) -> None:
@@ -182,7 +183,7 @@ def cmd_analyze(args) -> int:
         print(f'  column {name}: {reason}')
     if args.machine == 'axis':
         _axis_figures(machine, result, report, args.json, args.machine_units)
-    if args.machine == 'gantry':
+    if args.machine in ('gantry', 'stage'):
         _map_grid(result, report, args.json)
     if args.machine == 'rotary':
         report['identification'] = identified = machine.identified.report()

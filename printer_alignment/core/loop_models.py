@@ -275,12 +275,14 @@ class StageLoopModel(MachineModel):
                   'alpha1, alpha2, stage mounting and the Marks\' platform positions; '
                   'Marks predicted in the plate frame (m)')
     channels = ('chain1', 'chain2', 'chain3')
-    candidates = ('reversal', 'periodic', 'drift_time', 'drift_sequence', 'drift_temperature')
+    candidates = ('reversal', 'periodic', 'smooth_map', 'drift_time', 'drift_sequence',
+                  'drift_temperature')
 
     def __init__(self, data: StageData):
         self.data = data
         self._scalars = scalar_covariates(data.covariates)
         self._start = stepwise_calibration(data)[0].geometry
+        self._translation_inputs = None
 
     def __len__(self):
         return len(self.data)
@@ -297,9 +299,36 @@ class StageLoopModel(MachineModel):
         return parameters
 
     def context(self, base, rows):
-        context = {'position': self.data.q[rows], 'direction': self.data.directions[rows]}
+        # The platform's place in the plate frame (the Marks' mean as measured) and the
+        # chain inputs that move it by a unit in x and in y: where a smooth map of the
+        # platform's error is fitted, and how it reaches the chains.
+        context = {'position': self.data.q[rows], 'direction': self.data.directions[rows],
+                   'map_position': self.data.marks[rows].mean(axis=1),
+                   'map_to_channels': self._plate_to_chains()[rows]}
         context.update(select_rows(self._scalars, rows))
         return context
+
+    def _plate_to_chains(self) -> np.ndarray:
+        """(N, 3, 2): the chain inputs (m) that move both Marks by 1 m in the plate's x and
+        in its y, at each row's inputs under the starting model (the least-squares inverse of
+        the Marks' sensitivity to the chains; it changes by parts per thousand over the
+        stroke and with the parameters' corrections)."""
+        if self._translation_inputs is None:
+            base = self.initial()
+            sensitivity = self._sensitivity(base, self.data.q)               # (N, 4, 3)
+            translation = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+            self._translation_inputs = np.linalg.pinv(sensitivity) @ translation
+        return self._translation_inputs
+
+    def _sensitivity(self, base, q) -> np.ndarray:
+        """The Marks' change per unit input of each chain at inputs ``q``, (n, 4, 3)."""
+        columns = []
+        for chain in range(3):
+            step = np.zeros(3)
+            step[chain] = _STEP
+            columns.append((self._predict(base, q + step) - self._predict(base, q - step))
+                           / (2 * _STEP))
+        return np.stack(columns, axis=2)
 
     def _predict(self, base, q):
         values = base.as_dict()
@@ -315,15 +344,8 @@ class StageLoopModel(MachineModel):
         each chain at each row."""
         q = self.data.q[rows] + delta
         residual = self.data.marks[rows].reshape(-1, 4) - self._predict(base, q)
-        columns = []
-        for chain in range(3):
-            step = np.zeros(3)
-            step[chain] = _STEP
-            columns.append((self._predict(base, q + step) - self._predict(base, q - step))
-                           / (2 * _STEP))
-        sensitivity = np.stack(columns, axis=2)                          # (n, 4, 3)
         return np.array([np.linalg.lstsq(s, r, rcond=None)[0]
-                         for s, r in zip(sensitivity, residual)])
+                         for s, r in zip(self._sensitivity(base, q), residual)])
 
     def workspace(self):
         return self.data.marks.mean(axis=1)

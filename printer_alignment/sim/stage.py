@@ -18,7 +18,7 @@ from calib_core.iso9283 import multidirectional_variation, pose_repeatability
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
 from calib_core.marks import detect_marks
 from printer_alignment.core.stage import (
-    NOMINAL_D, NOMINAL_LEAD, StageGeometry, check_stroke, landing_path, path_from_below,
+    NOMINAL_D, NOMINAL_LEAD, STROKE, StageGeometry, check_stroke, landing_path, path_from_below,
     platform_points_in_plate)
 from printer_alignment.core.stage_calibration import StageData, StagePlan
 from printer_alignment.sim.camera import CameraSim
@@ -63,14 +63,21 @@ class StageSim:
     screw : sequence of 3 float
         Each chain's lead-screw error once per turn, m (slider displacement
         a sin(2 pi q / lead)): an error the stage model does not declare.
+    bow : sequence of 2 float
+        The platform off by a bow over its travel in the plate frame, m at the stroke: x by
+        ``bow[0] (dy / STROKE)^2`` and y by ``bow[1] (dx / STROKE)^2``, dx and dy the
+        displacement of the calibration Marks' centroid (the place the loop's map is kept
+        at) from where it is at zero inputs. An error the stage model does not declare.
     """
 
     def __init__(self, truth: StageGeometry = TRUE_STAGE, landing_sigma: float = 1.2e-6,
-                 seed: int | None = 0, screw=(0.0, 0.0, 0.0)):
+                 seed: int | None = 0, screw=(0.0, 0.0, 0.0), bow=(0.0, 0.0)):
         if not landing_sigma >= 0:
             raise InvalidInputError('landing_sigma must be >= 0')
         self.truth = truth
         self.screw = np.asarray(screw, dtype=float)
+        self.bow = np.asarray(bow, dtype=float)
+        self._home = self._centroid(truth.stage_to_plate(truth.forward(np.zeros((1, 3))))[0])
         self.landing_sigma = landing_sigma
         self.rng = np.random.default_rng(seed)
         self.q = np.zeros(3)
@@ -94,8 +101,15 @@ class StageSim:
         # A landing error is a slider displacement; as an input it is divided by the ratio.
         turn = 2 * np.pi * self.q / np.asarray(self.truth.lead)
         q_effective = self.q + (self._landing + self.screw * np.sin(turn)) / lead_ratio
-        pose = self.truth.forward(q_effective[None], self.directions[None])
-        return self.truth.stage_to_plate(pose)[0]
+        pose = self.truth.stage_to_plate(
+            self.truth.forward(q_effective[None], self.directions[None]))[0]
+        dx, dy = (self._centroid(pose) - self._home) / STROKE
+        return pose + np.array([self.bow[0] * dy ** 2, self.bow[1] * dx ** 2, 0.0])
+
+    @staticmethod
+    def _centroid(pose) -> np.ndarray:
+        """The calibration Marks' centroid in the plate frame (m, (2,)) at platform ``pose``."""
+        return platform_points_in_plate(pose[None], CALIBRATION_MARKS.mean(axis=0)[None])[0, 0]
 
     def true_points(self, platform_points) -> np.ndarray:
         """Plate positions (m, (k, 2)) of platform-frame points ((k, 2)). Truth: sim only."""
@@ -224,15 +238,15 @@ def measure_repeatability(truth: StageGeometry = TRUE_STAGE, q=(1e-3, -1.5e-3, 2
 
 def simulate_calibration_run(truth: StageGeometry = TRUE_STAGE, plan=None,
                              landing_sigma: float = 1.2e-6, camera_noise: float = 0.3e-6,
-                             seed: int = 0, screw=(0.0, 0.0, 0.0)):
+                             seed: int = 0, screw=(0.0, 0.0, 0.0), bow=(0.0, 0.0)):
     """The calibration run of ``plan`` (default :class:`StagePlan`) on a simulated stage,
     measured by a camera with ``camera_noise`` (m, 1 sigma): a
     :class:`~printer_alignment.core.stage_calibration.StageData`. Every chain lands afresh
     at each target with a short last motion in its direction of travel
     (:func:`~printer_alignment.core.stage.landing_path`), so the sweeps approach from both
-    directions. ``screw``: see :class:`StageSim`."""
+    directions. ``screw`` and ``bow``: see :class:`StageSim`."""
     plan = plan or StagePlan()
-    stage = StageSim(truth, landing_sigma, seed=seed, screw=screw)
+    stage = StageSim(truth, landing_sigma, seed=seed, screw=screw, bow=bow)
     rng = np.random.default_rng(seed + 1)
     targets = plan.targets()
     marks, directions = [], []
