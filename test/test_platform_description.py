@@ -161,6 +161,12 @@ def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
         np.testing.assert_array_equal(node.nominal.vector(),
                                       read_description(USER).geometry.vector())
         assert node.description.position_bound() == pytest.approx(0.0424, rel=0.01)
+        # Plans in the described box (+-15 mm, +-4 deg about home), a request's keys first.
+        plan = node._plan_from_parameters({})
+        assert plan.span == pytest.approx((0.015, 0.015, np.deg2rad(4.0)), rel=1e-5)
+        assert plan.home == (0.0, 0.0, 0.0)
+        asked = node._plan_from_parameters({'home': [0.002, -0.001, 0.01]})
+        assert asked.home == (0.002, -0.001, 0.01) and asked.span == plan.span
     finally:
         node.destroy_node()
         rclpy.shutdown()
@@ -192,3 +198,22 @@ def test_the_simulator_nodes_take_the_description(monkeypatch, tmp_path):
     finally:
         node.destroy_node()
         rclpy.shutdown()
+
+
+@pytest.mark.parametrize('design', ['random', 'I'])
+def test_a_plan_about_a_home_keeps_its_poses_in_the_box_about_it(design):
+    """PlatformPlan's ``home``: the identification and evaluation poses (random, or planned
+    for the least error at the working poses) lie within ``span`` of it, not of zero."""
+    from platform_calib.core.geometry import nominal_geometry
+    from platform_calib.core.procedure import PlatformPlan
+    home, span = np.array([2e-3, -1.5e-3, np.deg2rad(1.0)]), np.array([2e-3, 2e-3, 0.02])
+    plan = PlatformPlan(poses=12, evaluation_poses=8, span=tuple(span), home=tuple(home),
+                        design=design, seed=3)
+    identify, evaluate, _ = plan.targets_for(nominal_geometry())
+    for poses in (identify, evaluate):
+        assert np.all(np.abs(poses - home) <= span + 1e-12)
+    # Drawn about home: the poses' centre is nearer home than zero is.
+    centre = np.vstack([identify, evaluate]).mean(axis=0)
+    assert np.all(np.abs(centre - home)[:2] < np.abs(home)[:2])
+    with pytest.raises(InvalidInputError, match='home'):
+        PlatformPlan(home=(0.0, float('nan'), 0.0))

@@ -68,9 +68,9 @@ def _hexapod(play: bool, seed: int, force_to_close_play: float = 5.0):
     return HexapodLoopModel(data, nominal, forces)
 
 
-def _stage(backlash: bool, seed: int, screw=(0.0, 0.0, 0.0)):
+def _stage(backlash: bool, seed: int, screw=(0.0, 0.0, 0.0), bow=(0.0, 0.0)):
     truth = TRUE_STAGE if backlash else dataclasses.replace(TRUE_STAGE, backlash=(0.0, 0.0, 0.0))
-    return StageLoopModel(simulate_calibration_run(truth, seed=seed, screw=screw))
+    return StageLoopModel(simulate_calibration_run(truth, seed=seed, screw=screw, bow=bow))
 
 
 def _large_hexapod(lead_off: bool, seed: int):
@@ -112,6 +112,7 @@ LEAD_CASE = 'scale: one leg\'s lead 6 % off (0.8 m, motion capture)'
 THERMAL_CASE = 'drift_temperature: one leg 12 ppm/K, 3 K cycle, +-5 mm stroke'
 ISO_DRIFT_CASE = 'drift_sequence: -15.8 um over a sparse ISO 230-2 run (5 targets), backlash 5 um'
 BOW_CASE = 'smooth_map: a 3 um bow over the travel'
+STAGE_BOW_CASE = 'smooth_map: a 3 um bow in the plate frame'
 PLATFORM_DRIFT_CASE = 'drift_time: the tracker drifting 15 um over the run'
 # Cases whose effect must be found on given channels only: effect -> the channels its
 # parameters may name (the suffix after the last underscore).
@@ -170,6 +171,8 @@ def _cases():
          ('sparse ISO 230-2 run', lambda s: _iso(0.0, s, 0.0))),
         ('gantry', BOW_CASE, {'smooth_map'}, lambda s: _bowed_gantry(3e-6, s),
          ('gantry, straight guides', lambda s: _bowed_gantry(0.0, s))),
+        ('stage', STAGE_BOW_CASE, {'smooth_map'}, lambda s: _stage(False, s, bow=(3e-6, 3e-6)),
+         ('stage', lambda s: _stage(False, s))),
         ('platform', PLATFORM_DRIFT_CASE, {'drift_time'}, lambda s: _drifting_platform(15e-6, s),
          ('platform, tracker steady', lambda s: _drifting_platform(0.0, s))),
     ], {'axis': (lambda s: _axis({'temperature_rise': 0.5}, s), 200),

@@ -174,14 +174,16 @@ def extend_platform(geometry: PlatformGeometry, nominal: PlatformGeometry, measu
                     count: int, working=None,
                     criterion: str = 'I', candidates: int = 3000, span=WORKING_SPAN,
                     margin: float = STROKE_MARGIN, seed: int = 0,
-                    tracker_noise=TRACKER_NOISE, feed_noise: float = FEED_NOISE) -> PoseDesign:
+                    tracker_noise=TRACKER_NOISE, feed_noise: float = FEED_NOISE,
+                    home=HOME) -> PoseDesign:
     """``count`` more poses to measure after ``measured`` (n, 3), chosen about
     ``geometry`` (the one identified so far) to lower the criterion most, and the
-    prediction for all of them together; candidates whose ``nominal`` feeds (what is
-    commanded) keep ``margin`` inside the stroke."""
+    prediction for all of them together; candidates within ``span`` of ``home`` whose
+    ``nominal`` feeds (what is commanded) keep ``margin`` inside the stroke."""
     measured = np.asarray(measured, float)
-    working = default_working(span, seed) if working is None else working
-    pool = candidate_poses(nominal, candidates, span, margin, seed + 1000 + len(measured))
+    working = default_working(span, seed, home) if working is None else working
+    pool = candidate_poses(nominal, candidates, span, margin, seed + 1000 + len(measured),
+                           home)
     sensitivity = working_sensitivity(geometry, working)
     rows, noise = identification_rows(geometry, np.vstack([measured, pool]), tracker_noise,
                                       feed_noise)

@@ -17,7 +17,8 @@ from platform_calib.core.geometry import PlatformGeometry
 from platform_calib.core.identification import (
     MIN_POSES, POSE_SCHEMA, Identification, PoseData, identify)
 from platform_calib.core.kinematics import inverse
-from platform_calib.core.planning import extend_platform, plan_platform, predict_platform
+from platform_calib.core.planning import (
+    default_working, extend_platform, plan_platform, predict_platform)
 
 
 DESIGNS = ('random', 'I', 'D')
@@ -26,7 +27,7 @@ DESIGNS = ('random', 'I', 'D')
 @dataclass(frozen=True)
 class PlatformPlan:
     """The poses to identify from and ``evaluation_poses`` others to evaluate on (random
-    within +-``span``, x m, y m, theta rad, drawn with ``seed``). The identification poses:
+    within +-``span`` of ``home``, x m, y m, theta rad, drawn with ``seed``). The identification poses:
     ``targets`` when given (a planned set, e.g. from ``machine-align plan platform``), else
     ``poses`` of them, random (``design`` 'random') or planned here for the least error at
     the evaluation span ('I') or the largest information ('D').
@@ -46,6 +47,7 @@ class PlatformPlan:
     target_error: float = 0.0
     max_poses: int = 60
     step: int = 4
+    home: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         object.__setattr__(self, 'poses', whole_number(self.poses, 'poses', MIN_POSES))
@@ -58,6 +60,12 @@ class PlatformPlan:
             raise InvalidInputError(f'span must be three positive values (x m, y m, theta '
                                     f'rad; up to 0.1 m and pi/4), not {self.span!r}')
         object.__setattr__(self, 'span', tuple(float(v) for v in span))
+        home = np.asarray(self.home, dtype=float)
+        if home.shape != (3,) or not np.all(np.isfinite(home)) or np.any(np.abs(home[:2]) > 0.5) \
+                or abs(home[2]) > np.pi / 4:
+            raise InvalidInputError(f'home must be three values (x m, y m, theta rad; within '
+                                    f'0.5 m and pi/4), not {self.home!r}')
+        object.__setattr__(self, 'home', tuple(float(v) for v in home))
         object.__setattr__(self, 'max_poses', whole_number(self.max_poses, 'max_poses', MIN_POSES))
         object.__setattr__(self, 'step', whole_number(self.step, 'step', 1))
         if not (isinstance(self.target_error, (int, float)) and np.isfinite(self.target_error)
@@ -85,14 +93,15 @@ class PlatformPlan:
         """The identification poses (n, 3), the evaluation poses (m, 3) and, for a design
         planned here, its prediction (else an empty dict)."""
         rng = np.random.default_rng(self.seed)
-        draw = rng.uniform(-1, 1, (self.poses + self.evaluation_poses, 3)) * np.asarray(self.span)
+        draw = np.asarray(self.home) + rng.uniform(
+            -1, 1, (self.poses + self.evaluation_poses, 3)) * np.asarray(self.span)
         identify_at, evaluate_at = draw[:self.poses], draw[self.poses:]
         if len(self.targets):
             return np.array(self.targets), evaluate_at, {}
         if self.design == 'random':
             return identify_at, evaluate_at, {}
         design = plan_platform(nominal, self.poses, criterion=self.design, span=self.span,
-                               seed=self.seed)
+                               seed=self.seed, home=self.home)
         return design.poses, evaluate_at, design.report()
 
 
@@ -183,14 +192,15 @@ def _adapt(plan: PlatformPlan, nominal: PlatformGeometry, result: Identification
                       ' (the tracker and feed noise and the span decide it)')
     while True:
         poses = np.array([s.measured for s in stops if s.phase == 'identify'])
-        now = predict_platform(result.geometry, poses, span=plan.span, seed=plan.seed)
+        now = predict_platform(result.geometry, poses,
+                               default_working(plan.span, plan.seed, plan.home))
         rms = now.report()['predicted_mark_error_m']['rms']
         progress(len(stops), len(stops), f'adaptive: {len(poses)} poses, mark error predicted '
                  f'{rms * 1e6:.2f} um RMS (target {plan.target_error * 1e6:.2f} um)')
 
         def extend(room, poses=poses):
             best = extend_platform(result.geometry, nominal, poses, room, criterion=criterion,
-                                   span=plan.span, seed=plan.seed)
+                                   span=plan.span, seed=plan.seed, home=plan.home)
             return best.poses[len(poses):], best.report()['predicted_mark_error_m']['rms']
         added = rounds.more(rms, len(poses), extend)
         if added is None:

@@ -17,8 +17,9 @@ tracker). The geometry is written as an atomic, versioned ``platform`` file (rea
 platform --bag`` solves it again).
 
 With ``description`` (a machine description YAML, docs/machine_description.md) the nominal
-geometry and the identification's gate are the described platform's; the poses stay
-within ``span`` about the zero pose (set it to the described box).
+geometry and the identification's gate are the described platform's, and the poses are
+planned in its workspace box: its ``home`` and half-widths replace the ``home`` and
+``span`` parameters (a request's keys override them).
 
 Service ``platform_calibrator/register`` (RegisterScreen) measures the screen's two marks
 (``platform/measure_marks``), computes the pose that puts them on target (the marks of the
@@ -68,8 +69,8 @@ from platform_calib.core.records import MEASUREMENTS_TOPIC, RESULT_TOPIC
 from platform_calib.core.registration import pose_of_marks, register
 from platform_calib.nodes.conversions import planar_pose_from_message
 
-PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'seed', 'design', 'targets', 'target_error',
-             'max_poses', 'step')
+PLAN_KEYS = ('poses', 'evaluation_poses', 'span', 'home', 'seed', 'design', 'targets',
+             'target_error', 'max_poses', 'step')
 ANALYSIS_TOPIC = '/platform_calibrator/analysis'
 MEASURED_POSE_TOPIC = '/platform_calibrator/measured_pose'
 
@@ -91,6 +92,7 @@ class PlatformCalibratorNode(Node):
         self.declare_parameter('poses', 20)
         self.declare_parameter('evaluation_poses', 10)
         self.declare_parameter('span', [5e-3, 5e-3, float(np.deg2rad(5.0))])
+        self.declare_parameter('home', [0.0, 0.0, 0.0])      # x m, y m, theta rad
         self.declare_parameter('seed', 0)
         self.declare_parameter('design', 'random')
         self.declare_parameter('target_error', 0.0)     # m; 0: no adaptive rounds
@@ -101,12 +103,13 @@ class PlatformCalibratorNode(Node):
         self.declare_parameter('description', '', READ_ONLY)   # the user's machine description
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
+        # A described platform: its geometry, its workspace for plans and the gate from its
+        # declared noise and size.
+        self.description, self.nominal = described_machine(
+            self, read_description, read_geometry, nominal_geometry)
         self._plan_from_parameters({})                      # a bad plan stops the start
         if self.get_parameter('method').value not in METHODS:
             raise ValueError(f'method must be one of {METHODS}')
-        # A described platform: its geometry and the gate from its declared noise and size.
-        self.description, self.nominal = described_machine(
-            self, read_description, read_geometry, nominal_geometry)
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.model, self.feeds = None, None
         group = ReentrantCallbackGroup()
@@ -154,10 +157,14 @@ class PlatformCalibratorNode(Node):
         unknown = set(overrides) - set(PLAN_KEYS)
         if unknown:
             raise InvalidInputError(f'unknown plan keys {sorted(unknown)}; known: {list(PLAN_KEYS)}')
-        g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
+        described = {}
+        if self.description:
+            box = self.description.box()
+            described = {'home': box['home'], 'span': (*box['translation'], box['rotation'])}
+        g = lambda n: overrides.get(n, described.get(n, self.get_parameter(n).value))  # noqa: E731
         return PlatformPlan(g('poses'), g('evaluation_poses'), tuple(g('span')), g('seed'),
                             g('design'), tuple(overrides.get('targets', ())),
-                            g('target_error'), g('max_poses'), g('step'))
+                            g('target_error'), g('max_poses'), g('step'), tuple(g('home')))
 
     def _move(self, feeds):
         self.status.check_cancelled()       # the safe point: before the next move
