@@ -8,7 +8,7 @@ import numpy as np
 from scipy import sparse
 from scipy.linalg import cho_solve
 
-from calib_core.errors import InvalidInputError
+from calib_core.errors import InvalidInputError, MachineAlignmentError
 from calib_core.parameters import ParameterSet
 from calib_core.closed_loop.model import MachineModel
 
@@ -83,9 +83,10 @@ def residuals_by_channel(machine, fit: Fit, rows) -> np.ndarray:
 def grouped_differences(fun, sparsity: np.ndarray):
     """A Jacobian callable for ``fun`` by forward differences, stepping together the
     columns whose nonzero rows (``sparsity``, (m, n) bool) do not overlap (Curtis, Powell and
-    Reid's grouping, greedy), returned dense: least_squares then solves each step exactly
-    (SVD), which converges in far fewer iterations than its iterative sparse solver (LSMR)
-    on the camera's few hundred parameters."""
+    Reid's grouping, greedy), returned dense: each step is then solved exactly (normal
+    equations or SVD), which converges in far fewer iterations than an iterative sparse
+    solver (LSMR) on the camera's few hundred parameters. The caller may pass ``f0``, the
+    residuals at x it already has."""
     sparsity = np.asarray(sparsity, bool)
     count = sparsity.shape[1]
     # Columns that share a row cannot be stepped together.
@@ -108,7 +109,6 @@ def grouped_differences(fun, sparsity: np.ndarray):
         entries.append((members, rows, members[columns]))
 
     def jacobian(x, f0=None):
-        # ``f0``: fun(x) where the caller has it (a Gauss-Newton step just evaluated it).
         f0 = fun(x) if f0 is None else f0
         # The step scipy's '2-point' takes: sqrt(machine epsilon) relative, at least absolute.
         step = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
@@ -197,21 +197,25 @@ GAUSS_NEWTON_TOLERANCE = 1e-10
 
 
 def _gauss_newton(fun, jac, x0: np.ndarray, r0: np.ndarray):
-    # ``jac(x, f0)``: the Jacobian at x, given fun(x) = f0.
-    """Full Gauss-Newton steps from ``x0``: the loop's fits are linear in every parameter
-    but an effect's period or a rigid body's angles, and start at or next to their
-    solution, so they settle in two to four steps, each a fraction of a trust-region step's
-    cost (:func:`_gauss_newton_step`).
+    """Full Gauss-Newton steps from ``x0`` (``jac(x, f0)``: the Jacobian at x, given
+    fun(x) = f0): the loop's fits are linear in every parameter but an effect's period or a
+    rigid body's angles, and start at or next to their solution, so they settle in two to
+    four steps, each a fraction of a trust-region step's cost (:func:`_gauss_newton_step`).
 
     Returns (x, residuals, Jacobian at the last step) once a full step lowers the sum
-    of squares by less than GAUSS_NEWTON_TOLERANCE of it, or None when a step raises it
-    or the steps do not settle: the caller then solves with a trust region."""
+    of squares by less than GAUSS_NEWTON_TOLERANCE of it, or None when a step raises it,
+    lands where the machine cannot be evaluated (a camera point behind the lens) or the
+    steps do not settle: the caller then solves with a trust region, whose shorter steps
+    stay where the machine can be evaluated."""
     x, r = x0, r0
     cost = float(r @ r)
     for _ in range(GAUSS_NEWTON_ITERATIONS):
         J = jac(x, r)
         moved = x + _gauss_newton_step(J, r)
-        r_moved = fun(moved)
+        try:
+            r_moved = fun(moved)
+        except (MachineAlignmentError, ArithmeticError, np.linalg.LinAlgError):
+            return None
         cost_moved = float(r_moved @ r_moved)
         if not np.isfinite(cost_moved) or cost_moved > cost * (1 + GAUSS_NEWTON_TOLERANCE):
             return None

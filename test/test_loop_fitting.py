@@ -1,0 +1,63 @@
+"""The loop's fits (calib_core.closed_loop.fitting): Gauss-Newton steps that reach the
+least-squares solution, and hand over to the trust region where a full step cannot be
+taken."""
+import numpy as np
+import pytest
+
+from calib_core.closed_loop.fitting import _gauss_newton, grouped_differences
+from calib_core.errors import CalibrationError
+
+
+def _linear_problem(seed: int):
+    rng = np.random.default_rng(seed)
+    design = rng.normal(size=(60, 5)) * np.array([1.0, 1e3, 1e-3, 10.0, 1.0])   # mixed units
+    truth = rng.normal(size=5)
+    observed = design @ truth + rng.normal(0.0, 1e-3, 60)
+    return design, observed
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_a_linear_fit_settles_at_the_least_squares_solution(seed):
+    design, observed = _linear_problem(seed)
+    fun = lambda x: design @ x - observed                       # noqa: E731
+    jac = lambda x, f0=None: design                             # noqa: E731
+    x0 = np.zeros(5)
+    x, r, J = _gauss_newton(fun, jac, x0, fun(x0))
+    expected = np.linalg.lstsq(design, observed, rcond=None)[0]
+    np.testing.assert_allclose(x, expected, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(J, design)
+
+
+def test_a_nonlinear_fit_by_grouped_differences_settles_at_the_minimum():
+    """A sinusoid's amplitude, phase and period, started near them: the steps settle where
+    the gradient vanishes, the trust region's minimum."""
+    from scipy.optimize import least_squares
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 10.0, 200)
+    y = 1.3 * np.sin(2 * np.pi * t / 2.1 + 0.4) + rng.normal(0.0, 0.05, 200)
+    fun = lambda p: p[0] * np.sin(2 * np.pi * t / p[2] + p[1]) - y     # noqa: E731
+    x0 = np.array([1.0, 0.3, 2.08])
+    jac = grouped_differences(fun, np.ones((200, 3), bool))
+    x, r, _ = _gauss_newton(fun, jac, x0, fun(x0))
+    tight = least_squares(fun, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    np.testing.assert_allclose(x, tight, rtol=1e-7)
+
+
+def test_a_step_the_machine_cannot_evaluate_hands_over_to_the_trust_region():
+    """A full step that lands where the residuals cannot be computed (as a camera point
+    behind the lens raises) returns None: the caller solves with the trust region."""
+    def fun(x):
+        if abs(x[0]) > 2:
+            raise CalibrationError('a target point lies behind the camera')
+        return np.array([x[0] - 10.0, 0.1 * x[0]])
+    jac = lambda x, f0=None: np.array([[1.0], [0.1]])          # noqa: E731
+    x0 = np.zeros(1)
+    assert _gauss_newton(fun, jac, x0, fun(x0)) is None
+
+
+def test_a_step_that_raises_the_sum_of_squares_hands_over():
+    """A wrong Jacobian (sign flipped) sends the full step uphill: None, not a worse fit."""
+    fun = lambda x: x - 3.0                                     # noqa: E731
+    jac = lambda x, f0=None: -np.eye(1)                        # noqa: E731
+    x0 = np.zeros(1)
+    assert _gauss_newton(fun, jac, x0, fun(x0)) is None
