@@ -61,3 +61,14 @@ def test_a_step_that_raises_the_sum_of_squares_hands_over():
     jac = lambda x, f0=None: -np.eye(1)                        # noqa: E731
     x0 = np.zeros(1)
     assert _gauss_newton(fun, jac, x0, fun(x0)) is None
+
+
+def test_a_step_that_overshoots_is_halved_until_it_lowers_the_sum_of_squares():
+    """arctan from x = 2: the full Gauss-Newton step lands at -3.5, farther from the root
+    than the start; halved, it falls, and the steps settle at the root."""
+    fun = lambda x: np.arctan(x)                                # noqa: E731
+    jac = lambda x, f0=None: np.array([[1.0 / (1.0 + x[0] ** 2)]])  # noqa: E731
+    x0 = np.array([2.0])
+    assert abs(np.arctan(x0[0] - (1 + 4) * np.arctan(2.0))) > abs(np.arctan(2.0))
+    x, r, _ = _gauss_newton(fun, jac, x0, fun(x0))
+    assert abs(x[0]) < 1e-6

@@ -190,36 +190,46 @@ def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: 
     return Fit(b, list(effects), parts, residuals.reshape(len(rows), -1), jacobian)
 
 
-GAUSS_NEWTON_ITERATIONS = 12
+GAUSS_NEWTON_ITERATIONS = 30
 """Gauss-Newton steps tried before the trust-region solver takes over."""
+GAUSS_NEWTON_HALVINGS = 4
+"""Times a step that raises the sum of squares is halved before the trust region takes over."""
 GAUSS_NEWTON_TOLERANCE = 1e-10
 """Relative fall of the sum of squares below which a full step has converged."""
 
 
 def _gauss_newton(fun, jac, x0: np.ndarray, r0: np.ndarray):
-    """Full Gauss-Newton steps from ``x0`` (``jac(x, f0)``: the Jacobian at x, given
+    """Gauss-Newton steps from ``x0`` (``jac(x, f0)``: the Jacobian at x, given
     fun(x) = f0): the loop's fits are linear in every parameter but an effect's period or a
-    rigid body's angles, and start at or next to their solution, so they settle in two to
+    rigid body's angles, and start at or next to their solution, so most settle in two to
     four steps, each a fraction of a trust-region step's cost (:func:`_gauss_newton_step`).
+    A step that raises the sum of squares is halved (a period far from its best value
+    bends the valley), up to GAUSS_NEWTON_HALVINGS times.
 
-    Returns (x, residuals, Jacobian at the last step) once a full step lowers the sum
-    of squares by less than GAUSS_NEWTON_TOLERANCE of it, or None when a step raises it,
-    lands where the machine cannot be evaluated (a camera point behind the lens) or the
-    steps do not settle: the caller then solves with a trust region, whose shorter steps
-    stay where the machine can be evaluated."""
+    Returns (x, residuals, Jacobian at the last step) once a full step lowers the sum of
+    squares by less than GAUSS_NEWTON_TOLERANCE of it, or None when no halving of a step
+    lowers it, a step lands where the machine cannot be evaluated (a camera point behind
+    the lens) or the steps do not settle: the caller then solves with a trust region."""
     x, r = x0, r0
     cost = float(r @ r)
     for _ in range(GAUSS_NEWTON_ITERATIONS):
         J = jac(x, r)
-        moved = x + _gauss_newton_step(J, r)
-        try:
-            r_moved = fun(moved)
-        except (MachineAlignmentError, ArithmeticError, np.linalg.LinAlgError):
+        step = _gauss_newton_step(J, r)
+        for halving in range(GAUSS_NEWTON_HALVINGS + 1):
+            moved = x + step
+            try:
+                r_moved = fun(moved)
+            except (MachineAlignmentError, ArithmeticError, np.linalg.LinAlgError):
+                return None
+            cost_moved = float(r_moved @ r_moved)
+            if np.isfinite(cost_moved) and cost_moved <= cost * (1 + GAUSS_NEWTON_TOLERANCE):
+                break
+            step = step / 2
+        else:
             return None
-        cost_moved = float(r_moved @ r_moved)
-        if not np.isfinite(cost_moved) or cost_moved > cost * (1 + GAUSS_NEWTON_TOLERANCE):
-            return None
-        settled = cost - cost_moved <= GAUSS_NEWTON_TOLERANCE * cost
+        # Only a full step's small fall says the minimum is reached; a halved one may be
+        # small because the step was cut.
+        settled = halving == 0 and cost - cost_moved <= GAUSS_NEWTON_TOLERANCE * cost
         x, r, cost = moved, r_moved, cost_moved
         if settled:
             return x, r, J
