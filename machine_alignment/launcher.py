@@ -63,16 +63,21 @@ def stage_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
     ]
 
 
-def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs') -> list[NodeSpec]:
-    """The hexapod cell: simulated hexapod, pose sensor (CMM / laser tracker), calibrator."""
+def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
+                  description: str = '') -> list[NodeSpec]:
+    """The hexapod cell: simulated hexapod, pose sensor (CMM / laser tracker), calibrator.
+    ``description``: a machine description YAML that all three take (the simulated
+    hexapod and sensor are then the described ones, the calibrator plans in its workspace
+    and gates by its instrument)."""
+    described = {'description': description} if description else {}
     return [
-        NodeSpec('hexapod_calib.nodes.hexapod_sim'),
-        NodeSpec('hexapod_calib.nodes.pose_sensor_sim'),
+        NodeSpec('hexapod_calib.nodes.hexapod_sim', dict(described)),
+        NodeSpec('hexapod_calib.nodes.pose_sensor_sim', dict(described)),
         # The engineer knows the payload the simulated hexapod carries.
         NodeSpec('hexapod_calib.nodes.hexapod_calibrator',
                  {'output_dir': output_dir, 'record_dir': record_dir,
                   'payload_mass': HexapodTruth.payload_mass,
-                  'payload_centre': list(HexapodTruth.payload_centre)}),
+                  'payload_centre': list(HexapodTruth.payload_centre), **described}),
     ]
 
 
@@ -101,14 +106,19 @@ def grid_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
 
 
 def platform_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
-                   screw: float = 0.0, backlash: float = 0.0) -> list[NodeSpec]:
+                   screw: float = 0.0, backlash: float = 0.0,
+                   description: str = '') -> list[NodeSpec]:
     """The screen-registration platform: the platform with its mark cameras, the laser
-    tracker and the calibrator (identification and registration)."""
+    tracker and the calibrator (identification and registration). ``description``: a
+    machine description YAML that all three take (the simulated platform and tracker are
+    then the described ones, the calibrator plans in its box and gates by its noise)."""
+    described = {'description': description} if description else {}
     return [
-        NodeSpec('platform_calib.nodes.platform_sim', {'screw': screw, 'backlash': backlash}),
-        NodeSpec('platform_calib.nodes.laser_tracker_sim'),
+        NodeSpec('platform_calib.nodes.platform_sim',
+                 {'screw': screw, 'backlash': backlash, **described}),
+        NodeSpec('platform_calib.nodes.laser_tracker_sim', dict(described)),
         NodeSpec('platform_calib.nodes.platform_calibrator',
-                 {'output_dir': output_dir, 'record_dir': record_dir}),
+                 {'output_dir': output_dir, 'record_dir': record_dir, **described}),
     ]
 
 

@@ -6,7 +6,7 @@ import sys
 import time
 from pathlib import Path
 
-from calib_core.errors import CalibrationError
+from calib_core.errors import CalibrationError, MachineAlignmentError
 from machine_alignment.demo import run_demo
 from machine_alignment.launcher import (
     Graph, describe_exit, five_axis_graph, grid_graph, hexapod_graph, platform_graph,
@@ -14,11 +14,25 @@ from machine_alignment.launcher import (
 
 
 def cmd_launch(args) -> int:
+    described = ('hexapod', 'platform')
+    if args.description and args.graph not in described:
+        raise MachineAlignmentError(f'--description is for the {" and ".join(described)} '
+                                    f'graphs; the {args.graph} graph has no description yet')
+    description = ''
+    if args.description:
+        # Read here first: a file the nodes would refuse is refused before any starts.
+        if args.graph == 'hexapod':
+            from hexapod_calib.core.description import read_description
+        else:
+            from platform_calib.core.description import read_description
+        read_description(args.description)
+        description = str(Path(args.description).resolve())
     spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir),
             'stage': lambda: stage_graph(args.output_dir, args.record_dir),
-            'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir),
+            'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir, description),
             'grid': lambda: grid_graph(args.output_dir, args.record_dir),
-            'platform': lambda: platform_graph(args.output_dir, args.record_dir),
+            'platform': lambda: platform_graph(args.output_dir, args.record_dir,
+                                               description=description),
             'five-axis': lambda: five_axis_graph(args.output_dir, args.record_dir)}[args.graph]()
     stop_on_sigterm()
     graph = Graph(spec)

@@ -219,6 +219,12 @@ class PlatformCalibratorNode(Node):
             check_identification(result, self.nominal, self.description)
             report = {**result.report(), 'evaluation': evaluation,
                       **({'plan': prediction} if prediction else {})}
+            if self.description:
+                report['description'] = {
+                    'file': self.description.source,
+                    'residual_limit_m': self.description.residual_limit(),
+                    'position_bound_m': self.description.position_bound(),
+                    'expected': self.description.expected_text()}
             geometry = result.geometry
             path, version, content = run.save('platform', {
                 'parameters': geometry.as_dict(), 'branch': [int(b) for b in geometry.branch],
