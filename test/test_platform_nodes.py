@@ -73,11 +73,14 @@ def test_one_call_identifies_and_the_calibration_beats_the_nominal(graph):
 def test_the_recorded_run_solves_again_offline(graph, tmp_path):
     _, _, out = graph
     bag = read_calibration(out / 'calibration', 'platform')['bag']
-    # Solved again from the same description the live graph ran with.
-    done = machine_align(DOMAIN, 'calibrate', 'platform', '--bag', bag, '--description',
-                         str(SHIPPED_DESCRIPTION), '--json', str(tmp_path / 'replay.json'))
+    # Solved again from the nominal the live run recorded (its description's), and the
+    # replay says which gate the live run had.
+    done = machine_align(DOMAIN, 'calibrate', 'platform', '--bag', bag, '--json',
+                         str(tmp_path / 'replay.json'))
     assert done.returncode == 0, done.stderr
     assert json.loads((tmp_path / 'replay.json').read_text())['max_difference_to_live'] < 1e-9
+    assert 'as recorded by the live run' in done.stdout
+    assert f'gated by the machine description {SHIPPED_DESCRIPTION}' in done.stdout
 
 
 def test_registration_exact_and_the_unconverged_swarm_refused(graph):

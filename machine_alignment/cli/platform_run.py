@@ -19,7 +19,7 @@ from platform_calib.core.compensation import (  # noqa: E402
     SCREEN, PSOSettings, compensate, composite_error)
 from platform_calib.core.description import likely_causes, read_description  # noqa: E402
 from platform_calib.core.geometry import (  # noqa: E402
-    nominal_geometry, read_geometry, write_geometry)
+    geometry_from_mapping, nominal_geometry, read_geometry, write_geometry)
 from platform_calib.core.identification import PoseData, check_identification, identify  # noqa: E402
 from platform_calib.core.kinematics import forward, inverse  # noqa: E402
 from platform_calib.core.procedure import data_of, evaluate  # noqa: E402
@@ -71,6 +71,16 @@ def cmd_calibrate_platform(args) -> int:
                                    'alignment_msgs/msg/PlatformMeasurement', stop_from_message,
                                    'platform measurements', RESULT_TOPIC)
         data = data_of([s for s in stops if s.phase == 'identify'])
+        live = (recorded or {}).get('nominal_geometry')
+        if live and not (description or args.geometry):
+            # Solved from the nominal the live run started from, as it was recorded.
+            nominal = geometry_from_mapping(live, f'{args.bag}: the recorded nominal')
+            print(f'  nominal geometry: as recorded by the live run in {args.bag}')
+        live_description = (recorded or {}).get('description')
+        if live_description and not description:
+            print(f'  the live run was gated by the machine description '
+                  f'{live_description["file"]}: pass --description to gate this one the same '
+                  f'way (here: the built-in gate)')
     else:
         data = description.read(args.data) if description else PoseData.from_csv(args.data)
     result = identify(data, nominal)

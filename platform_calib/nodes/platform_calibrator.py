@@ -217,8 +217,13 @@ class PlatformCalibratorNode(Node):
                 lambda stop: self._record(run, stop), self._progress)
             # else nothing is put in force
             check_identification(result, self.nominal, self.description)
+            # The nominal it started from, so the run's bag solves again without it.
+            nominal = self.nominal
             report = {**result.report(), 'evaluation': evaluation,
-                      **({'plan': prediction} if prediction else {})}
+                      **({'plan': prediction} if prediction else {}),
+                      'nominal_geometry': {'parameters': nominal.as_dict(),
+                                           'branch': [int(b) for b in nominal.branch],
+                                           'stroke_m': [float(v) for v in nominal.stroke]}}
             if self.description:
                 report['description'] = {
                     'file': self.description.source,
