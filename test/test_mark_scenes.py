@@ -66,3 +66,35 @@ def test_a_defocused_plate_on_a_light_table():
     ok, numbers = _within(errors, _bound(2.5))
     assert ok, numbers
 
+
+
+def _block_means(kind: str) -> np.ndarray:
+    import cv2
+    from calib_core.marks.config import TREND_BLOCK_PX
+    from calib_core.marks.trend import tile_means
+    frame, _ = dot_plate(kind, 0)
+    scaled = cv2.normalize(frame, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+    return tile_means(cv2.GaussianBlur(scaled, (5, 5), 1.0), TREND_BLOCK_PX)
+
+
+@pytest.mark.parametrize('kind, step', [('light_table', True), ('plain', False),
+                                        ('uneven', False), ('cable', False)])
+def test_a_plate_inside_a_surround_is_a_step_and_light_is_not(kind, step):
+    """The flattening is not fitted across a plate's edge (it warped the plate on a light
+    table and left its corners as blobs): a plate inside its surround is a step; uneven
+    light, a cable across the plate and a plate filling the view are not."""
+    from calib_core.marks.segmentation import _is_step
+    assert _is_step(_block_means(kind)) is step
+
+
+def test_a_shadow_edge_across_the_frame_is_no_plate_step():
+    """Half the frame in shadow (30 % of the light) splits the blocks in two classes as a
+    plate does, but both reach the frame's border: the surface still takes that step up,
+    or the shadowed half would be one region its dot does not stand out of."""
+    from calib_core.marks.segmentation import _is_step
+    means = np.full((30, 40), 200.0)
+    means[:, :20] = 60.0
+    assert not _is_step(means)
+    plate = np.full((30, 40), 230.0)          # a darker plate inside a light table
+    plate[6:24, 8:32] = 120.0
+    assert _is_step(plate)

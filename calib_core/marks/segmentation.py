@@ -9,7 +9,8 @@ import numpy as np
 
 from calib_core.marks.config import (
     MAX_GREY_LEVEL_SIGMAS, MIN_THRESHOLD_SIGMA, SCALING_OUTLIER_SHARE, SIZE_SLACK,
-    SMOOTHING_NOISE_GAIN, SURFACE_STEP_PX, TREND_BLOCK_PX, TREND_ITERATIONS)
+    SMOOTHING_NOISE_GAIN, STEP_MIN_SHARE, STEP_SEPARATION, SURFACE_STEP_PX, TREND_BLOCK_PX,
+    TREND_ITERATIONS)
 
 
 def estimate_noise(image: np.ndarray) -> float:
@@ -67,7 +68,9 @@ def _flatten(smoothed, tolerance):
     threshold. Frames whose block means vary less than ``tolerance`` from their median
     to their 10th percentile, or to their 90th, are returned unchanged: the Marks darken
     (brighten) one tail of the blocks, uneven light spreads both, and an even background
-    gains nothing from the fit (dense dots had it fitted in every frame: 0.3 ms).
+    gains nothing from the fit (dense dots had it fitted in every frame: 0.3 ms). Nor are
+    frames whose block means fall in two classes like a plate and its surround
+    (:func:`_is_step`): a quadratic fitted across that step warps the plate.
 
     The blocks are whole TREND_BLOCK_PX squares from the frame's top left corner; the
     last rows and columns of a frame whose sides are no multiples of it (under a block)
@@ -91,7 +94,7 @@ def _flatten(smoothed, tolerance):
     # more).
     tenths = [means.size // 10, means.size // 2, means.size - 1 - means.size // 10]
     low, middle, high = np.partition(means, tenths)[tenths]
-    if min(middle - low, high - middle) < tolerance:
+    if min(middle - low, high - middle) < tolerance or _is_step(means.reshape(rows, cols)):
         return smoothed
     coef = robust_quadratic(means.reshape(rows, cols), width, height, block_u, block_v,
                             TREND_ITERATIONS)
@@ -105,6 +108,38 @@ def _flatten(smoothed, tolerance):
     surface = cv2.resize(np.clip(coarse, 0, 255).astype(np.uint8),
                          (len(u) * step, len(v) * step), interpolation=cv2.INTER_LINEAR)
     return cv2.addWeighted(smoothed, 1.0, surface[:height, :width], -1.0, 128.0)
+
+
+def _is_step(means) -> bool:
+    """Whether block ``means`` ((rows, cols), uint8 levels) fall in two classes apart like
+    a plate and its surround (STEP_SEPARATION, STEP_MIN_SHARE, by Otsu's split of their
+    histogram), one of them clear of the frame's outer blocks: a plate inside the frame.
+    A shadow's edge across the whole frame leaves both classes at the border; there the
+    surface still takes the step up, or the half in shadow would be one region whose own
+    level its dots do not stand out of."""
+    flat = np.clip(np.asarray(means), 0, 255).astype(np.int64)
+    counts = np.bincount(flat.ravel(), minlength=256)
+    levels = np.arange(256, dtype=np.float64)
+    total = float(counts.sum())
+    share = np.cumsum(counts)[:-1] / total
+    mass = np.cumsum(counts * levels)[:-1] / total
+    mean = float(counts @ levels) / total
+    variance = float(counts @ (levels - mean) ** 2) / total
+    if variance <= 0:
+        return False
+    inside = (share > 0) & (share < 1)
+    # Between-class variance of each split, over the total: Otsu's criterion.
+    between = np.zeros_like(share)
+    between[inside] = (mean * share[inside] - mass[inside]) ** 2 / (
+        share[inside] * (1 - share[inside]))
+    best = int(np.argmax(between))
+    if not (between[best] / variance > STEP_SEPARATION
+            and min(share[best], 1 - share[best]) >= STEP_MIN_SHARE):
+        return False
+    low = flat <= best
+    ring = np.ones(low.shape, bool)
+    ring[1:-1, 1:-1] = False
+    return not low[ring].any() or low[ring].all()
 
 
 def segment(image, noise_scaled, config):
