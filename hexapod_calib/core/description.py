@@ -78,6 +78,13 @@ class HexapodDescription:
         radius = float(np.mean(np.linalg.norm(self.geometry.base_joints[:, :2], axis=1)))
         return max(MIN_PARAMETER_BOUND_M, PARAMETER_BOUND_SHARE * radius)
 
+    def gate_report(self) -> dict:
+        """What a calibration's report says of the gate this description set: the file,
+        the residual limit and expected residual and the parameter bound (m), in words too."""
+        return {'file': self.source, 'residual_limit_m': self.residual_limit(),
+                'parameter_bound_m': self.parameter_bound(),
+                'expected_leg_rms_m': self.expected_leg_rms(), 'expected': self.expected_text()}
+
     def expected_text(self) -> str:
         m = self.measurement
         return (f'{m.instrument.name} at {m.instrument.position_sigma_m * 1e3:.3g} mm and '

@@ -208,11 +208,7 @@ class HexapodCalibratorNode(Node):
                                  self.description)
             calibration.report['plan'] = prediction
             if self.description:
-                calibration.report['description'] = {
-                    'file': self.description.source,
-                    'residual_limit_m': self.description.residual_limit(),
-                    'parameter_bound_m': self.description.parameter_bound(),
-                    'expected': self.description.expected_text()}
+                calibration.report['description'] = self.description.gate_report()
             path, version, _ = run.save(CALIBRATION_NAME, {
                 **calibration.geometry.as_dict(), 'nominal': self.nominal.as_dict(),
                 'report': calibration.report})

@@ -107,10 +107,7 @@ def cmd_calibrate_hexapod(args) -> int:
         print(f'  {name:>12} changed {changes[name] * 1e6:+9.1f} um '
               f'(+- {report["std_devs"].get(name, 0.0) * 1e6:.1f} um)')
     if description:
-        report['description'] = {'file': description.source,
-                                 'residual_limit_m': description.residual_limit(),
-                                 'parameter_bound_m': description.parameter_bound(),
-                                 'expected_leg_rms_m': description.expected_leg_rms()}
+        report['description'] = description.gate_report()
         print(f'  machine description {description.source}: {description.expected_text()}')
         loose = undetermined_beyond(report, nominal, description.parameter_bound())
         report['description']['not_determined_beyond_bound'] = loose

@@ -86,10 +86,7 @@ def cmd_calibrate_platform(args) -> int:
     result = identify(data, nominal)
     report = result.report()
     if description:
-        report['description'] = {'file': description.source,
-                                 'residual_limit_m': description.residual_limit(),
-                                 'position_bound_m': description.position_bound(),
-                                 'expected_closure_rms_m': description.expected_closure_rms()}
+        report['description'] = description.gate_report()
         print(f'  machine description {description.source}: {description.expected_text()}')
     if args.bag:
         report['evaluation'] = evaluate(stops)

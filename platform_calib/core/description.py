@@ -88,6 +88,14 @@ class PlatformDescription:
     def position_bound(self) -> float:
         return max(MAX_POSITION_SHIFT_M, PARAMETER_BOUND_SHARE * self.size())
 
+    def gate_report(self) -> dict:
+        """What a calibration's report says of the gate this description set: the file,
+        the residual limit and expected residual and the position bound (m), in words too."""
+        return {'file': self.source, 'residual_limit_m': self.residual_limit(),
+                'position_bound_m': self.position_bound(),
+                'expected_closure_rms_m': self.expected_closure_rms(),
+                'expected': self.expected_text()}
+
     def expected_text(self) -> str:
         m = self.measurement
         return (f'{m.instrument.name} at {m.instrument.position_sigma_m * 1e6:.3g} um and '

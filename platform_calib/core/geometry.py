@@ -101,13 +101,20 @@ def nominal_geometry(side: float = 0.200, link: float = 0.060,
     return PlatformGeometry(base, alpha, np.full(3, link), joints, -np.ones(3))
 
 
+def geometry_mapping(geometry: PlatformGeometry) -> dict:
+    """``geometry`` as :func:`geometry_from_mapping` reads it: the 18 named parameters (SI),
+    the branches and the stroke (m)."""
+    return {'parameters': geometry.as_dict(), 'branch': [int(b) for b in geometry.branch],
+            'stroke_m': [float(v) for v in geometry.stroke]}
+
+
 def write_geometry(path, geometry: PlatformGeometry, extra: dict | None = None) -> None:
-    """A YAML file any tool can read: the 18 named parameters (SI), the branches, the
-    stroke, and ``extra`` (e.g. standard deviations, the report)."""
-    content = {'parameters': geometry.as_dict(), 'units': {n: UNITS[n.rstrip('123')]
-                                                          for n in parameter_names()},
-               'branch': [int(b) for b in geometry.branch],
-               'stroke_m': [float(v) for v in geometry.stroke], **(extra or {})}
+    """A YAML file any tool can read: the 18 named parameters (SI), their units, the
+    branches, the stroke, and ``extra`` (e.g. standard deviations, the report)."""
+    mapping = geometry_mapping(geometry)
+    content = {'parameters': mapping.pop('parameters'),
+               'units': {n: UNITS[n.rstrip('123')] for n in parameter_names()},
+               **mapping, **(extra or {})}
     write_atomic(path, yaml.safe_dump(content, sort_keys=False))
 
 

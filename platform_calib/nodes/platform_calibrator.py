@@ -60,7 +60,8 @@ from calib_core.nodes.temperature import TemperatureLog
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from platform_calib.core.compensation import METHODS, composite_error, mark_positions
 from platform_calib.core.description import read_description
-from platform_calib.core.geometry import calibrated_frames, nominal_geometry, read_geometry
+from platform_calib.core.geometry import (
+    calibrated_frames, geometry_mapping, nominal_geometry, read_geometry)
 from platform_calib.core.identification import check_identification
 from platform_calib.core.kinematics import inverse
 from platform_calib.core.loop_model import PlatformLoopModel
@@ -218,22 +219,14 @@ class PlatformCalibratorNode(Node):
             # else nothing is put in force
             check_identification(result, self.nominal, self.description)
             # The nominal it started from, so the run's bag solves again without it.
-            nominal = self.nominal
             report = {**result.report(), 'evaluation': evaluation,
                       **({'plan': prediction} if prediction else {}),
-                      'nominal_geometry': {'parameters': nominal.as_dict(),
-                                           'branch': [int(b) for b in nominal.branch],
-                                           'stroke_m': [float(v) for v in nominal.stroke]}}
+                      'nominal_geometry': geometry_mapping(self.nominal)}
             if self.description:
-                report['description'] = {
-                    'file': self.description.source,
-                    'residual_limit_m': self.description.residual_limit(),
-                    'position_bound_m': self.description.position_bound(),
-                    'expected': self.description.expected_text()}
+                report['description'] = self.description.gate_report()
             geometry = result.geometry
-            path, version, content = run.save('platform', {
-                'parameters': geometry.as_dict(), 'branch': [int(b) for b in geometry.branch],
-                'stroke_m': [float(v) for v in geometry.stroke], 'report': report})
+            path, version, content = run.save('platform', {**geometry_mapping(geometry),
+                                                           'report': report})
             message = platform_result_message(content, self._header(), str(path), version)
             run.record(RESULT_TOPIC, message, self.result_pub)
             self.temperatures.record(run)
