@@ -30,6 +30,8 @@ from calib_core.files import read_yaml
 
 # The unit an actuator reading is in -> m per unit; rev and count need m_per_unit.
 LENGTH_UNITS = {'m': 1.0, 'mm': 1e-3, 'um': 1e-6}
+# The unit a rotary axis's reading is in -> rad per unit (controllers read degrees).
+ANGLE_UNITS = {'rad': 1.0, 'deg': float(np.pi / 180)}
 SCALED_UNITS = ('rev', 'count')
 
 RESIDUAL_GATE_FACTOR = 5.0
@@ -39,7 +41,10 @@ the machine sits near 1 (effects the model lacks, such as a lead error, add a li
 fit of data in another unit or of another machine sits far above."""
 
 
-def _number(section: dict, key: str, where: str, default=None, positive: bool = False):
+def described_number(section: dict, key: str, where: str, default=None,
+                     positive: bool = False) -> float:
+    """``section[key]`` as a finite number >= 0 (> 0 if ``positive``); ``default`` where
+    the key is absent (None: it is required). Every error names ``where`` and the key."""
     if key not in section:
         if default is None:
             raise InvalidInputError(f'{where}: {key} is missing')
@@ -136,9 +141,9 @@ def read_measurement(content: dict, where: str, default_instrument: Instrument,
         raise InvalidInputError(f'{where}: instrument name must be text')
     measured_by = Instrument(
         name,
-        _number(instrument, 'position_sigma_m', f'{where}: instrument',
+        described_number(instrument, 'position_sigma_m', f'{where}: instrument',
                 default_instrument.position_sigma_m if not instrument else None, positive=True),
-        _number(instrument, 'angle_sigma_rad', f'{where}: instrument',
+        described_number(instrument, 'angle_sigma_rad', f'{where}: instrument',
                 default_instrument.angle_sigma_rad))
     unit = actuators.get('unit', 'm')
     if unit in LENGTH_UNITS:
@@ -146,15 +151,24 @@ def read_measurement(content: dict, where: str, default_instrument: Instrument,
             raise InvalidInputError(f'{where}: actuators in {unit} take no m_per_unit')
         per_unit = LENGTH_UNITS[unit]
     elif unit in SCALED_UNITS:
-        per_unit = _number(actuators, 'm_per_unit', f'{where}: actuators in {unit}',
+        per_unit = described_number(actuators, 'm_per_unit', f'{where}: actuators in {unit}',
                            positive=True)
     else:
         raise InvalidInputError(f'{where}: actuator unit {unit!r} is not one of '
                                 f'{", ".join(list(LENGTH_UNITS) + list(SCALED_UNITS))}')
-    read_by = Actuators(unit, per_unit, _number(actuators, 'sigma_m', f'{where}: actuators',
+    read_by = Actuators(unit, per_unit, described_number(actuators, 'sigma_m', f'{where}: actuators',
                                                 default_actuator_sigma_m))
-    repeatability = _number(content, 'repeatability_m', where, 0.0)
+    repeatability = described_number(content, 'repeatability_m', where, 0.0)
     return Measurement(measured_by, read_by, repeatability, declared)
+
+
+def unit_factor(section: dict, key: str, units: dict, where: str, default: str) -> tuple:
+    """The unit ``section[key]`` names (``default`` if absent) and its factor to SI from
+    ``units``, or a clear error listing the known ones."""
+    unit = section.get(key, default)
+    if not isinstance(unit, str) or unit not in units:
+        raise InvalidInputError(f'{where}: {key} {unit!r} is not one of {", ".join(units)}')
+    return unit, units[unit]
 
 
 def workspace_section(content: dict, where: str, keys: tuple) -> dict | None:

@@ -225,22 +225,32 @@ MAX_REPROJECTION_RMS_PX = 3.0
 MAX_AXIS_SCALE_ERROR = 0.05
 
 
-def check_calibration(model: DispenserModel, report: dict) -> None:
+def check_calibration(model: DispenserModel, report: dict, description=None,
+                      causes: str | None = None) -> None:
     """Refuse a calibration that cannot be the machine: reprojection RMS above
-    :data:`MAX_REPROJECTION_RMS_PX`, a linear-axis scale beyond
-    :data:`MAX_AXIS_SCALE_ERROR` (singular values of M's 3 x 3 part), a standard deviation
-    that is not finite. ``report`` is the refinement's :meth:`Refinement.report`.
+    :data:`MAX_REPROJECTION_RMS_PX` (with a ``description``,
+    :class:`dispenser_calib.core.description.FiveAxisDescription`, above its limit from the
+    declared noise), a linear-axis scale beyond :data:`MAX_AXIS_SCALE_ERROR` (singular
+    values of M's 3 x 3 part), a standard deviation that is not finite. ``report`` is the
+    refinement's :meth:`Refinement.report`; ``causes`` the likely causes of a residual
+    above the limit, most likely first.
 
     Raises
     ------
     CalibrationError
         Every failure named; nothing may be written."""
     gate = SanityGate('the five-axis calibration')
-    gate.residual(report['rms_reprojection_px'], MAX_REPROJECTION_RMS_PX, 'px',
-                  'dots detected to subpixel reproject within a few tenths of a pixel')
+    if description is None:
+        limit, expected = MAX_REPROJECTION_RMS_PX, ('dots detected to subpixel reproject '
+                                                    'within a few tenths of a pixel')
+    else:
+        limit, expected = description.residual_limit_px(), description.expected_text()
+    gate.residual(report['rms_reprojection_px'], limit, 'px', expected,
+                  *(() if causes is None else (causes,)))
+    units = ('axes read in m; 0.001 means mm' if description is None else
+             f'axes read in {description.linear_unit}; 1000x or 0.001 is another unit')
     for k, value in enumerate(np.linalg.svd(model.affine[:, :3], compute_uv=False)):
         gate.within(f'linear-axis scale {k + 1} (singular value of M)', value,
-                    1 - MAX_AXIS_SCALE_ERROR, 1 + MAX_AXIS_SCALE_ERROR, '',
-                    'axes read in m; 0.001 means mm')
+                    1 - MAX_AXIS_SCALE_ERROR, 1 + MAX_AXIS_SCALE_ERROR, '', units)
     gate.finite_std_devs(report['std_devs'])
     gate.enforce()

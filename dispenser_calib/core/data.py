@@ -63,17 +63,22 @@ def board_points(board=BOARD, pitch: float = PITCH) -> tuple[np.ndarray, np.ndar
     return np.column_stack([indices * pitch, np.zeros(len(indices))]), indices
 
 
-def write_observations(path, images: list[Image]) -> None:
+def write_observations(path, images: list[Image], pose_scale=None) -> None:
+    """``images`` as the observations CSV; with ``pose_scale`` (5,) (SI per reading unit of
+    x, y, z, a, c: a machine description's) the poses in the reading units."""
+    scale = np.ones(5) if pose_scale is None else np.asarray(pose_scale, dtype=float)
     lines = [','.join(COLUMNS)]
     for image in images:
-        pose = ','.join(f'{v:.12g}' for v in image.pose)
+        pose = ','.join(f'{v:.12g}' for v in image.pose / scale)
         lines += [f'{image.name},{pose},{i},{j},{u:.6f},{v:.6f}'
                   for (i, j), (u, v) in zip(image.indices, image.pixels)]
     write_atomic(path, '\n'.join(lines) + '\n')
 
 
-def read_observations(path) -> list[Image]:
-    """Images in the file's order.
+def read_observations(path, pose_scale=None) -> list[Image]:
+    """Images in the file's order, poses in m and rad: the file's times ``pose_scale`` (5,)
+    (SI per reading unit of x, y, z, a, c, a machine description's; default: the file is
+    in m and rad).
 
     Raises
     ------
@@ -99,6 +104,7 @@ def read_observations(path) -> list[Image]:
             raise InvalidInputError(f'{path}, line {number}: image {row["image"]!r} has dot '
                                     f'{index} twice (inconsistent correspondences)')
         entry['dots'][index] = pixel
-    check_poses([e['pose'] for e in by_image.values()], str(path))
-    return [Image(name, np.array(e['pose']), np.array(list(e['dots'])),
+    scale = np.ones(5) if pose_scale is None else np.asarray(pose_scale, dtype=float)
+    check_poses([np.array(e['pose']) * scale for e in by_image.values()], str(path))
+    return [Image(name, np.array(e['pose']) * scale, np.array(list(e['dots'])),
                   np.array(list(e['dots'].values()))) for name, e in by_image.items()]

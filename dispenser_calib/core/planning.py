@@ -36,7 +36,7 @@ from dispenser_calib.core.iso230 import iso230_7_report
 from dispenser_calib.core.model import (
     NAMES, DispenserModel, camera_points, chain_rotation, place, project_rows)
 from dispenser_calib.core.procedure import (
-    NEEDLE_TIP, PART_PATH, STROKES, WORKING_DISTANCE, check_stroke, evaluation_stops,
+    NEEDLE_TIP, PART_PATH, SHIPPED_WORKSPACE, Workspace, check_stroke, evaluation_stops,
     plan_stops)
 
 NOISE_PX = 0.1              # px, 1 sigma per coordinate of a detected dot
@@ -93,12 +93,13 @@ class FiveAxisPlan:
                         'lacks come on top'}
 
 
-def candidate_stops(model: DispenserModel, image_size,
-                    depth_of_field: float = DEPTH_OF_FIELD) -> tuple[np.ndarray, list]:
-    """Stops (M, 5) inside the strokes with at least :data:`MIN_IN_VIEW` of the board in
-    view through ``model``, seen at :data:`MAX_VIEW_DEG` or less, the linear ones within
-    ``depth_of_field`` (m) of focus; and the kind of each ('linear', 'a', 'c', 'both')."""
-    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+def candidate_stops(model: DispenserModel, image_size, depth_of_field: float = DEPTH_OF_FIELD,
+                    workspace: Workspace = SHIPPED_WORKSPACE) -> tuple[np.ndarray, list]:
+    """Stops (M, 5) inside the ``workspace``'s strokes, aimed at its working distance, with
+    at least :data:`MIN_IN_VIEW` of the board in view through ``model``, seen at
+    :data:`MAX_VIEW_DEG` or less, the linear ones within ``depth_of_field`` (m) of focus;
+    and the kind of each ('linear', 'a', 'c', 'both')."""
+    centre = np.array([0.0, 0.0, workspace.working_distance])
     aimed = place(model, np.zeros(3), 0.0, 0.0, centre)
     stops, kinds = [], []
     for dx in LINEAR_XY['x']:
@@ -113,7 +114,7 @@ def candidate_stops(model: DispenserModel, image_size,
         stops.append(place(model, np.zeros(3), np.deg2rad(a), np.deg2rad(c), centre))
         kinds.append(kind)
     stops = np.array(stops)
-    keep = (np.array([_inside_strokes(s) for s in stops])
+    keep = (np.array([workspace.inside(s) for s in stops])
             & (_in_view(model, stops, image_size).mean(axis=1) >= MIN_IN_VIEW)
             & (view_angle(model, stops) <= np.deg2rad(MAX_VIEW_DEG)))
     return stops[keep], [k for k, kept in zip(kinds, keep) if kept]
@@ -126,10 +127,6 @@ def view_angle(model: DispenserModel, stops: np.ndarray) -> np.ndarray:
     centre = camera_points(model, np.zeros(3), stops)[:, 0]                     # (M, 3)
     cosine = np.abs(np.einsum('mi,mi->m', normal, centre)) / np.linalg.norm(centre, axis=1)
     return np.arccos(np.clip(cosine, 0.0, 1.0))
-
-
-def _inside_strokes(pose: np.ndarray) -> bool:
-    return all(low <= v <= high for v, (low, high) in zip(pose, STROKES.values()))
 
 
 def _in_view(model: DispenserModel, stops: np.ndarray, image_size) -> np.ndarray:
@@ -258,14 +255,15 @@ class _Candidates:
 
 
 def _candidates(model: DispenserModel, image_size, criterion: str, noise_px: float, seed: int,
-                depth_of_field: float, needed: int) -> _Candidates:
+                depth_of_field: float, needed: int,
+                workspace: Workspace = SHIPPED_WORKSPACE) -> _Candidates:
     """The candidates of :func:`candidate_stops` and their rows; at least ``needed`` of them.
 
     Raises
     ------
     InvalidInputError
         Fewer candidates than ``needed``."""
-    stops, kinds = candidate_stops(model, image_size, depth_of_field)
+    stops, kinds = candidate_stops(model, image_size, depth_of_field, workspace)
     if needed > len(stops):
         raise InvalidInputError(f'{needed} stops asked from {len(stops)} candidates (inside '
                                 f'the strokes and with {MIN_IN_VIEW:.0%} of the board in a '
@@ -279,8 +277,10 @@ def _candidates(model: DispenserModel, image_size, criterion: str, noise_px: flo
 
 def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str = 'I',
                    noise_px: float = NOISE_PX, seed: int = 0,
-                   depth_of_field: float = DEPTH_OF_FIELD) -> FiveAxisPlan:
-    """``count`` stops chosen from :func:`candidate_stops` by ``criterion`` ('I': the part
+                   depth_of_field: float = DEPTH_OF_FIELD,
+                   workspace: Workspace = SHIPPED_WORKSPACE) -> FiveAxisPlan:
+    """``count`` stops chosen from :func:`candidate_stops` in ``workspace`` by
+    ``criterion`` ('I': the part
     points' error at the working poses; 'D': the information's determinant), the stepwise
     start's minimum reserved first; and their prediction.
 
@@ -296,7 +296,8 @@ def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str
     if count < least:
         raise InvalidInputError(f'{count} stops: the stepwise start needs at least {least} '
                                 '(4 linear, A and C each alone at two angles)')
-    c = _candidates(model, image_size, criterion, noise_px, seed, depth_of_field, count)
+    c = _candidates(model, image_size, criterion, noise_px, seed, depth_of_field, count,
+                    workspace)
     chosen: list[int] = []
     kinds = np.array(c.kinds)
     for kind, needed in RESERVED:
@@ -319,11 +320,12 @@ def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str
 
 
 def todays_prediction(model: DispenserModel, image_size, noise_px: float = NOISE_PX,
-                      seed: int = 0) -> dict:
-    """The prediction for today's stepwise plan (:func:`plan_stops`), to compare, with its
-    number of stops."""
-    stops = plan_stops(model, seed)
-    return {**predict(model, stops, image_size, noise_px, seed), 'stops': len(stops)}
+                      seed: int = 0, workspace: Workspace = SHIPPED_WORKSPACE) -> dict:
+    """The prediction for today's stepwise plan (:func:`plan_stops`) in ``workspace``, to
+    compare, with its stops (n, 5) m, rad."""
+    stops = plan_stops(model, seed, workspace)
+    return {**predict(model, stops, image_size, noise_px, seed), 'stops': len(stops),
+            'stops_m_rad': stops.tolist()}
 
 
 def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,

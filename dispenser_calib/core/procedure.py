@@ -5,6 +5,7 @@ code). The calibration is evaluated on held-out images at poses where A and C bo
 which the stepwise plan never visits."""
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Callable
 
 import cv2
@@ -32,6 +33,28 @@ STROKES = {'x': (-0.200, 0.200), 'y': (-0.150, 0.150), 'z': (-0.050, 0.050),
            'a': (-np.pi / 2, np.pi / 2), 'c': (-2 * np.pi, 2 * np.pi)}
 
 
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Where a dispenser works: each axis's stroke (name -> (low, high), m or rad) and the
+    camera's working distance (m, to the board's centre with the axes at zero); the
+    shipped simulated machine's by default, a machine description's for a user's."""
+
+    strokes: dict = field(default_factory=lambda: dict(STROKES))
+    working_distance: float = WORKING_DISTANCE
+
+    def check(self, pose: np.ndarray) -> None:
+        """:func:`check_stroke` against these strokes."""
+        check_stroke(pose, self.strokes)
+
+    def inside(self, pose: np.ndarray) -> bool:
+        return all(low <= v <= high for v, (low, high) in zip(pose, self.strokes.values()))
+
+
+SHIPPED_WORKSPACE = Workspace()
+
+
 def check_stroke(pose: np.ndarray, strokes: dict = STROKES) -> None:
     """Refuse a pose (5,) outside an axis's stroke (m, rad).
 
@@ -44,12 +67,14 @@ def check_stroke(pose: np.ndarray, strokes: dict = STROKES) -> None:
                               'nothing moved')
 
 
-def plan_stops(nominal: DispenserModel, seed: int = 0) -> np.ndarray:
+def plan_stops(nominal: DispenserModel, seed: int = 0,
+               workspace: Workspace = SHIPPED_WORKSPACE) -> np.ndarray:
     """The stepwise plan (n, 5): 12 linear stops (a = c = 0, not coplanar), A alone at
     -60, -30, 30, 60 degrees, C alone every 30 degrees; each aimed (nominal model) so the
-    board's centre is on the optical axis at the working distance, then moved a little."""
+    board's centre is on the optical axis at the ``workspace``'s working distance, then
+    moved a little."""
     rng = np.random.default_rng(seed + 50)
-    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+    centre = np.array([0.0, 0.0, workspace.working_distance])
     stops = []
     for _ in range(12):
         pose = place(nominal, np.zeros(3), 0.0, 0.0, centre)
@@ -98,11 +123,12 @@ def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
     return images
 
 
-def evaluation_stops(nominal: DispenserModel, count: int, seed: int = 0) -> np.ndarray:
+def evaluation_stops(nominal: DispenserModel, count: int, seed: int = 0,
+                     workspace: Workspace = SHIPPED_WORKSPACE) -> np.ndarray:
     """``count`` held-out stops (count, 5) with A and C both turned (a within +-45
-    degrees); none for 0."""
+    degrees), aimed at the ``workspace``'s working distance; none for 0."""
     rng = np.random.default_rng(seed + 70)
-    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+    centre = np.array([0.0, 0.0, workspace.working_distance])
     return np.array([place(nominal, np.zeros(3), rng.uniform(-0.8, 0.8), rng.uniform(0, 2 * np.pi),
                            centre) for _ in range(count)]).reshape(count, 5)
 
@@ -157,14 +183,19 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
     return finish(nominal, image_size, images, evaluation_images)
 
 
-def finish(nominal: DispenserModel, image_size, images: list, evaluation_images: list):
+def finish(nominal: DispenserModel, image_size, images: list, evaluation_images: list,
+           description=None):
     """Calibrate on ``images`` and evaluate on the held-out ``evaluation_images``: the
     reprojection RMS with the calibrated and with the nominal model (px), over the held-out
     images that are not bad themselves (RANSAC's rule: over 5 x the median image's RMS and
-    0.5 px; those are named)."""
+    0.5 px; those are named). The gate is ``description``'s
+    (:meth:`dispenser_calib.core.description.FiveAxisDescription.check`) where one is given."""
     _, result = calibrate(images, image_size)
     report = result.report(images)
-    check_calibration(result.model, report)
+    if description is None:
+        check_calibration(result.model, report)
+    else:
+        description.check(result.model, report, images)
     if evaluation_images:
         per_image = [np.sqrt(np.mean(e ** 2)) for e in reprojection(result.model, evaluation_images)]
         limit = max(0.5, 5 * float(np.median(per_image)))

@@ -12,19 +12,20 @@ from dispenser_calib.core.localisation import reached
 from dispenser_calib.core.model import (
     NAMES, DispenserModel, rodrigues, _camera_rows, chain_rotation, nominal_model, project, project_rows,
     rotation_vector_matrix)
-from dispenser_calib.core.procedure import WORKING_DISTANCE, check_stroke
+from dispenser_calib.core.procedure import SHIPPED_WORKSPACE, Workspace
 from dispenser_calib.core.target_poses import TargetPoses
 
 IMAGE_SIZE = (2448, 2048)
 
 
-def true_model(seed: int = 0) -> DispenserModel:
-    """The nominal machine with: intrinsics off by up to 1 % and a lens with k1 -0.08,
-    k2 0.15 and small tangential terms; the camera tilted by up to 3 degrees; the linear
-    axes out of square by 50-200 urad and off in scale by up to 100 ppm; the board placed
-    within 1 mm; each rotary axis tilted by 100-500 urad and its line off by 20-200 um."""
+def true_model(seed: int = 0, nominal: DispenserModel | None = None) -> DispenserModel:
+    """The ``nominal`` machine (default: the shipped one, :func:`nominal_model`) with:
+    intrinsics off by up to 1 % and a lens with k1 -0.08, k2 0.15 and small tangential
+    terms; the camera tilted by up to 3 degrees; the linear axes out of square by 50-200
+    urad and off in scale by up to 100 ppm; the board placed within 1 mm; each rotary axis
+    tilted by 100-500 urad and its line off by 20-200 um."""
     rng = np.random.default_rng(seed)
-    nominal = nominal_model()
+    nominal = nominal_model() if nominal is None else nominal
     v = dict(zip(NAMES, nominal.values))
 
     def signed(low, high):
@@ -51,36 +52,42 @@ def true_model(seed: int = 0) -> DispenserModel:
     columns = np.column_stack([-rotation @ directions[:, 0] * scale[0],
                                rotation @ directions[:, 1] * scale[1],
                                -rotation @ directions[:, 2] * scale[2],
-                               np.array([0, 0, WORKING_DISTANCE])
+                               nominal.affine[:, 3]
                                + rotation @ rng.uniform(-1e-3, 1e-3, 3) * [1, 1, 0.2]])
     return model.with_values(**{f'M{r}{c}': columns[r, c] for r in range(3) for c in range(4)})
 
 
 def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, seed: int = 0,
-            bad_fraction: float = 0.0, angular_error=None,
-            c_backlash: float = 0.0) -> tuple[list[Image], list[str]]:
+            bad_fraction: float = 0.0, angular_error=None, c_backlash: float = 0.0,
+            image_size=IMAGE_SIZE, workspace: Workspace = SHIPPED_WORKSPACE,
+            pose_sigma=None) -> tuple[list[Image], list[str]]:
     """The board imaged at each stop: the visible dots' ellipse centres (as a detector
     finds them) with ``noise_px`` of detection noise; a ``bad_fraction`` of the images has
     one dot mis-detected by 15-30 px and one occluded. ``angular_error`` (a function of c,
     rad) is what C turns beyond its reading (a worm gear's error); C lags its reading by
     ``c_backlash`` / 2 (rad) against the direction it last moved in (lost motion). Stops
-    outside the strokes are refused. Returns the images and the names of the bad ones
+    outside the ``workspace``'s strokes are refused; the camera has ``image_size`` (w, h)
+    px. ``pose_sigma`` (5,) (m, rad; a machine description's positioning noise and
+    repeatability) is how far each axis stops from its reading, 1 sigma. Returns the images and the names of the bad ones
     (truth)."""
     rng = np.random.default_rng(seed + 60)
     board, indices = board_points()
     images = []
     bad = set(rng.choice(len(stops), int(round(bad_fraction * len(stops))), replace=False))
     approach = directions_from_order(np.asarray(stops)[:, 4:5])[:, 0]
+    # Its own stream, so that a machine without positioning noise sees the same dots.
+    stopped = np.random.default_rng(seed + 61).normal(
+        0.0, 1.0, (len(stops), 5)) * (np.zeros(5) if pose_sigma is None else pose_sigma)
     for k, pose in enumerate(stops):
-        check_stroke(pose)
-        turned = pose.copy()
+        workspace.check(pose)
+        turned = pose + stopped[k]
         if angular_error is not None:
             turned[4] += angular_error(pose[4])
         turned[4] -= 0.5 * c_backlash * approach[k]
         pixels = project(truth, board, turned[None], DOT_RADIUS)[0]
         inside = (np.all(np.isfinite(pixels), axis=1) & (pixels[:, 0] >= 0)
-                  & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] >= 0)
-                  & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
+                  & (pixels[:, 0] <= image_size[0] - 1) & (pixels[:, 1] >= 0)
+                  & (pixels[:, 1] <= image_size[1] - 1))
         pixels = pixels + rng.normal(0, noise_px, pixels.shape)
         if k in bad:
             wrong = rng.choice(np.flatnonzero(inside), 2, replace=False)

@@ -12,7 +12,11 @@ def add_simulate_parser(simulated) -> None:
                                                'dispenser (observations CSV)')
     p.add_argument('--out', required=True)
     p.add_argument('--seed', type=ranged(int, 0), default=0)
-    p.add_argument('--noise', type=ranged(float, 0.0, 50.0, 'px'), default=0.1, help='dot-centre noise, px')
+    p.add_argument('--description', help='machine description YAML (kind: five_axis): its '
+                                         'camera, working distance, strokes and dot noise; '
+                                         'poses written in its actuators\' units')
+    p.add_argument('--noise', type=ranged(float, 0.0, 50.0, 'px'),
+                   help='dot-centre noise, px (default: the description\'s, else 0.1)')
     p.add_argument('--bad-fraction', type=ranged(float, 0.0, 0.5, '', 'RANSAC needs most images good'), default=0.05,
                    help='images with a mis-detected dot')
     p.add_argument('--plan', help='CSV of the stops to image (machine-align plan five-axis; '
@@ -36,7 +40,12 @@ def add_calibrate_parser(what) -> None:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument('--data', help='CSV: image, x, y, z (m), a, c (rad), i, j, u, v (px)')
     source.add_argument('--bag', help='a run recorded by five_axis_calibrator')
-    p.add_argument('--image-size', help='WxH px (default 2448x2048)')
+    sized = p.add_mutually_exclusive_group()
+    sized.add_argument('--image-size', help='WxH px (default 2448x2048)')
+    sized.add_argument('--description',
+                       help='machine description YAML (kind: five_axis): the camera, the '
+                            'units the --data poses are in, and the gate from the declared '
+                            'dot noise (docs/machine_description.md)')
     p.add_argument('--out', help='calibration YAML to write')
     p.add_argument('--json', help='report to write; the plot goes beside it')
     p.set_defaults(func=deferred('five_axis_run', 'cmd_calibrate'))

@@ -18,6 +18,7 @@ from dispenser_calib.core.calibration import calibrate, check_calibration, repro
 from dispenser_calib.core.records import (  # noqa: E402
     OBSERVATIONS_TOPIC, RESULT_TOPIC, image_from_message)
 from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
+from dispenser_calib.core.description import read_description  # noqa: E402
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E402
 from dispenser_calib.core.localisation import (  # noqa: E402
     fit_part_pose, locate, place_path, reached)
@@ -27,8 +28,8 @@ from dispenser_calib.core.part_files import (  # noqa: E402
     read_path_poses, read_plan, read_points, read_views, write_path_poses, write_points,
     write_views)
 from dispenser_calib.core.procedure import (  # noqa: E402
-    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, check_stroke, finish,
-    plan_stops, rotary_sweep, tip_from_dots, view_plan)
+    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, SHIPPED_WORKSPACE, TEST_SPOTS, check_stroke,
+    finish, plan_stops, rotary_sweep, tip_from_dots, view_plan)
 from dispenser_calib.sim.machine import (  # noqa: E402
     IMAGE_SIZE, PART_POSE, TRUE_TIP_OFFSET, observe, placed_part,
     points_in_view, true_model)
@@ -37,36 +38,52 @@ from machine_alignment.cli.common import (  # noqa: E402
 
 
 def cmd_simulate(args) -> int:
-    truth = true_model(args.seed)
+    described = read_description(args.description) if args.description else None
+    if described and (args.features or args.needle):
+        raise InvalidInputError('--features and --needle simulate the shipped machine\'s part '
+                                'and needle: give them without --description')
+    nominal = described.nominal() if described else nominal_model()
+    workspace = described.workspace() if described else SHIPPED_WORKSPACE
+    size = described.image_size if described else IMAGE_SIZE
+    noise = args.noise if args.noise is not None else (
+        described.centroid_sigma_px if described else 0.1)
+    truth = true_model(args.seed, nominal)
     if args.plan and args.sweep:
         raise InvalidInputError('--plan and --sweep are two different runs: give one')
     if args.plan:
         stops = read_plan(args.plan)[1]
         for pose in stops:
-            check_stroke(pose)
+            workspace.check(pose)
     else:
-        stops = rotary_sweep() if args.sweep else plan_stops(nominal_model(), args.seed)
+        stops = rotary_sweep() if args.sweep else plan_stops(nominal, args.seed, workspace)
     worm = None
     if args.worm:
         amplitude, order = args.worm
         worm = lambda c: amplitude * np.cos(order * c)  # noqa: E731
-    images, bad = observe(truth, stops, args.noise, args.seed, args.bad_fraction, worm)
-    write_observations(args.out, images)
+    images, bad = observe(truth, stops, noise, args.seed, args.bad_fraction, worm,
+                          image_size=size, workspace=workspace,
+                          pose_sigma=described.pose_sigma() if described else None)
+    if described:
+        described.write(args.out, images)
+    else:
+        write_observations(args.out, images)
+    units = (f'poses in {described.linear_unit} and {described.rotary_unit}' if described
+             else 'poses in m and rad')
     print(f'wrote {args.out} ({len(images)} images of an 11 x 9 dot board, 2 mm pitch, '
-          f'{IMAGE_SIZE[0]}x{IMAGE_SIZE[1]} px; {len(bad)} with a mis-detected dot: '
-          f'{", ".join(bad) or "none"})')
+          f'{size[0]}x{size[1]} px, dots to {noise:g} px; {units}; {len(bad)} with a '
+          f'mis-detected dot: {", ".join(bad) or "none"})')
     if args.truth:
         write_model(args.truth, truth, {'part_pose': PART_POSE.tolist()})
         print(f'wrote {args.truth} (the simulation\'s true model and the part\'s pose: x, y, '
               'z m, rotation vector rad)')
     if args.features:
-        _simulate_features(args, truth)
+        _simulate_features(args, truth, noise)
     if args.needle:
-        _simulate_needle(args, truth)
+        _simulate_needle(args, truth, noise)
     return 0
 
 
-def _simulate_needle(args, truth) -> None:
+def _simulate_needle(args, truth, noise_px: float) -> None:
     """What ``needle`` reads: a test dot dispensed at each of TEST_SPOTS (aimed with the
     nominal model and the configured tip; the true tip is TRUE_TIP_OFFSET from it), then
     each dot imaged from FEATURE_VIEWS through the true chain."""
@@ -76,7 +93,7 @@ def _simulate_needle(args, truth) -> None:
         check_stroke(pose)
     dots = reached(truth, NEEDLE_TIP + TRUE_TIP_OFFSET, dispensing)
     names = [f'd{k}' for k in range(len(TEST_SPOTS))]
-    views = _imaged_views(truth, TEST_SPOTS, dots, names, args.noise,
+    views = _imaged_views(truth, TEST_SPOTS, dots, names, noise_px,
                           np.random.default_rng(args.seed + 91))
     write_views(args.needle, *views)
     stem = Path(args.needle)
@@ -86,12 +103,12 @@ def _simulate_needle(args, truth) -> None:
           f'dots) and {dispensed} (the poses they were dispensed at)')
 
 
-def _simulate_features(args, truth) -> None:
+def _simulate_features(args, truth, noise_px: float) -> None:
     """The views ``locate`` reads: the simulated part (the node's default CAD, placed at
     PART_POSE) imaged through the true chain from FEATURE_VIEWS, each aimed with the
     nominal model; its CAD and dispensing path beside them."""
     names = [f'f{k}' for k in range(len(PART_CAD))]
-    views = _imaged_views(truth, PART_CAD, placed_part(PART_CAD), names, args.noise,
+    views = _imaged_views(truth, PART_CAD, placed_part(PART_CAD), names, noise_px,
                           np.random.default_rng(args.seed + 90))
     write_views(args.features, *views)
     stem = Path(args.features)
@@ -119,7 +136,7 @@ def _imaged_views(truth, aimed_at, points, names, noise_px: float, rng) -> tuple
     return [v[0] for v in views], np.array([v[1] for v in views]), np.array([v[2] for v in views])
 
 
-def _plot(path: Path, images, result) -> None:
+def _plot(path: Path, images, result, image_size) -> None:
     """Reprojection per image, convergence per iteration, residual vectors of all dots
     (one scale, a key), and the rotary axes' orientation errors (ISO 230-7 names)."""
     errors = reprojection(result.model, images)
@@ -140,8 +157,8 @@ def _plot(path: Path, images, result) -> None:
     arrows = axes[1, 0].quiver(uv[:, 0], uv[:, 1], r[:, 0], r[:, 1], angles='xy',
                                scale_units='xy', scale=longest / 60.0, width=0.002)
     arrow_key(axes[1, 0], arrows, longest / 2, 'px')
-    axes[1, 0].set_xlim(0, IMAGE_SIZE[0])
-    axes[1, 0].set_ylim(IMAGE_SIZE[1], 0)
+    axes[1, 0].set_xlim(0, image_size[0])
+    axes[1, 0].set_ylim(image_size[1], 0)
     axes[1, 0].set_xlabel('u (px)')
     axes[1, 0].set_ylabel('v (px)')
     axes[1, 0].set_title(f'residuals of the images used (longest {longest:.3g} px)', loc='left',
@@ -159,20 +176,31 @@ def _plot(path: Path, images, result) -> None:
 
 
 def cmd_calibrate(args) -> int:
-    size = parse_size(args.image_size) if args.image_size else IMAGE_SIZE
+    described = read_description(args.description) if args.description else None
+    size = (described.image_size if described else
+            parse_size(args.image_size) if args.image_size else IMAGE_SIZE)
     recorded = None
     if args.bag:
+        # The graph carries poses in m and rad: a description gives the camera and the gate.
         stops, recorded = read_run(args.bag, OBSERVATIONS_TOPIC,
                                    'alignment_msgs/msg/FiveAxisObservation', image_from_message,
                                    'five-axis observations', RESULT_TOPIC)
         images = [im for im, phase in stops if phase == 'calibrate']
-        result, report, _ = finish(nominal_model(size=size), size, images,
-                                   [im for im, phase in stops if phase == 'evaluate'])
+        result, report, _ = finish(described.nominal() if described else nominal_model(size=size),
+                                   size, images,
+                                   [im for im, phase in stops if phase == 'evaluate'], described)
     else:
-        images = read_observations(args.data)
+        images = described.read(args.data) if described else read_observations(args.data)
         _, result = calibrate(images, size)
         report = result.report(images)
-        check_calibration(result.model, report)
+        if described:
+            described.check(result.model, report, images)
+        else:
+            check_calibration(result.model, report)
+    if described:
+        report['description'] = described.gate_report()
+        print(f'  machine description {described.source}: {described.expected_text()}; poses '
+              f'read in {described.linear_unit} and {described.rotary_unit}')
     print(f'{len(images)} images, {report["images_used"]} used; mean reprojection '
           f'{report["mean_reprojection_px"]:.3f} px (RMS {report["rms_reprojection_px"]:.3f} '
           f'px); the refinement took it from {result.history[0]:.3g} px (the stepwise start) '
@@ -202,7 +230,7 @@ def cmd_calibrate(args) -> int:
     if args.out:
         write_model(args.out, result.model, {'std_devs': report['std_devs']})
         print(f'wrote {args.out}')
-    write_report(args.json, report, lambda png: _plot(png, images, result))
+    write_report(args.json, report, lambda png: _plot(png, images, result, size))
     return 0
 
 

@@ -79,12 +79,17 @@ def _add_five_axis(what) -> None:
                                 '4 linear and 2 for each rotary axis alone)')
     five_axis.add_argument('--calibration', help='five-axis calibration YAML to plan about '
                                                  '(default: the nominal model)')
-    five_axis.add_argument('--image-size', help='WxH px (default 2448x2048)')
+    sized = five_axis.add_mutually_exclusive_group()
+    sized.add_argument('--image-size', help='WxH px (default 2448x2048)')
+    sized.add_argument('--description', help='machine description YAML (kind: five_axis): '
+                                             'its camera, working distance, strokes and dot '
+                                             'noise')
     five_axis.add_argument('--criterion', choices=('I', 'D'), default='I',
                            help='I: least predicted placement error of the part at the '
                                 'working poses (default); D: largest determinant')
-    five_axis.add_argument('--noise-px', type=ranged(float, 1e-4, 10.0, 'px'), default=0.1,
-                           help='dot detection noise, px (1 sigma per coordinate)')
+    five_axis.add_argument('--noise-px', type=ranged(float, 1e-4, 10.0, 'px'),
+                           help='dot detection noise, px (1 sigma per coordinate; default: '
+                                'the description\'s, else 0.1)')
     five_axis.add_argument('--depth-of-field', type=ranged(float, 0.0, 0.05, 'm'),
                            default=DEPTH_OF_FIELD,
                            help='how far Z may take the board from focus either way, m '

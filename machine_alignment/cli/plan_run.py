@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
+from dispenser_calib.core.description import read_description as read_five_axis_description
 from dispenser_calib.core.model import nominal_model as dispenser_nominal
 from dispenser_calib.core.model import read_model as read_dispenser_model
 from dispenser_calib.core.part_files import write_plan
+from dispenser_calib.core.procedure import SHIPPED_WORKSPACE
 from dispenser_calib.core.planning import (
     MAX_VIEW_DEG, plan_five_axis, todays_prediction)
 from hexapod_calib.core.geometry import POSE_NAMES, nominal_geometry as hexapod_nominal
@@ -134,12 +136,17 @@ def cmd_plan_hexapod(args) -> int:
 
 def cmd_plan_five_axis(args) -> int:
     check_writable(args.out, '--out')
-    size = parse_size(args.image_size) if args.image_size else (2448, 2048)
+    described = read_five_axis_description(args.description) if args.description else None
+    size = (described.image_size if described else
+            parse_size(args.image_size) if args.image_size else (2448, 2048))
     model = (read_dispenser_model(args.calibration) if args.calibration
-             else dispenser_nominal(size=size))
-    plan = plan_five_axis(model, args.stops, size, args.criterion, args.noise_px, args.seed,
-                          args.depth_of_field)
-    today = todays_prediction(model, size, args.noise_px, args.seed)
+             else described.nominal() if described else dispenser_nominal(size=size))
+    workspace = described.workspace() if described else SHIPPED_WORKSPACE
+    noise_px = args.noise_px if args.noise_px is not None else (
+        described.centroid_sigma_px if described else 0.1)
+    plan = plan_five_axis(model, args.stops, size, args.criterion, noise_px, args.seed,
+                          args.depth_of_field, workspace)
+    today = todays_prediction(model, size, noise_px, args.seed, workspace)
     report = plan.report()
     print(f'{args.stops} stops chosen ({"test-pose (I)" if args.criterion == "I" else "D"}-'
           f'optimal) from {plan.candidates} candidates inside the strokes with the board in '
@@ -147,7 +154,7 @@ def cmd_plan_five_axis(args) -> int:
           f'+-{args.depth_of_field * 1e3:g} mm of focus: '
           + ', '.join(f'{n} {kind}' for kind, n in report['kinds'].items())
           + ' (linear; A alone; C alone; A and C both turned)')
-    print(f'predicted before anything moves (dots to {args.noise_px:g} px, first order), '
+    print(f'predicted before anything moves (dots to {noise_px:g} px, first order), '
           f'against today\'s {today["stops"]}-stop stepwise plan:')
     for label, ours, theirs, unit, factor in (
             ('part placement at the working poses, RMS', plan.working_error_m['rms'],
@@ -168,7 +175,9 @@ def cmd_plan_five_axis(args) -> int:
           'measures it)')
     today_report = {k: v for k, v in today.items() if k != 'covariance'}
     write_json(args.json, {**report, 'stops_m_rad': plan.stops.tolist(), 'names': names,
-                           'todays_plan': today_report})
+                           'todays_plan': today_report, 'strokes': workspace.strokes,
+                           'working_distance_m': workspace.working_distance,
+                           'description': described.source if described else None})
     return 0
 
 
