@@ -153,11 +153,16 @@ class Refinement:
 
 
 def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50,
-           dot_radius: float = DOT_RADIUS) -> Refinement:
+           dot_radius: float = DOT_RADIUS, pose_sigma=None) -> Refinement:
     """All parameters together by least squares on the reprojection error (trust-region
     reflective), from ``start``; the mean reprojection recorded per iteration. Each dot is
     projected as the centre of its circle's image (``dot_radius``, m; 0: the image of its
-    centre, which a dot detector does not find under perspective)."""
+    centre, which a dot detector does not find under perspective).
+
+    The covariance takes the dots' noise from the residual and, given ``pose_sigma`` (5,)
+    (m, rad, 1 sigma: how far each axis stops from its reading, a machine description's),
+    that noise too: it moves every dot of an image together, so unlike the dots' own noise
+    it does not average out over an image's dots (:func:`_pose_noise_information`)."""
     points = np.concatenate([_board_of(im) for im in images])
     poses = np.concatenate([np.repeat(im.pose[None], len(im.indices), 0) for im in images])
     observed = np.concatenate([im.pixels for im in images])
@@ -183,16 +188,43 @@ def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50,
     variance = float(solution.fun @ solution.fun) / dof
     # In the scaled variables the normal matrix is well conditioned; scale back after.
     jacobian = solution.jac
-    covariance = np.linalg.inv(jacobian.T @ jacobian) * variance * np.outer(scale, scale)
-    return Refinement(model, covariance, history, [im.name for im in images])
+    inverse = np.linalg.inv(jacobian.T @ jacobian)
+    covariance = inverse * variance
+    if pose_sigma is not None and np.any(np.asarray(pose_sigma) > 0):
+        counts = [2 * len(im.indices) for im in images]
+        meat = _pose_noise_information(model, points, poses, dot_radius, jacobian, counts,
+                                       np.asarray(pose_sigma, dtype=float))
+        covariance = covariance + inverse @ meat @ inverse
+    return Refinement(model, covariance * np.outer(scale, scale), history,
+                      [im.name for im in images])
+
+
+def _pose_noise_information(model: DispenserModel, points, poses, dot_radius, jacobian,
+                            counts: list, pose_sigma: np.ndarray) -> np.ndarray:
+    """J^T N J (p, p) of the axes' stopping noise ``pose_sigma`` (5,) m, rad: within an
+    image of ``counts`` rows its residuals move together as D S D^T, D (rows, 5) the
+    pixels' derivatives by the image's pose (central differences) and S the noise's
+    variances; none between images. ``jacobian`` (rows, p) in the fit's variables."""
+    step = 1e-6
+    along = np.column_stack([
+        (project_rows(model, points, poses + step * e, dot_radius)
+         - project_rows(model, points, poses - step * e, dot_radius)).ravel() / (2 * step)
+        for e in np.eye(5)])
+    meat = np.zeros((jacobian.shape[1],) * 2)
+    for rows in np.split(np.arange(len(jacobian)), np.cumsum(counts)[:-1]):
+        moved = along[rows].T @ jacobian[rows]                        # (5, p)
+        meat += moved.T @ (pose_sigma[:, None] ** 2 * moved)
+    return meat
 
 
 def calibrate(images: list[Image], image_size, threshold_px: float | None = None,
-              trials: int = 8, seed: int = 0) -> tuple[DispenserModel, Refinement]:
+              trials: int = 8, seed: int = 0,
+              pose_sigma=None) -> tuple[DispenserModel, Refinement]:
     """Stepwise start, then RANSAC over the images: refine on random subsets of 60 % of
     them, count as inliers the images whose RMS reprojection is below the threshold
     (default: 5 x the median image's, at least 0.5 px), keep the largest consensus and
-    refine on it. Returns the stepwise model and the refinement."""
+    refine on it (its covariance with the axes' ``pose_sigma``, :func:`refine`). Returns
+    the stepwise model and the refinement."""
     start = stepwise(images, image_size)
     rng = np.random.default_rng(seed)
     best = None
@@ -208,7 +240,7 @@ def calibrate(images: list[Image], image_size, threshold_px: float | None = None
         if len(inliers) == len(images):
             break
     inliers, _, errors, limit = best
-    result = refine(start, [images[k] for k in inliers])
+    result = refine(start, [images[k] for k in inliers], pose_sigma=pose_sigma)
     final = np.array([np.sqrt(np.mean(e ** 2)) for e in reprojection(result.model, images)])
     result.outliers = {images[k].name: float(final[k]) for k in range(len(images))
                        if k not in set(inliers)}

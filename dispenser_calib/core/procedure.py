@@ -189,8 +189,10 @@ def finish(nominal: DispenserModel, image_size, images: list, evaluation_images:
     reprojection RMS with the calibrated and with the nominal model (px), over the held-out
     images that are not bad themselves (RANSAC's rule: over 5 x the median image's RMS and
     0.5 px; those are named). The gate is ``description``'s
-    (:meth:`dispenser_calib.core.description.FiveAxisDescription.check`) where one is given."""
-    _, result = calibrate(images, image_size)
+    (:meth:`dispenser_calib.core.description.FiveAxisDescription.check`) where one is given,
+    and the covariance then holds its axes' stopping noise."""
+    _, result = calibrate(images, image_size, pose_sigma=None if description is None
+                          else description.pose_sigma())
     report = result.report(images)
     if description is None:
         check_calibration(result.model, report)

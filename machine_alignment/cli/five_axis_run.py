@@ -191,7 +191,8 @@ def cmd_calibrate(args) -> int:
                                    [im for im, phase in stops if phase == 'evaluate'], described)
     else:
         images = described.read(args.data) if described else read_observations(args.data)
-        _, result = calibrate(images, size)
+        _, result = calibrate(images, size,
+                              pose_sigma=described.pose_sigma() if described else None)
         report = result.report(images)
         if described:
             described.check(result.model, report, images)
