@@ -123,13 +123,17 @@ def platform_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
 
 
 def five_axis_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
-                    bad_fraction: float = 0.05) -> list[NodeSpec]:
+                    bad_fraction: float = 0.05, description: str = '') -> list[NodeSpec]:
     """The five-axis dispenser: the machine with its camera over the dot board, and the
-    calibrator."""
+    calibrator. ``description``: a machine description YAML that both take (the simulated
+    dispenser is then the described one, the calibrator plans in its strokes and gates by
+    its dot noise)."""
+    described = {'description': description} if description else {}
     return [
-        NodeSpec('dispenser_calib.nodes.five_axis_sim', {'bad_fraction': bad_fraction}),
+        NodeSpec('dispenser_calib.nodes.five_axis_sim',
+                 {'bad_fraction': bad_fraction, **described}),
         NodeSpec('dispenser_calib.nodes.five_axis_calibrator',
-                 {'output_dir': output_dir, 'record_dir': record_dir}),
+                 {'output_dir': output_dir, 'record_dir': record_dir, **described}),
     ]
 
 

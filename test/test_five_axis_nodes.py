@@ -4,6 +4,7 @@ RANSAC and evaluates on held-out poses; the recorded run solves again offline to
 parameters; a plan outside the strokes is refused before anything moves."""
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,10 +20,18 @@ from foxglove import assert_runs_decode  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
 
 
+# The graph runs as a user's described machine does (issue 50), with the shipped
+# dispenser's description, which describes the built-in simulator: the same machine, its
+# gate from the declared 0.1 px dots.
+SHIPPED_DESCRIPTION = (Path(__file__).resolve().parents[1] / 'dispenser_calib' / 'descriptions'
+                       / 'five_axis_shipped_simulator.yaml')
+
+
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
     out = tmp_path_factory.mktemp('five_axis_graph')
-    with running(five_axis_graph(str(out / 'calibration'), str(out / 'runs'), 0.1), DOMAIN, out,
+    with running(five_axis_graph(str(out / 'calibration'), str(out / 'runs'), 0.1,
+                                 description=str(SHIPPED_DESCRIPTION)), DOMAIN, out,
                  'five_axis_test_client') as (graph, node):
         yield graph, node, out
 
@@ -39,6 +48,10 @@ def test_one_call_calibrates_and_evaluates_on_held_out_poses(graph):
     assert report['held_out']['rms_px_calibrated'] < 0.3 < report['held_out']['rms_px_nominal']
     assert len(response.result.names) == 31
     assert 'parameters' in read_calibration(out / 'calibration', 'five_axis')
+    # Gated by the description: reprojection within 5x the declared 0.1 px.
+    assert report['description']['file'] == str(SHIPPED_DESCRIPTION)
+    assert report['description']['residual_limit_px'] == pytest.approx(0.5)
+    assert report['image_size_px'] == [2448, 2048]
 
 
 def test_the_recorded_run_solves_again_offline(graph, tmp_path):
@@ -48,6 +61,7 @@ def test_the_recorded_run_solves_again_offline(graph, tmp_path):
                          str(tmp_path / 'replay.json'))
     assert done.returncode == 0, done.stderr
     replay = json.loads((tmp_path / 'replay.json').read_text())
+    assert f'gated by the machine description {SHIPPED_DESCRIPTION}' in done.stdout
     # Measured 0.0002-0.0016 sigma over runs: the refinement stops at its tolerances, and
     # floating point in another process (OpenCV's threads) crosses them a little apart.
     assert replay['max_difference_to_live_sigma'] < 0.01, replay['max_difference_to_live_sigma']

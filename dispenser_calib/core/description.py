@@ -41,7 +41,7 @@ from calib_core.description import (
 from calib_core.errors import InvalidInputError
 from dispenser_calib.core.calibration import check_calibration
 from dispenser_calib.core.data import Image, board_points, read_observations, write_observations
-from dispenser_calib.core.model import DispenserModel, nominal_model
+from dispenser_calib.core.model import DispenserModel, nominal_frames, nominal_model
 from dispenser_calib.core.procedure import STROKES, WORKING_DISTANCE, Workspace
 
 GEOMETRY_KEYS = ('focal_px', 'image_size_px', 'working_distance_m', 'a_height_m')
@@ -83,6 +83,11 @@ class FiveAxisDescription:
         """The described machine without errors (:func:`nominal_model`)."""
         return nominal_model(self.focal_px, self.image_size, self.working_distance_m,
                              self.a_height_m)
+
+    def frames(self, pose) -> list:
+        """The machine's frames at a commanded ``pose`` (5,) through the described nominal
+        kinematics, for a viewer (:func:`nominal_frames`)."""
+        return nominal_frames(pose, self.working_distance_m, self.a_height_m)
 
     def workspace(self) -> Workspace:
         """The strokes and working distance plans and simulations keep to."""

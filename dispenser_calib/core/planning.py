@@ -36,7 +36,7 @@ from dispenser_calib.core.iso230 import iso230_7_report
 from dispenser_calib.core.model import (
     NAMES, DispenserModel, camera_points, chain_rotation, place, project_rows)
 from dispenser_calib.core.procedure import (
-    NEEDLE_TIP, PART_PATH, SHIPPED_WORKSPACE, Workspace, check_stroke, evaluation_stops,
+    NEEDLE_TIP, PART_PATH, SHIPPED_WORKSPACE, Workspace, evaluation_stops,
     plan_stops)
 
 NOISE_PX = 0.1              # px, 1 sigma per coordinate of a detected dot
@@ -329,14 +329,15 @@ def todays_prediction(model: DispenserModel, image_size, noise_px: float = NOISE
 
 
 def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
-                         seed: int = 0) -> tuple[np.ndarray | None, dict | None,
-                                                 'AdaptivePlan | None']:
+                         seed: int = 0, noise_px: float = NOISE_PX,
+                         workspace: Workspace = SHIPPED_WORKSPACE
+                         ) -> tuple[np.ndarray | None, dict | None, 'AdaptivePlan | None']:
     """The calibrator's plan keys: ``targets`` (a list of [x, y, z m, a, c rad] stops, as
     given), or ``design`` ('I' or 'D') with ``stops`` (how many, default 27) planned about
-    ``model``; neither: (None, None), the stepwise plan. With ``target_error`` (m) the run
-    is adaptive (:class:`AdaptivePlan`, ``max_stops`` and ``step`` with it). Returns the
-    stops (n, 5), when planned the plan's report (its prediction), and the adaptive plan
-    or None.
+    ``model`` in ``workspace``, predicted at ``noise_px``; neither: (None, None), the
+    stepwise plan. With ``target_error`` (m) the run is adaptive (:class:`AdaptivePlan`,
+    ``max_stops`` and ``step`` with it). Returns the stops (n, 5), when planned the plan's
+    report (its prediction), and the adaptive plan or None.
 
     Raises
     ------
@@ -355,7 +356,7 @@ def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
     if 'target_error' in options:
         adaptive = AdaptivePlan(tuple(image_size), options['target_error'],
                                 options.get('max_stops', 60), options.get('step', 4),
-                                str(options.get('design', 'I')), seed=seed)
+                                str(options.get('design', 'I')), noise_px, seed, workspace)
     elif {'max_stops', 'step'} & set(options):
         raise InvalidInputError('max_stops and step belong to the adaptive mode: give '
                                 'target_error (m) with them')
@@ -363,22 +364,25 @@ def stops_from_plan_keys(options: dict, model: DispenserModel, image_size,
         targets = plan_rows(options['targets'], 'x, y, z, a, c (m, rad)', 'targets')
         check_poses(targets, 'targets')
         for pose in targets:
-            check_stroke(pose)
+            workspace.check(pose)
         return targets, None, adaptive
     if 'design' in options:
         count = whole_number(options.get('stops', 27), 'stops', sum(n for _, n in RESERVED))
-        plan = plan_five_axis(model, count, image_size, str(options['design']), seed=seed)
+        plan = plan_five_axis(model, count, image_size, str(options['design']), noise_px, seed,
+                              workspace=workspace)
         return plan.stops, plan.report(), adaptive
     return None, None, adaptive
 
 
 def extend_five_axis(model: DispenserModel, measured: np.ndarray, count: int, image_size,
                      criterion: str = 'I', noise_px: float = NOISE_PX, seed: int = 0,
-                     depth_of_field: float = DEPTH_OF_FIELD) -> tuple[np.ndarray, dict]:
-    """The ``count`` candidate stops (count, 5) that, added one by one to the ``measured``
-    ones (n, 5), most improve the criterion about ``model`` (greedy, so the first k of them
-    are the best k), and the prediction for all of them together."""
-    c = _candidates(model, image_size, criterion, noise_px, seed, depth_of_field, 1)
+                     depth_of_field: float = DEPTH_OF_FIELD,
+                     workspace: Workspace = SHIPPED_WORKSPACE) -> tuple[np.ndarray, dict]:
+    """The ``count`` candidate stops (count, 5) in ``workspace`` that, added one by one to
+    the ``measured`` ones (n, 5), most improve the criterion about ``model`` (greedy, so
+    the first k of them are the best k), and the prediction for all of them together."""
+    c = _candidates(model, image_size, criterion, noise_px, seed, depth_of_field, 1,
+                    workspace)
     measured_rows = stop_rows(model, measured, image_size, noise_px) * c.scale
     prior = c.prior + information(measured_rows, np.arange(len(measured)))
     taken = [k for k, stop in enumerate(c.stops)
@@ -396,8 +400,8 @@ class AdaptivePlan:
     ``step``; its rounds decided by :class:`calib_core.planning.Adaptive`): after the
     planned stops are imaged, calibrate and predict the part's placement error about the
     calibration so far; while it is above ``target_error`` (m, RMS at the working poses),
-    add the ``step`` stops that lower it most, image them and calibrate again, up to
-    ``max_stops``. Called with the images so far, it returns the stops to image next (none
+    add the ``step`` stops that lower it most (inside ``workspace``), image them and
+    calibrate again, up to ``max_stops``. Called with the images so far, it returns the stops to image next (none
     when done); :meth:`report` says what happened."""
 
     image_size: tuple
@@ -407,6 +411,7 @@ class AdaptivePlan:
     criterion: str = 'I'
     noise_px: float = NOISE_PX
     seed: int = 0
+    workspace: Workspace = SHIPPED_WORKSPACE
 
     def __post_init__(self):
         self.max_stops = whole_number(self.max_stops, 'max_stops', sum(n for _, n in RESERVED))
@@ -423,7 +428,8 @@ class AdaptivePlan:
 
         def extend(room):
             more, best = extend_five_axis(result.model, measured, room, self.image_size,
-                                          self.criterion, self.noise_px, self.seed)
+                                          self.criterion, self.noise_px, self.seed,
+                                          workspace=self.workspace)
             return more, best['working_error_m']['rms']
         more = self._adaptive.more(now['working_error_m']['rms'], len(measured), extend)
         return np.zeros((0, 5)) if more is None else more

@@ -101,9 +101,10 @@ def rotary_sweep(tilts=np.linspace(-0.3, 0.3, 5), step: float = np.deg2rad(22.5)
 def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
                   capture: Callable[[], tuple],
                   record: Callable[[Image, str], None] = lambda *a: None,
-                  progress: Callable[[int, int, str], None] = lambda *a: None) -> list:
+                  progress: Callable[[int, int, str], None] = lambda *a: None,
+                  workspace: Workspace = SHIPPED_WORKSPACE) -> list:
     """Image the board at each of ``stops`` (n, 5) (:func:`rotary_sweep`), every stop
-    checked against the strokes before anything moves; ``record`` gets each image as it is
+    checked against the ``workspace``'s strokes before anything moves; ``record`` gets each image as it is
     taken (its time and the machine's temperature are the recorder's). Returns the images.
 
     Raises
@@ -111,7 +112,7 @@ def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
     StrokeError
         A stop outside a stroke (before anything moves)."""
     for pose in stops:
-        check_stroke(pose)
+        workspace.check(pose)
     images = []
     for pose in stops:
         reached = np.asarray(move(pose), dtype=float)
@@ -139,23 +140,28 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
                               record: Callable[[Image, str], None] = lambda *a: None,
                               progress: Callable[[int, int, str], None] = lambda *a: None,
                               stops: np.ndarray | None = None,
-                              adapt: Callable[[list], np.ndarray] | None = None):
+                              adapt: Callable[[list], np.ndarray] | None = None,
+                              description=None):
     """Plan, check every stop, drive, image, calibrate (RANSAC), evaluate on the held-out
     stops. ``move(pose)`` returns the pose the encoders report; ``capture()`` the dots'
     (indices (k, 2), pixels (k, 2)); ``stops`` (n, 5) a planned set
     (:func:`dispenser_calib.core.planning.plan_five_axis`) instead of the stepwise plan;
     ``adapt(images)`` (:class:`dispenser_calib.core.planning.AdaptivePlan`), after the
-    stops are imaged and after each addition, the further stops to image (none: enough).
+    stops are imaged and after each addition, the further stops to image (none: enough);
+    ``description`` (:class:`dispenser_calib.core.description.FiveAxisDescription`) the
+    machine's strokes and working distance, and the gate (:func:`finish`).
     Returns (the refinement, its report with the held-out evaluation, the images).
 
     Raises
     ------
     StrokeError
         A planned stop outside a stroke (before anything moves)."""
-    stops = plan_stops(nominal, seed) if stops is None else np.asarray(stops, dtype=float)
-    held_out = evaluation_stops(nominal, evaluation, seed)
+    workspace = SHIPPED_WORKSPACE if description is None else description.workspace()
+    stops = (plan_stops(nominal, seed, workspace) if stops is None
+             else np.asarray(stops, dtype=float))
+    held_out = evaluation_stops(nominal, evaluation, seed, workspace)
     for pose in np.vstack([stops, held_out]):
-        check_stroke(pose)
+        workspace.check(pose)
     images, evaluation_images = [], []
 
     def image(phase, pose, out):
@@ -174,13 +180,13 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
     more = adapt(images) if adapt else ()
     while len(more):
         for pose in more:
-            check_stroke(pose)
+            workspace.check(pose)
         for pose in more:
             image('calibrate', pose, images)
         more = adapt(images)
     for pose in held_out:
         image('evaluate', pose, evaluation_images)
-    return finish(nominal, image_size, images, evaluation_images)
+    return finish(nominal, image_size, images, evaluation_images, description)
 
 
 def finish(nominal: DispenserModel, image_size, images: list, evaluation_images: list,
@@ -212,10 +218,11 @@ def finish(nominal: DispenserModel, image_size, images: list, evaluation_images:
     return result, report, images
 
 
-def view_plan(model: DispenserModel, points: np.ndarray, views) -> list:
+def view_plan(model: DispenserModel, points: np.ndarray, views,
+              workspace: Workspace = SHIPPED_WORKSPACE) -> list:
     """(point number, pose (5,)) per point and view ((a, c) rad): the camera aimed at where
-    the point would be."""
-    centre = np.array([0.0, 0.0, WORKING_DISTANCE])
+    the point would be, at the ``workspace``'s working distance."""
+    centre = np.array([0.0, 0.0, workspace.working_distance])
     return [(k, place(model, point, a, c, centre)) for k, point in enumerate(points)
             for a, c in views]
 
@@ -245,13 +252,14 @@ def _located(model: DispenserModel, points: np.ndarray, plan: list, move, captur
 
 def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, tip: np.ndarray,
                      views, path_angles, move: Callable[[np.ndarray], np.ndarray],
-                     capture: Callable[[], tuple]) -> dict:
+                     capture: Callable[[], tuple],
+                     workspace: Workspace = SHIPPED_WORKSPACE) -> dict:
     """Image each CAD feature (k, 3) (part frame, m) from ``views`` ((a, c) rad each; the
     camera aimed at where the feature would be with the part at the board's origin),
     triangulate it, fit the part's pose, and place the CAD ``path`` (p, 3) on the located
     part with the table at ``path_angles`` (a, c) and the needle tip ``tip`` (camera
     frame). ``capture()`` returns (feature numbers (n,), pixels (n, 2)). Every pose is
-    checked against the strokes before the machine goes there.
+    checked against the ``workspace``'s strokes before the machine goes there.
 
     Raises
     ------
@@ -260,15 +268,15 @@ def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, t
     InvalidInputError
         A feature seen in fewer than 2 views, or too few features for a pose."""
     cad = np.atleast_2d(cad)
-    plan = view_plan(model, cad, views)
+    plan = view_plan(model, cad, views, workspace)
     for _, pose in plan:
-        check_stroke(pose)
+        workspace.check(pose)
     located, rms = _located(model, cad, plan, move, capture, 'feature')
     rotation, translation, misfit = fit_part_pose(cad, located)
     on_table = np.atleast_2d(path) @ rotation.T + translation
     path_poses = place_path(model, tip, on_table, *path_angles)
     for pose in path_poses:
-        check_stroke(pose)
+        workspace.check(pose)
     return {'features_m': located.tolist(), 'reprojection_rms_px': rms,
             'pose': {'translation_m': translation.tolist(),
                      'rotation_vector_rad': cv2.Rodrigues(rotation)[0].ravel().tolist()},
@@ -277,13 +285,15 @@ def locate_workpiece(model: DispenserModel, cad: np.ndarray, path: np.ndarray, t
 
 def measure_needle(model: DispenserModel, tip_guess: np.ndarray, spots, views,
                    move: Callable[[np.ndarray], np.ndarray], dispense: Callable[[], None],
-                   capture: Callable[[], tuple]) -> dict:
+                   capture: Callable[[], tuple],
+                   workspace: Workspace = SHIPPED_WORKSPACE) -> dict:
     """The needle tip in the camera frame from test dots: the machine dispenses one dot at
     each of ``spots`` (k, 3) (board frame, m; aimed with ``tip_guess``), then the camera
     images each dot from ``views`` ((a, c) rad each) and it is located through the chain;
     the tip is where the chain carried each located dot at the moment it was dispensed
     (:func:`tool_centre`). ``capture()`` returns the dispensed dots in view: (numbers (n,),
-    in the order dispensed, pixels (n, 2)). Every pose is checked against the strokes first.
+    in the order dispensed, pixels (n, 2)). Every pose is checked against the
+    ``workspace``'s strokes first.
 
     Returns the tip (m), each dot's located place (m), the tip each dot alone gives and
     their spread (m), the reprojection RMS per dot (px).
@@ -296,9 +306,9 @@ def measure_needle(model: DispenserModel, tip_guess: np.ndarray, spots, views,
         A dot seen in fewer than two views."""
     spots = np.atleast_2d(np.asarray(spots, float))
     dispensing = [place(model, spot, 0.0, 0.0, tip_guess) for spot in spots]
-    looking = view_plan(model, spots, views)
+    looking = view_plan(model, spots, views, workspace)
     for pose in dispensing + [pose for _, pose in looking]:
-        check_stroke(pose)
+        workspace.check(pose)
     dispensed_at = []
     for pose in dispensing:
         dispensed_at.append(np.asarray(move(pose), dtype=float))

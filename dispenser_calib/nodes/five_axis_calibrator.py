@@ -58,7 +58,7 @@ from calib_core.checks import MAX_SEED, whole_number
 from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignmentError
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, check_when_set, declare_paths, one_of, parse_plan,
+    READ_ONLY, CalibrationService, call_service, check_when_set, declare_paths, one_of, parse_plan,
     publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.images import image_from_message
@@ -71,16 +71,18 @@ from calib_core.nodes.temperature import TemperatureLog
 from calib_core.storage import read_calibration, write_calibration
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from dispenser_calib.core.board_images import observe_frame
+from dispenser_calib.core.description import SHIPPED_GEOMETRY, read_description
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.model import (
     NAMES, DispenserModel, calibrated_frames, nominal_frames, nominal_model, parameter_unit)
-from dispenser_calib.core.planning import stops_from_plan_keys
+from dispenser_calib.core.planning import NOISE_PX, stops_from_plan_keys
 from dispenser_calib.core.procedure import (
-    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, TEST_SPOTS, locate_workpiece, measure_needle,
-    measure_sweep, rotary_sweep, run_five_axis_calibration)
+    FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, SHIPPED_WORKSPACE, TEST_SPOTS,
+    locate_workpiece, measure_needle, measure_sweep, rotary_sweep, run_five_axis_calibration)
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
 from dispenser_calib.core.target_poses import poses_from_images
 
+SHIPPED_IMAGE_SIZE = tuple(SHIPPED_GEOMETRY['image_size_px'])
 PLANNED_KEYS = ('design', 'stops', 'targets', 'target_error', 'max_stops', 'step')
 PLAN_KEYS = ('seed', 'evaluation', 'frames') + PLANNED_KEYS
 SWEEP_KEYS = ('tilts', 'step', 'both_ways')
@@ -104,7 +106,8 @@ class FiveAxisCalibratorNode(Node):
         declare_paths(self, 'output_dir', 'record_dir')
         self.declare_parameter('seed', 0)
         self.declare_parameter('evaluation', 6)
-        self.declare_parameter('image_size', [2448, 2048])
+        self.declare_parameter('image_size', [2448, 2048])   # the shipped camera's
+        self.declare_parameter('description', '', READ_ONLY)   # the user's machine description
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
         self.declare_parameter('part_cad', PART_CAD.ravel().tolist())
@@ -129,10 +132,19 @@ class FiveAxisCalibratorNode(Node):
         size = [int(v) for v in self.get_parameter('image_size').value]
         if len(size) != 2 or min(size) <= 0:
             raise ValueError('image_size must be two positive px counts')
-        self.image_size = tuple(size)
+        # A description holds the camera, strokes and working distance, the dot noise
+        # plans are predicted at and the gate (docs/machine_description.md).
+        described = self.get_parameter('description').value
+        if described and tuple(size) != SHIPPED_IMAGE_SIZE:
+            raise InvalidInputError('give image_size or description (it holds the camera), '
+                                    'not both')
+        self.description = read_description(described) if described else None
+        self.workspace = self.description.workspace() if described else SHIPPED_WORKSPACE
+        self.image_size = self.description.image_size if described else tuple(size)
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.pose = np.zeros(5)
-        self.nominal = nominal_model(size=self.image_size)
+        self.nominal = (self.description.nominal() if described
+                        else nominal_model(size=self.image_size))
         group = ReentrantCallbackGroup()
         self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
                                            group)
@@ -245,7 +257,8 @@ class FiveAxisCalibratorNode(Node):
         run.record(OBSERVATIONS_TOPIC, observation, self.observation_pub)
         # What a viewer shows: the machine at the commanded pose (nominal kinematics) and,
         # when frames are used, the camera's frame the dots were found in.
-        run.record_frames(nominal_frames(image.pose))
+        run.record_frames((self.description.frames if self.description
+                           else nominal_frames)(image.pose))
         frame, self._frame = self._frame, None
         if frame is not None:
             run.record(FRAME_TOPIC, compressed_image(frame, self._header(),
@@ -259,8 +272,9 @@ class FiveAxisCalibratorNode(Node):
 
     def _run(self, overrides: dict) -> CalibrationResult:
         seed, evaluation, frames, choice = self._plan_from_parameters(overrides)
-        stops, plan, adapt = stops_from_plan_keys(choice, self.model or self.nominal,
-                                                  self.image_size, seed)
+        stops, plan, adapt = stops_from_plan_keys(
+            choice, self.model or self.nominal, self.image_size, seed,
+            self.description.centroid_sigma_px if self.description else NOISE_PX, self.workspace)
         if plan is not None:
             self._progress(0, 1, f'{len(stops)} stops planned ({plan["criterion"]}): predicted '
                                  f'before anything moves: part placement '
@@ -277,9 +291,12 @@ class FiveAxisCalibratorNode(Node):
                 self.nominal, self.image_size, seed, evaluation, self._move,
                 self._capture_frame if frames else self._capture,
                 lambda image, phase: self._record(run, image, phase), self._progress, stops,
-                adapt)
+                adapt, self.description)
             if plan is not None:
                 report['plan'] = plan
+            report['image_size_px'] = list(self.image_size)
+            if self.description:
+                report['description'] = self.description.gate_report()
             if adapt is not None:
                 report['adaptive'] = adapt.report()
             path, version, content = run.save('five_axis', {
@@ -324,7 +341,7 @@ class FiveAxisCalibratorNode(Node):
                 TEMPERATURE_TOPIC: TEMPERATURE_TYPE, FRAME_TOPIC: IMAGE_TYPE}) as run:
             images = measure_sweep(
                 rotary_sweep(tilts, float(step), both_ways), self._move, capture,
-                lambda image, phase: record(run, image, phase), self._progress)
+                lambda image, phase: record(run, image, phase), self._progress, self.workspace)
             self.temperatures.record(run)
         covariates, sentence = self.temperatures.covariates(stamps)
         self.get_logger().info(f'sweep: {len(images)} images; temperature: {sentence}')
@@ -368,7 +385,7 @@ class FiveAxisCalibratorNode(Node):
                 raise InvalidInputError('path_angles must be one [a, c] pair (rad)')
             result = locate_workpiece(self.model, self.cad, self.path, self.tip,
                                       self._views(options), tuple(angles), self._move,
-                                      self._capture_features)
+                                      self._capture_features, self.workspace)
             response.features = [float(v) for v in np.ravel(result['features_m'])]
             response.pose = [float(v) for v in result['pose']['translation_m']
                              + result['pose']['rotation_vector_rad']]
@@ -385,7 +402,8 @@ class FiveAxisCalibratorNode(Node):
             if spots.ndim != 2 or spots.shape[1] != 3 or not np.all(np.isfinite(spots)):
                 raise InvalidInputError('spots must be [x, y, z] triples (m, board frame)')
             result = measure_needle(self.model, self.tip, spots, self._views(options),
-                                    self._move, self._dispense, self._capture_dispensed)
+                                    self._move, self._dispense, self._capture_dispensed,
+                                    self.workspace)
             self.tip = np.array(result['tip_m'])
             path, version = write_calibration(self.get_parameter('output_dir').value, 'needle',
                                               {'tip_m': result['tip_m'], 'report': result})

@@ -16,6 +16,10 @@ The needle (its true tip ``needle_tip``, m in the camera frame) dispenses a test
 it touches the table (``five_axis/dispense``, std_srvs/Trigger);
 ``five_axis/capture_dispensed`` (CaptureDots: i the dot's number, in the order dispensed)
 returns the dots in view with ``noise_px``.
+With ``description`` (a machine description YAML, docs/machine_description.md) it is the
+described dispenser: its camera, working distance and strokes, true errors of the built-in
+kind about its nominal, its dots found to the described noise (``noise_px`` is then not
+used) and its axes stopping as noisily as declared.
 """
 import threading
 
@@ -27,13 +31,15 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.nodes.calibrator import READ_ONLY
 from calib_core.nodes.images import image_as_message
 from calib_core.nodes.qos import SERVICES
 from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
 from dispenser_calib.core.localisation import reached
 from dispenser_calib.core.model import nominal_frames
-from dispenser_calib.core.procedure import NEEDLE_TIP, PART_CAD, check_stroke
+from dispenser_calib.core.description import read_description
+from dispenser_calib.core.procedure import NEEDLE_TIP, PART_CAD, SHIPPED_WORKSPACE
 from dispenser_calib.core.data import board_points
 from dispenser_calib.sim.images import render_board
 from dispenser_calib.sim.machine import (
@@ -45,6 +51,7 @@ class FiveAxisSimNode(Node):
     def __init__(self):
         super().__init__('five_axis_sim')
         self.declare_parameter('seed', 0)
+        self.declare_parameter('description', '', READ_ONLY)   # its camera and noise win
         self.declare_parameter('noise_px', 0.1)
         self.declare_parameter('bad_fraction', 0.0)
         self.declare_parameter('frame_noise', 2.0)
@@ -65,7 +72,14 @@ class FiveAxisSimNode(Node):
             raise ValueError('needle_tip must be x, y, z (m) in the camera frame')
         self.dispensed = []
         self.seed, self.noise, self.bad = int(g('seed')), float(g('noise_px')), float(g('bad_fraction'))
-        self.truth = true_model(self.seed)
+        described = read_description(g('description')) if g('description') else None
+        self.workspace = described.workspace() if described else SHIPPED_WORKSPACE
+        self.image_size = described.image_size if described else IMAGE_SIZE
+        self.pose_sigma = described.pose_sigma() if described else None
+        self.frames = described.frames if described else nominal_frames
+        if described:
+            self.noise = described.centroid_sigma_px
+        self.truth = true_model(self.seed, described.nominal() if described else None)
         self.pose = np.zeros(5)
         self.tf_pub = self.create_publisher(TFMessage, TF_TOPIC, 10)
         self.captures = 0
@@ -87,7 +101,7 @@ class FiveAxisSimNode(Node):
             pose = np.asarray(request.pose, dtype=float)
             if pose.shape != (5,) or not np.all(np.isfinite(pose)):
                 raise MachineAlignmentError('a pose is five finite values: x, y, z (m), a, c (rad)')
-            check_stroke(pose)
+            self.workspace.check(pose)
         except MachineAlignmentError as exc:
             self.get_logger().error(f'move refused: {exc}')
             response.success, response.message = False, str(exc)
@@ -97,7 +111,7 @@ class FiveAxisSimNode(Node):
         # The machine's frames at this pose through its nominal kinematics (as its
         # controller would publish them).
         self.tf_pub.publish(transform_message(self.get_clock().now().nanoseconds,
-                                              nominal_frames(pose)))
+                                              self.frames(pose)))
         response.success, response.message, response.pose = True, 'ok', [float(v) for v in pose]
         return response
 
@@ -106,7 +120,9 @@ class FiveAxisSimNode(Node):
             pose, self.captures = self.pose.copy(), self.captures + 1
             bad = 1.0 if self.rng.random() < self.bad else 0.0
             images, _ = observe(self.truth, pose[None], self.noise,
-                                self.seed * 100003 + self.captures, bad)
+                                self.seed * 100003 + self.captures, bad,
+                                image_size=self.image_size, workspace=self.workspace,
+                                pose_sigma=self.pose_sigma)
         image = images[0]
         response.success, response.message = True, f'{len(image.indices)} dots'
         response.i = [int(v) for v in image.indices[:, 0]]
@@ -125,7 +141,7 @@ class FiveAxisSimNode(Node):
         indices = board_points()[1]
         occluded = (tuple(indices[hidden]),) if bad else ()
         displaced = {tuple(indices[dust]): offset} if bad else None
-        frame = render_board(self.truth, pose, IMAGE_SIZE, self.frame_noise, seed, occluded,
+        frame = render_board(self.truth, pose, self.image_size, self.frame_noise, seed, occluded,
                              displaced, centre_noise_px=self.noise)
         response.success, response.message = True, 'ok'
         response.image = image_as_message(
@@ -152,7 +168,7 @@ class FiveAxisSimNode(Node):
         their row, with ``noise_px``."""
         with self._lock:
             numbers, pixels = points_in_view(self.truth, points, self.pose.copy(), self.noise,
-                                             self.rng)
+                                             self.rng, self.image_size)
         response.success, response.message = True, f'{len(numbers)} {what}'
         response.i, response.j = [int(k) for k in numbers], [0] * len(numbers)
         response.u = [float(v) for v in pixels[:, 0]]

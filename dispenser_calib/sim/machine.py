@@ -187,13 +187,15 @@ def placed_part(cad: np.ndarray, part_pose: np.ndarray = PART_POSE) -> np.ndarra
 
 
 def points_in_view(truth: DispenserModel, points: np.ndarray, pose: np.ndarray,
-                   noise_px: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                   noise_px: float, rng: np.random.Generator,
+                   image_size=IMAGE_SIZE) -> tuple[np.ndarray, np.ndarray]:
     """The ``points`` (n, 3) (board frame, m) the camera sees at ``pose`` (5,): their row
-    numbers (m,) and pixels (m, 2) with ``noise_px`` of noise, those off the image left out."""
+    numbers (m,) and pixels (m, 2) with ``noise_px`` of noise, those off the ``image_size``
+    (w, h) px image left out."""
     points = np.atleast_2d(points)
     pixels = project_rows(truth, points, np.repeat(np.asarray(pose, float)[None], len(points), 0))
     pixels = pixels + rng.normal(0.0, noise_px, pixels.shape)
     inside = (np.all(np.isfinite(pixels), axis=1) & np.all(pixels >= 0, axis=1)
-              & (pixels[:, 0] <= IMAGE_SIZE[0] - 1) & (pixels[:, 1] <= IMAGE_SIZE[1] - 1))
+              & (pixels[:, 0] <= image_size[0] - 1) & (pixels[:, 1] <= image_size[1] - 1))
     numbers = np.flatnonzero(inside)
     return numbers, pixels[numbers]

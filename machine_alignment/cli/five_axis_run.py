@@ -185,10 +185,17 @@ def cmd_calibrate(args) -> int:
         stops, recorded = read_run(args.bag, OBSERVATIONS_TOPIC,
                                    'alignment_msgs/msg/FiveAxisObservation', image_from_message,
                                    'five-axis observations', RESULT_TOPIC)
+        if recorded and not (described or args.image_size):
+            size = tuple(recorded.get('image_size_px', size))
         images = [im for im, phase in stops if phase == 'calibrate']
         result, report, _ = finish(described.nominal() if described else nominal_model(size=size),
                                    size, images,
                                    [im for im, phase in stops if phase == 'evaluate'], described)
+        live_description = (recorded or {}).get('description', {}).get('file')
+        if live_description and not described:
+            print(f'  the live run was gated by the machine description {live_description}; '
+                  'this replay by the built-in gate (give --description to gate it the same '
+                  'way)')
     else:
         images = described.read(args.data) if described else read_observations(args.data)
         _, result = calibrate(images, size,
@@ -200,8 +207,9 @@ def cmd_calibrate(args) -> int:
             check_calibration(result.model, report)
     if described:
         report['description'] = described.gate_report()
-        print(f'  machine description {described.source}: {described.expected_text()}; poses '
-              f'read in {described.linear_unit} and {described.rotary_unit}')
+        read = (f'poses read in {described.linear_unit} and {described.rotary_unit}' if args.data
+                else 'poses from the graph in m and rad')
+        print(f'  machine description {described.source}: {described.expected_text()}; {read}')
     print(f'{len(images)} images, {report["images_used"]} used; mean reprojection '
           f'{report["mean_reprojection_px"]:.3f} px (RMS {report["rms_reprojection_px"]:.3f} '
           f'px); the refinement took it from {result.history[0]:.3g} px (the stepwise start) '

@@ -2,6 +2,7 @@
 imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
+import importlib
 import sys
 import time
 from pathlib import Path
@@ -14,18 +15,16 @@ from machine_alignment.launcher import (
 
 
 def cmd_launch(args) -> int:
-    described = ('hexapod', 'platform')
+    described = {'hexapod': 'hexapod_calib', 'platform': 'platform_calib',
+                 'five-axis': 'dispenser_calib'}
     if args.description and args.graph not in described:
-        raise MachineAlignmentError(f'--description is for the {" and ".join(described)} '
+        raise MachineAlignmentError(f'--description is for the {", ".join(described)} '
                                     f'graphs; the {args.graph} graph has no description yet')
     description = ''
     if args.description:
         # Read here first: a file the nodes would refuse is refused before any starts.
-        if args.graph == 'hexapod':
-            from hexapod_calib.core.description import read_description
-        else:
-            from platform_calib.core.description import read_description
-        read_description(args.description)
+        reader = importlib.import_module(f'{described[args.graph]}.core.description')
+        reader.read_description(args.description)
         description = str(Path(args.description).resolve())
     spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir),
             'stage': lambda: stage_graph(args.output_dir, args.record_dir),
@@ -33,7 +32,8 @@ def cmd_launch(args) -> int:
             'grid': lambda: grid_graph(args.output_dir, args.record_dir),
             'platform': lambda: platform_graph(args.output_dir, args.record_dir,
                                                description=description),
-            'five-axis': lambda: five_axis_graph(args.output_dir, args.record_dir)}[args.graph]()
+            'five-axis': lambda: five_axis_graph(args.output_dir, args.record_dir,
+                                                 description=description)}[args.graph]()
     stop_on_sigterm()
     graph = Graph(spec)
     dead = []
