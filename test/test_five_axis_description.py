@@ -25,7 +25,8 @@ from machine_alignment.cli import main as cli_main
 DESCRIPTIONS = Path(__file__).resolve().parents[1] / 'dispenser_calib' / 'descriptions'
 USER = DESCRIPTIONS / 'five_axis_5mp_mm_deg.yaml'
 SHIPPED = DESCRIPTIONS / 'five_axis_shipped_simulator.yaml'
-TOLERANCE = {'sigmas': 4.0, 'held_out_over_expected': 1.15}
+# Held out over expected: 1.00-1.15 on 10 machines (bench_results/five_axis_description.md).
+TOLERANCE = {'sigmas': 4.0, 'held_out_over_expected': 1.25}
 
 
 def _described(tmp_path, name: str, **changes) -> Path:
