@@ -99,9 +99,10 @@ def test_plan_simulate_calibrate_a_described_dispenser_read_in_mm_and_degrees(tm
     with pytest.raises(InvalidInputError, match='look like mm|look like degrees'):
         read_observations(observations)
 
-    report_path = tmp_path / 'calibration.json'
+    report_path, calibration = tmp_path / 'calibration.json', tmp_path / 'calibration.yaml'
     assert cli_main(['calibrate', 'five-axis', '--description', str(USER), '--data',
-                     str(observations), '--json', str(report_path)]) == 0
+                     str(observations), '--json', str(report_path), '--out',
+                     str(calibration)]) == 0
     report = json.loads(report_path.read_text())
     assert report['description']['units'] == {'linear': 'mm', 'rotary': 'deg'}
     truth = read_model(truth_path)
@@ -116,6 +117,15 @@ def test_plan_simulate_calibrate_a_described_dispenser_read_in_mm_and_degrees(tm
     calibrated = truth.with_values(**report['parameters'])
     held_out = np.sqrt(np.mean(np.concatenate(reprojection(calibrated, images)) ** 2))
     assert held_out < TOLERANCE['held_out_over_expected'] * described.expected_reprojection_px()
+
+    # evaluate: the true machine imaged without noise at stops in the described strokes.
+    evaluation = tmp_path / 'evaluation.json'
+    assert cli_main(['evaluate', 'five-axis', '--description', str(USER), '--calibration',
+                     str(calibration), '--truth', str(truth_path), '--json',
+                     str(evaluation)]) == 0
+    evaluated = json.loads(evaluation.read_text())
+    assert evaluated['calibrated']['rms_px'] < described.centroid_sigma_px
+    assert evaluated['nominal']['rms_px'] > 5.0
 
 
 def test_the_std_devs_hold_the_axes_stopping_noise_a_whole_image_shares():

@@ -40,6 +40,9 @@ def add_parser(sub) -> None:
     five_axis_eval.add_argument('--count', type=ranged(int, 1, 10000), default=50,
                                 help='stops with A and C turned')
     five_axis_eval.add_argument('--seed', type=ranged(int, 0), default=0)
+    five_axis_eval.add_argument('--description', help='machine description YAML (kind: '
+                                                      'five_axis): its nominal, camera and '
+                                                      'strokes')
     five_axis_eval.add_argument('--json', help='report to write (JSON)')
     five_axis_eval.set_defaults(func=deferred('evaluate_run', 'cmd_evaluate_five_axis'))
     grid_eval = evaluated.add_parser(

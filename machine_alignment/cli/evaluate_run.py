@@ -10,9 +10,10 @@ from calib_core.bags import decode_bag
 from calib_core.errors import MachineAlignmentError
 from calib_core.files import read_text
 from dispenser_calib.core.calibration import reprojection
+from dispenser_calib.core.description import read_description as read_five_axis_description
 from dispenser_calib.core.model import nominal_model as dispenser_nominal
 from dispenser_calib.core.model import read_model as read_dispenser_model
-from dispenser_calib.core.procedure import evaluation_stops
+from dispenser_calib.core.procedure import SHIPPED_WORKSPACE, evaluation_stops
 from dispenser_calib.sim.machine import observe
 from grid_calib.core.reference_map import compare, read_reference
 from hexapod_calib.core.calibration import PoseData, summarise_pose_errors
@@ -87,16 +88,21 @@ def cmd_evaluate_platform(args) -> int:
 def cmd_evaluate_five_axis(args) -> int:
     """The board imaged by the true machine (noise-free) at stops with A and C both turned,
     none of them a calibration stop, against what the nominal and the calibrated model
-    predict there."""
+    predict there; with a description, the described machine's nominal, camera and
+    strokes."""
+    described = read_five_axis_description(args.description) if args.description else None
+    nominal = described.nominal() if described else dispenser_nominal()
     calibrated = read_dispenser_model(args.calibration)
     truth = read_dispenser_model(args.truth)
-    stops = evaluation_stops(dispenser_nominal(), args.count, args.seed + 1000)
-    images, _ = observe(truth, stops, noise_px=0.0, seed=args.seed)
+    workspace = described.workspace() if described else SHIPPED_WORKSPACE
+    stops = evaluation_stops(nominal, args.count, args.seed + 1000, workspace)
+    images, _ = observe(truth, stops, noise_px=0.0, seed=args.seed, workspace=workspace,
+                        **({'image_size': described.image_size} if described else {}))
     report = {'calibration': str(args.calibration), 'truth': str(args.truth),
               'images': len(images),
               'note': 'reprojection of the dots imaged by the true machine, without noise, '
                       'at stops with A and C turned (not calibration stops), px'}
-    for name, model in (('nominal', dispenser_nominal()), ('calibrated', calibrated)):
+    for name, model in (('nominal', nominal), ('calibrated', calibrated)):
         report[name] = _summary(np.linalg.norm(np.concatenate(reprojection(model, images)),
                                                axis=1), 'px')
     n, c = report['nominal'], report['calibrated']
