@@ -59,6 +59,9 @@ def add_parser(sub) -> None:
             machine.add_argument('--machine-units', choices=('mm', 'inch'), default='mm',
                                  help='units of the LinuxCNC compensation file written beside '
                                       'the JSON (the machine\'s units)')
+        if name == 'stage':
+            machine.add_argument('--description', help='your stage\'s description YAML '
+                                                       '(q1..q3 in its actuators\' unit)')
         if name == 'platform':
             described = machine.add_mutually_exclusive_group()
             described.add_argument('--geometry', help='nominal geometry YAML (default: built-in)')

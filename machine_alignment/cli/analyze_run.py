@@ -33,6 +33,10 @@ def _camera(args, dropped):
 def _stage(args, dropped):
     from printer_alignment.core.loop_models import StageLoopModel
     from printer_alignment.core.stage_calibration import StageData
+    if args.description:
+        from printer_alignment.core.stage_description import read_description
+        described = read_description(args.description)
+        return StageLoopModel(described.read(args.data, dropped), described.d)
     return StageLoopModel(StageData.from_csv(args.data, dropped))
 
 

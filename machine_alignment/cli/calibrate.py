@@ -26,6 +26,9 @@ def add_parser(sub) -> None:
     stage_source.add_argument('--bag', help='a run recorded by stage_calibrator')
     stage_source.add_argument('--data', help='CSV: q1..q3 (m), direction1..3, mark1_x, '
                                              'mark1_y, mark2_x, mark2_y (m)')
+    stage.add_argument('--description', help='your stage\'s description YAML: q1..q3 read in '
+                                             'its actuators\' unit, the gate from its camera '
+                                             'and landing noise (docs/machine_description.md)')
     stage.add_argument('--json', help='report to write (JSON, SI units)')
     stage.set_defaults(func=deferred('calibrate_run', 'cmd_calibrate_stage'))
 

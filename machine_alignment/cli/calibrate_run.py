@@ -19,6 +19,8 @@ from printer_alignment.core.records import (
     stage_data_from_records, stage_record)
 from printer_alignment.core.stage_calibration import (
     StageData, calibrate_stage, check_stage_calibration, models_as_dict)
+from printer_alignment.core.stage_description import likely_causes as stage_likely_causes
+from printer_alignment.core.stage_description import read_description as read_stage_description
 from printer_alignment.core.vision_procedure import (
     calibrate_from_observations, observation_from_message)
 
@@ -46,16 +48,18 @@ def cmd_calibrate_vision(args) -> int:
 
 def cmd_calibrate_stage(args) -> int:
     """Rerun both stage calibrations from a run recorded by stage_calibrator (--bag) or a
-    stage CSV (--data)."""
+    stage CSV (--data); with --description, q1..q3 in its actuators' unit (a bag's are in
+    m) and the gate from its noise."""
     recorded = None
+    described = read_stage_description(args.description) if args.description else None
     if args.bag:
         records, recorded = read_run(args.bag, STAGE_OBSERVATIONS_TOPIC,
                                      'alignment_msgs/msg/StageObservation', stage_record,
                                      'stage calibration observations', STAGE_RESULT_TOPIC)
         data = stage_data_from_records(records)
     else:
-        data = StageData.from_csv(args.data)
-    models, report = calibrate_stage(data)
+        data = described.read(args.data) if described else StageData.from_csv(args.data)
+    models, report = calibrate_stage(data, *((described.d,) if described else ()))
     s, p = report['stepwise'], report['parametric']
     print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '
           f'{s["R3"] * 1e3:.5f} mm/rev, alpha1 {s["alpha1"]:.6f} rad ({np.rad2deg(s["alpha1"]):.4f} deg), '
@@ -68,7 +72,12 @@ def cmd_calibrate_stage(args) -> int:
                   f'{quantity(p["parameters"][name], p["std_devs"][name], p["units"][name])}')
     for name, why in p['weakly_determined'].items():
         print(f'  weakly determined: {name}: {why}')
-    check_stage_calibration(report)
+    if described:
+        report['description'] = described.gate_report()
+        print(f'  machine description {described.source}: {described.expected_text()}')
+        check_stage_calibration(report, described, stage_likely_causes(data, described))
+    else:
+        check_stage_calibration(report)
     report['models'] = models_as_dict(models)
     if recorded is not None:
         live = recorded['parametric']['parameters']

@@ -109,15 +109,19 @@ def _add_stage(what) -> None:
     stage.add_argument('--sweep-points', type=ranged(int, 3, 50), default=3,
                        help='points of each sweep each way (the stepwise start needs them)')
     stage.add_argument('--marks', type=float, nargs=4, metavar=('X1', 'Y1', 'X2', 'Y2'),
-                       default=(0.0351, 0.0791, 0.1551, 0.0797),
                        help='the calibration Marks\' plate positions with the stage at home, '
-                            'm (the calibrator\'s calibration_marks)')
+                            'm (the calibrator\'s calibration_marks; default 0.0351 0.0791 '
+                            '0.1551 0.0797, or the description\'s Marks)')
+    stage.add_argument('--description', help='your stage\'s description YAML: its guides, '
+                                             'Marks, stroke, camera and landing noise')
     stage.add_argument('--criterion', choices=('I', 'D'), default='I',
                        help='I: least Mark error at the working inputs; D: D-optimal')
     stage.add_argument('--landing-sigma', type=ranged(float, 0.0, 1e-3, 'm'),
-                       default=LANDING_SIGMA, help='a chain\'s landing repeatability, m')
+                       help=f'a chain\'s landing repeatability, m (default: the '
+                            f'description\'s, else {LANDING_SIGMA:g})')
     stage.add_argument('--camera-noise', type=ranged(float, 1e-9, 1e-3, 'm'),
-                       default=CAMERA_NOISE, help='a measured Mark coordinate\'s noise, m')
+                       help=f'a measured Mark coordinate\'s noise, m (default: the '
+                            f'description\'s, else {CAMERA_NOISE:g})')
     stage.add_argument('--out', required=True, help='plan CSV to write (q1, q2, q3)')
     stage.add_argument('--json', help='the prediction to write')
     stage.set_defaults(func=deferred('plan_run', 'cmd_plan_stage'))

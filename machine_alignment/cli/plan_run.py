@@ -26,10 +26,12 @@ from platform_calib.core.geometry import nominal_geometry, read_geometry
 from platform_calib.core.description import read_description as read_platform_description
 from platform_calib.core.planning import (
     HOME, WORKING_SPAN, candidate_poses, default_working, plan_platform, predict_platform)
-from printer_alignment.core.stage import NOMINAL_STAGE
+from printer_alignment.core.stage import CAMERA_NOISE, LANDING_SIGMA, NOMINAL_STAGE
+from printer_alignment.core.stage import STROKE as STAGE_STROKE
 from printer_alignment.core.stage_calibration import StagePlan, write_stage_plan
 from printer_alignment.core.stage_planning import (
-    plan_stage, platform_marks, predict_stage_plan)
+    TAUGHT_HOME_MARKS, plan_stage, platform_marks, predict_stage_plan)
+from printer_alignment.core.stage_description import read_description as read_stage_description
 
 
 def cmd_plan_platform(args) -> int:
@@ -183,22 +185,38 @@ def cmd_plan_five_axis(args) -> int:
 
 def cmd_plan_stage(args) -> int:
     check_writable(args.out, '--out')
-    marks = platform_marks(np.reshape(args.marks, (2, 2)))
-    noise = {'landing_sigma': args.landing_sigma, 'camera_noise': args.camera_noise}
-    plan = plan_stage(NOMINAL_STAGE, marks, args.stops, args.sweep_points,
-                      criterion=args.criterion, **noise)
-    today = predict_stage_plan(NOMINAL_STAGE, marks, StagePlan().targets(), **noise)
+    described = read_stage_description(args.description) if args.description else None
+    nominal = described.nominal() if described else NOMINAL_STAGE
+    stroke = described.stroke if described else STAGE_STROKE
+    if args.marks is not None:
+        marks = platform_marks(np.reshape(args.marks, (2, 2)), nominal)
+    else:
+        marks = (described.marks if described
+                 else platform_marks(np.reshape(TAUGHT_HOME_MARKS, (2, 2))))
+    declared = described.noise() if described else {'landing_sigma': LANDING_SIGMA,
+                                                    'camera_noise': CAMERA_NOISE}
+    noise = {'landing_sigma': declared['landing_sigma'] if args.landing_sigma is None
+             else args.landing_sigma,
+             'camera_noise': declared['camera_noise'] if args.camera_noise is None
+             else args.camera_noise}
+    plan = plan_stage(nominal, marks, args.stops, args.sweep_points,
+                      criterion=args.criterion, stroke=stroke, **noise)
+    today = predict_stage_plan(nominal, marks, StagePlan(stroke=stroke).targets(),
+                               stroke=stroke, **noise)
     print(f'{len(plan.targets)} stops: home, sweeps of {args.sweep_points} points each way and '
           f'{args.stops} chosen ({"test-pose (I)" if args.criterion == "I" else "D"}-optimal) '
           f'from {plan.candidates} candidates inside the stroke')
-    print(f'predicted before anything moves (landing {args.landing_sigma * 1e6:g} um per chain, '
-          f'camera {args.camera_noise * 1e6:g} um, first order): the calibration Marks\' plate '
-          f'positions at 40 working inputs RMS {plan.predicted_rms_m * 1e6:.3f} um, max '
+    print(f'predicted before anything moves (landing {noise["landing_sigma"] * 1e6:g} um per '
+          f'chain, camera {noise["camera_noise"] * 1e6:g} um, first order): the calibration '
+          f'Marks\' plate positions at 40 working inputs RMS {plan.predicted_rms_m * 1e6:.3f} um, max '
           f'{plan.predicted_max_m * 1e6:.3f} um (1 sigma); today\'s {len(today.targets)}-stop run '
           f'{today.predicted_rms_m * 1e6:.3f} um, max {today.predicted_max_m * 1e6:.3f} um')
     write_stage_plan(args.out, plan.targets)
     print(f'wrote {args.out} (q1, q2, q3 m in visiting order: simulate stage --plan and the '
           'calibrator\'s targets key measure it)')
     write_json(args.json, {**plan.report(), 'targets_m': plan.targets.tolist(),
-                           'todays_run': today.report()})
+                           'todays_run': {**today.report(), 'targets_m': today.targets.tolist()},
+                           'stroke_m': stroke, 'marks_platform_m': np.asarray(marks).tolist(),
+                           'noise_m': noise,
+                           'description': described.source if described else None})
     return 0

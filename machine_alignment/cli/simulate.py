@@ -48,6 +48,11 @@ def _add_stage(simulated) -> None:
     stage_sim.add_argument('--plan', help='a planned run (plan stage\'s CSV: q1, q2, q3 m) '
                                           'instead of the sweeps and the grid')
     stage_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed gives the same data')
+    stage_sim.add_argument('--description',
+                           help='your stage\'s description YAML: a stage of its size with '
+                                'errors drawn by --seed, its stroke, Marks, camera and landing '
+                                'noise; q1..q3 written in its actuators\' unit')
+    stage_sim.add_argument('--truth', help='also write the true geometry (YAML, SI units)')
     stage_sim.set_defaults(func=deferred('simulate_run', 'cmd_simulate_stage'))
 
 

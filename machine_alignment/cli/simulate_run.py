@@ -6,8 +6,10 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from calib_core.errors import MachineAlignmentError
+from calib_core.storage import write_atomic
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from grid_calib.core.data import Region, write_marks
 from grid_calib.core.model import Grid
@@ -24,8 +26,9 @@ from machine_alignment.cli.common import progress
 from printer_alignment.core.camera_calibration import write_correspondences
 from printer_alignment.sim.camera import tilted_plate_views
 from printer_alignment.sim.gantry import GantryErrors, measure_random_positions
-from printer_alignment.core.stage_calibration import read_stage_plan
-from printer_alignment.sim.stage import TRUE_STAGE, simulate_calibration_run
+from printer_alignment.core.stage_calibration import StagePlan, read_stage_plan
+from printer_alignment.core.stage_description import read_description as read_stage_description
+from printer_alignment.sim.stage import TRUE_STAGE, random_stage, simulate_calibration_run
 
 
 def cmd_simulate_hexapod(args) -> int:
@@ -77,11 +80,27 @@ def cmd_simulate_hexapod(args) -> int:
 
 
 def cmd_simulate_stage(args) -> int:
-    truth = TRUE_STAGE.with_changes(backlash=(0.0, 0.0, 0.0)) if args.no_backlash else TRUE_STAGE
-    plan = read_stage_plan(args.plan) if args.plan else None
-    data = simulate_calibration_run(truth, plan=plan, seed=args.seed)
-    data.to_csv(args.out)
-    print(f'wrote {args.out} ({len(data)} stops{f" of {args.plan}" if args.plan else ""})')
+    described = read_stage_description(args.description) if args.description else None
+    truth = random_stage(args.seed, described.d) if described else TRUE_STAGE
+    if args.no_backlash:
+        truth = truth.with_changes(backlash=(0.0, 0.0, 0.0))
+    if described:
+        plan = (read_stage_plan(args.plan, described.stroke) if args.plan
+                else StagePlan(stroke=described.stroke))
+        data = simulate_calibration_run(truth, plan, seed=args.seed, stroke=described.stroke,
+                                        marks=described.marks, **described.noise())
+        described.write(args.out, data)
+    else:
+        plan = read_stage_plan(args.plan) if args.plan else None
+        data = simulate_calibration_run(truth, plan=plan, seed=args.seed)
+        data.to_csv(args.out)
+    unit = described.measurement.actuators.unit if described else 'm'
+    print(f'wrote {args.out} ({len(data)} stops{f" of {args.plan}" if args.plan else ""}; '
+          f'q1..q3 in {unit})')
+    if args.truth:
+        write_atomic(args.truth, yaml.safe_dump(
+            {'parameters': {k: float(v) for k, v in truth.as_dict().items()}}, sort_keys=False))
+        print(f'wrote {args.truth} (the true stage geometry, SI units)')
     return 0
 
 

@@ -38,7 +38,7 @@ from calib_core.parameters import Parameter, ParameterSet
 from calib_core.schema import Column, Schema
 from printer_alignment.core.camera_calibration import View, infer_image_size
 from printer_alignment.core.geometry import rotate_points, rotation
-from printer_alignment.core.stage import StageGeometry
+from printer_alignment.core.stage import NOMINAL_D, StageGeometry
 from printer_alignment.core.stage_calibration import (
     PARAMETRIC_GAUGE, StageData, mark_names, predict_marks, stepwise_calibration)
 
@@ -278,10 +278,10 @@ class StageLoopModel(MachineModel):
     candidates = ('reversal', 'periodic', 'smooth_map', 'drift_time', 'drift_sequence',
                   'drift_temperature')
 
-    def __init__(self, data: StageData):
+    def __init__(self, data: StageData, nominal_d=NOMINAL_D):
         self.data = data
         self._scalars = scalar_covariates(data.covariates)
-        self._start = stepwise_calibration(data)[0].geometry
+        self._start = stepwise_calibration(data, nominal_d)[0].geometry
         self._translation_inputs = None
 
     def __len__(self):

@@ -63,7 +63,8 @@ def _as_poses(pose) -> np.ndarray:
     return pose
 
 
-def landing_path(q_now, q_target, directions, approach: float = APPROACH) -> np.ndarray:
+def landing_path(q_now, q_target, directions, approach: float = APPROACH,
+                 stroke: float = STROKE) -> np.ndarray:
     """Two waypoints (m, (2, 3)) that land every chain on ``q_target`` with a last motion
     of ``approach`` (m) in its direction of travel; a chain that does not travel keeps its
     last direction (``directions``, +1 / -1, (3,)).
@@ -72,11 +73,11 @@ def landing_path(q_now, q_target, directions, approach: float = APPROACH) -> np.
     time (independent between stops, as the closed loop's tests assume; a chain that
     stood still would carry one landing error over many stops), and the direction of
     approach, hence backlash, is what the plan says. The pre-position is clipped to the
-    stroke.
+    ``stroke`` (m).
     """
     q_target = np.asarray(q_target, dtype=float)
     travel = landing_directions(q_now, q_target, directions)
-    before = np.clip(q_target - approach * travel, -STROKE, STROKE)
+    before = np.clip(q_target - approach * travel, -stroke, stroke)
     return np.array([before, q_target])
 
 

@@ -38,6 +38,9 @@ from printer_alignment.core.stage_calibration.parametric import (
     PARAMETRIC_GAUGE, mark_names, predict_marks)
 
 WORKING_REACH = 0.8        # of the stroke: where the aligner works
+# The shipped stage's calibration Marks' plate positions with it at home (m: x1, y1, x2, y2),
+# as the stage calibrator is taught them by default (its calibration_marks).
+TAUGHT_HOME_MARKS = (0.0351, 0.0791, 0.1551, 0.0797)
 STEP = 1e-8                # m or rad: central-difference step of the parameters
 
 
@@ -138,22 +141,23 @@ def whitened_rows(parameters: ParameterSet, q, directions, **noise) -> np.ndarra
                   stop_noise(parameters, q, directions, **noise))
 
 
-def candidate_inputs(per_axis: int = 9, span: float = StagePlan.span) -> np.ndarray:
+def candidate_inputs(per_axis: int = 9, span: float = StagePlan.span,
+                     stroke: float = STROKE) -> np.ndarray:
     """Inputs (n, 3) m on a grid of q1, (q2 + q3) / 2 and q3 - q2 inside ``span`` of the
-    stroke, where the mean and the difference of q2 and q3 share it as the plan's grid
-    does (|mean| + |difference| / 2 <= reach)."""
-    reach = span * STROKE
+    ``stroke`` (m), where the mean and the difference of q2 and q3 share it as the plan's
+    grid does (|mean| + |difference| / 2 <= reach)."""
+    reach = span * stroke
     levels = np.linspace(-1, 1, per_axis)
     rows = [[q1 * reach, (m * (reach - abs(w) * reach / 2)) - w * reach / 2,
              (m * (reach - abs(w) * reach / 2)) + w * reach / 2]
             for w in levels for m in levels for q1 in levels]
-    return np.unique(np.round(check_stroke(np.array(rows)), 12), axis=0)
+    return np.unique(np.round(check_stroke(np.array(rows), stroke), 12), axis=0)
 
 
-def default_working(count: int = 40, seed: int = 0) -> np.ndarray:
-    """Working inputs (count, 3) m: uniform within WORKING_REACH of the stroke, as the
-    paper's evaluation draws its targets."""
-    reach = WORKING_REACH * STROKE
+def default_working(count: int = 40, seed: int = 0, stroke: float = STROKE) -> np.ndarray:
+    """Working inputs (count, 3) m: uniform within WORKING_REACH of the ``stroke`` (m), as
+    the paper's evaluation draws its targets."""
+    reach = WORKING_REACH * stroke
     return np.random.default_rng(seed).uniform(-reach, reach, (count, 3))
 
 
@@ -199,11 +203,13 @@ def _design(parameters: ParameterSet, q, directions, working, criterion: str,
 
 def predict_stage_plan(geometry: StageGeometry, marks, targets, working=None,
                        criterion: str = 'I', candidates: int = 0, planned: int = 0,
-                       **noise) -> StageDesign:
+                       stroke: float = STROKE, **noise) -> StageDesign:
     """What the calibration run ``targets`` (n, 3) m, visited in that order, is predicted to
-    give: each free parameter's 1-sigma and the Marks' error at the ``working`` inputs."""
-    targets = check_stroke(np.asarray(targets, dtype=float))
-    working = default_working() if working is None else np.asarray(working, dtype=float)
+    give: each free parameter's 1-sigma and the Marks' error at the ``working`` inputs
+    (default: :func:`default_working` in the ``stroke``, m)."""
+    targets = check_stroke(np.asarray(targets, dtype=float), stroke)
+    working = (default_working(stroke=stroke) if working is None
+               else np.asarray(working, dtype=float))
     return _design(free_parameters(geometry, marks), targets, visiting_directions(targets),
                    working, criterion, candidates, planned, **noise)
 
@@ -226,14 +232,14 @@ def identified(report: dict) -> tuple[StageGeometry, np.ndarray]:
 
 
 def _choose(parameters: ParameterSet, q, directions, count: int, working, criterion: str,
-            per_axis: int, **noise) -> tuple[np.ndarray, int]:
-    """The ``count`` candidates (count, 3) m that, added one by one to the stops ``q``
-    (with their ``directions``), most lower the criterion (greedy: the first k are the
-    best k), and how many candidates there were."""
+            per_axis: int, stroke: float = STROKE, **noise) -> tuple[np.ndarray, int]:
+    """The ``count`` candidates (count, 3) m inside the ``stroke`` (m) that, added one by
+    one to the stops ``q`` (with their ``directions``), most lower the criterion (greedy:
+    the first k are the best k), and how many candidates there were."""
     if criterion not in CRITERIA:
         raise InvalidInputError(f'criterion must be one of {", ".join(CRITERIA)}, not '
                                 f'{criterion}')
-    pool = candidate_inputs(per_axis)
+    pool = candidate_inputs(per_axis, stroke=stroke)
     measured = whitened_rows(parameters, q, directions, **noise)
     # The candidates' directions are those of a stop reached from home, which the route
     # later replaces by its own: the backlash terms are small beside the geometry's.
@@ -265,7 +271,7 @@ def extend_stage(geometry: StageGeometry, marks, q, directions, count: int, work
 
 def plan_stage(geometry: StageGeometry, marks, stops: int, sweep_points: int = 3,
                working=None, criterion: str = 'I', per_axis: int = 9,
-               **noise) -> StageDesign:
+               stroke: float = STROKE, **noise) -> StageDesign:
     """Home, the sweeps of ``sweep_points`` per way, and ``stops`` chosen stops.
 
     Parameters
@@ -279,6 +285,8 @@ def plan_stage(geometry: StageGeometry, marks, stops: int, sweep_points: int = 3
     working : (W, 3) array, optional
         Inputs the stage will work at, m (default :func:`default_working`).
     criterion : 'I' or 'D'
+    stroke : float
+        Each input's limit either way, m (a machine description's).
 
     Raises
     ------
@@ -287,11 +295,12 @@ def plan_stage(geometry: StageGeometry, marks, stops: int, sweep_points: int = 3
     """
     if not 1 <= stops:
         raise InvalidInputError(f'plan at least one stop beside the sweeps, not {stops}')
-    sweeps = StagePlan(sweep_points=sweep_points).sweeps()
-    working = default_working() if working is None else np.asarray(working, dtype=float)
+    sweeps = StagePlan(sweep_points=sweep_points, stroke=stroke).sweeps()
+    working = (default_working(stroke=stroke) if working is None
+               else np.asarray(working, dtype=float))
     chosen, candidates = _choose(free_parameters(geometry, marks), sweeps,
                                  visiting_directions(sweeps), stops, working, criterion,
-                                 per_axis, **noise)
+                                 per_axis, stroke, **noise)
     targets = np.vstack([sweeps, route(chosen, sweeps[-1])])
     return predict_stage_plan(geometry, marks, targets, working, criterion, candidates,
-                              len(chosen), **noise)
+                              len(chosen), stroke, **noise)

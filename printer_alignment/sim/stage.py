@@ -35,15 +35,15 @@ TRUE_STAGE = StageGeometry(
     stage2plate=(-0.1436, -0.0517, np.deg2rad(0.30)))
 
 
-def random_stage(seed: int) -> StageGeometry:
+def random_stage(seed: int, nominal_d=NOMINAL_D) -> StageGeometry:
     """A stage with its errors drawn afresh (sizes like TRUE_STAGE's): leads 0.2 %,
-    offsets 40 um, guide places 1 mm, angles 0.5-2 mrad, backlash 1-5 um, mounting 3 mm
-    and 3 mrad (1 sigma, or the range)."""
+    offsets 40 um, guide places 1 mm about ``nominal_d`` (m), angles 0.5-2 mrad, backlash
+    1-5 um, mounting 3 mm and 3 mrad (1 sigma, or the range)."""
     rng = np.random.default_rng(1000 + seed)
     return replace(
         TRUE_STAGE, lead=tuple(NOMINAL_LEAD * (1 + rng.normal(0, 2e-3, 3))),
         input_offset=tuple(rng.normal(0, 40e-6, 3)),
-        d=tuple(np.asarray(NOMINAL_D) + rng.normal(0, 1e-3, 3)),
+        d=tuple(np.asarray(nominal_d) + rng.normal(0, 1e-3, 3)),
         link_difference=float(rng.normal(0, 60e-6)), beta=tuple(rng.normal(0, 1e-3, 3)),
         alpha1=float(np.pi / 2 + rng.normal(0, 2e-3)), alpha2=float(rng.normal(0, 0.5e-3)),
         backlash=tuple(rng.uniform(1e-6, 5e-6, 3)),
@@ -65,16 +65,23 @@ class StageSim:
         a sin(2 pi q / lead)): an error the stage model does not declare.
     bow : sequence of 2 float
         The platform off by a bow over its travel in the plate frame, m at the stroke: x by
-        ``bow[0] (dy / STROKE)^2`` and y by ``bow[1] (dx / STROKE)^2``, dx and dy the
+        ``bow[0] (dy / stroke)^2`` and y by ``bow[1] (dx / stroke)^2``, dx and dy the
         displacement of the calibration Marks' centroid (the place the loop's map is kept
         at) from where it is at zero inputs. An error the stage model does not declare.
+    stroke : float
+        Each input's limit either way, m; a move beyond it is refused.
+    marks : (2, 2) array
+        The calibration Marks on the platform (platform frame, m).
     """
 
     def __init__(self, truth: StageGeometry = TRUE_STAGE, landing_sigma: float = 1.2e-6,
-                 seed: int | None = 0, screw=(0.0, 0.0, 0.0), bow=(0.0, 0.0)):
+                 seed: int | None = 0, screw=(0.0, 0.0, 0.0), bow=(0.0, 0.0),
+                 stroke: float = STROKE, marks=CALIBRATION_MARKS):
         if not landing_sigma >= 0:
             raise InvalidInputError('landing_sigma must be >= 0')
         self.truth = truth
+        self.stroke = stroke
+        self.marks = np.asarray(marks, dtype=float)
         self.screw = np.asarray(screw, dtype=float)
         self.bow = np.asarray(bow, dtype=float)
         self._home = self._centroid(truth.stage_to_plate(truth.forward(np.zeros((1, 3))))[0])
@@ -87,7 +94,7 @@ class StageSim:
     def move(self, q) -> np.ndarray:
         """Move to inputs ``q`` (m, (3,)); refused (OutOfTravelError) outside the stroke.
         Returns the encoder reading (m, (3,)): the commanded input, exactly."""
-        q = check_stroke(np.asarray(q, dtype=float).reshape(1, 3))[0]
+        q = check_stroke(np.asarray(q, dtype=float).reshape(1, 3), self.stroke)[0]
         step = q - self.q
         moved = step != 0
         self.directions[moved] = np.sign(step[moved])
@@ -103,13 +110,12 @@ class StageSim:
         q_effective = self.q + (self._landing + self.screw * np.sin(turn)) / lead_ratio
         pose = self.truth.stage_to_plate(
             self.truth.forward(q_effective[None], self.directions[None]))[0]
-        dx, dy = (self._centroid(pose) - self._home) / STROKE
+        dx, dy = (self._centroid(pose) - self._home) / self.stroke
         return pose + np.array([self.bow[0] * dy ** 2, self.bow[1] * dx ** 2, 0.0])
 
-    @staticmethod
-    def _centroid(pose) -> np.ndarray:
+    def _centroid(self, pose) -> np.ndarray:
         """The calibration Marks' centroid in the plate frame (m, (2,)) at platform ``pose``."""
-        return platform_points_in_plate(pose[None], CALIBRATION_MARKS.mean(axis=0)[None])[0, 0]
+        return platform_points_in_plate(pose[None], self.marks.mean(axis=0)[None])[0, 0]
 
     def true_points(self, platform_points) -> np.ndarray:
         """Plate positions (m, (k, 2)) of platform-frame points ((k, 2)). Truth: sim only."""
@@ -238,21 +244,24 @@ def measure_repeatability(truth: StageGeometry = TRUE_STAGE, q=(1e-3, -1.5e-3, 2
 
 def simulate_calibration_run(truth: StageGeometry = TRUE_STAGE, plan=None,
                              landing_sigma: float = 1.2e-6, camera_noise: float = 0.3e-6,
-                             seed: int = 0, screw=(0.0, 0.0, 0.0), bow=(0.0, 0.0)):
-    """The calibration run of ``plan`` (default :class:`StagePlan`) on a simulated stage,
-    measured by a camera with ``camera_noise`` (m, 1 sigma): a
+                             seed: int = 0, screw=(0.0, 0.0, 0.0), bow=(0.0, 0.0),
+                             stroke: float = STROKE, marks=CALIBRATION_MARKS):
+    """The calibration run of ``plan`` (default :class:`StagePlan` in the ``stroke``, m) on
+    a simulated stage, its calibration ``marks`` (2, 2) (platform frame, m) measured by a
+    camera with ``camera_noise`` (m, 1 sigma): a
     :class:`~printer_alignment.core.stage_calibration.StageData`. Every chain lands afresh
     at each target with a short last motion in its direction of travel
     (:func:`~printer_alignment.core.stage.landing_path`), so the sweeps approach from both
     directions. ``screw`` and ``bow``: see :class:`StageSim`."""
-    plan = plan or StagePlan()
-    stage = StageSim(truth, landing_sigma, seed=seed, screw=screw, bow=bow)
+    plan = plan or StagePlan(stroke=stroke)
+    stage = StageSim(truth, landing_sigma, seed=seed, screw=screw, bow=bow, stroke=stroke,
+                     marks=marks)
     rng = np.random.default_rng(seed + 1)
     targets = plan.targets()
-    marks, directions = [], []
+    marks_seen, directions = [], []
     for q in targets:
-        for waypoint in landing_path(stage.q, q, stage.directions):
+        for waypoint in landing_path(stage.q, q, stage.directions, stroke=stroke):
             stage.move(waypoint)
-        marks.append(measure_marks(stage, CALIBRATION_MARKS, camera_noise, rng))
+        marks_seen.append(measure_marks(stage, stage.marks, camera_noise, rng))
         directions.append(stage.directions.copy())
-    return StageData(targets, np.array(directions), np.array(marks))
+    return StageData(targets, np.array(directions), np.array(marks_seen))

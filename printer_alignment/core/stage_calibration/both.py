@@ -5,7 +5,7 @@ import numpy as np
 
 from calib_core.sanity import SanityGate
 from printer_alignment.core.geometry import rotate_points
-from printer_alignment.core.stage import NOMINAL_LEAD
+from printer_alignment.core.stage import NOMINAL_D, NOMINAL_LEAD
 from printer_alignment.core.stage_calibration.data import StageData, relative_motions
 from printer_alignment.core.stage_calibration.models import StageModel
 from printer_alignment.core.stage_calibration.parametric import parametric_calibration
@@ -36,11 +36,12 @@ def _fit_error(model: StageModel, data: StageData, home) -> dict:
             'orientation_rms_rad': float(np.sqrt(np.mean(turn ** 2)))}
 
 
-def calibrate_stage(data: StageData) -> tuple[dict, dict]:
-    """Both calibrations from one run: ``({'stepwise': ..., 'parametric': ...}, report)``.
+def calibrate_stage(data: StageData, nominal_d=NOMINAL_D) -> tuple[dict, dict]:
+    """Both calibrations from one run: ``({'stepwise': ..., 'parametric': ...}, report)``;
+    ``nominal_d`` (m) the guides' nominal places (:func:`stepwise_calibration`).
     The report holds each method's identified values and its fit to the data (the
     comparison on unseen poses is the alignment evaluation)."""
-    stepwise, stepwise_report = stepwise_calibration(data)
+    stepwise, stepwise_report = stepwise_calibration(data, nominal_d)
     parametric, parametric_report, _ = parametric_calibration(data, stepwise.geometry)
     home = data.marks[np.all(np.abs(data.q) < 1e-9, axis=1)].mean(axis=0)
     report = {'num_poses': len(data), 'stepwise': stepwise_report,
@@ -54,10 +55,12 @@ def calibrate_stage(data: StageData) -> tuple[dict, dict]:
     return {'stepwise': stepwise, 'parametric': parametric}, report
 
 
-def check_stage_calibration(report: dict) -> None:
+def check_stage_calibration(report: dict, description=None, causes: str | None = None) -> None:
     """Refuse a stage calibration (``calibrate_stage``'s report) that cannot be the stage:
-    Mark residual RMS over :data:`MAX_MARK_RESIDUAL_RMS_M`, a lead more than
-    :data:`MAX_LEAD_CHANGE` from the nominal 2 mm/rev, chain 1 more than
+    Mark residual RMS over :data:`MAX_MARK_RESIDUAL_RMS_M` (with a ``description``,
+    :class:`printer_alignment.core.stage_description.StageDescription`, over its limit from
+    the declared noise; ``causes`` the likely causes, most likely first, said with either
+    failure), a lead more than :data:`MAX_LEAD_CHANGE` from the nominal 2 mm/rev, chain 1 more than
     :data:`MAX_SKEW_RAD` from square, or a free parameter without a finite std dev.
 
     Raises
@@ -66,12 +69,18 @@ def check_stage_calibration(report: dict) -> None:
         Every failure named; nothing may be written or put in force."""
     gate = SanityGate('the stage calibration')
     stepwise, parametric = report['stepwise'], report['parametric']
-    gate.residual(parametric['residual_rms_m'] * 1e6, MAX_MARK_RESIDUAL_RMS_M * 1e6, 'um',
-                  'the camera measures the Marks to a few um')
+    limit, expected = ((MAX_MARK_RESIDUAL_RMS_M, 'the camera measures the Marks to a few um')
+                       if description is None else
+                       (description.residual_limit(), description.expected_text()))
+    gate.residual(parametric['residual_rms_m'] * 1e6, limit * 1e6, 'um', expected,
+                  *(() if causes is None else (causes,)))
+    low, high = NOMINAL_LEAD * (1 - MAX_LEAD_CHANGE), NOMINAL_LEAD * (1 + MAX_LEAD_CHANGE)
+    leads_off = not all(low <= stepwise[n] <= high for n in ('R1', 'R2', 'R3'))
     for name in ('R1', 'R2', 'R3'):
-        gate.within(f'stepwise {name}', stepwise[name], NOMINAL_LEAD * (1 - MAX_LEAD_CHANGE),
-                    NOMINAL_LEAD * (1 + MAX_LEAD_CHANGE), 'm/rev',
-                    f'within {MAX_LEAD_CHANGE:.0%} of the nominal lead')
+        gate.within(f'stepwise {name}', stepwise[name], low, high, 'm/rev',
+                    f'within {MAX_LEAD_CHANGE:.0%} of the nominal lead'
+                    + (f'; likely causes: {causes}' if causes and leads_off and name == 'R1'
+                       else ''))
     gate.within('stepwise alpha1', stepwise['alpha1'], np.pi / 2 - MAX_SKEW_RAD,
                 np.pi / 2 + MAX_SKEW_RAD, 'rad', f'within {MAX_SKEW_RAD:g} rad of square')
     gate.finite_std_devs({name: sigma for name, sigma in parametric['std_devs'].items()

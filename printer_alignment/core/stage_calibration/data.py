@@ -15,11 +15,16 @@ from printer_alignment.core.stage import STROKE, check_stroke
 
 
 STAGE_COLUMNS = ('q1', 'q2', 'q3', 'mark1_x', 'mark1_y', 'mark2_x', 'mark2_y')
-# The stage CSV, declared: chain inputs within 10x the stroke, Marks anywhere on a machine.
-STAGE_SCHEMA = Schema((
-    *(Column(f'q{i}', 'm', -10 * STROKE, 10 * STROKE, f'chain {i} input') for i in (1, 2, 3)),
-    *(Column(n, 'm', -MAX_POSITION_M, MAX_POSITION_M, f'Mark {n[4]} {n[-1]}')
-      for n in STAGE_COLUMNS[3:])))
+
+
+def stage_schema(stroke: float = STROKE) -> Schema:
+    """The stage CSV, declared: chain inputs within 10x the ``stroke`` (m; a slip of a
+    unit goes 1000x beyond it), Marks anywhere on a machine."""
+    return Schema((
+        *(Column(f'q{i}', 'm', -10 * stroke, 10 * stroke, f'chain {i} input')
+          for i in (1, 2, 3)),
+        *(Column(n, 'm', -MAX_POSITION_M, MAX_POSITION_M, f'Mark {n[4]} {n[-1]}')
+          for n in STAGE_COLUMNS[3:])))
 STAGE_DIRECTIONS = ('direction1', 'direction2', 'direction3')
 
 
@@ -67,11 +72,16 @@ class StageData:
                          {k: v[rows] for k, v in self.covariates.items()})
 
     @classmethod
-    def from_csv(cls, path, dropped: dict | None = None) -> 'StageData':
-        """Columns q1..q3 (m), mark1_x, mark1_y, mark2_x, mark2_y (m, plate frame);
-        optional direction1..3 (+1 / -1; without them, from the order of the rows) and
-        covariates such as time (s) or temperature (K)."""
+    def from_csv(cls, path, dropped: dict | None = None, m_per_unit: float = 1.0,
+                 stroke: float = STROKE) -> 'StageData':
+        """Columns q1..q3 (m; with ``m_per_unit``, a machine description's, in its
+        actuators' unit), mark1_x, mark1_y, mark2_x, mark2_y (m, plate frame); optional
+        direction1..3 (+1 / -1; without them, from the order of the rows) and covariates
+        such as time (s) or temperature (K). Inputs beyond 10x the ``stroke`` (m) are
+        refused."""
         columns = read_columns(path, list(STAGE_COLUMNS), dropped)
+        for c in ('q1', 'q2', 'q3'):
+            columns[c] = columns[c] * m_per_unit
         q = np.column_stack([columns[c] for c in ('q1', 'q2', 'q3')])
         present = [c for c in STAGE_DIRECTIONS if c in columns]
         if present and len(present) != 3:
@@ -80,14 +90,17 @@ class StageData:
         directions = (np.column_stack([columns[c] for c in STAGE_DIRECTIONS]) if present
                       else directions_from_order(np.vstack([np.zeros(3), q]))[1:])
         marks = np.column_stack([columns[c] for c in STAGE_COLUMNS[3:]]).reshape(-1, 2, 2)
-        STAGE_SCHEMA.check(columns, path)
+        stage_schema(stroke).check(columns, path)
         used = set(STAGE_COLUMNS) | set(STAGE_DIRECTIONS)
         return cls(q, directions, marks, {k: v for k, v in columns.items() if k not in used})
 
-    def to_csv(self, path) -> None:
+    def to_csv(self, path, m_per_unit: float = 1.0) -> None:
+        """The CSV :meth:`from_csv` reads, q1..q3 divided by ``m_per_unit`` (the actuators'
+        unit of a machine description; default m)."""
         names = list(STAGE_COLUMNS[:3]) + list(STAGE_DIRECTIONS) + list(STAGE_COLUMNS[3:]) \
             + list(self.covariates)
-        write_columns(path, names, [self.q, self.directions, self.marks.reshape(-1, 4)]
+        write_columns(path, names, [self.q / m_per_unit, self.directions,
+                                    self.marks.reshape(-1, 4)]
                       + [self.covariates[k] for k in self.covariates])
 
 
@@ -97,12 +110,14 @@ class StagePlan:
     used; sweeps have ``sweep_points`` each way, the workspace grid ``grid`` points per
     input (q1, (q2 + q3) / 2, q3 - q2). ``stops`` (n, 3) m, when given, are the whole run
     in visiting order instead (a planned one, :mod:`printer_alignment.core.stage_planning`):
-    it starts at home, and the stepwise start needs its sweeps among them."""
+    it starts at home, and the stepwise start needs its sweeps among them. ``stroke`` (m)
+    is each input's limit either way (a machine description's)."""
 
     sweep_points: int = 9
     grid: tuple = (5, 5, 3)
     span: float = 0.95
     stops: np.ndarray | None = None
+    stroke: float = STROKE
 
     def __post_init__(self):
         if self.stops is not None:
@@ -110,7 +125,7 @@ class StagePlan:
             if np.any(stops[0] != 0):
                 raise InvalidInputError('a planned run starts at home (0, 0, 0): the Marks '
                                         'measured there are the reference of every other stop')
-            object.__setattr__(self, 'stops', check_stroke(stops))
+            object.__setattr__(self, 'stops', check_stroke(stops, self.stroke))
         object.__setattr__(self, 'sweep_points', whole_number(self.sweep_points, 'sweep_points', 3))
         if len(self.grid) != 3:
             raise InvalidInputError(f'grid must be three counts, not {self.grid!r}')
@@ -122,21 +137,22 @@ class StagePlan:
 
     def sweeps(self) -> np.ndarray:
         """Home, then each sweep up and back (the stepwise start's stops), m, (n, 3)."""
-        reach = self.span * STROKE
+        reach = self.span * self.stroke
         ramp = np.linspace(-reach, reach, self.sweep_points)
         both_ways = np.concatenate([ramp, ramp[::-1]])
         zero = np.zeros_like(both_ways)
         x_sweep = np.column_stack([both_ways, zero, zero])
         y_sweep = np.column_stack([zero, both_ways, both_ways])
         attitude = np.column_stack([zero, -both_ways, both_ways])
-        return check_stroke(np.vstack([np.zeros((1, 3)), x_sweep, y_sweep, attitude]))
+        return check_stroke(np.vstack([np.zeros((1, 3)), x_sweep, y_sweep, attitude]),
+                            self.stroke)
 
     def targets(self) -> np.ndarray:
         """Inputs in visiting order, m, (n, 3). Starts at home; sweeps go up and back;
         then the planned stops or the workspace grid."""
         if self.stops is not None:
             return self.stops.copy()
-        reach = self.span * STROKE
+        reach = self.span * self.stroke
         n1, nm, nw = self.grid
         rows = []
         # Mean of q2, q3 and their difference share the stroke: |qm| + |w| / 2 <= reach.
@@ -146,12 +162,16 @@ class StagePlan:
                 q1s = np.linspace(-reach, reach, n1)
                 for q1 in (q1s if (j + k) % 2 == 0 else q1s[::-1]):
                     rows.append([q1, qm - w / 2, qm + w / 2])
-        return np.vstack([self.sweeps(), check_stroke(np.array(rows))])
+        return np.vstack([self.sweeps(), check_stroke(np.array(rows), self.stroke)])
 
 
 PLAN_COLUMNS = ('q1', 'q2', 'q3')
-PLAN_SCHEMA = Schema(tuple(Column(n, 'm', -STROKE, STROKE, f'chain {n[1]} input')
-                           for n in PLAN_COLUMNS))
+
+
+def plan_schema(stroke: float = STROKE) -> Schema:
+    """A plan's inputs: each within ``stroke`` (m) either way."""
+    return Schema(tuple(Column(n, 'm', -stroke, stroke, f'chain {n[1]} input')
+                        for n in PLAN_COLUMNS))
 
 
 def write_stage_plan(path, targets: np.ndarray) -> None:
@@ -159,16 +179,17 @@ def write_stage_plan(path, targets: np.ndarray) -> None:
     write_columns(path, list(PLAN_COLUMNS), [np.asarray(targets, dtype=float)])
 
 
-def read_stage_plan(path) -> StagePlan:
-    """The run of a plan CSV (:func:`write_stage_plan`), checked as a plan.
+def read_stage_plan(path, stroke: float = STROKE) -> StagePlan:
+    """The run of a plan CSV (:func:`write_stage_plan`), checked as a plan of a stage whose
+    inputs reach ``stroke`` (m) either way.
 
     Raises
     ------
     InvalidInputError
         Missing columns, values outside the stroke (mm given for m?), not home first."""
     columns = read_columns(path, list(PLAN_COLUMNS))
-    PLAN_SCHEMA.check(columns, path)
-    return StagePlan(stops=np.column_stack([columns[n] for n in PLAN_COLUMNS]))
+    plan_schema(stroke).check(columns, path)
+    return StagePlan(stops=np.column_stack([columns[n] for n in PLAN_COLUMNS]), stroke=stroke)
 
 
 def relative_motions(marks: np.ndarray, home: np.ndarray):

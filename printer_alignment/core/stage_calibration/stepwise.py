@@ -68,8 +68,10 @@ def _attitude_table(w: np.ndarray, angle: np.ndarray) -> tuple:
     return table_w, table_theta
 
 
-def stepwise_calibration(data: StageData):
-    """The paper's stepwise self-calibration.
+def stepwise_calibration(data: StageData, nominal_d=NOMINAL_D):
+    """The paper's stepwise self-calibration; d1 and the middle of d2 and d3, which the
+    sweeps do not show, are taken from ``nominal_d`` (m, the stage's nominal guides, a
+    machine description's).
 
     Returns
     -------
@@ -99,7 +101,7 @@ def stepwise_calibration(data: StageData):
     # Moving-platform frame: the X direction is the path of the platform point over chain
     # 2's guide; points elsewhere also swing with the small turn an X move makes when the
     # slots of chains 2 and 3 are not parallel.
-    d1, d2, d3 = NOMINAL_D
+    d1, d2, d3 = nominal_d
     d_mid = 0.5 * (d2 + d3)
     first = _fit_line(q[x_rows, 0], (rotate_points(angle, home.mean(axis=0)) + shift)[x_rows])
     over_chain2 = centre - 0.5 * (d3 - d2) * first / np.linalg.norm(first)
