@@ -124,8 +124,9 @@ MARKS_SCHEMA = Schema((
     TEMPERATURE))
 
 
-def read_marks(path, pitch: float) -> tuple[Grid, dict]:
-    """The grid (its size from the indices) and, per region, a ``Region``.
+def read_marks(path, pitch: float, m_per_unit: float = 1.0) -> tuple[Grid, dict]:
+    """The grid (its size from the indices) and, per region, a ``Region``; x, y are in m,
+    or times ``m_per_unit`` (a machine description's unit of the stage's readings).
 
     Raises
     ------
@@ -138,7 +139,7 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict]:
     try:
         region = np.array([int(r['region']) for r in rows])
         marks = np.array([[int(r['i']), int(r['j'])] for r in rows])
-        reading = np.array([[float(r['x']), float(r['y'])] for r in rows])
+        reading = np.array([[float(r['x']), float(r['y'])] for r in rows]) * m_per_unit
     except (TypeError, ValueError) as exc:
         raise PlacementError(f'{path}: region, i, j must be integers and x, y numbers ({exc})') from None
     if not np.all(np.isfinite(reading)):
@@ -173,15 +174,17 @@ def read_marks(path, pitch: float) -> tuple[Grid, dict]:
     return grid, regions
 
 
-def write_marks(path, grid: Grid, regions: dict) -> None:
-    """The marks CSV of regions (region -> Region); readings = nominal site + deviation."""
+def write_marks(path, grid: Grid, regions: dict, m_per_unit: float = 1.0) -> None:
+    """The marks CSV of regions (region -> Region); readings = nominal site + deviation, in
+    m or divided by ``m_per_unit`` (a machine description's unit)."""
     logged = [c for c in OPTIONAL_COLUMNS
               if all((p.covariates or {}).get(c) is not None
                      for region in regions.values() for p in region.placements)]
     lines = [','.join(COLUMNS + tuple(logged))]
     for r, region in regions.items():
         for p in region.placements:
-            reading = (site_of(p.marks, p.name) + region.origin) * grid.pitch + p.deviation
+            reading = ((site_of(p.marks, p.name) + region.origin) * grid.pitch
+                       + p.deviation) / m_per_unit
             extra = [p.covariates[c] for c in logged]
             lines += [f'{r},{p.name},{i},{j},{x:.12g},{y:.12g}'
                       + ''.join(f',{v[k]:.12g}' for v in extra)

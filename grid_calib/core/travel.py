@@ -97,7 +97,8 @@ MIN_STITCHED_DRAWS = 32         # each stitched sigma to 1 / sqrt(64) = 12.5 % a
 
 
 def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
-                     certified_pitch: float | None = None) -> TravelCalibration:
+                     certified_pitch: float | None = None,
+                     description=None) -> TravelCalibration:
     """Self-calibrate every region (region -> ``data.Region``) and stitch them.
 
     ``certified_pitch`` (m): the plate's calibrated mean pitch. The data show the sum of
@@ -142,7 +143,7 @@ def calibrate_travel(grid: Grid, regions: dict, method: str = 'joint',
         scale = float(np.mean(estimates))
         stitched.stage_error = stitched.stage_error + scale * stitched.site_positions
     calibration = TravelCalibration(grid, origins, results, stitched, scale)
-    check_travel_calibration(calibration)
+    check_travel_calibration(calibration, description)
     return calibration
 
 
@@ -154,23 +155,39 @@ MAX_STAGE_ERROR_M = 1e-3
 MAX_OVERLAP_RMS_M = 20e-6
 
 
-def check_travel_calibration(calibration: TravelCalibration) -> None:
+def check_travel_calibration(calibration: TravelCalibration, description=None) -> None:
     """Refuse a grid calibration that cannot be the stage before it is written or put in
     force: a placement's readings fitted worse than :data:`MAX_READING_RESIDUAL_RMS_M`
-    RMS, a stage error beyond :data:`MAX_STAGE_ERROR_M`, regions disagreeing at shared
-    sites by more than :data:`MAX_OVERLAP_RMS_M`, or anything not finite.
+    RMS (with a ``description``, :class:`grid_calib.core.description.GridDescription`, a
+    region's reading noise estimated from its residuals above the limit from the declared
+    noise), a stage error beyond
+    :data:`MAX_STAGE_ERROR_M`, regions disagreeing at shared sites by more than
+    :data:`MAX_OVERLAP_RMS_M`, or anything not finite.
 
     Raises
     ------
     CalibrationError
         Every failure named."""
     gate = SanityGate('the grid calibration')
-    for r, result in calibration.results.items():
-        for placement, residual in result.residuals.items():
-            gate.residual(float(np.sqrt(np.mean(np.square(residual)))) * 1e6,
-                          MAX_READING_RESIDUAL_RMS_M * 1e6, 'um',
-                          f'region {r}, {placement}: a camera reads the marks to a few tenths '
-                          'of a um')
+    if description is None:
+        # The worst placement speaks for all: one line, however many regions.
+        rms = {(r, placement): float(np.sqrt(np.mean(np.square(residual))))
+               for r, result in calibration.results.items()
+               for placement, residual in result.residuals.items()}
+        worst = max(rms, key=lambda k: rms[k] if np.isfinite(rms[k]) else np.inf)
+        gate.residual(rms[worst] * 1e6, MAX_READING_RESIDUAL_RMS_M * 1e6, 'um',
+                      f'region {worst[0]}, {worst[1]}, the worst of {len(rms)} placements: a '
+                      'camera reads the marks to a few tenths of a um')
+    else:
+        # Against the declared noise, the noise each region's residuals show with their
+        # degrees of freedom counted (a fit of a value per site and per mark leaves about
+        # half the readings' scatter in the residuals).
+        noise = {r: result.noise for r, result in calibration.results.items()}
+        worst = max(noise, key=lambda r: noise[r] if np.isfinite(noise[r]) else np.inf)
+        gate.within(f'region {worst}\'s reading noise from its residuals (the worst of '
+                    f'{len(noise)} regions)', noise[worst] * 1e9, 0.0,
+                    description.residual_limit() * 1e9, 'nm',
+                    f'{description.expected_text()}: {description.causes()}')
     error = calibration.stitched.stage_error
     largest = float(np.abs(error).max()) if np.all(np.isfinite(error)) else float('nan')
     gate.within('largest stage error', largest, 0.0, MAX_STAGE_ERROR_M, 'm',

@@ -16,8 +16,13 @@ def add_parser(what) -> None:
                                        'i, j (centred mark indices), x, y (stage reading, m)')
     source.add_argument('--bag', help='a run recorded by grid_calibrator (plate and pitch '
                                       'from the run)')
-    grid.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'),
-                      help='nominal plate pitch, m (with --data)')
+    plate = grid.add_mutually_exclusive_group()
+    plate.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'),
+                       help='nominal plate pitch, m (with --data)')
+    plate.add_argument('--description',
+                       help='your setup\'s description YAML: the plate, the unit x, y are '
+                            'in, the gate from the declared camera and reading noise '
+                            '(docs/machine_description.md)')
     grid.add_argument('--stitch', choices=METHODS, default='joint',
                       help='regions in one fit (joint) or pairwise along a chain')
     grid.add_argument('--certified-pitch',

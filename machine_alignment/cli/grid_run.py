@@ -14,6 +14,7 @@ from calib_core.bags import decode_bag  # noqa: E402
 from calib_core.errors import MachineAlignmentError  # noqa: E402
 from calib_core.figures import arrow_key  # noqa: E402
 from grid_calib.core.data import read_marks  # noqa: E402
+from grid_calib.core.description import read_description  # noqa: E402
 from grid_calib.core.records import (  # noqa: E402
     PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, grid_from_placements, regions_from_readings)
 from grid_calib.core.reference_map import write_reference  # noqa: E402
@@ -87,14 +88,24 @@ def grid_run(bag):
 
 def cmd_calibrate_grid(args) -> int:
     recorded = None
+    described = read_description(args.description) if args.description else None
     if args.bag:
         grid, regions, recorded = grid_run(args.bag)
+    elif described:
+        grid, regions = described.read(args.data)
     else:
         if args.pitch is None:
-            raise MachineAlignmentError('--data needs --pitch (the plate\'s nominal pitch, m)')
+            raise MachineAlignmentError('--data needs --pitch (the plate\'s nominal pitch, m) '
+                                        'or --description')
         grid, regions = read_marks(args.data, args.pitch)
-    calibration = calibrate_travel(grid, regions, args.stitch, args.certified_pitch)
+    certified = (args.certified_pitch if args.certified_pitch is not None
+                 else described.certified_pitch if described else None)
+    calibration = calibrate_travel(grid, regions, args.stitch, certified, described)
     report = calibration.report()
+    if described:
+        report['description'] = described.gate_report()
+        print(f'  machine description {described.source}: {described.expected_text()}; '
+              f'readings in {described.measurement.actuators.unit}')
     stitched = calibration.stitched
     print(f'{len(stitched.sites)} sites from {len(regions)} region(s) of a '
           f'{2 * grid.half + 1} x {2 * grid.half + 1} plate, pitch {grid.pitch * 1e3:g} mm; '

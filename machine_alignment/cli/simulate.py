@@ -103,6 +103,10 @@ def _add_grid(simulated) -> None:
                                'self-calibration lacks; e.g. 10e-6)')
     grid_sim.add_argument('--seed', type=ranged(int, 0), default=0, help='random seed: the same seed '
                                                              'gives the same data')
+    grid_sim.add_argument('--description',
+                          help='your setup\'s description YAML: its plate, regions and '
+                               'reading noise (--half, --pitch, --noise, --regions then come '
+                               'from it); x, y written in its unit')
     grid_sim.set_defaults(func=deferred('simulate_run', 'cmd_simulate_grid'))
 
 

@@ -12,6 +12,7 @@ from calib_core.errors import MachineAlignmentError
 from calib_core.storage import write_atomic
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from grid_calib.core.data import Region, write_marks
+from grid_calib.core.description import read_description as read_grid_description
 from grid_calib.core.model import Grid
 from grid_calib.core.reference_map import write_reference
 from grid_calib.sim.plate import default_travel, measure_travel
@@ -134,21 +135,27 @@ def cmd_simulate_camera(args) -> int:
 
 
 def cmd_simulate_grid(args) -> int:
-    grid = Grid(args.half, args.pitch)
-    columns, rows = args.regions
+    described = read_grid_description(args.description) if args.description else None
+    grid = described.grid if described else Grid(args.half, args.pitch)
+    columns, rows = described.regions if described else args.regions
+    noise = described.expected_reading_rms() if described else args.noise
     if columns < 1 or rows < 1:
         raise MachineAlignmentError(f'--regions needs at least 1 x 1, not {columns} x {rows}')
     truth = default_travel(grid, columns, rows, args.seed, plate_error=args.plate_error,
                            isotropic_scale=args.isotropic_scale)
-    measured = measure_travel(grid, truth, args.noise, args.seed, args.expansion, args.warm_up)
-    write_marks(args.out, grid, {r: Region(truth.origins[r], p) for r, p in measured.items()})
+    measured = measure_travel(grid, truth, noise, args.seed, args.expansion, args.warm_up)
+    regions = {r: Region(truth.origins[r], p) for r, p in measured.items()}
+    if described:
+        described.write(args.out, regions)
+    else:
+        write_marks(args.out, grid, regions)
     if args.truth:
         sites = np.unique(np.vstack([grid.sites + np.asarray(o) for o in truth.origins.values()]),
                           axis=0) * grid.pitch
         write_reference(args.truth, sites, truth.error_at(sites))
         print(f'wrote {args.truth} (the true stage error at the {len(sites)} sites: '
               f'evaluate grid --reference reads it)')
-    print(f'wrote {args.out} ({2 * args.half + 1} x {2 * args.half + 1} marks, 3 placements, '
+    print(f'wrote {args.out} ({2 * grid.half + 1} x {2 * grid.half + 1} marks, 3 placements, '
           f'{columns} x {rows} region(s) sharing one row/column; true non-orthogonality '
           f'{truth.non_orthogonality * 1e6:g} urad, scale difference '
           f'{truth.scale_difference * 1e6:g} ppm, isotropic scale '
