@@ -79,6 +79,12 @@ def test_simulate_calibrate_evaluate_a_described_setup_read_in_mm(tmp_path, caps
     assert low < in_sigma['rms'] < high
     assert in_sigma['within_2_sigma'] > TOLERANCE['within_2_sigma']
 
+    # The closed loop on the same readings, in mm: clean data, nothing added.
+    loop = tmp_path / 'loop.json'
+    assert cli_main(['analyze', 'grid', '--description', str(USER), '--data', str(marks),
+                     '--json', str(loop)]) == 0
+    assert json.loads(loop.read_text())['effects_added'] == []
+
     # The same file under a description that says m or um: the unit slip named at reading.
     for unit, slip in (('m', '1000x smaller'), ('um', '1000x larger')):
         _refused(capsys, ['calibrate', 'grid', '--description', str(_described(tmp_path, unit)),

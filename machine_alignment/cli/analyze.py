@@ -93,7 +93,11 @@ def add_parser(sub) -> None:
                                             '(marks CSV, optional time and temperature)')
     grid.add_argument('--data', required=True, help='marks CSV of calibrate grid, with time '
                                                     '(s) and temperature (K) if logged')
-    grid.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), required=True, help='nominal plate pitch, m')
+    plate = grid.add_mutually_exclusive_group(required=True)
+    plate.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'),
+                       help='nominal plate pitch, m')
+    plate.add_argument('--description', help='your setup\'s description YAML: its plate and '
+                                             'the unit x, y are in')
     grid.add_argument('--region', type=ranged(int, 0), help='one region (default: each)')
     grid.add_argument('--min-effect', type=ranged(float, 0), default=5e-9,
                       help='smallest effect worth adding, RMS over the readings, m')

@@ -204,8 +204,10 @@ def cmd_analyze_grid(args) -> int:
     """The closed loop on each region's self-calibration (its own method: the base model
     holds a value per site and per mark, too many for the general loop's hold-out)."""
     from grid_calib.core.data import read_marks
+    from grid_calib.core.description import read_description
     from grid_calib.core.residual_loop import analyze_travel
-    grid, regions = read_marks(args.data, args.pitch)
+    grid, regions = (read_description(args.description).read(args.data) if args.description
+                     else read_marks(args.data, args.pitch))
     chosen = regions if args.region is None else {args.region: regions.get(args.region)}
     if None in chosen.values():
         raise MachineAlignmentError(f'{args.data} has no region {args.region}; it has '
