@@ -3,6 +3,7 @@ wrong unit with the column, the value and the likely mistake; the sanity gate re
 that cannot be the machine (nothing written); numeric options are range-checked when
 parsed."""
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -226,3 +227,34 @@ def test_grid_gate_refuses_readings_no_rigid_plate_gives(tmp_path, capsys):
     err = capsys.readouterr().err
     assert 'the grid calibration failed its sanity checks' in err and 'rotated' in err
     assert not report.exists()
+
+
+def test_a_gantry_with_other_screws_is_gated_by_its_own_nominal_leads():
+    """The committed vision run as a gantry whose drive converts with 5 and 10 mm/rev
+    screws would report it (its motor angles 3.2x and 4x the shipped ones): refused against
+    the shipped 16 and 40 mm/rev (the fit, started there, does not reach the screws: 140 um
+    of residual), accepted against its own, the same camera positions found; the report records the nominal it was held to, which the mark locator reads."""
+    from pathlib import Path
+
+    from calib_core.bags import decode_bag
+    from printer_alignment.core.geometry import GantryModel
+    from printer_alignment.core.records import VISION_OBSERVATIONS_TOPIC
+    from printer_alignment.core.vision_calibration import GantryObservation
+    from printer_alignment.core.vision_procedure import (
+        calibrate_from_observations, observation_from_message)
+    from printer_alignment.nodes.mark_locator import drive_leads
+    bag = Path(__file__).resolve().parents[1] / 'bags' / 'vision_calibration_run'
+    shipped = [observation_from_message(m) for topic, _, m in decode_bag(bag)
+               if topic == VISION_OBSERVATIONS_TOPIC]
+    ratio = np.array([0.016 / 0.005, 0.040 / 0.010])
+    other = [GantryObservation(o.revs * ratio, o.uv) for o in shipped]
+    with pytest.raises(CalibrationError, match='vision calibration failed its sanity checks'):
+        calibrate_from_observations(other, 0.5e-3)
+    own = calibrate_from_observations(other, 0.5e-3, nominal_gantry=GantryModel(0.005, 0.010))
+    before = calibrate_from_observations(shipped, 0.5e-3)
+    assert own.gantry.lead_x == pytest.approx(before.gantry.lead_x / ratio[0], rel=1e-6)
+    assert own.report['nominal']['leads_m_per_rev'] == [0.005, 0.010]
+    assert np.allclose(drive_leads(json.dumps(own.report)), [0.005, 0.010])
+    assert np.allclose(drive_leads(''), [0.016, 0.040])
+    with pytest.raises(InvalidInputError, match='not two positive values'):
+        drive_leads(json.dumps({'nominal': {'leads_m_per_rev': [0.005, -1]}}))

@@ -14,6 +14,7 @@ from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
 from machine_alignment.cli.common import print_pose_summary, quantity, read_run, write_report
+from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
     stage_data_from_records, stage_record)
@@ -30,7 +31,14 @@ def cmd_calibrate_vision(args) -> int:
                                       'alignment_msgs/msg/VisionObservation',
                                       observation_from_message,
                                       'vision calibration observations', VISION_RESULT_TOPIC)
-    calibration = calibrate_from_observations(observations, args.pitch)
+    # Gated against the nominal lens and screws the live run recorded (a user's gantry
+    # has its own leads), else the shipped gantry's.
+    nominal = (recorded or {}).get('nominal', {})
+    calibration = calibrate_from_observations(
+        observations, args.pitch,
+        CameraToPlate(nominal['pixel_size_m']) if 'pixel_size_m' in nominal else CameraToPlate(),
+        GantryModel(*nominal['leads_m_per_rev']) if 'leads_m_per_rev' in nominal
+        else GantryModel())
     report = dict(calibration.report)
     g = report['gantry']
     print(f'{len(observations)} positions; pixel size '

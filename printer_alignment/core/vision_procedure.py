@@ -109,10 +109,13 @@ def calibrate_from_observations(observations: list, pitch: float,
                                 nominal_camera: CameraToPlate = CameraToPlate(),
                                 nominal_gantry: GantryModel = GantryModel()) -> VisionCalibration:
     """Pixel size from every view, then the gantry model; the same code for live and
-    recorded runs."""
+    recorded runs. The report keeps the nominal lens and screws the gate held it to, so a
+    recorded run is solved again against the same."""
     pixel = calibrate_pixel_size([o.uv for o in observations], pitch, nominal_camera)
     gantry = calibrate_gantry(observations, pixel.camera2plate, pitch, nominal_gantry)
-    report = {'pixel_size': pixel.report(), 'gantry': gantry.report(), 'pitch_m': pitch}
+    report = {'pixel_size': pixel.report(), 'gantry': gantry.report(), 'pitch_m': pitch,
+              'nominal': {'pixel_size_m': nominal_camera.pixel_size,
+                          'leads_m_per_rev': [nominal_gantry.lead_x, nominal_gantry.lead_y]}}
     check_vision_calibration(report, nominal_camera, nominal_gantry)
     return VisionCalibration(pixel.camera2plate, gantry.model, report)
 

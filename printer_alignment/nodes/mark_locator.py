@@ -11,6 +11,7 @@ camera position plus its calibrated pixel offset.
 """
 from __future__ import annotations
 
+import json
 import threading
 import time
 
@@ -37,9 +38,12 @@ UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'     # rmw's name for an endpoint not yet ma
 
 
 def vision_from_message(msg):
-    """(CameraToPlate, GantryModel) from a vision CalibrationResult message, checked: its
-    kind, every value present, finite and in the units vision_calibrator states, and within
-    the bounds of the vision gate that hold without the nominal lens and screws.
+    """(CameraToPlate, GantryModel, the drive's leads (2,) m/rev) from a vision
+    CalibrationResult message, checked: its kind, every value present, finite and in the
+    units vision_calibrator states, and within the bounds of the vision gate that hold
+    without the nominal lens and screws. The drive's leads (what it converts motor angles
+    with) are the nominal ones the calibration recorded in its report, else the shipped
+    gantry's.
 
     Raises
     ------
@@ -66,7 +70,27 @@ def vision_from_message(msg):
         raise InvalidInputError(f'vision result residual in {msg.residual_unit!r}, not m')
     check_vision_parameters(values, msg.rms_residual)
     return (CameraToPlate(values['pixel_size'], values['camera_angle']),
-            GantryModel(**{k: values[k] for k in GANTRY_KEYS}))
+            GantryModel(**{k: values[k] for k in GANTRY_KEYS}), drive_leads(msg.report_json))
+
+
+def drive_leads(report_json: str) -> np.ndarray:
+    """The nominal leads (2,) m/rev a vision report recorded, else the shipped gantry's.
+
+    Raises
+    ------
+    InvalidInputError
+        Recorded leads that are not two positive finite numbers."""
+    try:
+        recorded = json.loads(report_json or '{}').get('nominal', {}).get('leads_m_per_rev')
+    except (ValueError, AttributeError):
+        recorded = None
+    if recorded is None:
+        return NOMINAL_LEADS
+    leads = np.asarray(recorded, dtype=float) if isinstance(recorded, list) else np.zeros(0)
+    if leads.shape != (2,) or not np.all(np.isfinite(leads)) or not np.all(leads > 0):
+        raise InvalidInputError(f'vision result records nominal leads {recorded!r}, not two '
+                                'positive values in m/rev')
+    return leads
 
 
 class MarkLocator:
@@ -140,12 +164,13 @@ class MarkLocator:
     def select_view(self, view: str) -> None:
         call_service(self.view_client, SelectView.Request(view=view), 'camera view', self.timeout)
 
-    def _park(self, x: float, y: float) -> np.ndarray:
-        """Park the gantry at (x, y) m from below; returns the motor angles (rev)."""
+    def _park(self, x: float, y: float, leads: np.ndarray) -> np.ndarray:
+        """Park the gantry at (x, y) m from below; returns the motor angles (rev) as the
+        drive converts them with ``leads`` (2,) m/rev."""
         for target in ((x - self.approach, y - self.approach), (x, y)):
             reached = call_service(self.move_client, MoveGantry.Request(
                 x=float(target[0]), y=float(target[1])), 'gantry move', self.timeout)
-        return np.array([reached.x, reached.y]) / NOMINAL_LEADS
+        return np.array([reached.x, reached.y]) / leads
 
     def measure(self, expected, shape: str = 'circle') -> np.ndarray:
         """Plate positions (m, (k, 2)) of the one Mark of ``shape`` near each expected
@@ -157,7 +182,7 @@ class MarkLocator:
             No vision calibration yet, or a Mark is missing, clipped or not alone (the
             detector's reason is passed on), or a service does not answer.
         """
-        camera2plate, gantry = self.vision
+        camera2plate, gantry, leads = self.vision
         expected = np.atleast_2d(np.asarray(expected, dtype=float))
         if not np.all(np.isfinite(expected)):
             raise InvalidInputError('expected Mark positions contain NaN or infinite values')
@@ -166,9 +191,9 @@ class MarkLocator:
             # The lattice is in gantry commands (repeatable motor angles); the calibrated
             # model says which command brings the camera over the Mark: the plate frame can
             # sit millimetres from the command frame.
-            command = gantry.revs_for([[x, y]])[0] * NOMINAL_LEADS
+            command = gantry.revs_for([[x, y]])[0] * leads
             park = np.round(command / self.lattice) * self.lattice
-            revs = self._park(*park)
+            revs = self._park(*park, leads)
             try:
                 detected = call_service(self.detect_client, DetectMarks.Request(
                     shape=shape, expected_count=1), 'detection', self.timeout)

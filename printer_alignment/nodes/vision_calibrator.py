@@ -51,7 +51,7 @@ from calib_core.nodes.temperature import TemperatureLog
 from calib_core.temperature import TEMPERATURE_TOPIC, stamp_seconds
 from printer_alignment.core.camera_calibration import distortion_from_dot_views
 from printer_alignment.core.geometry import (
-    NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate, calibrated_frames)
+    NOMINAL_LEADS, NOMINAL_PIXEL_SIZE, CameraToPlate, GantryModel, calibrated_frames)
 from printer_alignment.core.loop_models import GantryData, GantryLoopModel
 from printer_alignment.core.records import (
     INTRINSICS_RESULT_TOPIC as INTRINSICS_TOPIC, VISION_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC,
@@ -95,6 +95,9 @@ class VisionCalibratorNode(Node):
         self.declare_parameter('x_range', [0.0, 0.200])
         self.declare_parameter('y_range', [0.0, 0.150])
         self.declare_parameter('nominal_pixel_size', NOMINAL_PIXEL_SIZE)
+        # The screws' leads the drive converts motor angles with (m/rev, X and Y): the
+        # gate holds the identified leads within 10 % of them.
+        self.declare_parameter('nominal_leads', NOMINAL_LEADS.tolist())
         self.declare_parameter('call_timeout_s', 10.0)
         # The lens's focal length in px (datasheet focal length / pixel pitch): views square
         # to the plate cannot measure it, and the distortion coefficients scale with it.
@@ -108,6 +111,12 @@ class VisionCalibratorNode(Node):
         self.plan = self._plan_from_parameters({})
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         self.nominal_camera = CameraToPlate(float(self.get_parameter('nominal_pixel_size').value))
+        leads = np.asarray(self.get_parameter('nominal_leads').value, dtype=float)
+        if leads.shape != (2,) or not np.all(np.isfinite(leads)) or not np.all(leads > 0):
+            raise ValueError('nominal_leads must be the X and Y screws\' leads, two positive '
+                             'values in m/rev')
+        self.nominal_leads = leads
+        self.nominal_gantry = GantryModel(lead_x=float(leads[0]), lead_y=float(leads[1]))
         self._gantry_state = GantryState()
         group = ReentrantCallbackGroup()
         self.temperatures = TemperatureLog(self, self.get_parameter('temperature_topic').value,
@@ -192,7 +201,7 @@ class VisionCalibratorNode(Node):
         reached = self._call(self.move_client, MoveGantry.Request(x=float(x), y=float(y)),
                              'gantry move')
         # The drive reports axis positions as motor angle times the nominal lead.
-        revs = np.array([reached.x, reached.y]) / NOMINAL_LEADS
+        revs = np.array([reached.x, reached.y]) / self.nominal_leads
         self._gantry_state = GantryState(header=self._header(), x=reached.x, y=reached.y,
                                          x_rev=float(revs[0]), y_rev=float(revs[1]))
         return revs
@@ -210,7 +219,7 @@ class VisionCalibratorNode(Node):
             _, calibration = run_vision_calibration(
                 plan, self._move, lambda: self._observe_and_record(run),
                 lambda step, _, message: self._progress(step, total, message),
-                nominal_camera=self.nominal_camera)
+                nominal_camera=self.nominal_camera, nominal_gantry=self.nominal_gantry)
             path, version, content = run.save('vision', {
                 'camera2plate': {'pixel_size': calibration.camera2plate.pixel_size,
                                  'angle': calibration.camera2plate.angle,
