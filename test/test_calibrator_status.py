@@ -1,7 +1,6 @@
 """A calibrator's /diagnostics status and /tf_static frames (calib_core.nodes.status), on
 an rclpy node in this process with discovery off (every ROS domain is some DDS test
 module's band, and nothing here needs a peer): each level from what the node was handed."""
-import os
 from datetime import datetime, timedelta, timezone
 
 import numpy as np

@@ -6,12 +6,10 @@ values: `true_model(seed, nominal)` of the description's nominal (the camera til
 3 deg, the rotary axes 100-500 urad and 20-200 um off, the linear axes 50-200 urad out of
 square), written by the test to YAML and compared with what the calibration recovers."""
 import json
-import re
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from calib_core.errors import InvalidInputError
 from dispenser_calib.core.calibration import calibrate, refine, reprojection
@@ -20,6 +18,7 @@ from dispenser_calib.core.description import read_description
 from dispenser_calib.core.model import NAMES, nominal_model, read_model
 from dispenser_calib.core.procedure import STROKES, evaluation_stops, plan_stops
 from dispenser_calib.sim.machine import observe, true_model
+from described import changed, refused
 from machine_alignment.cli import main as cli_main
 
 DESCRIPTIONS = Path(__file__).resolve().parents[1] / 'dispenser_calib' / 'descriptions'
@@ -27,24 +26,6 @@ USER = DESCRIPTIONS / 'five_axis_5mp_mm_deg.yaml'
 SHIPPED = DESCRIPTIONS / 'five_axis_shipped_simulator.yaml'
 # Held out over expected: 1.00-1.15 on 10 machines (bench_results/five_axis_description.md).
 TOLERANCE = {'sigmas': 4.0, 'held_out_over_expected': 1.25}
-
-
-def _described(tmp_path, name: str, **changes) -> Path:
-    """The user's example with ``changes`` to its actuators section."""
-    content = yaml.safe_load(USER.read_text())
-    content['actuators'].update(changes)
-    path = tmp_path / f'{name}.yaml'
-    path.write_text(yaml.safe_dump(content))
-    return path
-
-
-def _refused(capsys, tmp_path, argv: list, pattern: str) -> None:
-    """The command refuses, writes no calibration and says ``pattern`` (a regex)."""
-    never = tmp_path / 'never.yaml'
-    assert cli_main([*argv, '--out', str(never)]) != 0
-    assert not never.exists()
-    error = capsys.readouterr().err
-    assert re.search(pattern, error), error
 
 
 def test_the_shipped_simulator_description_is_the_shipped_machine():
@@ -72,12 +53,8 @@ def test_the_shipped_simulator_description_is_the_shipped_machine():
     ({'workspace': {'strokes': {'x_m': [-0.2, 0.2]}}}, 'strokes lack y_m'),
 ])
 def test_a_bad_description_is_refused_naming_the_key(tmp_path, change, message):
-    content = yaml.safe_load(USER.read_text())
-    content.update(change)
-    path = tmp_path / 'bad.yaml'
-    path.write_text(yaml.safe_dump(content))
     with pytest.raises(InvalidInputError, match=message):
-        read_description(path)
+        read_description(changed(USER, tmp_path, **change))
 
 
 def test_plan_simulate_calibrate_a_described_dispenser_read_in_mm_and_degrees(tmp_path):
@@ -147,21 +124,22 @@ def test_the_std_devs_hold_the_axes_stopping_noise_a_whole_image_shares():
 
 def test_a_unit_slip_is_named_first_only_where_the_readings_point_to_it(tmp_path, capsys):
     in_radians = tmp_path / 'radians.csv'
-    assert cli_main(['simulate', 'five-axis', '--description',
-                     str(_described(tmp_path, 'rad', rotary_unit='rad')), '--seed', '2',
+    radians = changed(USER, tmp_path, 'rad', 'actuators', actuators={'rotary_unit': 'rad'})
+    assert cli_main(['simulate', 'five-axis', '--description', str(radians), '--seed', '2',
                      '--out', str(in_radians)]) == 0
-    _refused(capsys, tmp_path, ['calibrate', 'five-axis', '--description', str(USER), '--data',
-                                str(in_radians)],
-             r"1\. the rotary axes' readings travel 0\.017\d*x .* they are in rad, not deg")
+    never = tmp_path / 'never.yaml'
+    refused(capsys, ['calibrate', 'five-axis', '--description', str(USER), '--data',
+                     str(in_radians)],
+            r"1\. the rotary axes' readings travel 0\.017\d*x .* they are in rad, not deg", never)
 
     # A camera noisier than declared: refused by the declared 0.5 px, without a unit named;
     # the built-in 3 px gate takes it.
     noisy = tmp_path / 'noisy.csv'
     assert cli_main(['simulate', 'five-axis', '--description', str(SHIPPED), '--noise', '0.6',
                      '--seed', '2', '--out', str(noisy)]) == 0
-    _refused(capsys, tmp_path, ['calibrate', 'five-axis', '--description', str(SHIPPED),
-                                '--data', str(noisy)],
-             r'above the 0\.5 px .*: 1\. the camera finds the dots less well than declared')
+    refused(capsys, ['calibrate', 'five-axis', '--description', str(SHIPPED), '--data',
+                     str(noisy)],
+            r'above the 0\.5 px .*: 1\. the camera finds the dots less well than declared', never)
     assert cli_main(['calibrate', 'five-axis', '--data', str(noisy)]) == 0
 
 
@@ -169,7 +147,8 @@ def test_millimetres_declared_micrometres_are_refused_by_the_axes_scale(tmp_path
     observations = tmp_path / 'obs.csv'
     assert cli_main(['simulate', 'five-axis', '--description', str(USER), '--seed', '3',
                      '--out', str(observations)]) == 0
-    _refused(capsys, tmp_path, ['calibrate', 'five-axis', '--description',
-                                str(_described(tmp_path, 'um', linear_unit='um')), '--data',
-                                str(observations)],
-             r'linear-axis scale 1 .* = (999|100\d)\.\d+, .*axes read in um')
+    micrometres = changed(USER, tmp_path, 'um', 'actuators', actuators={'linear_unit': 'um'})
+    refused(capsys, ['calibrate', 'five-axis', '--description', str(micrometres), '--data',
+                     str(observations)],
+            r'linear-axis scale 1 .* = (999|100\d)\.\d+, .*axes read in um',
+            tmp_path / 'never.yaml')

@@ -5,14 +5,13 @@ values: the simulated stage error `simulate grid --truth` writes (20 urad out of
 10 ppm scale difference, the plate's errors 1 um RMS), against which `evaluate grid`
 checks the map in its own stated sigma."""
 import json
-import re
 from pathlib import Path
 
 import pytest
-import yaml
 
 from calib_core.errors import InvalidInputError
 from grid_calib.core.description import read_description
+from described import changed, refused
 from machine_alignment.cli import main as cli_main
 
 DESCRIPTIONS = Path(__file__).resolve().parents[1] / 'grid_calib' / 'descriptions'
@@ -20,20 +19,6 @@ USER = DESCRIPTIONS / 'grid_15x15_mm.yaml'
 SHIPPED = DESCRIPTIONS / 'grid_shipped_simulator.yaml'
 # The map against the truth in its stated sigma: 0.99 RMS, 95 % within 2 sigma (seed 1).
 TOLERANCE = {'sigma_rms': (0.8, 1.25), 'within_2_sigma': 0.9}
-
-
-def _refused(capsys, argv: list, pattern: str) -> None:
-    assert cli_main(argv) != 0
-    error = capsys.readouterr().err
-    assert re.search(pattern, error), error
-
-
-def _described(tmp_path, unit: str) -> Path:
-    content = yaml.safe_load(USER.read_text())
-    content['actuators']['unit'] = unit
-    path = tmp_path / f'{unit}.yaml'
-    path.write_text(yaml.safe_dump(content))
-    return path
 
 
 def test_the_shipped_description_is_what_simulate_grid_simulates():
@@ -52,12 +37,8 @@ def test_the_shipped_description_is_what_simulate_grid_simulates():
     ({'workspace': {'regions': [2.5, 2]}}, 'regions must be two whole numbers'),
 ])
 def test_a_bad_description_is_refused_naming_the_key(tmp_path, change, message):
-    content = yaml.safe_load(USER.read_text())
-    content.update(change)
-    path = tmp_path / 'bad.yaml'
-    path.write_text(yaml.safe_dump(content))
     with pytest.raises(InvalidInputError, match=message):
-        read_description(path)
+        read_description(changed(USER, tmp_path, **change))
 
 
 def test_simulate_calibrate_evaluate_a_described_setup_read_in_mm(tmp_path, capsys):
@@ -65,7 +46,7 @@ def test_simulate_calibrate_evaluate_a_described_setup_read_in_mm(tmp_path, caps
     assert cli_main(['simulate', 'grid', '--description', str(USER), '--seed', '1', '--out',
                      str(marks), '--truth', str(truth)]) == 0
     # In mm: the built-in reading in m refuses them, naming the unit.
-    _refused(capsys, ['calibrate', 'grid', '--data', str(marks), '--pitch', '0.005'],
+    refused(capsys, ['calibrate', 'grid', '--data', str(marks), '--pitch', '0.005'],
              'look like mm')
     report_path, evaluation = tmp_path / 'grid.json', tmp_path / 'evaluation.json'
     assert cli_main(['calibrate', 'grid', '--description', str(USER), '--data', str(marks),
@@ -87,9 +68,9 @@ def test_simulate_calibrate_evaluate_a_described_setup_read_in_mm(tmp_path, caps
 
     # The same file under a description that says m or um: the unit slip named at reading.
     for unit, slip in (('m', '1000x smaller'), ('um', '1000x larger')):
-        _refused(capsys, ['calibrate', 'grid', '--description', str(_described(tmp_path, unit)),
-                          '--data', str(marks)], f'readings are in a unit {slip} than the '
-                                                 f'declared {unit}')
+        described = changed(USER, tmp_path, unit, 'actuators', actuators={'unit': unit})
+        refused(capsys, ['calibrate', 'grid', '--description', str(described), '--data',
+                         str(marks)], f'readings are in a unit {slip} than the declared {unit}')
 
 
 def test_a_noisier_camera_than_declared_is_refused_by_the_description_only(tmp_path, capsys):
@@ -100,6 +81,6 @@ def test_a_noisier_camera_than_declared_is_refused_by_the_description_only(tmp_p
                      '--out', str(marks)]) == 0
     assert cli_main(['calibrate', 'grid', '--data', str(marks), '--pitch', '0.01']) == 0
     capsys.readouterr()
-    _refused(capsys, ['calibrate', 'grid', '--description', str(SHIPPED), '--data', str(marks)],
+    refused(capsys, ['calibrate', 'grid', '--description', str(SHIPPED), '--data', str(marks)],
              r"reading noise from its residuals .* = 1\d\d\.\d+ nm, outside 0\.\.100 nm .*: 1\. "
              r"the camera or the stage's readings are noisier than declared")

@@ -265,7 +265,7 @@ def test_the_tilt_arm_moves_the_target_as_a_turn_about_the_pivot():
     pivot moves the board's origin by w x arm (to second order in w)."""
     truth = true_model(4)
     a, c = np.array([0.3, -0.2]), np.array([1.0, 2.5])
-    (va, ta), (vc, tc) = truth.a_axis, truth.c_axis
+    (va, ta), (_, tc) = truth.a_axis, truth.c_axis
     arms = tilt_arms(truth, a, c)
     for k in range(2):
         w = 1e-4 * np.array([0.6, -0.8, 0.3])      # rad, camera frame

@@ -5,7 +5,6 @@ driving plan, simulate and calibrate. True values: `random_stage(seed, d)` about
 described guides (leads 0.2 %, guides 1 mm, angles 0.5-2 mrad, backlash 1-5 um), written
 by `simulate stage --truth`, compared with what the calibration recovers."""
 import json
-import re
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ import pytest
 import yaml
 
 from calib_core.errors import InvalidInputError
+from described import changed, refused
 from machine_alignment.cli import main as cli_main
 from printer_alignment.core.stage import CAMERA_NOISE, LANDING_SIGMA, NOMINAL_STAGE, STROKE
 from printer_alignment.core.stage_calibration import StagePlan, calibrate_stage, predict_marks
@@ -30,12 +30,6 @@ DETERMINED = ('lead1', 'lead2', 'lead3', 'd3', 'beta1', 'beta3', 'alpha1', 'alph
               'backlash1', 'backlash2', 'backlash3')
 # Held out over expected: 0.98-1.03 on seeds 0-3 (this file's held-out test).
 TOLERANCE = {'sigmas': 4.0, 'held_out_over_expected': 1.2}
-
-
-def _refused(capsys, argv: list, pattern: str) -> None:
-    assert cli_main(argv) != 0
-    error = capsys.readouterr().err
-    assert re.search(pattern, error), error
 
 
 def test_the_shipped_simulator_description_is_the_shipped_machine():
@@ -60,12 +54,8 @@ def test_the_shipped_simulator_description_is_the_shipped_machine():
     ({'workspace': {'stroke_m': -0.01}}, 'stroke_m must be 1 finite positive'),
 ])
 def test_a_bad_description_is_refused_naming_the_key(tmp_path, change, message):
-    content = yaml.safe_load(USER.read_text())
-    content.update(change)
-    path = tmp_path / 'bad.yaml'
-    path.write_text(yaml.safe_dump(content))
     with pytest.raises(InvalidInputError, match=message):
-        read_description(path)
+        read_description(changed(USER, tmp_path, **change))
 
 
 def test_plan_simulate_calibrate_a_described_stage_read_in_revolutions(tmp_path, capsys):
@@ -84,7 +74,7 @@ def test_plan_simulate_calibrate_a_described_stage_read_in_revolutions(tmp_path,
     assert cli_main(['simulate', 'stage', '--description', str(USER), '--plan', str(plan),
                      '--seed', '2', '--out', str(data), '--truth', str(truth_path)]) == 0
     # Written in revolutions: the built-in reading in m refuses them, naming the unit.
-    _refused(capsys, ['calibrate', 'stage', '--data', str(data)], 'look like mm')
+    refused(capsys, ['calibrate', 'stage', '--data', str(data)], 'look like mm')
 
     report_path = tmp_path / 'calibration.json'
     assert cli_main(['calibrate', 'stage', '--description', str(USER), '--data', str(data),
@@ -119,11 +109,8 @@ def test_a_unit_slip_and_a_noisy_camera_are_refused_with_the_cause_first(tmp_pat
     data = tmp_path / 'run.csv'
     assert cli_main(['simulate', 'stage', '--description', str(USER), '--seed', '1',
                      '--out', str(data)]) == 0
-    content = yaml.safe_load(USER.read_text())
-    content['actuators'] = {'unit': 'um', 'sigma_m': 2e-6}
-    wrong = tmp_path / 'um.yaml'
-    wrong.write_text(yaml.safe_dump(content))
-    _refused(capsys, ['calibrate', 'stage', '--description', str(wrong), '--data', str(data)],
+    wrong = changed(USER, tmp_path, 'um', actuators={'unit': 'um', 'sigma_m': 2e-6})
+    refused(capsys, ['calibrate', 'stage', '--description', str(wrong), '--data', str(data)],
              r'likely causes: 1\. the chains move 1/1000 as far')
 
     # The shipped stage seen by a camera at 5 um, not the declared 0.3 um: the built-in
@@ -133,5 +120,5 @@ def test_a_unit_slip_and_a_noisy_camera_are_refused_with_the_cause_first(tmp_pat
     simulate_calibration_run(seed=4, camera_noise=5e-6).to_csv(noisy)
     assert cli_main(['calibrate', 'stage', '--data', str(noisy)]) == 0
     capsys.readouterr()
-    _refused(capsys, ['calibrate', 'stage', '--description', str(SHIPPED), '--data', str(noisy)],
+    refused(capsys, ['calibrate', 'stage', '--description', str(SHIPPED), '--data', str(noisy)],
              r'above the 6\.18\d* um .*: 1\. the instrument is noisier than declared')
