@@ -25,10 +25,11 @@ DESCRIPTIONS = Path(__file__).resolve().parents[1] / 'printer_alignment' / 'desc
 USER = DESCRIPTIONS / 'stage_0.5m_rev.yaml'
 SHIPPED = DESCRIPTIONS / 'stage_shipped_simulator.yaml'
 # The parameters the sweeps determine (the rest hold the gauge: d1, d2, the input offsets,
-# beta2, the link difference, and with them the mounting and the Marks' places).
-DETERMINED = ('lead1', 'lead2', 'lead3', 'd3', 'beta1', 'beta3', 'alpha1', 'alpha2',
+# beta2, the link difference, and with them the mounting and the Marks' places); of d3
+# only its spacing from d2 (d2 is held where the stepwise start put it).
+DETERMINED = ('lead1', 'lead2', 'lead3', 'beta1', 'beta3', 'alpha1', 'alpha2',
               'backlash1', 'backlash2', 'backlash3')
-# Held out over expected: 0.98-1.03 on seeds 0-3 (this file's held-out test).
+# Held out over expected: 0.94-1.07 on 10 machines (bench_results/user_descriptions.md).
 TOLERANCE = {'sigmas': 4.0, 'held_out_over_expected': 1.2}
 
 
@@ -83,8 +84,10 @@ def test_plan_simulate_calibrate_a_described_stage_read_in_revolutions(tmp_path,
     assert report['description']['unit'] == 'rev'
     parametric = report['parametric']
     truth = yaml.safe_load(truth_path.read_text())['parameters']
-    z = {n: (parametric['parameters'][n] - truth[n]) / parametric['std_devs'][n]
-         for n in DETERMINED}
+    found = parametric['parameters']
+    z = {n: (found[n] - truth[n]) / parametric['std_devs'][n] for n in DETERMINED}
+    z['d3 - d2'] = ((found['d3'] - found['d2']) - (truth['d3'] - truth['d2'])) / \
+        parametric['std_devs']['d3']
     assert max(abs(v) for v in z.values()) < TOLERANCE['sigmas'], z
 
 
