@@ -1,4 +1,4 @@
-"""Fuzz the readers of user files (CSV datasets, YAML geometry, marker descriptions,
+"""Fuzz the readers of user files (CSV datasets, YAML geometry, machine and marker descriptions,
 intrinsics): random bytes, truncations, random column subsets and shuffled or damaged
 cells of valid files. Every outcome is either a dataset or a MachineAlignmentError with a
 message free of numpy reprs; nothing else may escape (bounded: 120 variants per reader,
@@ -14,25 +14,44 @@ from calib_core.axis import AxisData
 from calib_core.errors import MachineAlignmentError
 from calib_core.sim.axis import AxisTruth, simulate_axis_test
 from dispenser_calib.core.data import read_observations, write_observations
+from dispenser_calib.core.description import read_description as read_five_axis_description
 from dispenser_calib.core.model import nominal_model
 from dispenser_calib.core.procedure import plan_stops
 from dispenser_calib.core.target_poses import read_target_poses
 from dispenser_calib.sim.machine import observe, true_model
 from grid_calib.core.data import Region, read_marks, write_marks
+from grid_calib.core.description import read_description as read_grid_description
 from grid_calib.core.model import Grid
 from grid_calib.core.travel import calibrate_travel
 from grid_calib.sim.plate import default_travel, measure_travel
 from hexapod_calib.core.calibration import PoseData
+from hexapod_calib.core.description import read_description as read_hexapod_description
 from hexapod_calib.core.geometry import nominal_geometry, read_geometry, write_geometry
+from platform_calib.core.description import read_description as read_platform_description
 from platform_calib.core.geometry import nominal_geometry as platform_nominal
 from platform_calib.core.identification import PoseData as PlatformPoses
 from platform_calib.sim.platform import PlatformSim, measure_poses, plan_poses, true_geometry
 from printer_alignment.core.camera_calibration import read_boofcv_intrinsics, read_correspondences
 from printer_alignment.core.dot_markers import load_uchiya_markers
 from printer_alignment.core.stage_calibration import StageData
+from printer_alignment.core.stage_description import read_description as read_stage_description
 from printer_alignment.sim.stage import simulate_calibration_run
 
 REAL = Path(__file__).resolve().parent / 'data' / 'real'
+ROOT = Path(__file__).resolve().parents[1]
+# The machine descriptions' readers (issue 50), each on its user's example.
+DESCRIPTIONS = {
+    'hexapod description': ('hexapod_calib/descriptions/hexapod_0.8m_motion_capture.yaml',
+                            read_hexapod_description),
+    'platform description': ('platform_calib/descriptions/platform_0.6m_tracker.yaml',
+                             read_platform_description),
+    'five-axis description': ('dispenser_calib/descriptions/five_axis_5mp_mm_deg.yaml',
+                              read_five_axis_description),
+    'stage description': ('printer_alignment/descriptions/stage_0.5m_rev.yaml',
+                          read_stage_description),
+    'grid description': ('grid_calib/descriptions/grid_15x15_mm.yaml',
+                         read_grid_description),
+}
 MEASURED = Path(__file__).resolve().parent / 'data' / 'measured'
 VARIANTS = 120
 # A message shows values as the user wrote them, not numpy's reprs.
@@ -65,7 +84,15 @@ def _valid_files(folder: Path) -> dict:
                   platform_nominal()).to_csv(platform)
     five_axis = folder / 'five_axis.csv'
     write_observations(five_axis, observe(true_model(1), plan_stops(nominal_model(), 0))[0])
+    described_grid = read_grid_description(ROOT / DESCRIPTIONS['grid description'][0])
+    described_marks = folder / 'described_marks.csv'
+    truth = default_travel(described_grid.grid, 1, 1, seed=1)
+    described_grid.write(described_marks, {
+        r: Region(truth.origins[r], p)
+        for r, p in measure_travel(described_grid.grid, truth, 50e-9, 1).items()})
     return {
+        **{name: (ROOT / path, read) for name, (path, read) in DESCRIPTIONS.items()},
+        'grid marks in a described unit': (described_marks, described_grid.read),
         'platform poses': (platform, lambda p: PlatformPoses.from_csv(p)),
         'five-axis observations': (five_axis, read_observations),
         'target poses': (MEASURED / 'ric_two_axis_positioner' / 'positioner_poses.csv',
@@ -118,7 +145,8 @@ def valid(tmp_path_factory):
 
 @pytest.mark.parametrize('reader', ['axis', 'stage', 'poses', 'camera', 'geometry', 'markers',
                                     'intrinsics', 'grid marks', 'platform poses',
-                                    'five-axis observations', 'target poses'])
+                                    'five-axis observations', 'target poses',
+                                    'grid marks in a described unit', *DESCRIPTIONS])
 def test_damaged_files_give_a_dataset_or_a_clear_error(reader, valid, tmp_path):
     source, read = valid[reader]
     read(source)                                      # the undamaged file reads
