@@ -196,6 +196,47 @@ def workspace_numbers(value, count: int, name: str, where: str, positive: bool) 
     return tuple(float(v) for v in values)
 
 
+UNIT_SLIP = 1e3
+"""Actuators whose readings travel about this many times (or this share of) what the
+measured motion needs are read in another unit: mm as m, or m as mm."""
+MAX_TRAVEL_RATIO = 10.0
+"""Readings that travel more than this many times (or less than this share of) what the
+measured motion needs are not in the declared unit: no fit or analysis of them means
+anything. Within it, a lead or scale declared wrong is something the loop can name."""
+
+
+def is_unit_slip(travel_ratio: float) -> bool:
+    """Whether ``travel_ratio`` (readings' travel over the measured motion's) is about
+    :data:`UNIT_SLIP` or its inverse (within 3x)."""
+    return (UNIT_SLIP / 3 < travel_ratio < 3 * UNIT_SLIP
+            or 1 / (3 * UNIT_SLIP) < travel_ratio < 3 / UNIT_SLIP)
+
+
+def refuse_unit_slip(travel_ratio: float, actuators: Actuators, moving: str,
+                     where: str) -> None:
+    """Refuse data whose ``moving`` actuators travel more than :data:`MAX_TRAVEL_RATIO`
+    times (or less than its share of) what the measured motion needs, naming a unit slip
+    where the ratio is about 1000x or 1/1000 (:func:`is_unit_slip`). ``where`` names the
+    file and the description.
+
+    Raises
+    ------
+    InvalidInputError"""
+    if 1 / MAX_TRAVEL_RATIO <= travel_ratio <= MAX_TRAVEL_RATIO:
+        return
+    seen = (f'{where}: the {moving} travel {travel_ratio:.4g}x as far as the measured motion '
+            'needs: ')
+    if is_unit_slip(travel_ratio):
+        raise InvalidInputError(
+            seen + f'the readings are in a unit '
+            f'{"1000x smaller" if travel_ratio > 1 else "1000x larger"} than the declared '
+            f'{actuators.unit}')
+    raise InvalidInputError(
+        seen + f'the readings are not in the declared {actuators.unit}'
+        + (f' of {actuators.m_per_unit:g} m' if actuators.unit in SCALED_UNITS else '')
+        + ' (another unit, or another scale)')
+
+
 def likely_causes(travel_ratio: float, actuators: Actuators, moving: str, model: str,
                   command: str) -> str:
     """The likely causes of a residual far above the declared noise, most likely first,

@@ -4,6 +4,7 @@
 an independent 42-parameter fit's) where the built-in gate refused it, and still refuses
 the same data in a wrong unit, naming the unit first among the causes only when the
 numbers point to it."""
+import re
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,12 @@ def test_a_unit_slip_is_named_first_when_the_numbers_point_to_it(tmp_path, capsy
                      str(path)]) != 0
     message = capsys.readouterr().err
     assert '1. the legs move 1/1000 as far as the measured poses need' in message
+    # The closed loop is not run on them at all: readings in another unit explain nothing.
+    assert cli_main(['analyze', 'hexapod', '--data', str(in_mm), '--description',
+                     str(path)]) != 0
+    assert re.search(r'the legs travel 0\.00\d+x as far as the measured motion needs: the '
+                     r'readings are in a unit 1000x larger than the declared um',
+                     capsys.readouterr().err)
 
 
 @pytest.mark.parametrize('change, named', [

@@ -88,7 +88,7 @@ def test_the_user_platform_is_calibrated_by_its_description_and_refused_by_the_b
     check_identification(result, nominal, description)
 
 
-def test_a_lead_declared_wrong_is_refused_with_the_lead_named_first(tmp_path):
+def test_a_lead_declared_wrong_is_refused_with_the_lead_named_first(tmp_path, capsys):
     """The same feeds read as mm (a description saying mm where they are revolutions of
     4 mm): the feeds travel a quarter of what the poses need; refused, the lead first."""
     data = _simulate(tmp_path, 'run', '--poses', '30', '--scale', '1', '--seed', '1')
@@ -105,6 +105,15 @@ def test_a_lead_declared_wrong_is_refused_with_the_lead_named_first(tmp_path):
     with pytest.raises(CalibrationError, match=r'1\. the feeds move 0\.2\d+x as far'):
         check_identification(result, described.geometry, described,
                              likely_causes(read, described))
+    # A lead a quarter off is something the loop can name; revolutions of 4 mm read as um
+    # (4000x off) are not: analyze refuses them before any fit.
+    capsys.readouterr()
+    content['actuators'] = {'unit': 'um', 'sigma_m': 2e-6}
+    wrong.write_text(yaml.safe_dump(content))
+    assert cli_main(['analyze', 'platform', '--description', str(wrong), '--data',
+                     str(data)]) != 0
+    assert ('the feeds travel 0.0002501x as far as the measured motion needs: the readings '
+            'are not in the declared um') in capsys.readouterr().err
 
 
 def test_one_feed_lead_off_is_named_by_the_loop_on_that_feed(tmp_path):

@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_core.description import (
-    RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, described_number,
-    read_description_file, read_measurement, workspace_numbers, workspace_section)
+    MAX_TRAVEL_RATIO, RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys,
+    described_number, is_unit_slip, read_description_file, read_measurement, workspace_numbers,
+    workspace_section)
 from calib_core.errors import InvalidInputError
 from calib_core.files import read_csv_rows
 from grid_calib.core.data import COLUMNS, read_marks, write_marks
@@ -39,9 +40,6 @@ from grid_calib.errors import PlacementError
 GEOMETRY_KEYS = ('pitch_m', 'half', 'certified_pitch_m')
 # The shipped simulation (machine-align simulate grid): 20 nm readings, exact stage.
 SHIPPED_INSTRUMENT = Instrument('the shipped simulated camera', 20e-9)
-# A reading this many pitches apart for neighbouring marks is a unit slip (mm read as m:
-# 1000; m read as mm: 1/1000).
-SLIP = 1e3
 
 
 @dataclass(frozen=True)
@@ -96,15 +94,19 @@ class GridDescription:
         Raises
         ------
         InvalidInputError
-            Neighbouring marks read about 1000x (or 1/1000) a pitch apart: a unit slip,
-            named; as :func:`read_marks` otherwise."""
+            Neighbouring marks read more than 10x (or under a tenth of) a pitch apart:
+            another unit (a slip of 1000x named as such) or another plate; as
+            :func:`read_marks` otherwise."""
         scale = self.measurement.actuators.m_per_unit
-        slip = _pitch_ratio(path, scale, self.grid.pitch)
-        if slip is not None:
+        ratio = _pitch_ratio(path, scale, self.grid.pitch)
+        if ratio is not None and not 1 / MAX_TRAVEL_RATIO <= ratio <= MAX_TRAVEL_RATIO:
+            unit = self.measurement.actuators.unit
             raise InvalidInputError(
-                f'{path}: neighbouring marks are read {slip:.4g} pitches apart: the readings '
-                f'are in a unit {"1000x smaller" if slip > 1 else "1000x larger"} than the '
-                f'declared {self.measurement.actuators.unit} ({self.source})')
+                f'{path}: neighbouring marks are read {ratio:.4g} pitches apart: the readings '
+                + (f'are in a unit {"1000x smaller" if ratio > 1 else "1000x larger"} than '
+                   f'the declared {unit}' if is_unit_slip(ratio) else
+                   f'are not in the declared {unit}, or the pitch is not '
+                   f'{self.grid.pitch:g} m') + f' ({self.source})')
         grid, regions = read_marks(path, self.grid.pitch, scale)
         if grid.half != self.grid.half:
             raise InvalidInputError(f'{path}: a {2 * grid.half + 1} x {2 * grid.half + 1} '
@@ -119,8 +121,8 @@ class GridDescription:
 
 def _pitch_ratio(path, scale: float, pitch: float) -> float | None:
     """The median distance between neighbouring marks (i and i + 1 in one row) of the
-    file's first placement, in pitches, when it is about 1000 or 1/1000 (a unit slip);
-    else None."""
+    file's first placement, in pitches; None where the file cannot say (read_marks then
+    names what is wrong with it)."""
     rows = read_csv_rows(path, 'a grid marks CSV', COLUMNS, PlacementError)
     first = (rows[0]['region'], rows[0]['placement'])
     try:
@@ -132,8 +134,7 @@ def _pitch_ratio(path, scale: float, pitch: float) -> float | None:
              if (i + 1, j) in seen]
     if not steps:
         return None
-    ratio = float(np.median(steps)) / pitch
-    return ratio if (SLIP / 3 < ratio < SLIP * 3 or 1 / (3 * SLIP) < ratio < 3 / SLIP) else None
+    return float(np.median(steps)) / pitch
 
 
 def read_description(path) -> GridDescription:

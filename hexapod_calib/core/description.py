@@ -119,12 +119,18 @@ def _workspace(content: dict, where: str) -> dict | None:
             'stroke': stroke}
 
 
+def travel_ratio(data, description: HexapodDescription) -> float:
+    """How far the legs' readings (m, as declared) travel against how far the measured
+    poses need them to (the nominal's inverse kinematics), median over the legs: about 1
+    for readings in the declared unit."""
+    needed = inverse_kinematics(description.geometry, data.measured)
+    return float(np.median(np.ptp(data.leg_lengths, axis=0)
+                           / np.maximum(np.ptp(needed, axis=0), 1e-12)))
+
+
 def likely_causes(data, description: HexapodDescription) -> str:
     """The likely causes of a residual far above the declared noise, most likely first
-    (:func:`calib_core.description.likely_causes`, from the legs' travel against the
-    poses')."""
-    needed = inverse_kinematics(description.geometry, data.measured)
-    ratio = float(np.median(np.ptp(data.leg_lengths, axis=0)
-                            / np.maximum(np.ptp(needed, axis=0), 1e-12)))
-    return causes_from_travel(ratio, description.measurement.actuators, 'legs',
+    (:func:`calib_core.description.likely_causes`, from :func:`travel_ratio`)."""
+    return causes_from_travel(travel_ratio(data, description),
+                              description.measurement.actuators, 'legs',
                               '42-parameter model', 'machine-align analyze hexapod')

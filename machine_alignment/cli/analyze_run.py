@@ -41,13 +41,18 @@ def _stage(args, dropped):
 
 
 def _platform(args, dropped):
-    from platform_calib.core.description import read_description
+    from calib_core.description import refuse_unit_slip
+    from platform_calib.core.description import read_description, travel_ratio
     from platform_calib.core.geometry import nominal_geometry, read_geometry
     from platform_calib.core.identification import PoseData
     from platform_calib.core.loop_model import PlatformLoopModel
     if args.description:
         platform = read_description(args.description)
-        return PlatformLoopModel(platform.read(args.data, dropped), platform.geometry)
+        data = platform.read(args.data, dropped)
+        # The loop on readings in another unit would explain nothing worth saying.
+        refuse_unit_slip(travel_ratio(data, platform), platform.measurement.actuators,
+                         'feeds', f'{args.data} read by {platform.source}')
+        return PlatformLoopModel(data, platform.geometry)
     nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
     return PlatformLoopModel(PoseData.from_csv(args.data, dropped), nominal)
 
@@ -67,14 +72,18 @@ def _rotary(args, dropped):
 
 
 def _hexapod(args, dropped):
+    from calib_core.description import refuse_unit_slip
     from hexapod_calib.core.calibration import PoseData
-    from hexapod_calib.core.description import read_description
+    from hexapod_calib.core.description import read_description, travel_ratio
     from hexapod_calib.core.geometry import read_geometry
     from hexapod_calib.core.loop_models import HexapodLoopModel
     description = read_description(args.description) if args.description else None
     nominal = description.geometry if description else read_geometry(args.geometry)
     data = PoseData.from_csv(args.data, nominal, dropped, leg_m_per_unit=(
         description.measurement.actuators.m_per_unit if description else 1.0))
+    if description:
+        refuse_unit_slip(travel_ratio(data, description), description.measurement.actuators,
+                         'legs', f'{args.data} read by {description.source}')
     forces = None
     if args.payload:
         from hexapod_calib.core.statics import leg_forces

@@ -130,12 +130,18 @@ def _workspace(content: dict, where: str) -> dict | None:
                                           True)[0]}
 
 
+def travel_ratio(data: PoseData, description: PlatformDescription) -> float:
+    """How far the feeds' readings (m, as declared) travel against how far the measured
+    poses need them to (the nominal's inverse kinematics), median over the feeds: about 1
+    for readings in the declared unit."""
+    needed = inverse(description.geometry, data.poses, check=False)
+    return float(np.median(np.ptp(data.feeds, axis=0)
+                           / np.maximum(np.ptp(needed, axis=0), 1e-12)))
+
+
 def likely_causes(data: PoseData, description: PlatformDescription) -> str:
     """The likely causes of a closure residual far above the declared noise, most likely
-    first (:func:`calib_core.description.likely_causes`, from the feeds' travel against the
-    poses')."""
-    needed = inverse(description.geometry, data.poses, check=False)
-    ratio = float(np.median(np.ptp(data.feeds, axis=0)
-                            / np.maximum(np.ptp(needed, axis=0), 1e-12)))
-    return causes_from_travel(ratio, description.measurement.actuators, 'feeds',
+    first (:func:`calib_core.description.likely_causes`, from :func:`travel_ratio`)."""
+    return causes_from_travel(travel_ratio(data, description),
+                              description.measurement.actuators, 'feeds',
                               '18-parameter model', 'machine-align analyze platform')

@@ -28,7 +28,7 @@ import numpy as np
 
 from calib_core.description import (
     RESIDUAL_GATE_FACTOR, Instrument, Measurement, check_keys, read_description_file,
-    read_measurement, workspace_numbers, workspace_section)
+    read_measurement, refuse_unit_slip, workspace_numbers, workspace_section)
 from calib_core.description import likely_causes as causes_from_travel
 from calib_core.errors import InvalidInputError
 from printer_alignment.core.stage import (
@@ -91,9 +91,20 @@ class StageDescription:
                 'unit': self.measurement.actuators.unit, 'expected': self.expected_text()}
 
     def read(self, path, dropped: dict | None = None) -> StageData:
-        """A stage CSV whose q1..q3 are in the actuators' unit, as :class:`StageData` in m."""
-        return StageData.from_csv(path, dropped, self.measurement.actuators.m_per_unit,
+        """A stage CSV whose q1..q3 are in the actuators' unit, as :class:`StageData` in m.
+
+        Raises
+        ------
+        InvalidInputError
+            As :meth:`StageData.from_csv`; and readings that move the Marks about 1000x
+            more or less than they say (:func:`travel_ratio`,
+            :func:`calib_core.description.refuse_unit_slip`): a unit slip, named, before
+            any fit or analysis is made of them."""
+        data = StageData.from_csv(path, dropped, self.measurement.actuators.m_per_unit,
                                   self.stroke)
+        refuse_unit_slip(travel_ratio(data), self.measurement.actuators, 'chains',
+                         f'{path} read by {self.source}')
+        return data
 
     def write(self, path, data: StageData) -> None:
         """``data`` as a stage CSV with q1..q3 in the actuators' unit."""
@@ -117,15 +128,20 @@ def read_description(path) -> StageDescription:
     return StageDescription(d, np.reshape(marks, (2, 2)), stroke, measurement, where)
 
 
-def likely_causes(data: StageData, description: StageDescription) -> str:
-    """The likely causes of a Mark residual far above the declared noise or of leads far
-    from the nominal, most likely first (:func:`calib_core.description.likely_causes`):
-    how far chain 1 travelled against how far it moved the Marks. Chain 1 drives the
+def travel_ratio(data: StageData) -> float:
+    """How far chain 1's readings (m, as declared) say it travelled against how far it
+    moved the Marks: about 1 for readings in the declared unit. Chain 1 drives the
     platform along its guide one for one (q1 = x + (y - d1) tan theta), so the Marks'
-    centroid fitted linearly on the three inputs moves by about 1 per unit of q1."""
+    centroid, fitted linearly on the three inputs, moves by about 1 per unit of q1."""
     centroid = data.marks.mean(axis=1)
     design = np.column_stack([data.q, np.ones(len(data.q))])
     moved_per_input = np.linalg.lstsq(design, centroid, rcond=None)[0][0]
-    travel = 1.0 / max(float(np.linalg.norm(moved_per_input)), 1e-12)
-    return causes_from_travel(travel, description.measurement.actuators, 'chains',
-                              'stage model', 'machine-align analyze stage')
+    return 1.0 / max(float(np.linalg.norm(moved_per_input)), 1e-12)
+
+
+def likely_causes(data: StageData, description: StageDescription) -> str:
+    """The likely causes of a Mark residual far above the declared noise or of leads far
+    from the nominal, most likely first (:func:`calib_core.description.likely_causes`,
+    from :func:`travel_ratio`)."""
+    return causes_from_travel(travel_ratio(data), description.measurement.actuators,
+                              'chains', 'stage model', 'machine-align analyze stage')
