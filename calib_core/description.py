@@ -156,8 +156,9 @@ def read_measurement(content: dict, where: str, default_instrument: Instrument,
     else:
         raise InvalidInputError(f'{where}: actuator unit {unit!r} is not one of '
                                 f'{", ".join(list(LENGTH_UNITS) + list(SCALED_UNITS))}')
-    read_by = Actuators(unit, per_unit, described_number(actuators, 'sigma_m', f'{where}: actuators',
-                                                default_actuator_sigma_m))
+    read_by = Actuators(unit, per_unit,
+                        described_number(actuators, 'sigma_m', f'{where}: actuators',
+                                         default_actuator_sigma_m))
     repeatability = described_number(content, 'repeatability_m', where, 0.0)
     return Measurement(measured_by, read_by, repeatability, declared)
 

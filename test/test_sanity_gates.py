@@ -233,7 +233,8 @@ def test_a_gantry_with_other_screws_is_gated_by_its_own_nominal_leads():
     """The committed vision run as a gantry whose drive converts with 5 and 10 mm/rev
     screws would report it (its motor angles 3.2x and 4x the shipped ones): refused against
     the shipped 16 and 40 mm/rev (the fit, started there, does not reach the screws: 140 um
-    of residual), accepted against its own, the same camera positions found; the report records the nominal it was held to, which the mark locator reads."""
+    of residual), accepted against its own, the same camera positions found; the report
+    records the nominal it was held to, which the mark locator reads."""
     from pathlib import Path
 
     from calib_core.bags import decode_bag

@@ -280,9 +280,9 @@ def plan_five_axis(model: DispenserModel, count: int, image_size, criterion: str
                    depth_of_field: float = DEPTH_OF_FIELD,
                    workspace: Workspace = SHIPPED_WORKSPACE) -> FiveAxisPlan:
     """``count`` stops chosen from :func:`candidate_stops` in ``workspace`` by
-    ``criterion`` ('I': the part
-    points' error at the working poses; 'D': the information's determinant), the stepwise
-    start's minimum reserved first; and their prediction.
+    ``criterion`` ('I': the part points' error at the working poses; 'D': the
+    information's determinant), the stepwise start's minimum reserved first; and their
+    prediction.
 
     Raises
     ------
@@ -401,8 +401,8 @@ class AdaptivePlan:
     planned stops are imaged, calibrate and predict the part's placement error about the
     calibration so far; while it is above ``target_error`` (m, RMS at the working poses),
     add the ``step`` stops that lower it most (inside ``workspace``), image them and
-    calibrate again, up to ``max_stops``. Called with the images so far, it returns the stops to image next (none
-    when done); :meth:`report` says what happened."""
+    calibrate again, up to ``max_stops``. Called with the images so far, it returns the
+    stops to image next (none when done); :meth:`report` says what happened."""
 
     image_size: tuple
     target_error: float

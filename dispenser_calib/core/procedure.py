@@ -104,8 +104,9 @@ def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
                   progress: Callable[[int, int, str], None] = lambda *a: None,
                   workspace: Workspace = SHIPPED_WORKSPACE) -> list:
     """Image the board at each of ``stops`` (n, 5) (:func:`rotary_sweep`), every stop
-    checked against the ``workspace``'s strokes before anything moves; ``record`` gets each image as it is
-    taken (its time and the machine's temperature are the recorder's). Returns the images.
+    checked against the ``workspace``'s strokes before anything moves; ``record`` gets
+    each image as it is taken (its time and the machine's temperature are the
+    recorder's). Returns the images.
 
     Raises
     ------

@@ -68,8 +68,8 @@ def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, see
     ``c_backlash`` / 2 (rad) against the direction it last moved in (lost motion). Stops
     outside the ``workspace``'s strokes are refused; the camera has ``image_size`` (w, h)
     px. ``pose_sigma`` (5,) (m, rad; a machine description's positioning noise and
-    repeatability) is how far each axis stops from its reading, 1 sigma. Returns the images and the names of the bad ones
-    (truth)."""
+    repeatability) is how far each axis stops from its reading, 1 sigma. Returns the
+    images and the names of the bad ones (truth)."""
     rng = np.random.default_rng(seed + 60)
     board, indices = board_points()
     images = []

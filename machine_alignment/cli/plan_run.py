@@ -208,9 +208,10 @@ def cmd_plan_stage(args) -> int:
           f'from {plan.candidates} candidates inside the stroke')
     print(f'predicted before anything moves (landing {noise["landing_sigma"] * 1e6:g} um per '
           f'chain, camera {noise["camera_noise"] * 1e6:g} um, first order): the calibration '
-          f'Marks\' plate positions at 40 working inputs RMS {plan.predicted_rms_m * 1e6:.3f} um, max '
-          f'{plan.predicted_max_m * 1e6:.3f} um (1 sigma); today\'s {len(today.targets)}-stop run '
-          f'{today.predicted_rms_m * 1e6:.3f} um, max {today.predicted_max_m * 1e6:.3f} um')
+          f'Marks\' plate positions at 40 working inputs RMS {plan.predicted_rms_m * 1e6:.3f} '
+          f'um, max {plan.predicted_max_m * 1e6:.3f} um (1 sigma); today\'s '
+          f'{len(today.targets)}-stop run {today.predicted_rms_m * 1e6:.3f} um, max '
+          f'{today.predicted_max_m * 1e6:.3f} um')
     write_stage_plan(args.out, plan.targets)
     print(f'wrote {args.out} (q1, q2, q3 m in visiting order: simulate stage --plan and the '
           'calibrator\'s targets key measure it)')
