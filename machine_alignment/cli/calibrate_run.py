@@ -13,7 +13,8 @@ from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_ge
 from hexapod_calib.core.procedure import identify_from_records
 from hexapod_calib.core.records import (
     HEXAPOD_RESULT_TOPIC, MEASUREMENTS_TOPIC, measurement_record)
-from machine_alignment.cli.common import print_pose_summary, quantity, read_run, write_report
+from machine_alignment.cli.common import (
+    print_pose_summary, quantity, read_in_si, read_run, write_report)
 from printer_alignment.core.geometry import CameraToPlate, GantryModel
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC, VISION_RESULT_TOPIC,
@@ -66,7 +67,8 @@ def cmd_calibrate_stage(args) -> int:
                                      'stage calibration observations', STAGE_RESULT_TOPIC)
         data = stage_data_from_records(records)
     else:
-        data = described.read(args.data) if described else StageData.from_csv(args.data)
+        data = (described.read(args.data) if described
+                else read_in_si(StageData.from_csv, args.data))
     models, report = calibrate_stage(data, *((described.d,) if described else ()))
     s, p = report['stepwise'], report['parametric']
     print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '
@@ -109,7 +111,7 @@ def cmd_calibrate_hexapod(args) -> int:
                                     'MACHINE.yaml (one of them)')
     description = read_description(args.description) if args.description else None
     nominal = description.geometry if description else read_geometry(args.geometry)
-    data = PoseData.from_csv(args.data, nominal, leg_m_per_unit=(
+    data = read_in_si(PoseData.from_csv, args.data, nominal, leg_m_per_unit=(
         description.measurement.actuators.m_per_unit if description else 1.0))
     identification = identify(data, nominal, fixed=args.fix or ())
     report = identification.report()

@@ -111,6 +111,26 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     return stops, recorded
 
 
+def read_in_si(read, *args, **kwargs):
+    """``read(*args, **kwargs)`` of a file the suite reads in SI units; where its values
+    look like mm or degrees, the refusal also says that a machine description can declare
+    the unit its actuators are read in.
+
+    Raises
+    ------
+    InvalidInputError
+        As ``read`` does."""
+    from calib_core.errors import InvalidInputError
+    try:
+        return read(*args, **kwargs)
+    except InvalidInputError as exc:
+        if 'look like mm' in str(exc) or 'look like degrees' in str(exc):
+            raise InvalidInputError(f'{exc}; if the actuators are read in another unit, say '
+                                    'so in a machine description and give it with '
+                                    '--description (docs/machine_description.md)') from None
+        raise
+
+
 def print_pose_summary(label: str, summary: dict) -> None:
     print(f'  {label:<28} max {summary["max_displacement_m"] * 1e6:8.2f} um '
           f'{summary["max_angle_rad"] * 1e6:8.1f} urad   RMS '

@@ -34,7 +34,7 @@ from dispenser_calib.sim.machine import (  # noqa: E402
     IMAGE_SIZE, PART_POSE, TRUE_TIP_OFFSET, observe, placed_part,
     points_in_view, true_model)
 from machine_alignment.cli.common import (  # noqa: E402
-    parse_size, quantity, read_run, write_json, write_report)
+    parse_size, quantity, read_in_si, read_run, write_json, write_report)
 
 
 def cmd_simulate(args) -> int:
@@ -197,7 +197,8 @@ def cmd_calibrate(args) -> int:
                   'this replay by the built-in gate (give --description to gate it the same '
                   'way)')
     else:
-        images = described.read(args.data) if described else read_observations(args.data)
+        images = (described.read(args.data) if described
+                  else read_in_si(read_observations, args.data))
         _, result = calibrate(images, size,
                               pose_sigma=described.pose_sigma() if described else None)
         report = result.report(images)

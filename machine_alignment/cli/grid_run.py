@@ -20,7 +20,7 @@ from grid_calib.core.records import (  # noqa: E402
 from grid_calib.core.reference_map import write_reference  # noqa: E402
 from grid_calib.core.travel import calibrate_travel  # noqa: E402
 from machine_alignment.cli.common import (  # noqa: E402
-    bag_temperature_log, read_run, write_report)
+    bag_temperature_log, read_in_si, read_run, write_report)
 
 
 def _vectors(ax, where_mm, vectors_m, spacing_mm, title):
@@ -97,7 +97,7 @@ def cmd_calibrate_grid(args) -> int:
         if args.pitch is None:
             raise MachineAlignmentError('--data needs --pitch (the plate\'s nominal pitch, m) '
                                         'or --description')
-        grid, regions = read_marks(args.data, args.pitch)
+        grid, regions = read_in_si(read_marks, args.data, args.pitch)
     certified = (args.certified_pitch if args.certified_pitch is not None
                  else described.certified_pitch if described else None)
     calibration = calibrate_travel(grid, regions, args.stitch, certified, described)

@@ -14,7 +14,7 @@ from calib_core.datasets import write_columns  # noqa: E402
 from calib_core.errors import InvalidInputError  # noqa: E402
 from calib_core.files import read_csv_rows  # noqa: E402
 from machine_alignment.cli.common import (  # noqa: E402
-    quantity, read_run, write_report)
+    quantity, read_in_si, read_run, write_report)
 from platform_calib.core.compensation import (  # noqa: E402
     SCREEN, PSOSettings, compensate, composite_error)
 from platform_calib.core.description import likely_causes, read_description  # noqa: E402
@@ -82,7 +82,8 @@ def cmd_calibrate_platform(args) -> int:
                   f'{live_description["file"]}: pass --description to gate this one the same '
                   f'way (here: the built-in gate)')
     else:
-        data = description.read(args.data) if description else PoseData.from_csv(args.data)
+        data = (description.read(args.data) if description
+                else read_in_si(PoseData.from_csv, args.data))
     result = identify(data, nominal)
     report = result.report()
     if description:
