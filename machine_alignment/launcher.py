@@ -32,14 +32,18 @@ class NodeSpec:
 
 
 def printer_graph(scene: str = 'dot_plate', output_dir: str = 'calibration',
-                  record_dir: str = 'runs', camera_rate_hz: float = 4.0) -> list[NodeSpec]:
-    """The printer's vision chain: gantry, camera, detector, vision calibrator."""
+                  record_dir: str = 'runs', camera_rate_hz: float = 4.0,
+                  description: str = '') -> list[NodeSpec]:
+    """The printer's vision chain: gantry, camera, detector, vision calibrator.
+    ``description``: a camera-gantry description YAML the vision calibrator takes (its lens,
+    screws, camera, dot plate and travel)."""
+    described = {'description': description} if description else {}
     return [
         NodeSpec('printer_alignment.nodes.gantry_sim'),
         NodeSpec('printer_alignment.nodes.camera_sim', {'scene': scene, 'rate_hz': camera_rate_hz}),
         NodeSpec('printer_alignment.nodes.mark_detector', {'continuous': False}),
         NodeSpec('printer_alignment.nodes.vision_calibrator',
-                 {'output_dir': output_dir, 'record_dir': record_dir}),
+                 {'output_dir': output_dir, 'record_dir': record_dir, **described}),
     ]
 
 

@@ -16,7 +16,13 @@ def add_parser(sub) -> None:
     five_axis.add_calibrate_parser(what)
     vision = what.add_parser('vision', help='pixel size and gantry model from a recorded run')
     vision.add_argument('--bag', required=True, help='a run recorded by vision_calibrator/calibrate')
-    vision.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'), default=0.5e-3, help='dot pitch, m')
+    plate = vision.add_mutually_exclusive_group()
+    plate.add_argument('--pitch', type=ranged(float, 1e-6, 1.0, 'm', 'the format is SI metres'),
+                       help='dot pitch, m (default: the live run\'s, or the description\'s)')
+    plate.add_argument('--description',
+                       help='your camera gantry\'s description YAML: the lens, screws and dot '
+                            'plate the run is solved and gated with (default: what the live '
+                            'run recorded)')
     vision.add_argument('--json', help='report to write (JSON, SI units)')
     vision.set_defaults(func=deferred('calibrate_run', 'cmd_calibrate_vision'))
 

@@ -23,6 +23,8 @@ from printer_alignment.core.stage_calibration import (
     StageData, calibrate_stage, check_stage_calibration, models_as_dict)
 from printer_alignment.core.stage_description import likely_causes as stage_likely_causes
 from printer_alignment.core.stage_description import read_description as read_stage_description
+from printer_alignment.core.vision_description import (
+    read_description as read_vision_description)
 from printer_alignment.core.vision_procedure import (
     calibrate_from_observations, observation_from_message)
 
@@ -32,15 +34,21 @@ def cmd_calibrate_vision(args) -> int:
                                       'alignment_msgs/msg/VisionObservation',
                                       observation_from_message,
                                       'vision calibration observations', VISION_RESULT_TOPIC)
-    # Gated against the nominal lens and screws the live run recorded (a user's gantry
-    # has its own leads), else the shipped gantry's.
-    nominal = (recorded or {}).get('nominal', {})
-    calibration = calibrate_from_observations(
-        observations, args.pitch,
-        CameraToPlate(nominal['pixel_size_m']) if 'pixel_size_m' in nominal else CameraToPlate(),
-        GantryModel(*nominal['leads_m_per_rev']) if 'leads_m_per_rev' in nominal
-        else GantryModel())
-    report = dict(calibration.report)
+    described = read_vision_description(args.description) if args.description else None
+    if described:
+        camera, gantry, pitch = (described.nominal_camera(), described.nominal_gantry(),
+                                 described.pitch)
+    else:
+        # Gated against the nominal lens and screws the live run recorded (a user's gantry
+        # has its own leads), else the shipped gantry's.
+        nominal = (recorded or {}).get('nominal', {})
+        camera = (CameraToPlate(nominal['pixel_size_m']) if 'pixel_size_m' in nominal
+                  else CameraToPlate())
+        gantry = (GantryModel(*nominal['leads_m_per_rev']) if 'leads_m_per_rev' in nominal
+                  else GantryModel())
+        pitch = args.pitch if args.pitch is not None else (recorded or {}).get('pitch_m', 0.5e-3)
+    calibration = calibrate_from_observations(observations, pitch, camera, gantry)
+    report = dict(calibration.report, description=described.source if described else None)
     g = report['gantry']
     print(f'{len(observations)} positions; pixel size '
           f'{report["pixel_size"]["pixel_size_m"] * 1e6:.5f} um')

@@ -15,9 +15,10 @@ def add_parser(sub) -> None:
     launch.add_argument('--scene', default='dot_plate', choices=['dot_plate', 'substrate', 'stencil'], help='what the simulated camera looks at')
     launch.add_argument('--output-dir', default='calibration', help='where the calibrators write calibration files')
     launch.add_argument('--record-dir', default='runs', help='where runs are recorded (MCAP bags)')
-    launch.add_argument('--description', help="hexapod, platform and five-axis: your machine's "
-                                              "description YAML; the simulated machine, its "
-                                              "instrument and the calibrator all take it")
+    launch.add_argument('--description',
+                        help="your machine's description YAML (hexapod, platform, five-axis; "
+                             'printer: its camera gantry\'s, for the vision calibrator); the '
+                             'simulated machine, its instrument and the calibrator take it')
     launch.set_defaults(func=deferred('graphs_run', 'cmd_launch'))
 
     demo = sub.add_parser('demo', help=command_help('demo'))

@@ -15,18 +15,21 @@ from machine_alignment.launcher import (
 
 
 def cmd_launch(args) -> int:
-    described = {'hexapod': 'hexapod_calib', 'platform': 'platform_calib',
-                 'five-axis': 'dispenser_calib'}
+    described = {'hexapod': 'hexapod_calib.core.description',
+                 'platform': 'platform_calib.core.description',
+                 'five-axis': 'dispenser_calib.core.description',
+                 'printer': 'printer_alignment.core.vision_description'}
     if args.description and args.graph not in described:
         raise MachineAlignmentError(f'--description is for the {", ".join(described)} '
                                     f'graphs; the {args.graph} graph has no description yet')
     description = ''
     if args.description:
         # Read here first: a file the nodes would refuse is refused before any starts.
-        reader = importlib.import_module(f'{described[args.graph]}.core.description')
+        reader = importlib.import_module(described[args.graph])
         reader.read_description(args.description)
         description = str(Path(args.description).resolve())
-    spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir),
+    spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir,
+                                             description=description),
             'stage': lambda: stage_graph(args.output_dir, args.record_dir),
             'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir, description),
             'grid': lambda: grid_graph(args.output_dir, args.record_dir),

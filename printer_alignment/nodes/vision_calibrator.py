@@ -32,6 +32,7 @@ from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionO
 from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
 from calib_core.checks import MAX_POSITION_M, check_metres, positive_length, whole_number
@@ -40,7 +41,7 @@ from calib_core.errors import CalibrationError, InvalidInputError, MachineAlignm
 from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import (
-    CalibrationService, call_service, check_when_set, declare_paths, positive,
+    READ_ONLY, CalibrationService, call_service, check_when_set, declare_paths, positive,
     publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED, SERVICES
@@ -58,6 +59,8 @@ from printer_alignment.core.records import (
     VISION_RESULT_TOPIC as RESULT_TOPIC)
 from printer_alignment.core.vision_calibration import (
     CAMERA_UNITS, calibrate_pixel_size, locate_camera)
+from printer_alignment.core.vision_description import (
+    read_description as read_vision_description)
 from printer_alignment.core.vision_procedure import (
     MAX_PITCH_M, VisionCalibration, VisionPlan, observation_from_message,
     run_vision_calibration)
@@ -84,6 +87,13 @@ def _result_message(pixel_size, camera_angle, report, header, file_path, version
         gantry['residual_max_m'], 'm', gantry['num_positions'], file_path, version)
 
 
+# The defaults (as declared below) of the parameters a machine description sets: one
+# changed beside a description is refused (test_node_parameters holds them to the code's).
+DESCRIBED_DEFAULTS = {'nominal_pixel_size': NOMINAL_PIXEL_SIZE, 'nominal_leads': [0.016, 0.04],
+                      'focal_px': 2000.0, 'image_size': [640, 480], 'pitch': 0.5e-3,
+                      'x_range': [0.0, 0.2], 'y_range': [0.0, 0.15]}
+
+
 class VisionCalibratorNode(Node):
 
     def __init__(self):
@@ -104,6 +114,8 @@ class VisionCalibratorNode(Node):
         self.declare_parameter('focal_px', 2000.0)
         self.declare_parameter('image_size', [640, 480])
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
+        self.declare_parameter('description', '', READ_ONLY)   # the user's lens and screws
+        self._take_description()
         focal = self.get_parameter('focal_px').value
         size = list(self.get_parameter('image_size').value)
         if not (focal > 0 and len(size) == 2 and all(int(v) > 0 for v in size)):
@@ -162,6 +174,21 @@ class VisionCalibratorNode(Node):
             return _result_message(camera['pixel_size'], camera['angle'], content['report'],
                                    self._header(), path, content.get('version', 0))
         publish_calibration_in_force(self, 'vision', self.result_pub, as_message)
+
+    def _take_description(self) -> None:
+        """A machine description (parameter ``description``) sets the lens, screws, camera,
+        dot plate and travel parameters (docs/machine_description.md); one of those set
+        beside it as well is refused, as two statements of one machine."""
+        described = self.get_parameter('description').value
+        if not described:
+            return
+        values = read_vision_description(described).node_parameters()
+        clash = [name for name in values
+                 if self.get_parameter(name).value != DESCRIBED_DEFAULTS[name]]
+        if clash:
+            raise InvalidInputError(f'give {", ".join(clash)} or description (it holds them), '
+                                    'not both')
+        self.set_parameters([Parameter(name, value=value) for name, value in values.items()])
 
     def _plan_from_parameters(self, overrides: dict) -> VisionPlan:
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
