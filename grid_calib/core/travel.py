@@ -160,9 +160,8 @@ def check_travel_calibration(calibration: TravelCalibration, description=None) -
     force: a placement's readings fitted worse than :data:`MAX_READING_RESIDUAL_RMS_M`
     RMS (with a ``description``, :class:`grid_calib.core.description.GridDescription`, a
     region's reading noise estimated from its residuals above the limit from the declared
-    noise), a stage error beyond
-    :data:`MAX_STAGE_ERROR_M`, regions disagreeing at shared sites by more than
-    :data:`MAX_OVERLAP_RMS_M`, or anything not finite.
+    noise), a stage error beyond :data:`MAX_STAGE_ERROR_M`, regions disagreeing at shared
+    sites by more than :data:`MAX_OVERLAP_RMS_M`, or anything not finite.
 
     Raises
     ------
