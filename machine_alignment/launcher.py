@@ -87,12 +87,21 @@ def hexapod_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
 
 def grid_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
                camera_rate_hz: float = 10.0, half: int = 4, pitch: float = 7.5e-3,
-               columns: int = 3, rows: int = 2, gantry: dict | None = None) -> list[NodeSpec]:
+               columns: int = 3, rows: int = 2, gantry: dict | None = None,
+               description: str = '') -> list[NodeSpec]:
     """The printer's camera gantry over a grid plate: gantry (its temperature published;
     ``gantry``: more of its parameters, such as its warm-up and its screws' expansion),
     camera (the simulated operator places the plate as asked), detector, vision calibrator
     (publishing the calibration in force: the camera's pixel size) and the grid
-    calibrator."""
+    calibrator. ``description``: a grid-plate description YAML, whose plate the camera sees
+    and whose plate, regions and declared noise the grid calibrator takes (``half``,
+    ``pitch``, ``columns`` and ``rows`` then come from it)."""
+    plan = {'half': half, 'pitch': pitch, 'columns': columns, 'rows': rows}
+    if description:
+        from grid_calib.core.description import read_description
+        described = read_description(description)
+        half, pitch = described.grid.half, described.grid.pitch
+        plan = {'description': description}
     return [
         NodeSpec('printer_alignment.nodes.gantry_sim', dict(gantry or {})),
         # The operator squares the plate to the simulated gantry's X axis.
@@ -104,8 +113,7 @@ def grid_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
         NodeSpec('printer_alignment.nodes.vision_calibrator',
                  {'output_dir': output_dir, 'record_dir': record_dir}),
         NodeSpec('grid_calib.nodes.grid_calibrator',
-                 {'output_dir': output_dir, 'record_dir': record_dir, 'half': half,
-                  'pitch': pitch, 'columns': columns, 'rows': rows}),
+                 {'output_dir': output_dir, 'record_dir': record_dir, **plan}),
     ]
 
 

@@ -8,8 +8,9 @@ import json
 from pathlib import Path
 
 import pytest
+import yaml
 
-from calib_core.errors import InvalidInputError
+from calib_core.errors import InvalidInputError, OutOfTravelError
 from grid_calib.core.description import read_description
 from described import changed, refused
 from machine_alignment.cli import main as cli_main
@@ -17,6 +18,7 @@ from machine_alignment.cli import main as cli_main
 DESCRIPTIONS = Path(__file__).resolve().parents[1] / 'grid_calib' / 'descriptions'
 USER = DESCRIPTIONS / 'grid_15x15_mm.yaml'
 SHIPPED = DESCRIPTIONS / 'grid_shipped_simulator.yaml'
+LIVE = DESCRIPTIONS / 'grid_live_printer.yaml'
 # The map against the truth in its stated sigma: 0.99 RMS, 95 % within 2 sigma (seed 1).
 TOLERANCE = {'sigma_rms': (0.8, 1.25), 'within_2_sigma': 0.9}
 
@@ -84,3 +86,39 @@ def test_a_noisier_camera_than_declared_is_refused_by_the_description_only(tmp_p
     refused(capsys, ['calibrate', 'grid', '--description', str(SHIPPED), '--data', str(marks)],
              r"reading noise from its residuals .* = 1\d\d\.\d+ nm, outside 0\.\.100 nm .*: 1\. "
              r"the camera or the stage's readings are noisier than declared")
+
+
+def test_the_grid_calibrator_and_its_graph_take_the_description(monkeypatch, tmp_path):
+    """The grid calibrator started with the user's description holds its plate and regions
+    and gates by its declared noise; one of those parameters given beside it is refused.
+    The live graph shows the camera the described plate (the shipped live one,
+    grid_live_printer.yaml, was run by hand: accepted under its 1.35 um limit)."""
+    import rclpy
+    from dds import in_process_node
+    from grid_calib.nodes.grid_calibrator import DESCRIBED_DEFAULTS, GridCalibratorNode
+    from machine_alignment.launcher import grid_graph
+    node_file = yaml.safe_load((DESCRIPTIONS.parents[1] / 'config' /
+                                'grid_calibrator.yaml').read_text())
+    defaults = node_file['grid_calibrator']['ros__parameters']
+    assert {name: defaults[name] for name in DESCRIBED_DEFAULTS} == DESCRIBED_DEFAULTS
+    # A 7 x 7 plate of 8 mm in 2 x 1 regions, within the simulated gantry's travel (the
+    # 15 x 15 example's regions are not: the node refuses that plan at start-up).
+    plate = changed(LIVE, tmp_path, 'plate', geometry={'pitch_m': 0.008, 'half': 3},
+                    workspace={'regions': [2, 1]})
+    node = in_process_node(GridCalibratorNode, monkeypatch, tmp_path, description=str(plate))
+    try:
+        assert [node.get_parameter(n).value for n in ('half', 'pitch', 'columns', 'rows')] \
+            == [3, 0.008, 2, 1]
+        assert node.description.residual_limit() == pytest.approx(5 * 269.3e-9, rel=1e-3)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    with pytest.raises(InvalidInputError, match='give half or description'):
+        in_process_node(GridCalibratorNode, monkeypatch, tmp_path, description=str(plate),
+                        half=2)
+    with pytest.raises(OutOfTravelError, match='outside the travel'):
+        in_process_node(GridCalibratorNode, monkeypatch, tmp_path, description=str(USER))
+    camera, calibrator = (spec.parameters for spec in grid_graph(description=str(plate))
+                          if spec.module.endswith(('camera_sim', 'grid_calibrator')))
+    assert (camera['grid_half'], camera['grid_pitch']) == (3, 0.008)
+    assert calibrator['description'] == str(plate) and 'half' not in calibrator

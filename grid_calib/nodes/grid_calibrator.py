@@ -38,6 +38,7 @@ from alignment_msgs.msg import (
 from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -47,8 +48,8 @@ from calib_core.frames import planar
 from calib_core.image_plane import NOMINAL_PIXEL_SIZE, CameraToPlate
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
-    CalibrationService, bounded, call_service, check_when_set, declare_paths, interval, positive,
-    publish_calibration_in_force)
+    READ_ONLY, CalibrationService, bounded, call_service, check_when_set, declare_paths,
+    interval, positive, publish_calibration_in_force)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
@@ -56,6 +57,7 @@ from calib_core.nodes.spin import run_node
 from calib_core.nodes.status import CalibratorStatus
 from calib_core.nodes.temperature import TemperatureLog
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE
+from grid_calib.core.description import read_description as read_grid_description
 from grid_calib.core.procedure import GridPlan, camera_in_stage_frame, measure_grid
 from grid_calib.core.records import (
     PLACEMENT_TOPIC, READINGS_TOPIC, RESULT_TOPIC, regions_from_readings)
@@ -107,6 +109,12 @@ def grid_result_message(content: dict, header, file_path='', version=0) -> Calib
             residuals)))), float(max(worst)), 'm', len(report['sites']), file_path, version)
 
 
+# The defaults (as declared below) of the parameters a machine description sets: one
+# changed beside a description is refused (test_grid_description holds them to the code's).
+DESCRIBED_DEFAULTS = {'half': 4, 'pitch': 7.5e-3, 'columns': 3, 'rows': 2,
+                      'certified_pitch': 0.0}
+
+
 class GridCalibratorNode(Node):
 
     def __init__(self):
@@ -129,6 +137,8 @@ class GridCalibratorNode(Node):
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('placement_timeout_s', 600.0)
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
+        self.declare_parameter('description', '', READ_ONLY)   # the user's plate and noise
+        self.description = self._take_description()
         self._plan_from_parameters({})            # refuse a bad plan at start-up
         size = [int(v) for v in self.get_parameter('image_size').value]
         if len(size) != 2 or min(size) <= 0:
@@ -310,6 +320,27 @@ class GridCalibratorNode(Node):
                                            step=step, total=total, message=message))
         self.get_logger().info(f'[{step}/{total}] {message}')
 
+    def _take_description(self):
+        """A machine description (parameter ``description``) sets the plate (``half``,
+        ``pitch``, ``certified_pitch``) and the regions (``columns``, ``rows``), and its
+        declared reading noise gates each run (docs/machine_description.md); one of those
+        set beside it as well is refused, as two statements of one machine. The graph's
+        readings are in m, so its unit is not used here."""
+        described = self.get_parameter('description').value
+        if not described:
+            return None
+        description = read_grid_description(described)
+        values = {'half': description.grid.half, 'pitch': description.grid.pitch,
+                  'columns': description.regions[0], 'rows': description.regions[1],
+                  'certified_pitch': description.certified_pitch or 0.0}
+        clash = [name for name in values
+                 if self.get_parameter(name).value != DESCRIBED_DEFAULTS[name]]
+        if clash:
+            raise InvalidInputError(f'give {", ".join(clash)} or description (it holds them), '
+                                    'not both')
+        self.set_parameters([Parameter(name, value=value) for name, value in values.items()])
+        return description
+
     def _run(self, overrides: dict) -> CalibrationResult:
         plan, certified, stitch = self._plan_from_parameters(overrides)
         camera, camera_source = self._camera()
@@ -325,9 +356,12 @@ class GridCalibratorNode(Node):
                 lambda: self._locate(camera), self._progress,
                 lambda r, p, mark, reading: self._record_reading(run, r, p, mark, reading))
             self.temperatures.record(run)
-            calibration = calibrate_travel(plan.grid, regions, stitch, certified)
+            calibration = calibrate_travel(plan.grid, regions, stitch, certified,
+                                           self.description)
             temperature = self._keep_for_the_loop(plan.grid)
             content = grid_result_content(calibration)
+            if self.description:
+                content['report']['description'] = self.description.gate_report()
             content['report']['camera'] = camera_source
             content['report']['temperature'] = temperature
             path, version, content = run.save('grid', content)

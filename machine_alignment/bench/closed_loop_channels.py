@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from calib_core.closed_loop import LoopConfig, analyze
 from machine_alignment.bench import detection_case, main_with_out, write_results, write_table
 from platform_calib.core.geometry import nominal_geometry

@@ -16,9 +16,9 @@ def add_parser(sub) -> None:
     launch.add_argument('--output-dir', default='calibration', help='where the calibrators write calibration files')
     launch.add_argument('--record-dir', default='runs', help='where runs are recorded (MCAP bags)')
     launch.add_argument('--description',
-                        help="your machine's description YAML (hexapod, platform, five-axis; "
-                             'printer: its camera gantry\'s, for the vision calibrator); the '
-                             'simulated machine, its instrument and the calibrator take it')
+                        help="your machine's description YAML (hexapod, platform, five-axis, "
+                             'grid; printer: its camera gantry\'s, for the vision calibrator); '
+                             'the simulated machine, its instrument and the calibrator take it')
     launch.set_defaults(func=deferred('graphs_run', 'cmd_launch'))
 
     demo = sub.add_parser('demo', help=command_help('demo'))

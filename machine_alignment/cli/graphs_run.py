@@ -18,7 +18,8 @@ def cmd_launch(args) -> int:
     described = {'hexapod': 'hexapod_calib.core.description',
                  'platform': 'platform_calib.core.description',
                  'five-axis': 'dispenser_calib.core.description',
-                 'printer': 'printer_alignment.core.vision_description'}
+                 'printer': 'printer_alignment.core.vision_description',
+                 'grid': 'grid_calib.core.description'}
     if args.description and args.graph not in described:
         raise MachineAlignmentError(f'--description is for the {", ".join(described)} '
                                     f'graphs; the {args.graph} graph has no description yet')
@@ -32,7 +33,8 @@ def cmd_launch(args) -> int:
                                              description=description),
             'stage': lambda: stage_graph(args.output_dir, args.record_dir),
             'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir, description),
-            'grid': lambda: grid_graph(args.output_dir, args.record_dir),
+            'grid': lambda: grid_graph(args.output_dir, args.record_dir,
+                                       description=description),
             'platform': lambda: platform_graph(args.output_dir, args.record_dir,
                                                description=description),
             'five-axis': lambda: five_axis_graph(args.output_dir, args.record_dir,
