@@ -56,6 +56,22 @@ def described_machine(node, read_description: Callable, read_geometry: Callable,
                          read_geometry(path) if path else built_in())
 
 
+def set_described_parameters(node, values: dict, defaults: dict) -> None:
+    """Set ``node``'s parameters to a machine description's ``values`` (name -> value),
+    refusing, as two statements of one machine, any of them the launch set away from its
+    declared default (``defaults``, name -> value).
+
+    Raises
+    ------
+    InvalidInputError"""
+    from rclpy.parameter import Parameter
+    clash = [name for name in values if node.get_parameter(name).value != defaults[name]]
+    if clash:
+        raise InvalidInputError(f'give {", ".join(clash)} or description (it holds them), '
+                                'not both')
+    node.set_parameters([Parameter(name, value=value) for name, value in values.items()])
+
+
 def publish_calibration_in_force(node, name: str, publisher, as_message: Callable) -> None:
     """At start-up, publish (latched) the current calibration ``name`` in the node's
     ``output_dir``, built by ``as_message(content, path)``, so a restarted calibrator

@@ -38,7 +38,6 @@ from alignment_msgs.msg import (
 from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -49,7 +48,7 @@ from calib_core.image_plane import NOMINAL_PIXEL_SIZE, CameraToPlate
 from calib_core.nodes.analysis import AnalysisService
 from calib_core.nodes.calibrator import (
     READ_ONLY, CalibrationService, bounded, call_service, check_when_set, declare_paths,
-    interval, positive, publish_calibration_in_force)
+    interval, positive, publish_calibration_in_force, set_described_parameters)
 from calib_core.nodes.conversions import calibration_result_as_message
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
@@ -333,12 +332,7 @@ class GridCalibratorNode(Node):
         values = {'half': description.grid.half, 'pitch': description.grid.pitch,
                   'columns': description.regions[0], 'rows': description.regions[1],
                   'certified_pitch': description.certified_pitch or 0.0}
-        clash = [name for name in values
-                 if self.get_parameter(name).value != DESCRIBED_DEFAULTS[name]]
-        if clash:
-            raise InvalidInputError(f'give {", ".join(clash)} or description (it holds them), '
-                                    'not both')
-        self.set_parameters([Parameter(name, value=value) for name, value in values.items()])
+        set_described_parameters(self, values, DESCRIBED_DEFAULTS)
         return description
 
     def _run(self, overrides: dict) -> CalibrationResult:

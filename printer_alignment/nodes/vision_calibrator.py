@@ -32,7 +32,6 @@ from alignment_msgs.msg import CalibrationResult, GantryState, Progress, VisionO
 from alignment_msgs.srv import AnalyzeResiduals, DetectMarks, MoveGantry, RunCalibration
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
 from calib_core.checks import MAX_POSITION_M, check_metres, positive_length, whole_number
@@ -42,7 +41,7 @@ from calib_core.frames import planar
 from calib_core.nodes.analysis import AnalysisService, write_extended_calibration
 from calib_core.nodes.calibrator import (
     READ_ONLY, CalibrationService, call_service, check_when_set, declare_paths, positive,
-    publish_calibration_in_force)
+    publish_calibration_in_force, set_described_parameters)
 from calib_core.nodes.conversions import calibration_result_as_message, failed_result
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
@@ -182,13 +181,8 @@ class VisionCalibratorNode(Node):
         described = self.get_parameter('description').value
         if not described:
             return
-        values = read_vision_description(described).node_parameters()
-        clash = [name for name in values
-                 if self.get_parameter(name).value != DESCRIBED_DEFAULTS[name]]
-        if clash:
-            raise InvalidInputError(f'give {", ".join(clash)} or description (it holds them), '
-                                    'not both')
-        self.set_parameters([Parameter(name, value=value) for name, value in values.items()])
+        set_described_parameters(self, read_vision_description(described).node_parameters(),
+                                 DESCRIBED_DEFAULTS)
 
     def _plan_from_parameters(self, overrides: dict) -> VisionPlan:
         g = lambda n: overrides.get(n, self.get_parameter(n).value)  # noqa: E731
