@@ -207,10 +207,14 @@ def _format(value) -> str:
 def stop_on_sigterm() -> None:
     """Turn SIGTERM into KeyboardInterrupt in this (main) thread, so a launcher or demo
     stopped by ``kill`` or a service manager unwinds like Ctrl-C: every :class:`Graph`
-    it holds stops its nodes instead of leaving them running as orphans."""
+    it holds stops its nodes instead of leaving them running as orphans. Ctrl-C itself
+    raises KeyboardInterrupt even where the process was started with SIGINT ignored (a
+    job sent to the background by a non-interactive shell, nohup): a launcher deaf to
+    Ctrl-C would leave its whole graph running."""
     def interrupt(signum, frame):
         raise KeyboardInterrupt(f'signal {signum}')
     signal.signal(signal.SIGTERM, interrupt)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def node_name(spec: NodeSpec) -> str:
