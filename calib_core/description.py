@@ -243,15 +243,15 @@ def likely_causes(travel_ratio: float, actuators: Actuators, moving: str, model:
     """The likely causes of a residual far above the declared noise, most likely first,
     from how far the actuators travelled against what the measured poses need
     (``travel_ratio``, median over the actuators): a unit slip where that is about 1000x
-    or 1/1000 (and only then), the declared lead off where it is more than 20 % from 1,
+    or 1/1000 (:func:`is_unit_slip`, and only then), the declared lead off where it is more than 20 % from 1,
     then the instrument, the nominal geometry and effects ``model`` lacks (``command``
     names them). ``moving`` names the actuators (legs, feeds)."""
     causes = []
-    if 1e3 / 3 < travel_ratio < 3e3:
+    if is_unit_slip(travel_ratio) and travel_ratio > 1:
         causes.append(f'the {moving} move 1000x as far as the measured poses need: the '
                       'readings are in a unit 1000x smaller than declared (mm read as m: '
                       'actuators: {unit: mm})')
-    elif 1e-3 / 3 < travel_ratio < 3e-3:
+    elif is_unit_slip(travel_ratio):
         causes.append(f'the {moving} move 1/1000 as far as the measured poses need: the '
                       'readings are in a unit 1000x larger than declared (m read as mm: '
                       'actuators: {unit: m})')
