@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from hexapod_calib.sim.hexapod import HexapodTruth
 from printer_alignment.sim.gantry import GantryErrors
 
@@ -48,22 +50,34 @@ def printer_graph(scene: str = 'dot_plate', output_dir: str = 'calibration',
 
 
 def stage_graph(output_dir: str = 'calibration', record_dir: str = 'runs',
-                camera_rate_hz: float = 10.0, substrate_shift=(0.0, 0.0, 0.0)) -> list[NodeSpec]:
+                camera_rate_hz: float = 10.0, substrate_shift=(0.0, 0.0, 0.0),
+                description: str = '') -> list[NodeSpec]:
     """The printer with its XY-Theta stage (the dot plate removed): gantry, two-way camera
     over the stage, detector, vision calibrator (publishing the calibration in force),
-    stage, stage calibrator and aligner."""
+    stage, stage calibrator and aligner. ``description``: a stage description YAML that
+    the stage, the camera, the stage calibrator and the aligner take (the simulated stage
+    is then the described one under the shipped gantry, and the Marks are taught where
+    the simulation mounts them: :func:`printer_alignment.sim.stage.described_home_marks`)."""
+    described, taught = {}, {}
+    if description:
+        from printer_alignment.core.stage_description import read_description
+        from printer_alignment.sim.stage import described_home_marks
+        described = {'description': description}
+        taught = {'calibration_marks': [float(v) for v in np.ravel(
+            described_home_marks(read_description(description)))]}
     return [
         NodeSpec('printer_alignment.nodes.gantry_sim'),
         NodeSpec('printer_alignment.nodes.camera_sim',
                  {'scene': 'stage', 'rate_hz': camera_rate_hz,
-                  'substrate_shift': [float(v) for v in substrate_shift]}),
+                  'substrate_shift': [float(v) for v in substrate_shift],
+                  **({'stage_description': description} if description else {})}),
         NodeSpec('printer_alignment.nodes.mark_detector', {'continuous': False}),
         NodeSpec('printer_alignment.nodes.vision_calibrator',
                  {'output_dir': output_dir, 'record_dir': record_dir}),
-        NodeSpec('printer_alignment.nodes.stage_sim'),
+        NodeSpec('printer_alignment.nodes.stage_sim', dict(described)),
         NodeSpec('printer_alignment.nodes.stage_calibrator',
-                 {'output_dir': output_dir, 'record_dir': record_dir}),
-        NodeSpec('printer_alignment.nodes.aligner', {'record_dir': record_dir}),
+                 {'output_dir': output_dir, 'record_dir': record_dir, **described, **taught}),
+        NodeSpec('printer_alignment.nodes.aligner', {'record_dir': record_dir, **described}),
     ]
 
 

@@ -128,3 +128,63 @@ def test_a_unit_slip_and_a_noisy_camera_are_refused_with_the_cause_first(tmp_pat
     capsys.readouterr()
     refused(capsys, ['calibrate', 'stage', '--description', str(SHIPPED), '--data', str(noisy)],
              r'above the 6\.18\d* um .*: 1\. the instrument is noisier than declared')
+
+
+def test_the_live_simulation_of_the_shipped_description_is_the_shipped_stage():
+    """The stage and camera simulators build a described stage as the shipped one's errors
+    on the described guides, mounted as the shipped one is: from the shipped description
+    that is the shipped stage itself, its Marks taught where the calibrator's default has
+    them (to the micrometre the taught pair's 120.0015 mm spacing leaves)."""
+    from printer_alignment.sim.stage import (
+        TAUGHT_MARKS, TRUE_STAGE, described_home_marks, described_truth)
+    shipped = read_description(SHIPPED)
+    truth = described_truth(shipped)
+    assert truth.d == pytest.approx(TRUE_STAGE.d, abs=1e-12)
+    assert truth.stage2plate == pytest.approx(TRUE_STAGE.stage2plate, abs=1e-12)
+    assert truth.lead == TRUE_STAGE.lead and truth.backlash == TRUE_STAGE.backlash
+    np.testing.assert_allclose(described_home_marks(shipped), TAUGHT_MARKS, atol=2e-6)
+    # The described nominal, mounted where the Marks were taught, is within the
+    # mounting error of the truth (the shipped stage sits 0.6 mm and 0.3 deg off the drawing).
+    nominal = shipped.nominal(TAUGHT_MARKS)
+    assert np.abs(np.subtract(nominal.stage2plate, truth.stage2plate)[:2]).max() < 1e-3
+
+
+def test_taught_marks_that_are_not_the_described_ones_are_refused():
+    user = read_description(USER)    # Marks 160 mm apart
+    with pytest.raises(InvalidInputError, match=r'taught calibration Marks are 120.000 mm '
+                                                r'apart, those of .* 160.000 mm'):
+        user.nominal([[0.04, 0.075], [0.16, 0.075]])
+
+
+def test_the_stage_nodes_take_the_description(monkeypatch, tmp_path):
+    """stage_sim lands its chains as described and refuses a move beyond the described
+    stroke; a landing_sigma given beside the description is refused; the calibrator with
+    Marks taught 120 mm apart and a description whose Marks are 160 mm apart does not
+    start."""
+    import rclpy
+    from calib_core.errors import OutOfTravelError
+    from dds import in_process_node
+    from printer_alignment.nodes.stage_calibrator import StageCalibratorNode
+    from printer_alignment.nodes.stage_sim import DESCRIBED_DEFAULTS, StageSimNode
+    described = read_description(USER)
+    node = in_process_node(StageSimNode, monkeypatch, tmp_path, description=str(USER))
+    try:
+        assert node.get_parameter('landing_sigma').value == described.landing_sigma()
+        assert node.stage.stroke == described.stroke == 12e-3
+        node.stage.move([10e-3, 0.0, 0.0])
+        with pytest.raises(OutOfTravelError, match=r'\[-12.0, 12.0\] mm'):
+            node.stage.move([0.0, 12.5e-3, 0.0])
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    node = in_process_node(StageSimNode, monkeypatch, tmp_path)
+    try:
+        assert node.get_parameter('landing_sigma').value == DESCRIBED_DEFAULTS['landing_sigma']
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    with pytest.raises(InvalidInputError, match='give landing_sigma or description'):
+        in_process_node(StageSimNode, monkeypatch, tmp_path, description=str(USER),
+                        landing_sigma=1e-6)
+    with pytest.raises(InvalidInputError, match='120.001 mm apart'):   # the default's
+        in_process_node(StageCalibratorNode, monkeypatch, tmp_path, description=str(USER))

@@ -15,9 +15,10 @@ from alignment_msgs.srv import Align, AnalyzeResiduals, MoveStage, RunCalibratio
 from calib_core.bags import decode_bag  # noqa: E402
 from machine_alignment.cli import main as cli_main  # noqa: E402
 from machine_alignment.launcher import stage_graph  # noqa: E402
-from calib_core.storage import read_calibration, write_calibration  # noqa: E402
+from calib_core.storage import read_calibration  # noqa: E402
 from foxglove import assert_runs_decode  # noqa: E402
 from dds import call, machine_align, running  # noqa: E402
+from vision_in_force import vision_in_force  # noqa: E402
 from printer_alignment.core.stage_calibration import calibrate_stage  # noqa: E402
 from printer_alignment.core.records import stage_data_from_records, stage_record  # noqa: E402
 from printer_alignment.sim.camera import CameraOptics  # noqa: E402
@@ -29,28 +30,10 @@ PLAN = 'sweep_points: 3\ngrid: [2, 2, 2]\n'
 SUBSTRATE_SHIFT = (0.25e-3, -0.15e-3, np.deg2rad(0.04))
 
 
-def _vision_in_force(directory):
-    """The vision calibration in force, as vision_calibrator writes it (the simulation's
-    true camera scale and gantry geometry: this test is about the stage)."""
-    camera = CameraOptics().camera2plate
-    gantry = {k: float(v) for k, v in GantryErrors().model.as_dict().items()}
-    zero = {k: 0.0 for k in gantry}
-    write_calibration(directory, 'vision', {
-        'kind': 'vision', 'camera2plate': {'pixel_size': float(camera.pixel_size),
-                                           'angle': float(camera.angle),
-                                           'principal': list(camera.principal)},
-        'gantry2plate': gantry,
-        'report': {'pixel_size': {'pixel_size_std_m': 0.0, 'angle_std_rad': 0.0},
-                   'gantry': {'parameters': gantry, 'std_devs': zero,
-                              'units': {k: VISION_UNITS[k] for k in gantry},
-                              'residual_rms_m': 0.0,
-                              'residual_max_m': 0.0, 'num_positions': 0}}})
-
-
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
     out = tmp_path_factory.mktemp('stage')
-    _vision_in_force(out / 'calibration')
+    vision_in_force(out / 'calibration')
     spec = stage_graph(output_dir=str(out / 'calibration'), record_dir=str(out / 'runs'),
                        substrate_shift=SUBSTRATE_SHIFT)
     with running(spec, DOMAIN, out, 'stage_test_client') as (graph, node):

@@ -17,8 +17,9 @@ def add_parser(sub) -> None:
     launch.add_argument('--record-dir', default='runs', help='where runs are recorded (MCAP bags)')
     launch.add_argument('--description',
                         help="your machine's description YAML (hexapod, platform, five-axis, "
-                             'grid; printer: its camera gantry\'s, for the vision calibrator); '
-                             'the simulated machine, its instrument and the calibrator take it')
+                             "grid, stage; printer: its camera gantry's, for the vision "
+                             'calibrator); the simulated machine, its instrument and the '
+                             'calibrator take it')
     launch.set_defaults(func=deferred('graphs_run', 'cmd_launch'))
 
     demo = sub.add_parser('demo', help=command_help('demo'))

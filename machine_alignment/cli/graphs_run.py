@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from calib_core.errors import CalibrationError, MachineAlignmentError
+from calib_core.errors import CalibrationError
 from machine_alignment.demo import run_demo
 from machine_alignment.launcher import (
     Graph, describe_exit, five_axis_graph, grid_graph, hexapod_graph, platform_graph,
@@ -19,10 +19,8 @@ def cmd_launch(args) -> int:
                  'platform': 'platform_calib.core.description',
                  'five-axis': 'dispenser_calib.core.description',
                  'printer': 'printer_alignment.core.vision_description',
+                 'stage': 'printer_alignment.core.stage_description',
                  'grid': 'grid_calib.core.description'}
-    if args.description and args.graph not in described:
-        raise MachineAlignmentError(f'--description is for the {", ".join(described)} '
-                                    f'graphs; the {args.graph} graph has no description yet')
     description = ''
     if args.description:
         # Read here first: a file the nodes would refuse is refused before any starts.
@@ -31,7 +29,8 @@ def cmd_launch(args) -> int:
         description = str(Path(args.description).resolve())
     spec = {'printer': lambda: printer_graph(args.scene, args.output_dir, args.record_dir,
                                              description=description),
-            'stage': lambda: stage_graph(args.output_dir, args.record_dir),
+            'stage': lambda: stage_graph(args.output_dir, args.record_dir,
+                                         description=description),
             'hexapod': lambda: hexapod_graph(args.output_dir, args.record_dir, description),
             'grid': lambda: grid_graph(args.output_dir, args.record_dir,
                                        description=description),

@@ -127,8 +127,10 @@ def replay_alignment(report: dict, model) -> dict:
     if missing:
         raise InvalidInputError(f'the alignment report lacks {", ".join(missing)} '
                                 '(recorded by an older aligner?)')
+    # The stroke the aligner planned within (a described stage's; older reports: the
+    # shipped stage's).
     plan = plan_alignment(model, report['q_before_m'], report['substrate_before_m'],
-                          report['stencil_m'])
+                          report['stencil_m'], float(report.get('stroke_m', STROKE)))
     recorded = np.asarray(report['q_planned_m'], dtype=float)
     return {'model': report['model'], 'q_recorded_m': recorded.tolist(),
             'q_replayed_m': plan.q.tolist(),

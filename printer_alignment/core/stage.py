@@ -88,12 +88,12 @@ def landing_directions(q_now, q_target, directions) -> np.ndarray:
     return np.where(step != 0, np.sign(step), np.asarray(directions, dtype=float))
 
 
-def path_from_below(q_target, approach: float = APPROACH) -> np.ndarray:
+def path_from_below(q_target, approach: float = APPROACH, stroke: float = STROKE) -> np.ndarray:
     """Two waypoints (m, (2, 3)) that land every chain on ``q_target`` moving upwards: the
     unidirectional approach of alignment and of ISO 9283 repeatability. The pre-position is
-    clipped to the stroke."""
+    clipped to the ``stroke`` (m)."""
     q_target = np.asarray(q_target, dtype=float)
-    return np.array([np.maximum(q_target - approach, -STROKE), q_target])
+    return np.array([np.maximum(q_target - approach, -stroke), q_target])
 
 
 def check_stroke(q, stroke: float = STROKE) -> np.ndarray:

@@ -31,11 +31,16 @@ from calib_core.description import (
     read_measurement, refuse_unit_slip, workspace_numbers, workspace_section)
 from calib_core.description import likely_causes as causes_from_travel
 from calib_core.errors import InvalidInputError
+from printer_alignment.core.alignment import rigid_fit
 from printer_alignment.core.stage import (
     CAMERA_NOISE, LANDING_SIGMA, NOMINAL_D, NOMINAL_STAGE, STROKE, StageGeometry)
 from printer_alignment.core.stage_calibration import StageData
 
 GEOMETRY_KEYS = ('d_m', 'marks_m')
+# m: how far the taught Marks' spacing may differ from the described one. Jogging a camera
+# over a Mark puts it within its field (a few mm) of where it is, but the pair keeps its
+# spacing to far better than that.
+MARK_SPACING_TOLERANCE = 3e-3
 # The shipped simulated stage (printer_alignment.sim.stage): its Marks, camera and landing.
 SHIPPED_MARKS = ((0.180, 0.130), (0.300, 0.130))
 SHIPPED_INSTRUMENT = Instrument('the shipped simulated camera', CAMERA_NOISE)
@@ -52,9 +57,31 @@ class StageDescription:
     measurement: Measurement
     source: str
 
-    def nominal(self) -> StageGeometry:
-        """The described stage without errors."""
-        return NOMINAL_STAGE.with_changes(d=tuple(self.d))
+    def nominal(self, home_marks=None) -> StageGeometry:
+        """The described stage without errors, mounted in the plate frame as the shipped
+        drawing mounts the shipped stage; given ``home_marks`` (2, 2) m, the Marks' plate
+        positions with the stage at home as taught by jogging the camera over them,
+        mounted where they put it: the rigid motion that takes the described Marks onto
+        them (at home the platform frame is the stage frame).
+
+        Raises
+        ------
+        InvalidInputError
+            The taught Marks lie more than :data:`MARK_SPACING_TOLERANCE` further apart
+            or closer than the described ones: one of the two is not this stage's."""
+        nominal = NOMINAL_STAGE.with_changes(d=tuple(self.d))
+        if home_marks is None:
+            return nominal
+        home_marks = np.asarray(home_marks, dtype=float)
+        taught, described = (float(np.linalg.norm(np.diff(m, axis=0)))
+                             for m in (home_marks, self.marks))
+        if abs(taught - described) > MARK_SPACING_TOLERANCE:
+            raise InvalidInputError(
+                f'the taught calibration Marks are {taught * 1e3:.3f} mm apart, those of '
+                f'{self.source} {described * 1e3:.3f} mm: one of the two is not this '
+                "stage's (teach them again, or correct the description's marks_m)")
+        angle, shift = rigid_fit(self.marks, home_marks)
+        return nominal.with_changes(stage2plate=(float(shift[0]), float(shift[1]), angle))
 
     def landing_sigma(self) -> float:
         """A chain's landing scatter, m (1 sigma): its positioning noise and the

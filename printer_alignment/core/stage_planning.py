@@ -215,10 +215,11 @@ def predict_stage_plan(geometry: StageGeometry, marks, targets, working=None,
 
 
 def predict_stage_run(geometry: StageGeometry, marks, q, directions, working=None,
-                      **noise) -> StageDesign:
+                      stroke: float = STROKE, **noise) -> StageDesign:
     """The same for stops measured already, ``q`` (n, 3) m with the ``directions`` (n, 3)
     the stage reported, about ``geometry`` and ``marks`` (the ones identified so far)."""
-    working = default_working() if working is None else np.asarray(working, dtype=float)
+    working = (default_working(stroke=stroke) if working is None
+               else np.asarray(working, dtype=float))
     return _design(free_parameters(geometry, marks), q, directions, working, 'I', 0, 0,
                    **noise)
 
@@ -252,16 +253,18 @@ def _choose(parameters: ParameterSet, q, directions, count: int, working, criter
 
 
 def extend_stage(geometry: StageGeometry, marks, q, directions, count: int, working=None,
-                 criterion: str = 'I', per_axis: int = 9,
+                 criterion: str = 'I', per_axis: int = 9, stroke: float = STROKE,
                  **noise) -> tuple[np.ndarray, StageDesign]:
-    """The ``count`` candidate stops (count, 3) m that, added one by one to the measured
-    ones (``q``, ``directions``), most lower the criterion about ``geometry`` and ``marks``
-    (the ones identified so far; greedy: the first k are the best k), and the prediction
-    with all of them, visited nearest first from home after the measured ones."""
+    """The ``count`` candidate stops (count, 3) m inside the ``stroke`` (m) that, added one
+    by one to the measured ones (``q``, ``directions``), most lower the criterion about
+    ``geometry`` and ``marks`` (the ones identified so far; greedy: the first k are the
+    best k), and the prediction with all of them, visited nearest first from home after
+    the measured ones."""
     parameters = free_parameters(geometry, marks)
-    working = default_working() if working is None else np.asarray(working, dtype=float)
+    working = (default_working(stroke=stroke) if working is None
+               else np.asarray(working, dtype=float))
     chosen, candidates = _choose(parameters, q, directions, count, working, criterion,
-                                 per_axis, **noise)
+                                 per_axis, stroke, **noise)
     added = np.vstack([np.zeros((1, 3)), route(chosen, np.zeros(3))])
     every = np.vstack([q, added[1:]])
     after = np.vstack([directions, visiting_directions(added)[1:]])

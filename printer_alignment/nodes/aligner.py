@@ -7,7 +7,8 @@ pairs), turns it into chain inputs with the chosen stage model (``parametric``,
 ``stepwise`` with the paper's interpolation, or ``nominal``), moves the stage approached
 from below on every chain, and verifies by measuring the substrate again. The stage
 model in force arrives as the latched ``/stage_calibrator/result``. A target outside the
-workspace is refused without moving. Each alignment is recorded to an MCAP bag (the
+workspace (the stroke; a stage ``description``'s, else the shipped [-5, 5] mm) is refused
+without moving; ``description`` also sets the ``nominal`` model. Each alignment is recorded to an MCAP bag (the
 stage calibration in force and the report, enough to plan it again offline) and its
 report published on ``/aligner/report``.
 """
@@ -27,7 +28,8 @@ from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.recording import RecordedRun
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.alignment import plan_alignment, rigid_fit
-from printer_alignment.core.stage import NOMINAL_STAGE, path_from_below
+from printer_alignment.core.stage import NOMINAL_STAGE, STROKE, path_from_below
+from printer_alignment.core.stage_description import read_description
 from printer_alignment.core.stage_calibration import ParametricModel, models_from_dict
 from printer_alignment.core.records import (
     ALIGNER_REPORT_TOPIC as REPORT_TOPIC, STAGE_RESULT_TOPIC)
@@ -56,6 +58,10 @@ class AlignerNode(Node):
         self.declare_parameter('model', 'parametric')
         declare_paths(self, 'record_dir')
         self.declare_parameter('call_timeout_s', 10.0)
+        self.declare_parameter('description', '')   # '': the shipped stage
+        path = self.get_parameter('description').value
+        described = read_description(path) if path else None
+        self.stroke = described.stroke if described else STROKE
         self.substrate_expected = _pairs(self.get_parameter('substrate_marks').value,
                                          'substrate_marks')
         self.stencil_expected = _pairs(self.get_parameter('stencil_marks').value,
@@ -68,7 +74,8 @@ class AlignerNode(Node):
         group = ReentrantCallbackGroup()
         self.locator = MarkLocator(self, group, self.timeout)
         self.move_client = self.create_client(MoveStage, 'stage/move', callback_group=group)
-        self._models = {'nominal': ParametricModel(NOMINAL_STAGE)}
+        self._models = {'nominal': ParametricModel(described.nominal() if described
+                                                   else NOMINAL_STAGE)}
         self._stage_result = None    # the calibration message in force, recorded with each run
         self._lock = threading.Condition()
         self._busy = threading.Lock()
@@ -146,8 +153,8 @@ class AlignerNode(Node):
         stencil = self.locator.measure(self.stencil_expected, 'cross')
         self.locator.select_view('substrate')
         substrate = self.locator.measure(self.substrate_expected, 'circle')
-        plan = plan_alignment(model, q_now, substrate, stencil)
-        for waypoint in path_from_below(plan.q):
+        plan = plan_alignment(model, q_now, substrate, stencil, self.stroke)
+        for waypoint in path_from_below(plan.q, stroke=self.stroke):
             reached = self._move(waypoint)
         # Verify where the moved substrate Marks are expected now.
         c, s = np.cos(plan.angle), np.sin(plan.angle)
@@ -155,7 +162,8 @@ class AlignerNode(Node):
         after = self.locator.measure(moved, 'circle')
         angle_left, _ = rigid_fit(after, stencil)
         report = {
-            'model': model_name, 'q_before_m': q_now.tolist(), 'q_planned_m': plan.q.tolist(),
+            'model': model_name, 'stroke_m': self.stroke, 'q_before_m': q_now.tolist(),
+            'q_planned_m': plan.q.tolist(),
             'q_m': list(reached.q), 'target_pose': plan.target_pose.tolist(),
             'stencil_m': stencil.tolist(), 'substrate_before_m': substrate.tolist(),
             'substrate_after_m': after.tolist(), 'angle_rad': plan.angle,

@@ -9,7 +9,10 @@ Scene ``stage``: the printer with its XY-Theta stage. The platform's Marks move 
 ``sim/truth/stage_pose``; the camera is two-way, and service ``camera/select_view``
 (SelectView) switches between the ``substrate`` (down) and the ``stencil`` (up). Parameters
 ``substrate_shift`` (x m, y m, rad: how the substrate is fixed on the platform) and
-``stencil_marks`` (plate x, y of each stencil fiducial, m; empty: the default stencil).
+``stencil_marks`` (plate x, y of each stencil fiducial, m; empty: the default stencil);
+``stage_description``: a stage description YAML (the user's stage as ``stage_sim`` builds
+it from the same file: its calibration Marks, the substrate beside them; '': the shipped
+stage).
 
 Scene ``grid_plate``: a (2 ``grid_half`` + 1)-square plate of ``grid_pitch`` (m) with 1 um
 RMS mark errors, placed as the grid calibration asks on ``/grid_calibrator/placement``:
@@ -37,6 +40,7 @@ from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.spin import run_node
 from printer_alignment.core.geometry import CameraToPlate
 from printer_alignment.sim.camera import CameraOptics, CameraSim
+from printer_alignment.core.stage_description import read_description as read_stage_description
 from printer_alignment.sim.scene import PlacedPlate, StageScene
 from printer_alignment.sim.scenes import grid_plate, make_scene, stage_scene
 
@@ -58,6 +62,7 @@ class CameraSimNode(Node):
         self.declare_parameter('gradient_x', 0.0)
         self.declare_parameter('substrate_shift', [0.0, 0.0, 0.0])
         self.declare_parameter('stencil_marks', [0.0])
+        self.declare_parameter('stage_description', '')   # '': the shipped stage
         self.declare_parameter('grid_half', 4)
         self.declare_parameter('grid_pitch', 7.5e-3)
         self.declare_parameter('plate_square_to', 0.0)
@@ -74,7 +79,8 @@ class CameraSimNode(Node):
             read_noise=g('read_noise').value, gradient=(g('gradient_x').value, 0.0))
         scene = make_scene(g('scene').value)
         if isinstance(scene, StageScene):
-            scene = self._stage_scene(g('substrate_shift').value, g('stencil_marks').value)
+            scene = self._stage_scene(g('substrate_shift').value, g('stencil_marks').value,
+                                      g('stage_description').value)
         self.seed = int(g('seed').value)
         if isinstance(scene, PlacedPlate):
             if not (g('grid_half').value >= 1 and 0 < g('grid_pitch').value < 0.05):
@@ -99,16 +105,17 @@ class CameraSimNode(Node):
         self.create_timer(1.0 / rate, self.capture)
 
     @staticmethod
-    def _stage_scene(shift, stencil) -> StageScene:
+    def _stage_scene(shift, stencil, description: str) -> StageScene:
         shift = [float(v) for v in shift]
         stencil = [float(v) for v in stencil]
         if len(shift) != 3 or not np.all(np.isfinite(shift)):
             raise ValueError('substrate_shift must be three finite numbers (x m, y m, rad)')
+        described = read_stage_description(description) if description else None
         if len(stencil) <= 1:
-            return stage_scene(shift)
+            return stage_scene(shift, description=described)
         if len(stencil) % 2 or not np.all(np.isfinite(stencil)):
             raise ValueError('stencil_marks must be finite x, y pairs (m)')
-        return stage_scene(shift, np.reshape(stencil, (-1, 2)))
+        return stage_scene(shift, np.reshape(stencil, (-1, 2)), described)
 
     def _frame_stamp(self):
         """The time at which everything a frame shows is known to be true: the oldest of

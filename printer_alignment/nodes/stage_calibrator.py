@@ -20,6 +20,14 @@ run's prediction is in the report (``plan_prediction``); ``target_error`` (m, th
 RMS error predicted at the working inputs) with ``max_stops`` and ``step`` adds stops in
 rounds after the run until it is met or cannot be (``adaptive`` in the report).
 
+``description``: a stage description YAML (:mod:`printer_alignment.core.stage_description`):
+the stage as drawn is the described one, mounted where ``calibration_marks`` were taught
+(the Marks searched for there, the stepwise calibration started from its guides), plans
+and targets stay inside its stroke and are predicted with its noise, and the gate refuses
+a Mark residual above what its camera and chains give (the figure, the declared number
+and the likely causes in the refusal; ``description`` in the report). A recorded run
+replays with ``machine-align calibrate stage --bag B --description D``.
+
 Service ``stage_calibrator/analyze_residuals`` (AnalyzeResiduals) runs the closed loop on
 the last run's measurements with the error model without backlash as the base model, each
 stop with its time and, where a sensor publishes it on ``temperature_topic``, the
@@ -50,7 +58,8 @@ from printer_alignment.core.loop_models import StageLoopModel
 from printer_alignment.core.records import (
     STAGE_OBSERVATIONS_TOPIC as OBSERVATIONS_TOPIC, STAGE_RESULT_TOPIC as RESULT_TOPIC,
     stage_data_from_messages)
-from printer_alignment.core.stage import NOMINAL_STAGE
+from printer_alignment.core.stage import NOMINAL_STAGE, STROKE
+from printer_alignment.core.stage_description import likely_causes, read_description
 from printer_alignment.core.stage_calibration import (
     StagePlan, check_stage_calibration, models_as_dict, models_from_dict)
 from printer_alignment.core.stage_planning import (
@@ -79,10 +88,18 @@ class StageCalibratorNode(Node):
         self.declare_parameter('calibration_marks', [0.0351, 0.0791, 0.1551, 0.0797])
         self.declare_parameter('call_timeout_s', 10.0)
         self.declare_parameter('temperature_topic', TEMPERATURE_TOPIC)  # '': no sensor
+        self.declare_parameter('description', '')   # '': the shipped stage
         marks = [float(v) for v in self.get_parameter('calibration_marks').value]
         if len(marks) != 4 or not np.all(np.isfinite(marks)):
             raise ValueError('calibration_marks must be x1, y1, x2, y2 (m)')
         self.home_marks = np.reshape(marks, (2, 2))
+        path = self.get_parameter('description').value
+        self.described = read_description(path) if path else None
+        # The stage as drawn (mounted where the Marks were taught), its stroke and noise.
+        self.nominal = (self.described.nominal(self.home_marks) if self.described
+                        else NOMINAL_STAGE)
+        self.stroke = self.described.stroke if self.described else STROKE
+        self.noise = self.described.noise() if self.described else {}
         self._plan(dict())    # validates the parameters at start
         self.timeout = float(self.get_parameter('call_timeout_s').value)
         group = ReentrantCallbackGroup()
@@ -139,16 +156,21 @@ class StageCalibratorNode(Node):
         design = g('design')
         if design not in DESIGNS:
             raise InvalidInputError(f'design must be one of {", ".join(DESIGNS)}, not {design!r}')
-        marks = platform_marks(self.home_marks)
+        marks = (self.described.marks if self.described
+                 else platform_marks(self.home_marks, self.nominal))
         if 'targets' in overrides:
-            plan = StagePlan(stops=overrides['targets'])   # checks shape, home first, stroke
-            return plan, predict_stage_plan(NOMINAL_STAGE, marks, plan.targets()).report()
+            # Checks shape, home first, stroke.
+            plan = StagePlan(stops=overrides['targets'], stroke=self.stroke)
+            return plan, predict_stage_plan(self.nominal, marks, plan.targets(),
+                                            stroke=self.stroke, **self.noise).report()
         if design != 'grid':
-            planned = plan_stage(NOMINAL_STAGE, marks, whole_number(g('stops'), 'stops', 1),
-                                 int(g('sweep_points')), criterion=design)
-            return StagePlan(stops=planned.targets), planned.report()
+            planned = plan_stage(self.nominal, marks, whole_number(g('stops'), 'stops', 1),
+                                 int(g('sweep_points')), criterion=design, stroke=self.stroke,
+                                 **self.noise)
+            return StagePlan(stops=planned.targets, stroke=self.stroke), planned.report()
         return StagePlan(sweep_points=int(g('sweep_points')),
-                         grid=tuple(int(v) for v in g('grid')), span=float(g('span'))), None
+                         grid=tuple(int(v) for v in g('grid')), span=float(g('span')),
+                         stroke=self.stroke), None
 
     def _header(self):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id='plate')
@@ -189,8 +211,14 @@ class StageCalibratorNode(Node):
             data, models, report = run_stage_calibration(
                 plan, self.home_marks, self._move,
                 lambda expected: self.locator.measure(expected, 'circle'), self._progress,
-                lambda *stop: self._record_stop(run, *stop), adaptive)
-            check_stage_calibration(report)   # else nothing is put in force
+                lambda *stop: self._record_stop(run, *stop), adaptive, self.nominal,
+                **self.noise)
+            if self.described is None:
+                check_stage_calibration(report)   # else nothing is put in force
+            else:
+                report['description'] = self.described.gate_report()
+                check_stage_calibration(report, self.described,
+                                        likely_causes(data, self.described))
             if prediction is not None:
                 report['plan_prediction'] = prediction
             # Which vision calibration measured the Marks, for whoever reads this one.
@@ -221,7 +249,7 @@ class StageCalibratorNode(Node):
         if self._data is None:
             raise CalibrationError('no stage calibration run to analyse yet: call '
                                    'stage_calibrator/calibrate first')
-        return StageLoopModel(self._data)
+        return StageLoopModel(self._data, self.nominal.d)
 
     def _apply_extended(self, result) -> str:
         return write_extended_calibration(self.get_parameter('output_dir').value, 'stage',

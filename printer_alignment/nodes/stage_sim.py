@@ -1,7 +1,10 @@
 """stage_sim: the simulated XY-Theta alignment stage (3-PRP).
 
 Service ``stage/move`` (MoveStage) moves the three chains to absolute inputs (m) and
-refuses inputs outside the [-5, 5] mm stroke without moving. Publishes the encoders on
+refuses inputs outside the stroke ([-5, 5] mm) without moving. ``description``: a stage
+description YAML: the user's stage (its guides, Marks and stroke, its chains landing as
+declared) with the shipped stage's errors, mounted under the camera gantry as the shipped
+one is (:func:`printer_alignment.sim.stage.described_truth`; '': the shipped stage). Publishes the encoders on
 ``stage/state`` and, for the camera simulator only, the platform's true plate pose on
 ``sim/truth/stage_pose`` (latched).
 """
@@ -19,8 +22,13 @@ from calib_core.frames import planar
 from calib_core.nodes.qos import LATCHED, SERVICES
 from calib_core.nodes.scene import TF_TOPIC, transform_message
 from calib_core.nodes.spin import run_node
-from printer_alignment.core.stage import NOMINAL_STAGE
-from printer_alignment.sim.stage import TRUE_STAGE, StageSim
+from calib_core.nodes.calibrator import set_described_parameters
+from printer_alignment.core.stage import LANDING_SIGMA, NOMINAL_STAGE
+from printer_alignment.core.stage_description import read_description
+from printer_alignment.sim.stage import TRUE_STAGE, StageSim, described_truth
+
+# What a description sets (and the launch may not set beside it).
+DESCRIBED_DEFAULTS = {'landing_sigma': LANDING_SIGMA}
 
 
 class StageSimNode(Node):
@@ -31,12 +39,23 @@ class StageSimNode(Node):
         self.declare_parameter('ideal', False)
         self.declare_parameter('seed', 0)
         self.declare_parameter('state_rate_hz', 10.0)
+        self.declare_parameter('description', '')
+        ideal = bool(self.get_parameter('ideal').value)
+        described = None
+        if self.get_parameter('description').value:
+            described = read_description(self.get_parameter('description').value)
+            set_described_parameters(self, {'landing_sigma': described.landing_sigma()},
+                                     DESCRIBED_DEFAULTS)
         landing = float(self.get_parameter('landing_sigma').value)
         rate = float(self.get_parameter('state_rate_hz').value)
         if not (landing >= 0 and rate > 0):
             raise ValueError('landing_sigma must be >= 0 and state_rate_hz > 0')
-        truth = NOMINAL_STAGE if self.get_parameter('ideal').value else TRUE_STAGE
-        self.stage = StageSim(truth, landing, seed=int(self.get_parameter('seed').value))
+        seed = int(self.get_parameter('seed').value)
+        if described is None:
+            self.stage = StageSim(NOMINAL_STAGE if ideal else TRUE_STAGE, landing, seed=seed)
+        else:
+            self.stage = StageSim(described_truth(described, ideal), landing, seed=seed,
+                                  stroke=described.stroke, marks=described.marks)
         self._lock = threading.Lock()
         self.state_pub = self.create_publisher(StageState, 'stage/state', 10)
         self.truth_pub = self.create_publisher(StagePose, 'sim/truth/stage_pose', LATCHED)

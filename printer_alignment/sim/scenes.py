@@ -6,22 +6,30 @@ from __future__ import annotations
 import numpy as np
 
 from printer_alignment.sim.scene import DotPlate, MarkSet, PlacedPlate, PlateMark, StageScene
-from printer_alignment.sim.stage import CALIBRATION_MARKS, SUBSTRATE_MARKS, TRUE_STAGE
+from printer_alignment.sim.stage import (
+    CALIBRATION_MARKS, SUBSTRATE_MARKS, TRUE_STAGE, described_truth)
 
 
-def stage_scene(substrate_shift=(0.0, 0.0, 0.0), stencil=None) -> StageScene:
+def stage_scene(substrate_shift=(0.0, 0.0, 0.0), stencil=None, description=None) -> StageScene:
     """The simulated printer's stage scene: calibration Marks and a substrate fixed with
     ``substrate_shift`` (x m, y m, rotation rad) on the platform; the stencil's fiducials at
     ``stencil`` (plate m, (2, 2)), by default where the substrate's would be if fixed
-    perfectly with the stage at home."""
+    perfectly with the stage at home. With a stage ``description`` (:class:`~printer_
+    alignment.core.stage_description.StageDescription`), the user's stage as the stage
+    simulator builds it (:func:`~printer_alignment.sim.stage.described_truth`): its Marks,
+    and the substrate held beside them as the shipped one is beside the shipped Marks."""
+    truth, marks, designed = TRUE_STAGE, CALIBRATION_MARKS, SUBSTRATE_MARKS
+    if description is not None:
+        truth, marks = described_truth(description), np.asarray(description.marks)
+        designed = SUBSTRATE_MARKS + marks.mean(axis=0) - CALIBRATION_MARKS.mean(axis=0)
     dx, dy, turn = substrate_shift
     c, s = np.cos(turn), np.sin(turn)
-    substrate = SUBSTRATE_MARKS @ np.array([[c, s], [-s, c]]) + [dx, dy]
+    substrate = designed @ np.array([[c, s], [-s, c]]) + [dx, dy]
     if stencil is None:
-        home = TRUE_STAGE.stage_to_plate(TRUE_STAGE.forward(np.zeros((1, 3))))[0]
+        home = truth.stage_to_plate(truth.forward(np.zeros((1, 3))))[0]
         c0, s0 = np.cos(home[2]), np.sin(home[2])
-        stencil = SUBSTRATE_MARKS @ np.array([[c0, s0], [-s0, c0]]) + home[:2]
-    return StageScene(np.vstack([CALIBRATION_MARKS, substrate]), stencil)
+        stencil = designed @ np.array([[c0, s0], [-s0, c0]]) + home[:2]
+    return StageScene(np.vstack([marks, substrate]), stencil)
 
 
 def grid_plate(half: int = 4, pitch: float = 7.5e-3, mark_error: float = 1e-6,

@@ -35,6 +35,47 @@ TRUE_STAGE = StageGeometry(
     stage2plate=(-0.1436, -0.0517, np.deg2rad(0.30)))
 
 
+# Where the shipped stage's calibration Marks are taught (plate frame, m, stage at home):
+# the stage calibrator's default ``calibration_marks``.
+TAUGHT_MARKS = np.array([[0.0351, 0.0791], [0.1551, 0.0797]])
+
+
+def described_home_marks(description) -> np.ndarray:
+    """Where a user teaches the calibration Marks of the described stage (plate frame, m,
+    (2, 2), stage at home) when the simulation mounts it (:func:`described_truth`): the
+    described Marks about the shipped taught pair's centroid, turned as that pair is turned
+    from the shipped Marks (for the shipped stage's description, :data:`TAUGHT_MARKS`)."""
+    marks = np.asarray(description.marks, dtype=float)
+    turn, _ = rigid_fit(CALIBRATION_MARKS, TAUGHT_MARKS)
+    c, s = np.cos(turn), np.sin(turn)
+    return (marks - marks.mean(axis=0)) @ np.array([[c, s], [-s, c]]) + TAUGHT_MARKS.mean(axis=0)
+
+
+def described_truth(description, ideal: bool = False) -> StageGeometry:
+    """A user's stage (a :class:`~printer_alignment.core.stage_description.
+    StageDescription`) as the live simulation builds it: the shipped stage's errors
+    (TRUE_STAGE's leads, offsets, angles, backlash, its guides as far off the drawing) on
+    the described guides, mounted under the camera gantry as the shipped stage is: its
+    Marks' centroid at home where the shipped stage's is, turned as the shipped stage is
+    turned. ``ideal``: the described stage without errors, mounted where the Marks are
+    taught (:func:`described_home_marks`). Deterministic, so the stage and the camera
+    simulators build the same stage from the same file."""
+    if ideal:
+        return description.nominal(described_home_marks(description))
+    off_drawing = np.asarray(TRUE_STAGE.d) - np.asarray(NOMINAL_D)
+    unmounted = TRUE_STAGE.with_changes(d=tuple(np.asarray(description.d) + off_drawing),
+                                        stage2plate=(0.0, 0.0, 0.0))
+    shipped_home = platform_points_in_plate(
+        TRUE_STAGE.stage_to_plate(TRUE_STAGE.forward(np.zeros((1, 3)))),
+        CALIBRATION_MARKS)[0].mean(axis=0)
+    home = unmounted.forward(np.zeros((1, 3)))
+    centroid = platform_points_in_plate(home, description.marks)[0].mean(axis=0)
+    turn = TRUE_STAGE.stage2plate[2]
+    c, s = np.cos(turn), np.sin(turn)
+    shift = shipped_home - np.array([[c, -s], [s, c]]) @ centroid
+    return unmounted.with_changes(stage2plate=(float(shift[0]), float(shift[1]), turn))
+
+
 def random_stage(seed: int, nominal_d=NOMINAL_D) -> StageGeometry:
     """A stage with its errors drawn afresh (sizes like TRUE_STAGE's): leads 0.2 %,
     offsets 40 um, guide places 1 mm about ``nominal_d`` (m), angles 0.5-2 mrad, backlash
