@@ -230,9 +230,9 @@ def test_a_plan_about_a_home_keeps_its_poses_in_the_box_about_it(design):
 
 def test_launch_refuses_a_description_before_any_node_starts(capsys):
     """`machine-align launch platform --description` reads the file first: another kind's
-    description, or a graph that takes none, is a clear error (exit 2) and no node runs."""
+    description is a clear error (exit 2) and no node runs, whichever graph is asked for."""
     hexapod_file = next((DESCRIPTIONS.parents[1] / 'hexapod_calib' / 'descriptions').glob('*.yaml'))
     assert cli_main(['launch', 'platform', '--description', str(hexapod_file)]) == 2
     assert 'kind must be platform' in capsys.readouterr().err
     assert cli_main(['launch', 'stage', '--description', str(USER)]) == 2
-    assert 'no description yet' in capsys.readouterr().err
+    assert 'kind must be stage' in capsys.readouterr().err
