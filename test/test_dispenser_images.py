@@ -7,7 +7,7 @@ import pytest
 
 from calib_core.errors import CalibrationError
 from dispenser_calib.core.board_images import name_dots, observe_frame
-from dispenser_calib.core.data import DOT_RADIUS, board_points
+from dispenser_calib.core.data import SHIPPED_BOARD, board_points
 from dispenser_calib.core.iso230 import iso230_7
 from dispenser_calib.core.model import nominal_model, project
 from dispenser_calib.core.procedure import plan_stops
@@ -30,7 +30,7 @@ def test_ellipse_centre_of_a_projected_dot_is_not_the_projected_centre():
     board, _ = board_points()
     pose = _tilted_stop()
     conic = np.array([[m.u, m.v] for m in (dot_ellipse(model, pose, p) for p in board)])
-    closed = project(model, board, pose[None], DOT_RADIUS)[0]
+    closed = project(model, board, pose[None], SHIPPED_BOARD.radius)[0]
     centre = project(model, board, pose[None])[0]
     assert np.abs(conic - closed).max() < TOLERANCE['conic_px']
     assert np.abs(conic - centre).max() > TOLERANCE['perspective_shift_px']
@@ -43,7 +43,7 @@ def test_rendered_frame_gives_every_dot_named_at_its_ellipse_centre():
     board, indices = board_points()
     assert len(image.indices) == len(indices)
     where = {tuple(i): k for k, i in enumerate(indices)}
-    expected = project(truth, board, pose[None], DOT_RADIUS)[0][[where[tuple(i)] for i in image.indices]]
+    expected = project(truth, board, pose[None], SHIPPED_BOARD.radius)[0][[where[tuple(i)] for i in image.indices]]
     assert np.abs(image.pixels - expected).max() < TOLERANCE['detected_px']
 
 
@@ -55,7 +55,7 @@ def test_dot_centre_noise_moves_each_detected_centre_by_its_sigma():
     pose = _tilted_stop()
     board, indices = board_points()
     where = {tuple(i): k for k, i in enumerate(indices)}
-    expected = project(truth, board, pose[None], DOT_RADIUS)[0]
+    expected = project(truth, board, pose[None], SHIPPED_BOARD.radius)[0]
     image = observe_frame(render_board(truth, pose, IMAGE_SIZE, seed=3, centre_noise_px=0.1),
                           pose, nominal, 'tilted')
     scatter = image.pixels - expected[[where[tuple(i)] for i in image.indices]]

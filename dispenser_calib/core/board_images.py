@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from calib_core.errors import CalibrationError, DetectionError
 from calib_core.marks import DetectorConfig, detect_marks
-from dispenser_calib.core.data import Image, board_points
+from dispenser_calib.core.data import SHIPPED_BOARD, Board, Image, board_points
 from dispenser_calib.core.model import DispenserModel, project
 
 MATCH_SHARE = 0.25   # of the pitch: a detection this close to a lattice place is that dot
@@ -68,9 +68,10 @@ def name_dots(detected: np.ndarray, predicted: np.ndarray, indices: np.ndarray) 
 
 def observe_frame(frame: np.ndarray, pose: np.ndarray, model: DispenserModel, name: str,
                   config: DetectorConfig = DetectorConfig(min_size_px=4, max_size_px=80,
-                                                          polarity='dark')) -> Image:
-    """The board dots of one frame (H, W) taken at the commanded ``pose`` (5,), named with
-    ``model``'s prediction.
+                                                          polarity='dark'),
+                  board: Board = SHIPPED_BOARD) -> Image:
+    """The dots of ``board`` in one frame (H, W) taken at the commanded ``pose`` (5,),
+    named with ``model``'s prediction.
 
     Raises
     ------
@@ -81,8 +82,9 @@ def observe_frame(frame: np.ndarray, pose: np.ndarray, model: DispenserModel, na
     except DetectionError as exc:
         raise CalibrationError(f'{name}: no board dots found ({exc}): the board out of view '
                                f'or out of focus?') from None
-    board, indices = board_points()
+    dots, indices = board_points(board)
     detected = np.array([[m.u, m.v] for m in marks])
-    names = name_dots(detected, project(model, board, pose[None])[0], indices)
+    names = name_dots(detected, project(model, dots, pose[None])[0], indices)
     kept = names >= 0
-    return Image(name, np.asarray(pose, float).copy(), indices[names[kept]], detected[kept])
+    return Image(name, np.asarray(pose, float).copy(), indices[names[kept]], detected[kept],
+                 board)

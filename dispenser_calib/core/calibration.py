@@ -11,7 +11,7 @@ import numpy as np
 
 from calib_core.errors import CalibrationError
 from calib_core.sanity import SanityGate
-from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
+from dispenser_calib.core.data import SHIPPED_BOARD, Image, board_points, one_board
 from dispenser_calib.core.iso230 import iso230_7_report
 from dispenser_calib.core.model import (
     A_NOMINAL, C_NOMINAL, LOOKING_DOWN, NAMES, DispenserModel, _basis, project, project_rows)
@@ -21,12 +21,18 @@ MIN_DOTS = 6
 
 
 def _board_of(image: Image) -> np.ndarray:
-    board, indices = board_points()
+    """The board positions (k, 3) m of the dots ``image`` saw."""
+    board, indices = board_points(image.board)
     where = {tuple(i): k for k, i in enumerate(indices)}
     try:
         return board[[where[tuple(i)] for i in image.indices]]
     except KeyError as exc:
-        raise CalibrationError(f'{image.name}: dot {exc.args[0]} is not on the board') from None
+        i, j = (int(v) for v in exc.args[0])
+        raise CalibrationError(
+            f'{image.name}: dot ({i}, {j}) is not on the {image.board.dots[0]} x '
+            f'{image.board.dots[1]} board the dots were named on (indices centred: '
+            f'{-((image.board.dots[0] - 1) // 2)}..{image.board.dots[0] // 2} along x): the '
+            'data are of another board than declared') from None
 
 
 def zhang(images: list[Image], image_size) -> tuple[np.ndarray, np.ndarray, list, list]:
@@ -113,12 +119,10 @@ def stepwise(images: list[Image], image_size) -> DispenserModel:
     return DispenserModel(np.array(values, dtype=float))
 
 
-def reprojection(model: DispenserModel, images: list[Image],
-                 dot_radius: float = DOT_RADIUS) -> list[np.ndarray]:
-    """Per image, the observed minus projected pixels (k, 2) (of the dots' ellipse
-    centres, as a detector finds them; ``dot_radius`` 0 takes the images of the dots'
-    centres instead)."""
-    return [im.pixels - project(model, _board_of(im), im.pose[None], dot_radius)[0]
+def reprojection(model: DispenserModel, images: list[Image]) -> list[np.ndarray]:
+    """Per image, the observed minus projected pixels (k, 2) of the dots' ellipse centres
+    (each dot a circle of its board's radius), as a detector finds them."""
+    return [im.pixels - project(model, _board_of(im), im.pose[None], im.board.radius)[0]
             for im in images]
 
 
@@ -153,16 +157,17 @@ class Refinement:
 
 
 def refine(start: DispenserModel, images: list[Image], max_iterations: int = 50,
-           dot_radius: float = DOT_RADIUS, pose_sigma=None) -> Refinement:
+           pose_sigma=None) -> Refinement:
     """All parameters together by least squares on the reprojection error (trust-region
     reflective), from ``start``; the mean reprojection recorded per iteration. Each dot is
-    projected as the centre of its circle's image (``dot_radius``, m; 0: the image of its
-    centre, which a dot detector does not find under perspective).
+    projected as the centre of its circle's image (its board's radius, m), which is what a
+    dot detector finds under perspective, not the image of the dot's centre.
 
     The covariance takes the dots' noise from the residual and, given ``pose_sigma`` (5,)
     (m, rad, 1 sigma: how far each axis stops from its reading, a machine description's),
     that noise too: it moves every dot of an image together, so unlike the dots' own noise
     it does not average out over an image's dots (:func:`_pose_noise_information`)."""
+    dot_radius = one_board(images).radius
     points = np.concatenate([_board_of(im) for im in images])
     poses = np.concatenate([np.repeat(im.pose[None], len(im.indices), 0) for im in images])
     observed = np.concatenate([im.pixels for im in images])
@@ -281,7 +286,18 @@ def check_calibration(model: DispenserModel, report: dict, description=None,
                   *(() if causes is None else (causes,)))
     units = ('axes read in m; 0.001 means mm' if description is None else
              f'axes read in {description.linear_unit}; 1000x or 0.001 is another unit')
-    for k, value in enumerate(np.linalg.svd(model.affine[:, :3], compute_uv=False)):
+    scales = np.linalg.svd(model.affine[:, :3], compute_uv=False)
+    common = float(np.median(scales))
+    if (np.ptp(scales) < 0.01 * common and not abs(common - 1) <= MAX_AXIS_SCALE_ERROR
+            and 0.1 < common < 10):
+        # All three axes off alike, and not by a unit: the camera measured the board at
+        # another size than declared (the same image, a board that much smaller or larger
+        # at that much less or more distance), or every axis's lead is off alike.
+        pitch = (description.board if description is not None else SHIPPED_BOARD).pitch
+        units += (f'; all three alike: a board of another pitch than the declared '
+                  f'{pitch * 1e3:.4g} mm (the axes fit {pitch / common * 1e3:.4g} mm), or '
+                  'every axis\'s lead off alike')
+    for k, value in enumerate(scales):
         gate.within(f'linear-axis scale {k + 1} (singular value of M)', value,
                     1 - MAX_AXIS_SCALE_ERROR, 1 + MAX_AXIS_SCALE_ERROR, '', units)
     gate.finite_std_devs(report['std_devs'])

@@ -4,22 +4,34 @@ The CSV contract of ``machine-align calibrate five-axis``: one row per dot and i
 rotary axes, rad, the table's right-hand rotations about +X and +Z), ``i``, ``j`` (the
 dot's indices on the board, centred), ``u``, ``v`` (its centre in px, OpenCV: the
 top-left pixel's centre is (0, 0)). The board's dots lie at (i, j, 0) x pitch in its own
-frame, each a circle of DOT_RADIUS."""
+frame, each a circle of the board's dot radius (:class:`Board`; the shipped one's by
+default, a machine description's for a user's)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from calib_core.errors import InvalidInputError
+from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.files import read_csv_rows
 from calib_core.schema import Column, Schema
 from calib_core.storage import write_atomic
 
 COLUMNS = ('image', 'x', 'y', 'z', 'a', 'c', 'i', 'j', 'u', 'v')
-BOARD = (11, 9)          # dots along x and y
-PITCH = 2e-3             # m
-DOT_RADIUS = 0.4e-3      # m: the board's dots are 0.8 mm circles
+
+
+@dataclass(frozen=True)
+class Board:
+    """The dot board the camera calibrates on: ``dots`` along x and y, their ``pitch`` (m)
+    and each dot's ``radius`` (m); the shipped simulated board by default (11 x 9 dots of
+    0.8 mm at 2 mm)."""
+
+    dots: tuple = (11, 9)
+    pitch: float = 2e-3
+    radius: float = 0.4e-3
+
+
+SHIPPED_BOARD = Board()
 
 # What a dispenser's commanded axes can read, whatever its strokes: linear axes well under
 # 2 m, the tilt A within a half turn, the table C within two turns either way.
@@ -46,21 +58,37 @@ def check_poses(poses: np.ndarray, source: str) -> None:
 @dataclass(frozen=True)
 class Image:
     """One image: its name, the commanded pose (5,) (x, y, z m; a, c rad), the board
-    indices (k, 2) of the dots seen and their centres (k, 2) px."""
+    indices (k, 2) of the dots seen, their centres (k, 2) px, and the ``board`` they are
+    on."""
 
     name: str
     pose: np.ndarray
     indices: np.ndarray
     pixels: np.ndarray
+    board: Board = SHIPPED_BOARD
 
 
-def board_points(board=BOARD, pitch: float = PITCH) -> tuple[np.ndarray, np.ndarray]:
-    """The board's dots (k, 3) m in its frame (centred, z = 0) and their indices (k, 2)."""
-    ki = np.arange(board[0]) - (board[0] - 1) // 2
-    kj = np.arange(board[1]) - (board[1] - 1) // 2
+def one_board(images: list[Image]) -> Board:
+    """The board every one of ``images`` was taken of.
+
+    Raises
+    ------
+    CalibrationError
+        Images of different boards: one calibration is of one board."""
+    boards = {im.board for im in images}
+    if len(boards) != 1:
+        raise CalibrationError(f'the images are of {len(boards)} different boards; calibrate '
+                               'with the images of one')
+    return boards.pop()
+
+
+def board_points(board: Board = SHIPPED_BOARD) -> tuple[np.ndarray, np.ndarray]:
+    """The ``board``'s dots (k, 3) m in its frame (centred, z = 0) and their indices (k, 2)."""
+    ki = np.arange(board.dots[0]) - (board.dots[0] - 1) // 2
+    kj = np.arange(board.dots[1]) - (board.dots[1] - 1) // 2
     jj, ii = np.meshgrid(kj, ki, indexing='ij')
     indices = np.column_stack([ii.ravel(), jj.ravel()])
-    return np.column_stack([indices * pitch, np.zeros(len(indices))]), indices
+    return np.column_stack([indices * board.pitch, np.zeros(len(indices))]), indices
 
 
 def write_observations(path, images: list[Image], pose_scale=None) -> None:
@@ -75,10 +103,10 @@ def write_observations(path, images: list[Image], pose_scale=None) -> None:
     write_atomic(path, '\n'.join(lines) + '\n')
 
 
-def read_observations(path, pose_scale=None) -> list[Image]:
+def read_observations(path, pose_scale=None, board: Board = SHIPPED_BOARD) -> list[Image]:
     """Images in the file's order, poses in m and rad: the file's times ``pose_scale`` (5,)
     (SI per reading unit of x, y, z, a, c, a machine description's; default: the file is
-    in m and rad).
+    in m and rad), their dots on ``board``.
 
     Raises
     ------
@@ -107,4 +135,4 @@ def read_observations(path, pose_scale=None) -> list[Image]:
     scale = np.ones(5) if pose_scale is None else np.asarray(pose_scale, dtype=float)
     check_poses([np.array(e['pose']) * scale for e in by_image.values()], str(path))
     return [Image(name, np.array(e['pose']) * scale, np.array(list(e['dots'])),
-                  np.array(list(e['dots'].values()))) for name, e in by_image.items()]
+                  np.array(list(e['dots'].values())), board) for name, e in by_image.items()]

@@ -10,6 +10,7 @@ geometry:
   image_size_px: [2448, 2048]
   working_distance_m: 0.120      # camera to the board's centre with the axes at zero
   a_height_m: -0.030             # A's line below the board's surface
+  board: {dots: [11, 9], pitch_m: 2.0e-3, dot_radius_m: 0.4e-3}   # the dot board on the table
 instrument: {name: camera, centroid_sigma_px: 0.17}   # a dot's centre, 1 sigma per axis
 actuators:                       # how the controller reads the axes
   linear_unit: mm                # m, mm, um
@@ -40,11 +41,13 @@ from calib_core.description import (
     read_description_file, unit_factor, workspace_numbers, workspace_section)
 from calib_core.errors import InvalidInputError
 from dispenser_calib.core.calibration import check_calibration
-from dispenser_calib.core.data import Image, board_points, read_observations, write_observations
+from dispenser_calib.core.data import (
+    SHIPPED_BOARD, Board, Image, board_points, read_observations, write_observations)
 from dispenser_calib.core.model import DispenserModel, nominal_frames, nominal_model
 from dispenser_calib.core.procedure import STROKES, WORKING_DISTANCE, Workspace
 
-GEOMETRY_KEYS = ('focal_px', 'image_size_px', 'working_distance_m', 'a_height_m')
+GEOMETRY_KEYS = ('focal_px', 'image_size_px', 'working_distance_m', 'a_height_m', 'board')
+BOARD_KEYS = ('dots', 'pitch_m', 'dot_radius_m')
 INSTRUMENT_KEYS = ('name', 'centroid_sigma_px')
 ACTUATOR_KEYS = ('linear_unit', 'rotary_unit', 'sigma_m', 'sigma_rad')
 STROKE_KEYS = ('x_m', 'y_m', 'z_m', 'a_rad', 'c_rad')
@@ -60,14 +63,15 @@ SLIPS = {'linear': (1e3, 1e-3), 'rotary': (180 / np.pi, np.pi / 180)}
 
 @dataclass(frozen=True)
 class FiveAxisDescription:
-    """A user's five-axis dispenser: camera, strokes (name -> (low, high) m or rad), the
-    axes' units (SI per reading unit), their noise, the camera's dot noise (px) and the
-    repeatability (m), and which sections were declared."""
+    """A user's five-axis dispenser: camera, dot board, strokes (name -> (low, high) m or
+    rad), the axes' units (SI per reading unit), their noise, the camera's dot noise (px)
+    and the repeatability (m), and which sections were declared."""
 
     focal_px: float
     image_size: tuple
     working_distance_m: float
     a_height_m: float
+    board: Board
     strokes: dict
     instrument_name: str
     centroid_sigma_px: float
@@ -90,8 +94,8 @@ class FiveAxisDescription:
         return nominal_frames(pose, self.working_distance_m, self.a_height_m)
 
     def workspace(self) -> Workspace:
-        """The strokes and working distance plans and simulations keep to."""
-        return Workspace(dict(self.strokes), self.working_distance_m)
+        """The strokes, working distance and board plans and simulations keep to."""
+        return Workspace(dict(self.strokes), self.working_distance_m, self.board)
 
     def pose_scale(self) -> np.ndarray:
         """SI per reading unit for x, y, z, a, c (5,)."""
@@ -106,7 +110,7 @@ class FiveAxisDescription:
             As :func:`read_observations`, a pose out of range saying which units it was
             read in."""
         try:
-            return read_observations(path, self.pose_scale())
+            return read_observations(path, self.pose_scale(), self.board)
         except InvalidInputError as exc:
             raise InvalidInputError(f'{exc} (the poses read in {self.linear_unit} and '
                                     f'{self.rotary_unit} as {self.source} declares, then '
@@ -126,8 +130,8 @@ class FiveAxisDescription:
         """How far a board dot lies from the rotary axes, RMS (m): the board's dots about
         its centre and A's line below it. An angle error of the axes moves a dot by this
         times the angle."""
-        board, _ = board_points()
-        return float(np.sqrt(np.mean(np.sum(board ** 2, axis=1)) + self.a_height_m ** 2))
+        dots, _ = board_points(self.board)
+        return float(np.sqrt(np.mean(np.sum(dots ** 2, axis=1)) + self.a_height_m ** 2))
 
     def expected_reprojection_px(self) -> float:
         """Reprojection RMS (px, per coordinate) the declared noise gives a sound fit: the
@@ -198,6 +202,7 @@ def read_description(path) -> FiveAxisDescription:
                                             f'{where}: geometry',
                                             SHIPPED_GEOMETRY['working_distance_m'], True),
         a_height_m=float(a_height),
+        board=_board(geometry, where),
         strokes=_strokes(content, where),
         instrument_name=name,
         centroid_sigma_px=described_number(instrument, 'centroid_sigma_px',
@@ -214,6 +219,28 @@ def read_description(path) -> FiveAxisDescription:
         declared=tuple(k for k in ('instrument', 'actuators', 'repeatability_m')
                        if k in content),
         source=where)
+
+
+def _board(geometry: dict, where: str) -> Board:
+    """The declared dot board, else the shipped one: whole dots along x and y (at least 3
+    each, a board the calibration can name), pitch and radius in m, the dots apart."""
+    if 'board' not in geometry:
+        return SHIPPED_BOARD
+    where = f'{where}: geometry board'
+    board = check_keys(geometry['board'], BOARD_KEYS, where)
+    missing = [key for key in BOARD_KEYS if key not in board]
+    if missing:
+        raise InvalidInputError(f'{where} lacks {", ".join(missing)}')
+    dots = workspace_numbers(board['dots'], 2, 'dots', where, True)
+    if any(v != int(v) or v < 3 for v in dots):
+        raise InvalidInputError(f'{where}: dots must be two whole numbers of at least 3 (along '
+                                f'x and y), not {board["dots"]!r}')
+    pitch = described_number(board, 'pitch_m', where, None, positive=True)
+    radius = described_number(board, 'dot_radius_m', where, None, positive=True)
+    if not radius < pitch / 2:
+        raise InvalidInputError(f'{where}: dot_radius_m {radius:g} must be under half the '
+                                f'pitch_m {pitch:g} (the dots apart)')
+    return Board((int(dots[0]), int(dots[1])), pitch, radius)
 
 
 def _strokes(content: dict, where: str) -> dict:

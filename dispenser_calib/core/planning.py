@@ -31,7 +31,7 @@ from calib_core.checks import plan_rows, whole_number
 from calib_core.errors import InvalidInputError
 from calib_core.planning import CRITERIA, Adaptive, augment, information, predicted_errors
 from dispenser_calib.core.calibration import calibrate
-from dispenser_calib.core.data import DOT_RADIUS, board_points, check_poses
+from dispenser_calib.core.data import SHIPPED_BOARD, Board, board_points, check_poses
 from dispenser_calib.core.iso230 import iso230_7_report
 from dispenser_calib.core.model import (
     NAMES, DispenserModel, camera_points, chain_rotation, place, project_rows)
@@ -115,7 +115,7 @@ def candidate_stops(model: DispenserModel, image_size, depth_of_field: float = D
         kinds.append(kind)
     stops = np.array(stops)
     keep = (np.array([workspace.inside(s) for s in stops])
-            & (_in_view(model, stops, image_size).mean(axis=1) >= MIN_IN_VIEW)
+            & (_in_view(model, stops, image_size, workspace.board).mean(axis=1) >= MIN_IN_VIEW)
             & (view_angle(model, stops) <= np.deg2rad(MAX_VIEW_DEG)))
     return stops[keep], [k for k, kept in zip(kinds, keep) if kept]
 
@@ -129,21 +129,24 @@ def view_angle(model: DispenserModel, stops: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(cosine, 0.0, 1.0))
 
 
-def _in_view(model: DispenserModel, stops: np.ndarray, image_size) -> np.ndarray:
-    """Which of the board's dots each stop images through ``model``, (M, k) bool."""
-    board, _ = board_points()
-    pixels = _pixels(model, board, stops).reshape(len(stops), len(board), 2)
+def _in_view(model: DispenserModel, stops: np.ndarray, image_size,
+             board: Board = SHIPPED_BOARD) -> np.ndarray:
+    """Which of the ``board``'s dots each stop images through ``model``, (M, k) bool."""
+    points, _ = board_points(board)
+    pixels = _pixels(model, points, stops, board.radius).reshape(len(stops), len(points), 2)
     width, height = image_size
     return (np.all(np.isfinite(pixels), axis=2) & (pixels[..., 0] >= 0)
             & (pixels[..., 0] <= width - 1) & (pixels[..., 1] >= 0)
             & (pixels[..., 1] <= height - 1))
 
 
-def _pixels(model: DispenserModel, points: np.ndarray, stops: np.ndarray) -> np.ndarray:
-    """Every point at every stop, (stops x points, 2) px, dots as their images' centres."""
+def _pixels(model: DispenserModel, points: np.ndarray, stops: np.ndarray,
+            dot_radius: float) -> np.ndarray:
+    """Every point at every stop, (stops x points, 2) px, dots (of ``dot_radius``, m) as
+    their images' centres."""
     rows = np.tile(points, (len(stops), 1))
     poses = np.repeat(stops, len(points), axis=0)
-    return project_rows(model, rows, poses, DOT_RADIUS)
+    return project_rows(model, rows, poses, dot_radius)
 
 
 def _derivatives(function, model: DispenserModel) -> np.ndarray:
@@ -160,14 +163,16 @@ def _derivatives(function, model: DispenserModel) -> np.ndarray:
 
 
 def stop_rows(model: DispenserModel, stops: np.ndarray, image_size,
-              noise_px: float = NOISE_PX) -> np.ndarray:
-    """Each stop's identification rows whitened by the detection noise, as the triangular
-    factor R (p, p) of its information (R^T R = J^T J / noise^2), (M, p, p)."""
-    board, _ = board_points()
-    jacobian = _derivatives(lambda m: _pixels(m, board, stops).ravel(), model) / noise_px
-    jacobian = jacobian.reshape(len(stops), 2 * len(board), -1)
+              noise_px: float = NOISE_PX, board: Board = SHIPPED_BOARD) -> np.ndarray:
+    """Each stop's identification rows of the ``board``'s dots whitened by the detection
+    noise, as the triangular factor R (p, p) of its information (R^T R = J^T J /
+    noise^2), (M, p, p)."""
+    points, _ = board_points(board)
+    jacobian = _derivatives(lambda m: _pixels(m, points, stops, board.radius).ravel(),
+                            model) / noise_px
+    jacobian = jacobian.reshape(len(stops), 2 * len(points), -1)
     # Rows of dots out of view carry nothing.
-    seen = np.repeat(_in_view(model, stops, image_size), 2, axis=1)
+    seen = np.repeat(_in_view(model, stops, image_size, board), 2, axis=1)
     jacobian = np.where(seen[..., None], jacobian, 0.0)
     return np.linalg.qr(jacobian, mode='r')
 
@@ -221,12 +226,14 @@ def _scales(model: DispenserModel) -> np.ndarray:
 
 
 def predict(model: DispenserModel, stops: np.ndarray, image_size, noise_px: float = NOISE_PX,
-            seed: int = 0, rows: np.ndarray | None = None) -> dict:
-    """What the identification from ``stops`` (n, 5) will give, first order: the
-    parameters' covariance, their and the ISO 230-7 errors' 1-sigma and the working
+            seed: int = 0, rows: np.ndarray | None = None,
+            board: Board = SHIPPED_BOARD) -> dict:
+    """What the identification from ``stops`` (n, 5) of ``board`` will give, first order:
+    the parameters' covariance, their and the ISO 230-7 errors' 1-sigma and the working
     error (m: RMS, median and max over the working poses and points of the 3-D error)."""
     scale = _scales(model)
-    rows = (stop_rows(model, stops, image_size, noise_px) if rows is None else rows) * scale
+    rows = (stop_rows(model, stops, image_size, noise_px, board) if rows is None
+            else rows) * scale
     covariance = np.linalg.inv(information(rows, np.arange(len(rows)))) * np.outer(scale, scale)
     working = working_sensitivity(model, seed)
     per_row = predicted_errors(covariance, working)                 # (W, 3 k)
@@ -269,7 +276,7 @@ def _candidates(model: DispenserModel, image_size, criterion: str, noise_px: flo
                                 f'the strokes and with {MIN_IN_VIEW:.0%} of the board in a '
                                 f'{image_size[0]}x{image_size[1]} px image through the model)')
     scale = _scales(model)
-    rows = stop_rows(model, stops, image_size, noise_px) * scale
+    rows = stop_rows(model, stops, image_size, noise_px, workspace.board) * scale
     working = working_sensitivity(model, seed) * scale if criterion == 'I' else None
     prior = np.diag(1e-6 * np.einsum('mrp,mrp->p', rows, rows) / len(rows))
     return _Candidates(stops, kinds, scale, rows, working, prior)
@@ -324,7 +331,8 @@ def todays_prediction(model: DispenserModel, image_size, noise_px: float = NOISE
     """The prediction for today's stepwise plan (:func:`plan_stops`) in ``workspace``, to
     compare, with its stops (n, 5) m, rad."""
     stops = plan_stops(model, seed, workspace)
-    return {**predict(model, stops, image_size, noise_px, seed), 'stops': len(stops),
+    return {**predict(model, stops, image_size, noise_px, seed, board=workspace.board),
+            'stops': len(stops),
             'stops_m_rad': stops.tolist()}
 
 
@@ -383,7 +391,7 @@ def extend_five_axis(model: DispenserModel, measured: np.ndarray, count: int, im
     the first k of them are the best k), and the prediction for all of them together."""
     c = _candidates(model, image_size, criterion, noise_px, seed, depth_of_field, 1,
                     workspace)
-    measured_rows = stop_rows(model, measured, image_size, noise_px) * c.scale
+    measured_rows = stop_rows(model, measured, image_size, noise_px, workspace.board) * c.scale
     prior = c.prior + information(measured_rows, np.arange(len(measured)))
     taken = [k for k, stop in enumerate(c.stops)
              if np.any(np.all(np.abs(measured - stop) < 1e-9, axis=1))]
@@ -424,7 +432,8 @@ class AdaptivePlan:
         # about the machine as measured so far, not about the nominal one.
         _, result = calibrate(images, self.image_size)
         measured = np.array([im.pose for im in images])
-        now = predict(result.model, measured, self.image_size, self.noise_px, self.seed)
+        now = predict(result.model, measured, self.image_size, self.noise_px, self.seed,
+                      board=self.workspace.board)
 
         def extend(room):
             more, best = extend_five_axis(result.model, measured, room, self.image_size,

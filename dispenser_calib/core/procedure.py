@@ -13,7 +13,7 @@ import numpy as np
 
 from calib_core.errors import InvalidInputError
 from dispenser_calib.core.calibration import calibrate, check_calibration, reprojection
-from dispenser_calib.core.data import Image
+from dispenser_calib.core.data import SHIPPED_BOARD, Board, Image
 from dispenser_calib.core.localisation import fit_part_pose, locate, place_path, tool_centre
 from dispenser_calib.core.model import DispenserModel, place
 from dispenser_calib.errors import StrokeError
@@ -37,12 +37,14 @@ STROKES = {'x': (-0.200, 0.200), 'y': (-0.150, 0.150), 'z': (-0.050, 0.050),
 
 @dataclass(frozen=True)
 class Workspace:
-    """Where a dispenser works: each axis's stroke (name -> (low, high), m or rad) and the
-    camera's working distance (m, to the board's centre with the axes at zero); the
-    shipped simulated machine's by default, a machine description's for a user's."""
+    """Where a dispenser works: each axis's stroke (name -> (low, high), m or rad), the
+    camera's working distance (m, to the board's centre with the axes at zero) and the dot
+    ``board`` on its table that the camera calibrates on; the shipped simulated machine's
+    by default, a machine description's for a user's."""
 
     strokes: dict = field(default_factory=lambda: dict(STROKES))
     working_distance: float = WORKING_DISTANCE
+    board: Board = SHIPPED_BOARD
 
     def check(self, pose: np.ndarray) -> None:
         """:func:`check_stroke` against these strokes."""
@@ -119,7 +121,7 @@ def measure_sweep(stops: np.ndarray, move: Callable[[np.ndarray], np.ndarray],
         reached = np.asarray(move(pose), dtype=float)
         indices, pixels = capture()
         images.append(Image(f'sweep{len(images):03d}', reached, np.asarray(indices, int),
-                            np.asarray(pixels, float)))
+                            np.asarray(pixels, float), workspace.board))
         record(images[-1], 'sweep')
         progress(len(images), len(stops), f'sweep image {len(images)}: {len(indices)} dots')
     return images
@@ -150,7 +152,8 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
     ``adapt(images)`` (:class:`dispenser_calib.core.planning.AdaptivePlan`), after the
     stops are imaged and after each addition, the further stops to image (none: enough);
     ``description`` (:class:`dispenser_calib.core.description.FiveAxisDescription`) the
-    machine's strokes and working distance, and the gate (:func:`finish`).
+    machine's strokes, working distance and board (the one ``capture`` names the dots
+    of), and the gate (:func:`finish`).
     Returns (the refinement, its report with the held-out evaluation, the images).
 
     Raises
@@ -169,7 +172,7 @@ def run_five_axis_calibration(nominal: DispenserModel, image_size, seed: int, ev
         reached = np.asarray(move(pose), dtype=float)
         indices, pixels = capture()
         out.append(Image(f'{phase}{len(out):03d}', reached, np.asarray(indices, int),
-                         np.asarray(pixels, float)))
+                         np.asarray(pixels, float), workspace.board))
         record(out[-1], phase)
         # An adaptive run adds stops: the count grows past the first plan's total.
         total = max(len(stops), len(images)) + len(held_out) + 1

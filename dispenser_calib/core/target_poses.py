@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, InvalidInputError
-from dispenser_calib.core.data import DOT_RADIUS, board_points
+from dispenser_calib.core.data import board_points, one_board
 from dispenser_calib.core.model import DispenserModel, distort, dot_centres
 
 POSE_COLUMNS = ('x', 'y', 'z', 'qw', 'qx', 'qy', 'qz')
@@ -94,20 +94,22 @@ def poses_from_images(model: DispenserModel, images: list, covariates: dict | No
         raise CalibrationError('the linear axes moved between the images (by up to '
                                f'{np.ptp(linear, axis=0).max() * 1e3:.4g} mm): the rotary axes '
                                'from board poses need them held')
-    board, indices = board_points()
+    board = one_board(images)
+    dots, indices = board_points(board)
     where = {tuple(i): k for k, i in enumerate(indices)}
     distortion = np.r_[model.distortion, 0.0]
     rotations, translations, covariances = [], [], []
     for im in images:
         if len(im.indices) < 6:
             raise CalibrationError(f'{im.name}: {len(im.indices)} dots, a board pose needs 6')
-        points = board[[where[tuple(i)] for i in im.indices]]
+        points = dots[[where[tuple(i)] for i in im.indices]]
         # Ellipse centres, as the calibration projects them, are not the dots' images:
         # start from PnP on the centres, then fit the pose to the ellipse centres.
         _, rvec, tvec = cv2.solvePnP(points, im.pixels, model.camera_matrix, distortion,
                                      flags=cv2.SOLVEPNP_ITERATIVE)
         rotation, translation, covariance = _fit_board_pose(model, points, im.pixels,
-                                                            rvec.ravel(), tvec.ravel())
+                                                            rvec.ravel(), tvec.ravel(),
+                                                            board.radius)
         rotations.append(rotation)
         translations.append(translation)
         covariances.append(covariance)
@@ -117,8 +119,8 @@ def poses_from_images(model: DispenserModel, images: list, covariates: dict | No
                        covariates, np.array(covariances))
 
 
-def _fit_board_pose(model, points, pixels, rvec, tvec):
-    """The board pose whose dots' ellipse centres (radius DOT_RADIUS, through ``model``'s
+def _fit_board_pose(model, points, pixels, rvec, tvec, dot_radius: float):
+    """The board pose whose dots' ellipse centres (``dot_radius`` m, through ``model``'s
     lens) best match ``pixels``: rotation (3, 3), translation (3,) m, and the covariance
     (6, 6) of (translation, rotation error vector in the camera frame) from the fit's
     Jacobian and its residual variance."""
@@ -127,7 +129,7 @@ def _fit_board_pose(model, points, pixels, rvec, tvec):
     def residual(x):
         rotation = Rotation.from_rotvec(x[:3]).as_matrix() @ start
         centre = dot_centres(points @ rotation.T + x[3:],
-                             np.repeat(rotation[None, :, :2], len(points), 0), DOT_RADIUS)
+                             np.repeat(rotation[None, :, :2], len(points), 0), dot_radius)
         return (distort(model, centre[:, :2] / centre[:, 2:3]) - pixels).ravel()
     solution = least_squares(residual, np.r_[np.zeros(3), tvec], x_scale='jac')
     variance = float(solution.fun @ solution.fun) / max(solution.fun.size - 6, 1)

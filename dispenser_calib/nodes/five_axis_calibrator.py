@@ -230,7 +230,8 @@ class FiveAxisCalibratorNode(Node):
                              self.timeout)
         self._frame = image_from_message(taken.image)
         image = observe_frame(self._frame, self.pose,
-                              self.model or self.nominal, f'frame at {self.pose.round(6).tolist()}')
+                              self.model or self.nominal, f'frame at {self.pose.round(6).tolist()}',
+                              board=self.workspace.board)
         return image.indices, image.pixels
 
     def _dispense(self):

@@ -136,13 +136,13 @@ class FiveAxisSimNode(Node):
             pose, self.captures = self.pose.copy(), self.captures + 1
             seed = self.seed * 100003 + self.captures
             bad = self.rng.random() < self.bad
-            hidden, dust = self.rng.choice(len(board_points()[1]), 2, replace=False)
+            indices = board_points(self.workspace.board)[1]
+            hidden, dust = self.rng.choice(len(indices), 2, replace=False)
             offset = self.rng.uniform(15, 30) * self.rng.choice([-1, 1], 2)
-        indices = board_points()[1]
         occluded = (tuple(indices[hidden]),) if bad else ()
         displaced = {tuple(indices[dust]): offset} if bad else None
         frame = render_board(self.truth, pose, self.image_size, self.frame_noise, seed, occluded,
-                             displaced, centre_noise_px=self.noise)
+                             displaced, centre_noise_px=self.noise, workspace=self.workspace)
         response.success, response.message = True, 'ok'
         response.image = image_as_message(
             frame, Header(stamp=self.get_clock().now().to_msg(), frame_id='camera'))

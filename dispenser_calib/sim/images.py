@@ -11,9 +11,9 @@ import cv2
 import numpy as np
 
 from calib_core.sim.render import MarkShape, coverage
-from dispenser_calib.core.data import DOT_RADIUS, board_points
+from dispenser_calib.core.data import SHIPPED_BOARD, board_points
 from dispenser_calib.core.model import DispenserModel, _camera_rows, project
-from dispenser_calib.core.procedure import check_stroke
+from dispenser_calib.core.procedure import SHIPPED_WORKSPACE, Workspace
 
 BACKGROUND, CONTRAST = 200.0, -150.0   # grey levels: a white board with dark dots
 BLUR_SIGMA = 0.8        # px: the lens's point spread
@@ -29,7 +29,7 @@ def _board_homography(model: DispenserModel, pose: np.ndarray) -> np.ndarray:
 
 
 def dot_ellipse(model: DispenserModel, pose: np.ndarray, centre: np.ndarray,
-                radius: float = DOT_RADIUS) -> MarkShape:
+                radius: float = SHIPPED_BOARD.radius) -> MarkShape:
     """The image, in ideal pixels, of the board's circle of ``radius`` m about ``centre``
     (3,) m: its conic mapped by the homography, C' = H^-T C H^-1, as an ellipse's centre,
     mean radius, axis ratio and direction."""
@@ -65,27 +65,30 @@ def _coverage(mark: MarkShape, ideal: np.ndarray) -> np.ndarray:
 
 def render_board(model: DispenserModel, pose: np.ndarray, size, noise: float = 2.0,
                  seed: int = 0, occluded: tuple = (), displaced: dict | None = None,
-                 centre_noise_px: float = 0.0) -> np.ndarray:
-    """The camera's 8-bit frame (height, width) of the board at ``pose`` (5,): every dot
+                 centre_noise_px: float = 0.0,
+                 workspace: Workspace = SHIPPED_WORKSPACE) -> np.ndarray:
+    """The camera's 8-bit frame (height, width) of the ``workspace``'s board at ``pose``
+    (5,): every dot
     whose ellipse lies inside the frame, rendered through the distortion, except the board
     indices in ``occluded``; the dots in ``displaced`` (index (i, j) -> (du, dv) px) drawn
     that far off (dust on the dot: a mis-detection); Gaussian noise of ``noise`` grey
     levels. Each dot is drawn ``centre_noise_px`` (1 sigma per axis, drawn per frame from
     ``seed``) off its true image: what the source's dot-centre noise (0.1 px) stands for,
     from print, illumination and focus, which a clean rendering alone does not have. Poses
-    outside the strokes are refused."""
-    check_stroke(pose)
+    outside the ``workspace``'s strokes are refused."""
+    workspace.check(pose)
+    board = workspace.board
     width, height = (int(s) for s in size)
     frame = np.full((height, width), BACKGROUND)
-    board, indices = board_points()
-    distorted = project(model, board, pose[None])[0]
+    dots, indices = board_points(board)
+    distorted = project(model, dots, pose[None])[0]
     k, distortion = model.camera_matrix, model.distortion
     hidden = {tuple(i) for i in occluded}
-    jitter = np.random.default_rng(seed + 81).normal(0.0, centre_noise_px, (len(board), 2))
-    for point, index, (u, v), (du, dv) in zip(board, indices, distorted, jitter):
+    jitter = np.random.default_rng(seed + 81).normal(0.0, centre_noise_px, (len(dots), 2))
+    for point, index, (u, v), (du, dv) in zip(dots, indices, distorted, jitter):
         if tuple(index) in hidden or not np.isfinite(u):
             continue
-        mark = dot_ellipse(model, pose, point)
+        mark = dot_ellipse(model, pose, point, board.radius)
         mark = replace(mark, u=mark.u + du, v=mark.v + dv)
         shift = (displaced or {}).get(tuple(index))
         if shift is not None:

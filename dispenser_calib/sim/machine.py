@@ -7,7 +7,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calib_core.datasets import directions_from_order
-from dispenser_calib.core.data import DOT_RADIUS, Image, board_points
+from dispenser_calib.core.data import Image, board_points
 from dispenser_calib.core.localisation import reached
 from dispenser_calib.core.model import (
     NAMES, DispenserModel, rodrigues, _camera_rows, chain_rotation, nominal_model, project, project_rows,
@@ -66,12 +66,12 @@ def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, see
     one dot mis-detected by 15-30 px and one occluded. ``angular_error`` (a function of c,
     rad) is what C turns beyond its reading (a worm gear's error); C lags its reading by
     ``c_backlash`` / 2 (rad) against the direction it last moved in (lost motion). Stops
-    outside the ``workspace``'s strokes are refused; the camera has ``image_size`` (w, h)
-    px. ``pose_sigma`` (5,) (m, rad; a machine description's positioning noise and
+    outside the ``workspace``'s strokes are refused; the board is the ``workspace``'s;
+    the camera has ``image_size`` (w, h) px. ``pose_sigma`` (5,) (m, rad; a machine description's positioning noise and
     repeatability) is how far each axis stops from its reading, 1 sigma. Returns the
     images and the names of the bad ones (truth)."""
     rng = np.random.default_rng(seed + 60)
-    board, indices = board_points()
+    board, indices = board_points(workspace.board)
     images = []
     bad = set(rng.choice(len(stops), int(round(bad_fraction * len(stops))), replace=False))
     approach = directions_from_order(np.asarray(stops)[:, 4:5])[:, 0]
@@ -84,7 +84,7 @@ def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, see
         if angular_error is not None:
             turned[4] += angular_error(pose[4])
         turned[4] -= 0.5 * c_backlash * approach[k]
-        pixels = project(truth, board, turned[None], DOT_RADIUS)[0]
+        pixels = project(truth, board, turned[None], workspace.board.radius)[0]
         inside = (np.all(np.isfinite(pixels), axis=1) & (pixels[:, 0] >= 0)
                   & (pixels[:, 0] <= image_size[0] - 1) & (pixels[:, 1] >= 0)
                   & (pixels[:, 1] <= image_size[1] - 1))
@@ -93,7 +93,8 @@ def observe(truth: DispenserModel, stops: np.ndarray, noise_px: float = 0.1, see
             wrong = rng.choice(np.flatnonzero(inside), 2, replace=False)
             pixels[wrong[0]] += rng.uniform(15, 30) * rng.choice([-1, 1], 2)
             inside[wrong[1]] = False
-        images.append(Image(f'image{k:03d}', pose.copy(), indices[inside], pixels[inside]))
+        images.append(Image(f'image{k:03d}', pose.copy(), indices[inside], pixels[inside],
+                            workspace.board))
     return images, sorted(images[k].name for k in bad)
 
 

@@ -69,9 +69,11 @@ def cmd_simulate(args) -> int:
         write_observations(args.out, images)
     units = (f'poses in {described.linear_unit} and {described.rotary_unit}' if described
              else 'poses in m and rad')
-    print(f'wrote {args.out} ({len(images)} images of an 11 x 9 dot board, 2 mm pitch, '
-          f'{size[0]}x{size[1]} px, dots to {noise:g} px; {units}; {len(bad)} with a '
-          f'mis-detected dot: {", ".join(bad) or "none"})')
+    board = workspace.board
+    print(f'wrote {args.out} ({len(images)} images of a {board.dots[0]} x {board.dots[1]} '
+          f'dot board, {board.pitch * 1e3:g} mm pitch, {size[0]}x{size[1]} px, dots to '
+          f'{noise:g} px; {units}; {len(bad)} with a mis-detected dot: '
+          f'{", ".join(bad) or "none"})')
     if args.truth:
         write_model(args.truth, truth, {'part_pose': PART_POSE.tolist()})
         print(f'wrote {args.truth} (the simulation\'s true model and the part\'s pose: x, y, '
