@@ -206,11 +206,20 @@ measured motion needs are not in the declared unit: no fit or analysis of them m
 anything. Within it, a lead or scale declared wrong is something the loop can name."""
 
 
+def unit_slip(travel_ratio: float, slip: float = UNIT_SLIP, within: float = 3.0) -> float | None:
+    """Which of ``slip`` and its inverse ``travel_ratio`` (readings' travel over the measured
+    motion's) is, to a factor ``within`` either way; None for neither. A machine whose
+    measured motion is known well (a camera seeing a board move) takes a narrow
+    ``within``; ``slip`` is 1000 for a length unit (mm read as m), 57.3 for degrees read as
+    radians."""
+    return next((factor for factor in (slip, 1 / slip)
+                 if 1 / within < travel_ratio / factor < within), None)
+
+
 def is_unit_slip(travel_ratio: float) -> bool:
-    """Whether ``travel_ratio`` (readings' travel over the measured motion's) is about
-    :data:`UNIT_SLIP` or its inverse (within 3x)."""
-    return (UNIT_SLIP / 3 < travel_ratio < 3 * UNIT_SLIP
-            or 1 / (3 * UNIT_SLIP) < travel_ratio < 3 / UNIT_SLIP)
+    """Whether ``travel_ratio`` is about :data:`UNIT_SLIP` or its inverse (within 3x,
+    :func:`unit_slip`)."""
+    return unit_slip(travel_ratio) is not None
 
 
 def refuse_unit_slip(travel_ratio: float, actuators: Actuators, moving: str,

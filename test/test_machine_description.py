@@ -232,3 +232,14 @@ def test_the_simulator_nodes_take_the_description(monkeypatch, tmp_path):
     finally:
         node.destroy_node()
         rclpy.shutdown()
+
+
+@pytest.mark.parametrize('ratio, slip, within, found', [
+    (1000.0, 1000.0, 3.0, 1000.0), (400.0, 1000.0, 3.0, 1000.0), (1e-3, 1000.0, 3.0, 1e-3),
+    (300.0, 1000.0, 3.0, None), (1.0, 1000.0, 3.0, None),
+    # Degrees read as radians, where a camera measures the travel to a few per cent.
+    (57.3, 180 / np.pi, 1.4, 180 / np.pi), (1 / 57.3, 180 / np.pi, 1.4, np.pi / 180),
+    (40.0, 180 / np.pi, 1.4, None), (82.0, 180 / np.pi, 1.4, None)])
+def test_a_unit_slip_is_the_factor_the_travel_is_near(ratio, slip, within, found):
+    from calib_core.description import unit_slip
+    assert unit_slip(ratio, slip, within) == (None if found is None else pytest.approx(found))

@@ -37,8 +37,8 @@ import cv2
 import numpy as np
 
 from calib_core.description import (
-    ANGLE_UNITS, LENGTH_UNITS, RESIDUAL_GATE_FACTOR, check_keys, described_number,
-    read_description_file, unit_factor, workspace_numbers, workspace_section)
+    ANGLE_UNITS, LENGTH_UNITS, RESIDUAL_GATE_FACTOR, UNIT_SLIP, check_keys, described_number,
+    read_description_file, unit_factor, unit_slip, workspace_numbers, workspace_section)
 from calib_core.errors import InvalidInputError
 from dispenser_calib.core.calibration import check_calibration
 from dispenser_calib.core.data import (
@@ -57,8 +57,11 @@ SHIPPED_GEOMETRY = {'focal_px': 7246.0, 'image_size_px': (2448, 2048),
                     'working_distance_m': WORKING_DISTANCE, 'a_height_m': -0.030}
 SHIPPED_CENTROID_SIGMA_PX = 0.1
 # A reading this many times what the camera saw is a unit slip: mm read as m (1000) or
-# degrees read as radians (1/57.3 when rad are declared deg), and each the other way round.
-SLIPS = {'linear': (1e3, 1e-3), 'rotary': (180 / np.pi, np.pi / 180)}
+# degrees read as radians (1/57.3 when rad are declared deg), and each the other way round
+# (calib_core.description.unit_slip). The camera measures the board's travel to a few
+# per cent, so only 1.4x either way of that counts.
+SLIPS = {'linear': UNIT_SLIP, 'rotary': 180 / np.pi}
+SLIP_WITHIN = 1.4
 
 
 @dataclass(frozen=True)
@@ -309,7 +312,7 @@ def likely_causes(images: list[Image], description: FiveAxisDescription) -> str:
     for axes, ratio in ratios.items():
         if not np.isfinite(ratio):
             continue
-        slip = next((f for f in SLIPS[axes] if 0.7 < ratio / f < 1.4), None)
+        slip = unit_slip(ratio, SLIPS[axes], SLIP_WITHIN)
         if slip is not None:
             actual = _unit_read_as(declared[axes], slip)
             causes.append(f'the {axes} axes\' readings travel {ratio:.4g}x as far as the '
