@@ -2,6 +2,7 @@
 with stated truth (the dispenser's table, sampled like the real positioner), and the real
 positioner (test/data/measured/ric_two_axis_positioner, Apache-2.0, see SOURCES.md)."""
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,14 +14,14 @@ from calib_core.effects.rotary import resolvable_orders
 from calib_core.loop_plots import effect_panels, plot_loop
 from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.loop_model import RotaryLoopModel
-from dispenser_calib.core.calibration import refine, stepwise
+from dispenser_calib.core.calibration import calibrate, refine, stepwise
 from dispenser_calib.core.model import nominal_model
 from dispenser_calib.core.procedure import plan_stops, rotary_sweep
 from dispenser_calib.core.model import rodrigues
 from dispenser_calib.core.rotary import (
     axis_lines_in_camera, identify_rotary_axes, squareness, tilt_arms)
 from dispenser_calib.core.target_poses import (
-    poses_from_images, read_target_poses, write_target_poses)
+    pose_variants, poses_from_images, read_target_poses, write_target_poses)
 from dispenser_calib.sim.machine import (
     IMAGE_SIZE, measure_target_poses, observe, positioner_schedule, true_model)
 from machine_alignment.cli import main
@@ -401,3 +402,78 @@ def test_the_dispensers_own_camera_finds_lost_motion_of_c(calibrated_dispenser):
     found = _effect(report, 'reversal')
     assert set(found['parameters']) == {'backlash_c'} and found['units']['backlash_c'] == 'rad'
     assert abs(found['parameters']['backlash_c'] - 80e-6) < 3 * found['std_devs']['backlash_c']
+
+
+@pytest.fixture(scope='module')
+def calibrated_seed_1():
+    """Simulated dispenser 1 calibrated from its 27 board images (0.1 px noise), with the
+    calibration's covariance, and a sweep with the linear axes held: A at -0.3, 0, 0.3 rad,
+    C every 22.5 degrees. Its table turns exactly as read."""
+    truth = true_model(1)
+    images, _ = observe(truth, plan_stops(nominal_model(), 1), 0.1, 1)
+    _, result = calibrate(images, IMAGE_SIZE)
+    return truth, result, rotary_sweep([-0.3, 0.0, 0.3], 0.3927, False)
+
+
+def test_a_scale_the_cameras_calibration_could_give_is_not_added(calibrated_seed_1):
+    """The sweep's poses come through the camera calibrated moments before; its error
+    turns the board's measured tilts by a share of the tilt. Weighed by the poses' own
+    noise alone the loop names a scale of A (about -2e-4, 4 sigma) on a table that has
+    none; weighed against the calibration's covariance too (its variants, first order) it
+    says the data cannot tell it from that calibration's own error, and adds nothing."""
+    truth, result, stops = calibrated_seed_1
+    images, _ = observe(truth, stops, 0.1, 8)
+    poses = poses_from_images(result.model, images)
+    assert _names(analyze(RotaryLoopModel(poses)).report) == ['scale']
+    report = analyze(RotaryLoopModel(poses, variants=pose_variants(
+        result.model, result.covariance, images))).report
+    assert _names(report) == []
+    assert 'not from the data\'s noise and the uncertainty of the calibration' in \
+        report['rejected']['scale']
+
+
+def test_a_scale_of_a_beyond_the_calibrations_error_is_added(calibrated_seed_1):
+    """A turning 0.3 % further than read: added, within 3 sigma of the truth once the
+    calibration's share of its uncertainty (about 2.4e-4, three times the data's own) is
+    counted, which the report states beside the data's."""
+    truth, result, stops = calibrated_seed_1
+    turned = stops.copy()
+    turned[:, 3] *= 1 + 3e-3
+    images, _ = observe(truth, turned, 0.1, 8)
+    images = [replace(im, pose=pose.copy()) for im, pose in zip(images, stops)]
+    report = analyze(RotaryLoopModel(poses_from_images(result.model, images),
+                                     variants=pose_variants(result.model, result.covariance,
+                                                            images))).report
+    assert _names(report) == ['scale']
+    found = _effect(report, 'scale')
+    data, calibration = found['std_devs']['scale_a'], found['calibration_std_devs']['scale_a']
+    assert 2 * data < calibration < 10 * data
+    assert abs(found['parameters']['scale_a'] - 3e-3) < 3 * np.hypot(data, calibration)
+
+
+def test_the_calibrations_share_holds_its_actual_error():
+    """What the variants say the calibration's error does to the sweep's poses against
+    what it does (the poses through the calibration less those through the truth, the
+    same images): in the variants' span (under 1 % left outside it) and of their size
+    (chi-square on the span's rank under its 99.9 % point), on three machines."""
+    from scipy.stats import chi2
+
+    def as_vector(poses, reference):
+        turn = Rotation.from_matrix(poses.rotation @ np.transpose(reference.rotation, (0, 2, 1)))
+        return np.r_[(poses.translation - reference.translation).ravel(),
+                     turn.as_rotvec().ravel()]
+    for seed in (2, 3, 4):
+        truth = true_model(seed)
+        images, _ = observe(truth, plan_stops(nominal_model(), seed), 0.1, seed)
+        _, result = calibrate(images, IMAGE_SIZE)
+        sweep, _ = observe(truth, rotary_sweep([-0.3, 0.0, 0.3], 0.3927, False), 0.1, seed + 7)
+        through = poses_from_images(result.model, sweep)
+        moved = np.array([as_vector(v, through) for v in pose_variants(
+            result.model, result.covariance, sweep)()]).T
+        actual = as_vector(poses_from_images(truth, sweep), through)
+        u, s, _ = np.linalg.svd(moved, full_matrices=False)
+        keep = s > 1e-3 * s[0]
+        inside = u[:, keep] @ (u[:, keep].T @ actual)
+        assert np.linalg.norm(actual - inside) < 0.01 * np.linalg.norm(actual), seed
+        z = (u[:, keep].T @ actual) / s[keep]
+        assert z @ z < chi2.ppf(0.999, keep.sum()), (seed, z @ z, keep.sum())

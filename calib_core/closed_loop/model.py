@@ -54,6 +54,14 @@ class MachineModel:
         the loop has computed already."""
         raise NotImplementedError
 
+    def input_variants(self) -> list | None:
+        """This machine's data as measured through each one-sigma variant of the
+        instrument's calibration they were measured through (one per column of a square
+        root of its covariance), for the effects to be checked against what that
+        calibration's uncertainty gives (:mod:`calib_core.closed_loop.inputs`); None where
+        the rows carry no error but their own."""
+        return None
+
     def base_sparsity(self, base: ParameterSet, rows: np.ndarray) -> np.ndarray | None:
         """Which residuals (n k, row-major) each free base parameter can change, bool
         (n k, P), or None when any may change any. A camera's view pose moves only its

@@ -345,6 +345,31 @@ def _second_look(machine, splits: list, final: Fit, config: LoopConfig, min_effe
     return final, notes, flagged
 
 
+def _against_the_inputs(machine, measured, splits: list, final: Fit, config: LoopConfig,
+                        rejected: dict) -> tuple[Fit, dict]:
+    """``final`` less the effects the uncertainty of the calibration the data were measured
+    through could give (:func:`calib_core.closed_loop.inputs.within_calibration`, on every
+    row of ``measured``, the machine before any linearisation), their reasons into
+    ``rejected``; as it is where the machine has no such calibration or nothing was
+    added. What is left is fitted again as the selection fitted it (``machine``, the first
+    split's fitting rows). Also each effect's standard deviations from that calibration
+    alone (name -> parameter -> sigma; empty without one)."""
+    if not final.effects:
+        return final, {}
+    variants = measured.input_variants()
+    if not variants:
+        return final, {}
+    from calib_core.closed_loop.inputs import within_calibration
+    found, shares = within_calibration(measured, variants, final, np.arange(len(measured)),
+                                       config.alpha)
+    if not found:
+        return final, shares
+    rejected.update(found)
+    effects, values = without_effects(final, tuple(found))
+    return (fit_model(machine, final.base, effects, values, splits[0].train)
+            if effects else splits[0].base_fit), shares
+
+
 def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=None) -> LoopResult:
     """Run the closed loop on ``machine``'s data.
 
@@ -369,6 +394,7 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     if unknown:
         raise InvalidInputError(f'unknown effect(s) {", ".join(unknown)}')
     min_effect = machine.min_effect if config.min_effect is None else config.min_effect
+    measured = machine            # the machine itself, for what its inputs' calibration gives
     if config.linearise and machine.linearise:
         every = np.arange(len(machine))
         machine = LinearisedModel(machine, fit_model(machine, machine.initial(), [], [],
@@ -410,9 +436,15 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
         rejected.pop(name, None)
         not_identifiable.pop(name, None)
     rejected.update(replaced)
+    final, shares = _against_the_inputs(machine, measured, splits, final, config, rejected)
     seen = seen_not_added(machine, splits, final, rejected, not_identifiable, gains,
                           explained=set(replaced))
     result = loop_result(machine, config, splits, final, evidence, frequency,
                          not_identifiable, rejected, min_effect, seen, tried, structure)
     result.report['replaced_by_simpler'] = replaced
+    for entry in result.report['effects_added']:
+        if entry['name'] in shares:
+            # What the calibration the data were measured through leaves uncertain, beside
+            # the data's own std_devs.
+            entry['calibration_std_devs'] = shares[entry['name']]
     return result

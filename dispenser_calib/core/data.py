@@ -33,6 +33,25 @@ class Board:
 
 SHIPPED_BOARD = Board()
 
+
+def board_as_dict(board: Board) -> dict:
+    """``board`` as a report or a description holds it (m)."""
+    return {'dots': list(board.dots), 'pitch_m': board.pitch, 'dot_radius_m': board.radius}
+
+
+def board_from_dict(content: dict) -> Board:
+    """The inverse of :func:`board_as_dict`.
+
+    Raises
+    ------
+    InvalidInputError
+        A missing key or a value that is not a number."""
+    try:
+        return Board(tuple(int(v) for v in content['dots']), float(content['pitch_m']),
+                     float(content['dot_radius_m']))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InvalidInputError(f'a board needs dots, pitch_m and dot_radius_m: {exc!r}') from None
+
 # What a dispenser's commanded axes can read, whatever its strokes: linear axes well under
 # 2 m, the tilt A within a half turn, the table C within two turns either way.
 POSE_SCHEMA = Schema((

@@ -14,6 +14,8 @@ in two blocks, each explaining the whole residual on its own: the angles with th
 and the turn alone (what a tilt of a rotor's axis shows)."""
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from calib_core.closed_loop.model import MachineModel, scalar_covariates, select_rows
@@ -53,8 +55,12 @@ class RotaryLoopModel(MachineModel):
                        'drift_temperature': SHIFT}
     min_effect = 1e-6
 
-    def __init__(self, poses: TargetPoses, lever: float = LEVER):
-        self.poses, self.lever = poses, lever
+    def __init__(self, poses: TargetPoses, lever: float = LEVER, variants=None):
+        """``variants``: where the poses were measured through a calibrated camera, a
+        callable giving them as measured through each one-sigma variant of its calibration
+        (:func:`dispenser_calib.core.target_poses.pose_variants`), called only when an
+        effect is to be added (:meth:`input_variants`)."""
+        self.poses, self.lever, self._variants = poses, lever, variants
         if poses.covariance is not None:
             # Residuals whitened by each pose's covariance: in standard deviations.
             self.unit, self.min_effect = 'sigma', 0.1
@@ -79,6 +85,19 @@ class RotaryLoopModel(MachineModel):
 
     def __len__(self):
         return len(self.poses)
+
+    def input_variants(self):
+        """This machine with each variant's poses in place of its own, all else (the
+        identification, the frames, the screen's view) kept: the loop evaluates the
+        variants at its own fit's parameters (:mod:`calib_core.closed_loop.inputs`)."""
+        if self._variants is None:
+            return None
+        out = []
+        for poses in self._variants():
+            variant = copy.copy(self)
+            variant.poses, variant._variants = poses, None
+            out.append(variant)
+        return out
 
     def strata(self):
         return self._strata

@@ -271,6 +271,29 @@ def write_model(path, model: DispenserModel, extra: dict | None = None) -> None:
     write_atomic(path, yaml.safe_dump(content, sort_keys=False))
 
 
+def read_covariance(path) -> np.ndarray | None:
+    """The parameters' covariance (31, 31; in :data:`NAMES`' order, SI units) a
+    calibration file of :func:`write_model` or of the five-axis calibrator holds, None for
+    a file without one (written before it was kept).
+
+    Raises
+    ------
+    InvalidInputError
+        A covariance that is not 31 x 31 finite numbers."""
+    content = read_yaml(path, 'a five-axis calibration')
+    if 'covariance' not in content:
+        return None
+    try:
+        covariance = np.array(content['covariance'], dtype=float)
+    except (TypeError, ValueError):
+        covariance = None
+    if covariance is None or covariance.shape != (len(NAMES),) * 2 \
+            or not np.all(np.isfinite(covariance)):
+        raise InvalidInputError(f'{path}: covariance must be {len(NAMES)} x {len(NAMES)} '
+                                'finite numbers')
+    return covariance
+
+
 def read_model(path) -> DispenserModel:
     """The model of :func:`write_model`'s file.
 

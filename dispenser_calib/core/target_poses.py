@@ -89,6 +89,13 @@ def poses_from_images(model: DispenserModel, images: list, covariates: dict | No
     ------
     CalibrationError
         The linear axes moved between the images, or an image with fewer than 6 dots."""
+    return _poses_and_fits(model, images, covariates)[0]
+
+
+def _poses_and_fits(model: DispenserModel, images: list, covariates: dict | None):
+    """:func:`poses_from_images` and, per image, what a pose's change is computed from:
+    (its dots (k, 3) m, pixels (k, 2), the fitted rotation (3, 3) and translation (3,),
+    the fit's Jacobian (2 k, 6) by (rotation vector, translation))."""
     linear = np.array([im.pose[:3] for im in images])
     if np.ptp(linear, axis=0).max() > 1e-9:
         raise CalibrationError('the linear axes moved between the images (by up to '
@@ -98,7 +105,7 @@ def poses_from_images(model: DispenserModel, images: list, covariates: dict | No
     dots, indices = board_points(board)
     where = {tuple(i): k for k, i in enumerate(indices)}
     distortion = np.r_[model.distortion, 0.0]
-    rotations, translations, covariances = [], [], []
+    rotations, translations, covariances, fits = [], [], [], []
     for im in images:
         if len(im.indices) < 6:
             raise CalibrationError(f'{im.name}: {len(im.indices)} dots, a board pose needs 6')
@@ -107,36 +114,81 @@ def poses_from_images(model: DispenserModel, images: list, covariates: dict | No
         # start from PnP on the centres, then fit the pose to the ellipse centres.
         _, rvec, tvec = cv2.solvePnP(points, im.pixels, model.camera_matrix, distortion,
                                      flags=cv2.SOLVEPNP_ITERATIVE)
-        rotation, translation, covariance = _fit_board_pose(model, points, im.pixels,
-                                                            rvec.ravel(), tvec.ravel(),
-                                                            board.radius)
+        rotation, translation, covariance, jacobian = _fit_board_pose(
+            model, points, im.pixels, rvec.ravel(), tvec.ravel(), board.radius)
         rotations.append(rotation)
         translations.append(translation)
         covariances.append(covariance)
+        fits.append((points, im.pixels, rotation, translation, jacobian))
     poses = np.array([im.pose for im in images])
     covariates = {name: np.asarray(v, float) for name, v in (covariates or {}).items()}
-    return TargetPoses(poses[:, 3], poses[:, 4], np.array(rotations), np.array(translations),
-                       covariates, np.array(covariances))
+    return (TargetPoses(poses[:, 3], poses[:, 4], np.array(rotations), np.array(translations),
+                        covariates, np.array(covariances)), fits)
+
+
+def pose_variants(model: DispenserModel, covariance: np.ndarray, images: list,
+                  covariates: dict | None = None, floor: float = 1e-9):
+    """A callable giving :func:`poses_from_images` of ``images`` through each one-sigma
+    variant of the calibration ``model`` with its parameters' ``covariance`` (31, 31), one
+    per column of a square root of it (the correlation's eigenvectors, those above
+    ``floor`` of the largest eigenvalue), for the closed loop to weigh an effect against
+    what the calibration's own error gives
+    (:meth:`dispenser_calib.core.loop_model.RotaryLoopModel.input_variants`). Computed when
+    called: 31 pose fits or fewer."""
+    covariance = np.asarray(covariance, dtype=float)
+    sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    scale = np.where(sigma > 0, sigma, 1.0)
+    values, vectors = np.linalg.eigh(covariance / np.outer(scale, scale))
+    kept = values > floor * values.max()
+    root = scale[:, None] * vectors[:, kept] * np.sqrt(values[kept])
+
+    radius = one_board(images).radius
+
+    def variants() -> list:
+        # Each pose's change to first order: one Gauss-Newton step from the pose fitted
+        # through ``model``, on its dots' residuals through the variant.
+        reference, fits = _poses_and_fits(model, images, covariates)
+        out = []
+        for column in root.T:
+            varied = DispenserModel(model.values + column)
+            rotations, translations = [], []
+            for points, pixels, rotation, translation, jacobian in fits:
+                residual = _board_residual(varied, points, pixels, rotation,
+                                           np.r_[np.zeros(3), translation], radius)
+                step = -np.linalg.lstsq(jacobian, residual, rcond=None)[0]
+                rotations.append(Rotation.from_rotvec(step[:3]).as_matrix() @ rotation)
+                translations.append(translation + step[3:])
+            out.append(TargetPoses(reference.a, reference.c, np.array(rotations),
+                                   np.array(translations), reference.covariates,
+                                   reference.covariance))
+        return out
+    return variants
+
+
+def _board_residual(model, points, pixels, start, x, dot_radius: float) -> np.ndarray:
+    """The dots' ellipse centres through ``model`` less ``pixels`` (2 k,) px, the board at
+    rotation exp(x[:3]) ``start`` and translation x[3:] (m) in the camera frame."""
+    rotation = Rotation.from_rotvec(x[:3]).as_matrix() @ start
+    centre = dot_centres(points @ rotation.T + x[3:],
+                         np.repeat(rotation[None, :, :2], len(points), 0), dot_radius)
+    return (distort(model, centre[:, :2] / centre[:, 2:3]) - pixels).ravel()
 
 
 def _fit_board_pose(model, points, pixels, rvec, tvec, dot_radius: float):
     """The board pose whose dots' ellipse centres (``dot_radius`` m, through ``model``'s
-    lens) best match ``pixels``: rotation (3, 3), translation (3,) m, and the covariance
-    (6, 6) of (translation, rotation error vector in the camera frame) from the fit's
-    Jacobian and its residual variance."""
+    lens) best match ``pixels``: rotation (3, 3), translation (3,) m, the covariance (6, 6)
+    of (translation, rotation error vector in the camera frame) from the fit's Jacobian
+    and its residual variance, and that Jacobian (2 k, 6) by (rotation vector,
+    translation)."""
     start = Rotation.from_rotvec(rvec).as_matrix()
-
-    def residual(x):
-        rotation = Rotation.from_rotvec(x[:3]).as_matrix() @ start
-        centre = dot_centres(points @ rotation.T + x[3:],
-                             np.repeat(rotation[None, :, :2], len(points), 0), dot_radius)
-        return (distort(model, centre[:, :2] / centre[:, 2:3]) - pixels).ravel()
-    solution = least_squares(residual, np.r_[np.zeros(3), tvec], x_scale='jac')
+    solution = least_squares(
+        lambda x: _board_residual(model, points, pixels, start, x, dot_radius),
+        np.r_[np.zeros(3), tvec], x_scale='jac')
     variance = float(solution.fun @ solution.fun) / max(solution.fun.size - 6, 1)
     covariance = np.linalg.inv(solution.jac.T @ solution.jac) * variance
     order = [3, 4, 5, 0, 1, 2]
     return (Rotation.from_rotvec(solution.x[:3]).as_matrix() @ start, solution.x[3:],
-            covariance[np.ix_(order, order)])
+            covariance[np.ix_(order, order)], solution.jac)
 
 
 def write_target_poses(path, poses: TargetPoses) -> None:

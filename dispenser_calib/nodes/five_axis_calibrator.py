@@ -71,6 +71,7 @@ from calib_core.nodes.temperature import TemperatureLog
 from calib_core.storage import read_calibration, write_calibration
 from calib_core.temperature import TEMPERATURE_TOPIC, TEMPERATURE_TYPE, stamp_seconds
 from dispenser_calib.core.board_images import observe_frame
+from dispenser_calib.core.data import board_as_dict
 from dispenser_calib.core.description import SHIPPED_GEOMETRY, read_description
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.model import (
@@ -80,7 +81,7 @@ from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, SHIPPED_WORKSPACE, TEST_SPOTS,
     locate_workpiece, measure_needle, measure_sweep, rotary_sweep, run_five_axis_calibration)
 from dispenser_calib.core.records import OBSERVATIONS_TOPIC, RESULT_TOPIC
-from dispenser_calib.core.target_poses import poses_from_images
+from dispenser_calib.core.target_poses import pose_variants, poses_from_images
 
 SHIPPED_IMAGE_SIZE = tuple(SHIPPED_GEOMETRY['image_size_px'])
 PLANNED_KEYS = ('design', 'stops', 'targets', 'target_error', 'max_stops', 'step')
@@ -129,6 +130,7 @@ class FiveAxisCalibratorNode(Node):
         if measured is not None:     # the last measured tip overrides the configured one
             self.tip = np.asarray(measured['tip_m'], dtype=float).reshape(3)
         self.model = None
+        self.covariance = None        # the calibration's parameters' (31, 31), SI
         size = [int(v) for v in self.get_parameter('image_size').value]
         if len(size) != 2 or min(size) <= 0:
             raise ValueError('image_size must be two positive px counts')
@@ -193,6 +195,8 @@ class FiveAxisCalibratorNode(Node):
 
     def _in_force(self, content, path):
         self.model = DispenserModel(np.array([content['parameters'][n] for n in NAMES]))
+        covariance = content.get('covariance')
+        self.covariance = None if covariance is None else np.array(covariance, dtype=float)
         return five_axis_result_message(content, self._header(), path, content.get('version', 0))
 
     def _header(self):
@@ -296,16 +300,19 @@ class FiveAxisCalibratorNode(Node):
             if plan is not None:
                 report['plan'] = plan
             report['image_size_px'] = list(self.image_size)
+            report['board'] = board_as_dict(self.workspace.board)
             if self.description:
                 report['description'] = self.description.gate_report()
             if adapt is not None:
                 report['adaptive'] = adapt.report()
+            # The covariance: what the rotary loop weighs a sweep's effects against.
             path, version, content = run.save('five_axis', {
                 'parameters': report['parameters'], 'std_devs': report['std_devs'],
+                'covariance': result.covariance.tolist(), 'board': report['board'],
                 'report': report})
             message = five_axis_result_message(content, self._header(), str(path), version)
             run.record(RESULT_TOPIC, message, self.result_pub)
-        self.model = result.model
+        self.model, self.covariance = result.model, result.covariance
         held = report.get('held_out', {})
         self._progress(1, 1, f'done: mean reprojection {report["mean_reprojection_px"]:.3f} px; '
                              f'held out {held.get("rms_px_calibrated", float("nan")):.3f} px RMS '
@@ -346,7 +353,12 @@ class FiveAxisCalibratorNode(Node):
             self.temperatures.record(run)
         covariates, sentence = self.temperatures.covariates(stamps)
         self.get_logger().info(f'sweep: {len(images)} images; temperature: {sentence}')
-        return RotaryLoopModel(poses_from_images(self.model, images, covariates))
+        # Weighed against the calibration the poses come through, where its covariance is
+        # known (a calibration file from before it was kept has none).
+        variants = (None if self.covariance is None else
+                    pose_variants(self.model, self.covariance, images, covariates))
+        return RotaryLoopModel(poses_from_images(self.model, images, covariates),
+                               variants=variants)
 
     def _with_calibration(self, request, response, what: str, known: tuple, work):
         """Run ``work(options)`` on the request's plan with the calibration in force, one

@@ -60,11 +60,19 @@ def _platform(args, dropped):
 def _rotary(args, dropped):
     from dispenser_calib.core.loop_model import RotaryLoopModel
     if args.calibration:
-        from dispenser_calib.core.data import read_observations
-        from dispenser_calib.core.model import read_model
-        from dispenser_calib.core.target_poses import poses_from_images
-        return RotaryLoopModel(poses_from_images(read_model(args.calibration),
-                                                 read_observations(args.data)))
+        from calib_core.files import read_yaml
+        from dispenser_calib.core.data import SHIPPED_BOARD, board_from_dict, read_observations
+        from dispenser_calib.core.model import read_covariance, read_model
+        from dispenser_calib.core.target_poses import pose_variants, poses_from_images
+        model, covariance = read_model(args.calibration), read_covariance(args.calibration)
+        # The board the calibration was made on (a file from before it was kept: the
+        # shipped one); the sweep is of the same board.
+        recorded = read_yaml(args.calibration, 'a five-axis calibration').get('board')
+        board = SHIPPED_BOARD if recorded is None else board_from_dict(recorded)
+        images = read_observations(args.data, board=board)
+        variants = (None if covariance is None else
+                    pose_variants(model, covariance, images))
+        return RotaryLoopModel(poses_from_images(model, images), variants=variants)
     from dispenser_calib.core.rotary import LEVER
     from dispenser_calib.core.target_poses import read_target_poses
     return RotaryLoopModel(read_target_poses(args.data, args.a_column, args.c_column),

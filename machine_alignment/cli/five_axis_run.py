@@ -2,6 +2,7 @@
 imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -17,7 +18,8 @@ from calib_core.controller_formats import write_gcode_path  # noqa: E402
 from dispenser_calib.core.calibration import calibrate, check_calibration, reprojection  # noqa: E402
 from dispenser_calib.core.records import (  # noqa: E402
     OBSERVATIONS_TOPIC, RESULT_TOPIC, image_from_message)
-from dispenser_calib.core.data import read_observations, write_observations  # noqa: E402
+from dispenser_calib.core.data import (  # noqa: E402
+    SHIPPED_BOARD, board_as_dict, board_from_dict, read_observations, write_observations)
 from dispenser_calib.core.description import read_description  # noqa: E402
 from dispenser_calib.core.iso230 import ORIENTATION, iso230_7_report  # noqa: E402
 from dispenser_calib.core.localisation import (  # noqa: E402
@@ -189,6 +191,12 @@ def cmd_calibrate(args) -> int:
                                    'five-axis observations', RESULT_TOPIC)
         if recorded and not (described or args.image_size):
             size = tuple(recorded.get('image_size_px', size))
+        # The board the dots were named on: the description's, else the one the live run
+        # recorded in its result, else the shipped one.
+        board = (described.board if described else
+                 board_from_dict(recorded['board']) if recorded and 'board' in recorded
+                 else SHIPPED_BOARD)
+        stops = [(replace(im, board=board), phase) for im, phase in stops]
         images = [im for im, phase in stops if phase == 'calibrate']
         result, report, _ = finish(described.nominal() if described else nominal_model(size=size),
                                    size, images,
@@ -240,7 +248,9 @@ def cmd_calibrate(args) -> int:
         print(f'  same as the live run: max |difference| '
               f'{report["max_difference_to_live_sigma"]:.3g} sigma')
     if args.out:
-        write_model(args.out, result.model, {'std_devs': report['std_devs']})
+        write_model(args.out, result.model, {
+            'std_devs': report['std_devs'], 'covariance': result.covariance.tolist(),
+            'board': board_as_dict(images[0].board)})
         print(f'wrote {args.out}')
     write_report(args.json, report, lambda png: _plot(png, images, result, size))
     return 0
