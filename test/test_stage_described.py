@@ -67,7 +67,7 @@ def test_the_described_stroke_is_the_limit(graph):
     assert all(running.alive())
 
 
-def test_a_planned_calibration_and_an_alignment_of_the_described_stage(graph):
+def test_a_planned_calibration_and_an_alignment_of_the_described_stage(graph, capsys):
     running, node, out = graph
     truth = described_truth(read_description(out / 'stage.yaml'))
     response = call(node, node.create_client(RunCalibration, 'stage_calibrator/calibrate'),
@@ -95,6 +95,9 @@ def test_a_planned_calibration_and_an_alignment_of_the_described_stage(graph):
     assert cli_main(['calibrate', 'stage', '--bag', str(bag), '--description',
                      str(out / 'stage.yaml'), '--json', str(out / 'replay.json')]) == 0
     assert json.loads((out / 'replay.json').read_text())['max_difference_to_live_sigma'] < 1e-3
+    # Without it, the replay says how the live run was made.
+    assert cli_main(['calibrate', 'stage', '--bag', str(bag)]) == 0
+    assert 'give --description to replay it as it ran' in capsys.readouterr().out
 
     aligned = call(node, node.create_client(Align, 'aligner/align'),
                    Align.Request(model='parametric'), timeout=120.0)

@@ -74,6 +74,11 @@ def cmd_calibrate_stage(args) -> int:
                                      'alignment_msgs/msg/StageObservation', stage_record,
                                      'stage calibration observations', STAGE_RESULT_TOPIC)
         data = stage_data_from_records(records)
+        live_description = (recorded or {}).get('description', {}).get('file')
+        if live_description and not described:
+            print(f'the live run was calibrated with the stage description {live_description} '
+                  '(its guides start the stepwise calibration, its noise sets the gate); this '
+                  'replay with the shipped stage\'s: give --description to replay it as it ran')
     else:
         data = (described.read(args.data) if described
                 else read_in_si(StageData.from_csv, args.data))
