@@ -143,6 +143,10 @@ def test_the_live_simulation_of_the_shipped_description_is_the_shipped_stage():
     assert truth.stage2plate == pytest.approx(TRUE_STAGE.stage2plate, abs=1e-12)
     assert truth.lead == TRUE_STAGE.lead and truth.backlash == TRUE_STAGE.backlash
     np.testing.assert_allclose(described_home_marks(shipped), TAUGHT_MARKS, atol=2e-6)
+    node_file = yaml.safe_load((DESCRIPTIONS.parents[1] / 'config' / 'stage_calibrator.yaml')
+                               .read_text())
+    assert node_file['stage_calibrator']['ros__parameters']['calibration_marks'] == \
+        TAUGHT_MARKS.ravel().tolist()
     # The described nominal, mounted where the Marks were taught, is within the
     # mounting error of the truth (the shipped stage sits 0.6 mm and 0.3 deg off the drawing).
     nominal = shipped.nominal(TAUGHT_MARKS)
