@@ -41,6 +41,16 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
     with running(spec, DOMAIN, tmp_path, 'kill_test_client') as (graph, node):
         seen = []
         node.create_subscription(HexapodMeasurement, MEASUREMENTS_TOPIC, seen.append, 100)
+        # The run must not start before this subscription is matched to the calibrator's
+        # publisher: one .ci/run under load saw 4 of a whole run's 60 stops, the rest
+        # published before discovery had matched the two (the run completed).
+        deadline = time.monotonic() + 60
+        while node.count_publishers(MEASUREMENTS_TOPIC) < 1 and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert node.count_publishers(MEASUREMENTS_TOPIC) >= 1, 'no measurements publisher'
+        settled = time.monotonic() + 1.0     # the publisher's side of the match
+        while time.monotonic() < settled:
+            rclpy.spin_once(node, timeout_sec=0.1)
         caller = subprocess.Popen(
             [sys.executable, '-m', 'machine_alignment.cli', 'call', '--quiet',
              'hexapod_calibrator/calibrate'], env={**os.environ, 'ROS_DOMAIN_ID': DOMAIN},
@@ -49,7 +59,7 @@ def test_sigkill_mid_run_keeps_the_measured_stops_and_the_calibration_in_force(t
         while len(seen) < 10 and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
         if len(seen) < 10:
-            # Say what the caller saw: one .ci/run (after a 5.9 min suite) met this once.
+            # Say what the caller saw.
             caller.kill()
             output = caller.communicate()
             pytest.fail(f'the run did not start measuring ({len(seen)} measurements in '
