@@ -183,3 +183,39 @@ def test_the_board_the_data_were_taken_of_decides(tmp_path, capsys):
     refused(capsys, ['calibrate', 'five-axis', '--description', str(other_pitch), '--data',
                      str(observations)], r'scale 1 \(singular value of M\) = 0\.800.*all three '
             r'alike: a board of another pitch than the declared 2 mm \(the axes fit 2\.5 mm\)')
+
+
+def test_a_calibration_file_keeps_its_covariance_and_board(tmp_path, capsys):
+    """`calibrate five-axis --out` writes the parameters' covariance (what the rotary loop
+    weighs a sweep's effects against) and the board; a file without them reads as before,
+    a broken covariance or board is refused naming what is wrong, also by `analyze rotary
+    --calibration`, without a traceback."""
+    import yaml
+    from dispenser_calib.core.data import board_from_dict
+    from dispenser_calib.core.model import read_covariance
+    observations, out = tmp_path / 'obs.csv', tmp_path / 'five_axis.yaml'
+    assert cli_main(['simulate', 'five-axis', '--description', str(USER), '--seed', '3',
+                     '--out', str(observations)]) == 0
+    assert cli_main(['calibrate', 'five-axis', '--description', str(USER), '--data',
+                     str(observations), '--out', str(out)]) == 0
+    content = yaml.safe_load(out.read_text())
+    covariance = read_covariance(out)
+    assert covariance.shape == (31, 31) and np.allclose(covariance, covariance.T)
+    assert np.sqrt(np.diag(covariance)) == pytest.approx(
+        [content['std_devs'][n] for n in NAMES], rel=1e-9)
+    assert board_from_dict(content['board']) == read_description(USER).board
+    old = tmp_path / 'old.yaml'
+    old.write_text(yaml.safe_dump({k: v for k, v in content.items()
+                                   if k not in ('covariance', 'board')}))
+    assert read_covariance(old) is None
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text(yaml.safe_dump({**content, 'covariance': content['covariance'][:30]}))
+    with pytest.raises(InvalidInputError, match='covariance must be 31 x 31'):
+        read_covariance(broken)
+    no_pitch = tmp_path / 'no_pitch.yaml'
+    no_pitch.write_text(yaml.safe_dump({**content, 'board': {'dots': [13, 9]}}))
+    capsys.readouterr()
+    for path, message in ((broken, 'covariance must be 31 x 31'),
+                          (no_pitch, 'a board needs dots, pitch_m and dot_radius_m')):
+        refused(capsys, ['analyze', 'rotary', '--data', str(observations), '--calibration',
+                         str(path)], message)
