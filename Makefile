@@ -104,6 +104,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.plan_stage --out bench_results
 	$(BIN)/python -m machine_alignment.bench.five_axis --out bench_results
 	$(BIN)/python -m machine_alignment.bench.five_axis_description --out bench_results
+	$(BIN)/python -m machine_alignment.bench.rotary_calibration --out bench_results
 	$(BIN)/python -m machine_alignment.bench.user_descriptions --out bench_results
 	$(BIN)/python -m machine_alignment.bench.performance --out bench_results
 
