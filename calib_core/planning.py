@@ -191,6 +191,41 @@ def augment(jacobians, prior: np.ndarray, count: int, criterion: str = 'I', work
     return np.array(chosen, dtype=int)
 
 
+def design_bound(jacobians, working, iterations: int = 3000) -> dict:
+    """How well any plan of the candidates (M, r, p; whitened rows, as :func:`exchange`
+    takes them) can do by the I criterion (the mean squared error at the ``working``
+    sensitivities (W, q, p)): the optimal approximate design, weights w over the candidates
+    summing to 1, by the multiplicative algorithm (w_k <- w_k sqrt(d_k / sum_j w_j d_j),
+    d_k = trace(M^-1 K M^-1 J_k^T J_k) the criterion's gradient). For a convex criterion
+    the equivalence theorem bounds its optimum from below by any w: phi* >= 2 phi(w) -
+    max_k d_k. A plan of N measurements has at least phi* / N: no exchange, candidate
+    order or search of these candidates does better.
+
+    Returns
+    -------
+    dict
+        ``per_measurement``: phi(w), the criterion of the design found, for one
+        measurement; ``lower_bound``: the certified phi* bound, for one measurement;
+        ``weights`` (M,); ``support``: candidates with weight over 1e-3 / M."""
+    jacobians = np.asarray(jacobians, dtype=float)
+    weight = _working_weight('I', working)
+    fisher = np.einsum('krp,krq->kpq', jacobians, jacobians)             # (M, p, p)
+    w = np.full(len(jacobians), 1.0 / len(jacobians))
+
+    def gradient(w):
+        """phi(w) and d (M,): trace(A F_k) with A = M^-1 K M^-1, both symmetric."""
+        inverse = np.linalg.pinv(np.einsum('k,kpq->pq', w, fisher))
+        return (float(np.trace(weight @ inverse)),
+                np.einsum('pq,kpq->k', inverse @ weight @ inverse, fisher))
+    for _ in range(iterations):
+        _, d = gradient(w)
+        w = w * np.sqrt(np.maximum(d, 0.0) / max(float(w @ d), 1e-300))
+        w /= w.sum()
+    phi, d = gradient(w)
+    return {'per_measurement': phi, 'lower_bound': max(2 * phi - float(d.max()), 0.0),
+            'weights': w, 'support': int(np.sum(w > 1e-3 / len(w)))}
+
+
 def whiten(rows: np.ndarray, noise: np.ndarray) -> np.ndarray:
     """Each measurement's rows (M, r, p) divided by the Cholesky factor of its noise
     covariance (M, r, r): the rows a fit weighted by the noise would see, as the design

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.planning import (
-    augment, exchange, information, predicted_errors, sandwich_covariance, whiten)
+    augment, design_bound, exchange, information, predicted_errors, sandwich_covariance, whiten)
 from hexapod_calib.core.calibration import PoseData, identification_jacobian
 from hexapod_calib.core.geometry import HexapodGeometry
 from hexapod_calib.core.kinematics import inverse_kinematics, jacobian
@@ -70,6 +70,32 @@ def exchange_poses(geometry: HexapodGeometry, candidates, count: int, criterion:
     whitened = _whitened(geometry, candidates, position_noise, angle_noise, actuator_noise)
     sensitivity = _working_sensitivity(geometry, working) if criterion == 'I' else None
     return exchange(whitened, count, criterion, sensitivity).chosen
+
+
+def criterion_rms(geometry: HexapodGeometry, poses, working,
+                  position_noise: float = POSITION_NOISE, angle_noise: float = ANGLE_NOISE,
+                  actuator_noise: float = ACTUATOR_NOISE) -> float:
+    """The I criterion of identifying from ``poses`` (n, 6) as RMS (m): the pose error at
+    the ``working`` poses (W, 6), a rotation weighed at :data:`LEVER`, of the fit weighted
+    by the noise (the actuators' repeatability at the working poses not counted)."""
+    rows = _whitened(geometry, poses, position_noise, angle_noise, actuator_noise)
+    sensitivity = _working_sensitivity(geometry, working)
+    weight = np.einsum('wqp,wqs->ps', sensitivity, sensitivity) / len(sensitivity)
+    return float(np.sqrt(np.trace(weight @ np.linalg.pinv(
+        information(rows, np.arange(len(rows)))))))
+
+
+def planning_floor(geometry: HexapodGeometry, candidates, working, counts,
+                   position_noise: float = POSITION_NOISE, angle_noise: float = ANGLE_NOISE,
+                   actuator_noise: float = ACTUATOR_NOISE) -> dict:
+    """What no plan of N of the ``candidates`` (M, 6) can undercut by :func:`criterion_rms`,
+    for each N of ``counts``: the optimal approximate design's certified bound
+    (:func:`calib_core.planning.design_bound`), as RMS (m) by N."""
+    found = design_bound(_whitened(geometry, candidates, position_noise, angle_noise,
+                                   actuator_noise), _working_sensitivity(geometry, working))
+    return {'rms_m': {int(n): float(np.sqrt(found['lower_bound'] / n)) for n in counts},
+            'support': found['support'], 'per_measurement': found['per_measurement'],
+            'lower_bound_per_measurement': found['lower_bound']}
 
 
 def extend_poses(geometry: HexapodGeometry, measured, candidates, count: int, working,
