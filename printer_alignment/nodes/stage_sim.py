@@ -39,7 +39,7 @@ class StageSimNode(Node):
         self.declare_parameter('ideal', False)
         self.declare_parameter('seed', 0)
         self.declare_parameter('state_rate_hz', 10.0)
-        self.declare_parameter('description', '')
+        self.declare_parameter('description', '')   # '': the shipped stage
         ideal = bool(self.get_parameter('ideal').value)
         described = None
         if self.get_parameter('description').value:
