@@ -381,7 +381,10 @@ def analyze(machine: MachineModel, config: LoopConfig = LoopConfig(), progress=N
     tried under the same rules (:func:`_second_look`). Before/after are pooled over the
     splits' held-out rows (every row held out at least once), with the spread over the
     splits; an effect chosen on some split but not added is reported under
-    ``unexplained`` with its evidence.
+    ``unexplained`` with its evidence. Where the machine's rows were measured through a
+    calibrated instrument (:meth:`MachineModel.input_variants`), each effect is weighed
+    against that calibration's uncertainty too, and one it could give is not added
+    (:mod:`calib_core.closed_loop.inputs`).
 
     ``progress(done, total, label)`` is called as candidates are scored.
 
