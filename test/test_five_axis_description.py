@@ -212,6 +212,8 @@ def test_a_calibration_file_keeps_its_covariance_and_board(tmp_path, capsys):
     broken.write_text(yaml.safe_dump({**content, 'covariance': content['covariance'][:30]}))
     with pytest.raises(InvalidInputError, match='covariance must be 31 x 31'):
         read_covariance(broken)
+    with pytest.raises(InvalidInputError, match='at least 3 whole dots'):
+        board_from_dict({'dots': [13, 0], 'pitch_m': 2e-3, 'dot_radius_m': 5e-4})
     no_pitch = tmp_path / 'no_pitch.yaml'
     no_pitch.write_text(yaml.safe_dump({**content, 'board': {'dots': [13, 9]}}))
     capsys.readouterr()

@@ -30,6 +30,14 @@ class Board:
     pitch: float = 2e-3
     radius: float = 0.4e-3
 
+    def __post_init__(self):
+        if (len(self.dots) != 2 or any(int(n) != n or n < 3 for n in self.dots)
+                or not 0 < self.radius < self.pitch / 2 or not np.isfinite(self.pitch)):
+            raise InvalidInputError(
+                f'a board has at least 3 whole dots along x and y and dots apart (radius '
+                f'under half the pitch), not {self.dots} dots of radius {self.radius!r} m at '
+                f'{self.pitch!r} m')
+
 
 SHIPPED_BOARD = Board()
 
