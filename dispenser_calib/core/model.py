@@ -280,8 +280,12 @@ def read_covariance(path) -> np.ndarray | None:
     ------
     InvalidInputError
         A covariance that is not 31 x 31 finite numbers."""
-    content = read_yaml(path, 'a five-axis calibration')
-    if 'covariance' not in content:
+    return covariance_from(read_yaml(path, 'a five-axis calibration'), str(path))
+
+
+def covariance_from(content, where: str) -> np.ndarray | None:
+    """:func:`read_covariance` of a calibration file's content (read from ``where``)."""
+    if not isinstance(content, dict) or 'covariance' not in content:
         return None
     try:
         covariance = np.array(content['covariance'], dtype=float)
@@ -289,7 +293,7 @@ def read_covariance(path) -> np.ndarray | None:
         covariance = None
     if covariance is None or covariance.shape != (len(NAMES),) * 2 \
             or not np.all(np.isfinite(covariance)):
-        raise InvalidInputError(f'{path}: covariance must be {len(NAMES)} x {len(NAMES)} '
+        raise InvalidInputError(f'{where}: covariance must be {len(NAMES)} x {len(NAMES)} '
                                 'finite numbers')
     return covariance
 
