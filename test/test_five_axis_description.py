@@ -221,3 +221,29 @@ def test_a_calibration_file_keeps_its_covariance_and_board(tmp_path, capsys):
                           (no_pitch, 'a board needs dots, pitch_m and dot_radius_m')):
         refused(capsys, ['analyze', 'rotary', '--data', str(observations), '--calibration',
                          str(path)], message)
+
+
+def test_the_calibrator_refuses_a_calibration_in_force_with_a_broken_covariance(
+        monkeypatch, tmp_path):
+    """A calibration file whose covariance is not 31 x 31 is not put in force at start-up
+    (logged; calibrate again), and nothing of it is kept; a sound one is, covariance and
+    all."""
+    import rclpy
+    from calib_core.storage import write_calibration
+    from dds import in_process_node
+    from dispenser_calib.nodes.five_axis_calibrator import FiveAxisCalibratorNode
+    parameters = dict(zip(NAMES, map(float, nominal_model().values)))
+    std_devs = {n: 1e-6 for n in NAMES}
+    content = {'parameters': parameters, 'std_devs': std_devs, 'report': {
+        'parameters': parameters, 'std_devs': std_devs, 'rms_reprojection_px': 0.1,
+        'per_image_rms_px': {'image000': 0.1}, 'images_used': 1}}
+    for covariance, kept in (((np.eye(31) * 1e-12).tolist(), True), ([[1.0, 2.0]], False)):
+        folder = tmp_path / str(kept)
+        write_calibration(folder, 'five_axis', {**content, 'covariance': covariance})
+        node = in_process_node(FiveAxisCalibratorNode, monkeypatch, folder)
+        try:
+            assert (node.model is not None) is kept
+            assert (node.covariance is not None) is kept
+        finally:
+            node.destroy_node()
+            rclpy.shutdown()
