@@ -40,6 +40,18 @@ def machine_align(domain: str, *argv: str, timeout: float = 300.0):
                           text=True, timeout=timeout)
 
 
+@contextmanager
+def node_in_process(node_class, monkeypatch, tmp_path, **parameters):
+    """:func:`in_process_node` for a ``with`` block: the node is destroyed and rclpy shut
+    down when the block ends."""
+    node = in_process_node(node_class, monkeypatch, tmp_path, **parameters)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
 def in_process_node(node_class, monkeypatch, tmp_path, **parameters):
     """``node_class()`` in this process with discovery off (nothing else sees it) and
     ``parameters`` (its output_dir and record_dir in ``tmp_path``); the caller destroys it

@@ -228,9 +228,8 @@ def test_the_calibrator_refuses_a_calibration_in_force_with_a_broken_covariance(
     """A calibration file whose covariance is not 31 x 31 is not put in force at start-up
     (logged; calibrate again), and nothing of it is kept; a sound one is, covariance and
     all."""
-    import rclpy
     from calib_core.storage import write_calibration
-    from dds import in_process_node
+    from dds import node_in_process
     from dispenser_calib.nodes.five_axis_calibrator import FiveAxisCalibratorNode
     parameters = dict(zip(NAMES, map(float, nominal_model().values)))
     std_devs = {n: 1e-6 for n in NAMES}
@@ -240,10 +239,6 @@ def test_the_calibrator_refuses_a_calibration_in_force_with_a_broken_covariance(
     for covariance, kept in (((np.eye(31) * 1e-12).tolist(), True), ([[1.0, 2.0]], False)):
         folder = tmp_path / str(kept)
         write_calibration(folder, 'five_axis', {**content, 'covariance': covariance})
-        node = in_process_node(FiveAxisCalibratorNode, monkeypatch, folder)
-        try:
+        with node_in_process(FiveAxisCalibratorNode, monkeypatch, folder) as node:
             assert (node.model is not None) is kept
             assert (node.covariance is not None) is kept
-        finally:
-            node.destroy_node()
-            rclpy.shutdown()

@@ -93,8 +93,7 @@ def test_the_grid_calibrator_and_its_graph_take_the_description(monkeypatch, tmp
     and gates by its declared noise; one of those parameters given beside it is refused.
     The live graph shows the camera the described plate (the shipped live one,
     grid_live_printer.yaml, was run by hand: accepted under its 1.35 um limit)."""
-    import rclpy
-    from dds import in_process_node
+    from dds import in_process_node, node_in_process
     from grid_calib.nodes.grid_calibrator import DESCRIBED_DEFAULTS, GridCalibratorNode
     from machine_alignment.launcher import grid_graph
     node_file = yaml.safe_load((DESCRIPTIONS.parents[1] / 'config' /
@@ -105,14 +104,11 @@ def test_the_grid_calibrator_and_its_graph_take_the_description(monkeypatch, tmp
     # 15 x 15 example's regions are not: the node refuses that plan at start-up).
     plate = changed(LIVE, tmp_path, 'plate', geometry={'pitch_m': 0.008, 'half': 3},
                     workspace={'regions': [2, 1]})
-    node = in_process_node(GridCalibratorNode, monkeypatch, tmp_path, description=str(plate))
-    try:
+    with node_in_process(GridCalibratorNode, monkeypatch, tmp_path,
+                         description=str(plate)) as node:
         assert [node.get_parameter(n).value for n in ('half', 'pitch', 'columns', 'rows')] \
             == [3, 0.008, 2, 1]
         assert node.description.residual_limit() == pytest.approx(5 * 269.3e-9, rel=1e-3)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
     with pytest.raises(InvalidInputError, match='give half or description'):
         in_process_node(GridCalibratorNode, monkeypatch, tmp_path, description=str(plate),
                         half=2)

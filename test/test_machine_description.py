@@ -183,22 +183,17 @@ def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
     """``description`` at start-up: the node's nominal is the described 0.8 m geometry, its
     plans lie in the described workspace (a request's keys still override) and it refuses
     a nominal geometry beside it."""
-    import rclpy
-    from dds import in_process_node
+    from dds import in_process_node, node_in_process
     from hexapod_calib.nodes.hexapod_calibrator import HexapodCalibratorNode
     description = read_description(EXAMPLE)
-    node = in_process_node(HexapodCalibratorNode, monkeypatch, tmp_path,
-                           description=str(EXAMPLE))
-    try:
+    with node_in_process(HexapodCalibratorNode, monkeypatch, tmp_path,
+                         description=str(EXAMPLE)) as node:
         assert node.description is not None
         np.testing.assert_array_equal(node.nominal.base_joints,
                                       description.geometry.base_joints)
         plan = node._plan({'num_poses': 20})
         assert plan.num_poses == 20 and plan.home[2] == pytest.approx(0.58)
         assert plan.stroke == pytest.approx((0.005, 0.185))
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
     with pytest.raises(InvalidInputError, match='not both'):
         in_process_node(HexapodCalibratorNode, monkeypatch, tmp_path,
                         description=str(EXAMPLE), nominal_geometry=str(EXAMPLE))
@@ -208,13 +203,12 @@ def test_the_simulator_nodes_take_the_description(monkeypatch, tmp_path):
     """hexapod_sim and pose_sensor_sim with ``description``: the described geometry
     (perturbed as the built-in one is), strokes, home and actuator noise, and the
     described instrument's noise (motion capture, 0.4 mm / 2 mrad)."""
-    import rclpy
-    from dds import in_process_node
+    from dds import node_in_process
     from hexapod_calib.nodes.hexapod_sim import HexapodSimNode
     from hexapod_calib.nodes.pose_sensor_sim import PoseSensorSimNode
     description = read_description(EXAMPLE)
-    node = in_process_node(HexapodSimNode, monkeypatch, tmp_path, description=str(EXAMPLE))
-    try:
+    with node_in_process(HexapodSimNode, monkeypatch, tmp_path,
+                         description=str(EXAMPLE)) as node:
         sim = node.sim
         np.testing.assert_array_equal(sim.nominal.base_joints, description.geometry.base_joints)
         assert (sim.stroke.minimum, sim.stroke.maximum) == pytest.approx((0.005, 0.185))
@@ -222,16 +216,10 @@ def test_the_simulator_nodes_take_the_description(monkeypatch, tmp_path):
         # The true joints lie a few mm from the described nominal, not at the built-in's.
         offset = np.abs(sim.truth.geometry.base_joints - description.geometry.base_joints)
         assert 0 < offset.max() < 0.01
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
-    node = in_process_node(PoseSensorSimNode, monkeypatch, tmp_path, description=str(EXAMPLE))
-    try:
+    with node_in_process(PoseSensorSimNode, monkeypatch, tmp_path,
+                         description=str(EXAMPLE)) as node:
         assert (node.sensor.position_noise, node.sensor.angle_noise) == pytest.approx(
             (0.4e-3, 2e-3))
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
 
 
 @pytest.mark.parametrize('ratio, slip, within, found', [

@@ -162,11 +162,10 @@ def test_the_plan_lies_in_the_described_box_and_is_measured_there(tmp_path):
 def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
     """``description`` at start-up: the node's nominal is the described 0.6 m platform and
     its gate the description's; a nominal geometry beside it is refused."""
-    import rclpy
-    from dds import in_process_node
+    from dds import in_process_node, node_in_process
     from platform_calib.nodes.platform_calibrator import PlatformCalibratorNode
-    node = in_process_node(PlatformCalibratorNode, monkeypatch, tmp_path, description=str(USER))
-    try:
+    with node_in_process(PlatformCalibratorNode, monkeypatch, tmp_path,
+                         description=str(USER)) as node:
         np.testing.assert_array_equal(node.nominal.vector(),
                                       read_description(USER).geometry.vector())
         assert node.description.position_bound() == pytest.approx(0.0424, rel=0.01)
@@ -176,9 +175,6 @@ def test_the_calibrator_node_takes_the_description(monkeypatch, tmp_path):
         assert plan.home == (0.0, 0.0, 0.0)
         asked = node._plan_from_parameters({'home': [0.002, -0.001, 0.01]})
         assert asked.home == (0.002, -0.001, 0.01) and asked.span == plan.span
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
     with pytest.raises(InvalidInputError, match='not both'):
         in_process_node(PlatformCalibratorNode, monkeypatch, tmp_path, description=str(USER),
                         nominal_geometry=str(USER))
@@ -188,25 +184,18 @@ def test_the_simulator_nodes_take_the_description(monkeypatch, tmp_path):
     """platform_sim and laser_tracker_sim with ``description``: the described 0.6 m
     geometry (with true errors of the built-in kind), its feeds' noise with the
     repeatability, and the described tracker's noise."""
-    import rclpy
-    from dds import in_process_node
+    from dds import node_in_process
     from platform_calib.nodes.laser_tracker_sim import LaserTrackerSimNode
     from platform_calib.nodes.platform_sim import PlatformSimNode
     described = read_description(USER)
-    node = in_process_node(PlatformSimNode, monkeypatch, tmp_path, description=str(USER))
-    try:
+    with node_in_process(PlatformSimNode, monkeypatch, tmp_path,
+                         description=str(USER)) as node:
         offset = np.abs(node.sim.geometry.vector() - described.geometry.vector())
         assert 0 < offset.max() < 0.01
         assert node.sim.feed_noise == pytest.approx(np.hypot(2e-6, 5e-6))
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
-    node = in_process_node(LaserTrackerSimNode, monkeypatch, tmp_path, description=str(USER))
-    try:
+    with node_in_process(LaserTrackerSimNode, monkeypatch, tmp_path,
+                         description=str(USER)) as node:
         np.testing.assert_allclose(node.noise, [25e-6, 25e-6, 50e-6])
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
 
 
 @pytest.mark.parametrize('design', ['random', 'I'])

@@ -165,28 +165,19 @@ def test_the_stage_nodes_take_the_description(monkeypatch, tmp_path):
     stroke; a landing_sigma given beside the description is refused; the calibrator with
     Marks taught 120 mm apart and a description whose Marks are 160 mm apart does not
     start."""
-    import rclpy
     from calib_core.errors import OutOfTravelError
-    from dds import in_process_node
+    from dds import in_process_node, node_in_process
     from printer_alignment.nodes.stage_calibrator import StageCalibratorNode
     from printer_alignment.nodes.stage_sim import DESCRIBED_DEFAULTS, StageSimNode
     described = read_description(USER)
-    node = in_process_node(StageSimNode, monkeypatch, tmp_path, description=str(USER))
-    try:
+    with node_in_process(StageSimNode, monkeypatch, tmp_path, description=str(USER)) as node:
         assert node.get_parameter('landing_sigma').value == described.landing_sigma()
         assert node.stage.stroke == described.stroke == 12e-3
         node.stage.move([10e-3, 0.0, 0.0])
         with pytest.raises(OutOfTravelError, match=r'\[-12.0, 12.0\] mm'):
             node.stage.move([0.0, 12.5e-3, 0.0])
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
-    node = in_process_node(StageSimNode, monkeypatch, tmp_path)
-    try:
+    with node_in_process(StageSimNode, monkeypatch, tmp_path) as node:
         assert node.get_parameter('landing_sigma').value == DESCRIBED_DEFAULTS['landing_sigma']
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
     with pytest.raises(InvalidInputError, match='give landing_sigma or description'):
         in_process_node(StageSimNode, monkeypatch, tmp_path, description=str(USER),
                         landing_sigma=1e-6)

@@ -63,18 +63,14 @@ def test_a_recorded_run_is_solved_against_the_described_lens_and_screws(tmp_path
 def test_the_vision_calibrator_takes_the_description(monkeypatch, tmp_path):
     """Started with the 5/10 mm/rev gantry's description, the calibrator holds its lens,
     screws, camera, plate and travel; one of those given beside it is refused."""
-    import rclpy
-    from dds import in_process_node
+    from dds import in_process_node, node_in_process
     from printer_alignment.nodes.vision_calibrator import VisionCalibratorNode
-    node = in_process_node(VisionCalibratorNode, monkeypatch, tmp_path, description=str(USER))
-    try:
+    with node_in_process(VisionCalibratorNode, monkeypatch, tmp_path,
+                         description=str(USER)) as node:
         assert {name: node.get_parameter(name).value for name in DESCRIBED_DEFAULTS} \
             == read_description(USER).node_parameters()
         assert (node.nominal_gantry.lead_x, node.nominal_gantry.lead_y) == (0.005, 0.01)
         assert node.plan.x_range == (0.0, 0.3)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
     with pytest.raises(InvalidInputError, match='give pitch or description'):
         in_process_node(VisionCalibratorNode, monkeypatch, tmp_path, description=str(USER),
                         pitch=0.001)
