@@ -305,11 +305,15 @@ def read_model(path) -> DispenserModel:
     ------
     InvalidInputError
         Unreadable, not YAML, a parameter missing or not a number."""
-    content = read_yaml(path, 'a five-axis calibration')
+    return model_from(read_yaml(path, 'a five-axis calibration'), str(path))
+
+
+def model_from(content, where: str) -> DispenserModel:
+    """:func:`read_model` of a calibration file's content (read from ``where``)."""
     try:
         return DispenserModel(np.array([float(content['parameters'][n]) for n in NAMES]))
     except (KeyError, TypeError, ValueError) as exc:
-        raise InvalidInputError(f'{path}: a five-axis calibration needs the parameters '
+        raise InvalidInputError(f'{where}: a five-axis calibration needs the parameters '
                                 f'{", ".join(NAMES)} as numbers ({exc!r})') from None
 
 

@@ -75,8 +75,8 @@ from dispenser_calib.core.data import board_as_dict
 from dispenser_calib.core.description import SHIPPED_GEOMETRY, read_description
 from dispenser_calib.core.loop_model import RotaryLoopModel
 from dispenser_calib.core.model import (
-    NAMES, DispenserModel, calibrated_frames, covariance_from, nominal_frames, nominal_model,
-    parameter_unit)
+    NAMES, calibrated_frames, covariance_from, model_from, nominal_frames,
+    nominal_model, parameter_unit)
 from dispenser_calib.core.planning import NOISE_PX, stops_from_plan_keys
 from dispenser_calib.core.procedure import (
     FEATURE_VIEWS, NEEDLE_TIP, PART_CAD, PART_PATH, SHIPPED_WORKSPACE, TEST_SPOTS,
@@ -196,8 +196,7 @@ class FiveAxisCalibratorNode(Node):
 
     def _in_force(self, content, path):
         # Both read before either is kept: a file refused here leaves nothing in force.
-        model = DispenserModel(np.array([content['parameters'][n] for n in NAMES]))
-        covariance = covariance_from(content, path)
+        model, covariance = model_from(content, path), covariance_from(content, path)
         message = five_axis_result_message(content, self._header(), path,
                                            content.get('version', 0))
         self.model, self.covariance = model, covariance

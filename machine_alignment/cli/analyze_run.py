@@ -62,12 +62,14 @@ def _rotary(args, dropped):
     if args.calibration:
         from calib_core.files import read_yaml
         from dispenser_calib.core.data import SHIPPED_BOARD, board_from_dict, read_observations
-        from dispenser_calib.core.model import read_covariance, read_model
+        from dispenser_calib.core.model import covariance_from, model_from
         from dispenser_calib.core.target_poses import pose_variants, poses_from_images
-        model, covariance = read_model(args.calibration), read_covariance(args.calibration)
+        content = read_yaml(args.calibration, 'a five-axis calibration')
+        model = model_from(content, args.calibration)
+        covariance = covariance_from(content, args.calibration)
         # The board the calibration was made on (a file from before it was kept: the
         # shipped one); the sweep is of the same board.
-        recorded = read_yaml(args.calibration, 'a five-axis calibration').get('board')
+        recorded = content.get('board')
         board = SHIPPED_BOARD if recorded is None else board_from_dict(recorded)
         images = read_observations(args.data, board=board)
         variants = (None if covariance is None else
