@@ -31,12 +31,18 @@ class Board:
     radius: float = 0.4e-3
 
     def __post_init__(self):
-        if (len(self.dots) != 2 or any(int(n) != n or n < 3 for n in self.dots)
-                or not 0 < self.radius < self.pitch / 2 or not np.isfinite(self.pitch)):
-            raise InvalidInputError(
-                f'a board has at least 3 whole dots along x and y and dots apart (radius '
-                f'under half the pitch), not {self.dots} dots of radius {self.radius!r} m at '
-                f'{self.pitch!r} m')
+        """Refuse a board the calibration cannot name or whose dots touch.
+
+        Raises
+        ------
+        InvalidInputError"""
+        if len(self.dots) != 2 or any(int(n) != n or n < 3 for n in self.dots):
+            raise InvalidInputError(f'dots must be two whole numbers of at least 3 (along x '
+                                    f'and y: a board has at least 3 whole dots a side), not '
+                                    f'{self.dots!r}')
+        if not (np.isfinite(self.pitch) and 0 < self.radius < self.pitch / 2):
+            raise InvalidInputError(f'dot_radius_m {self.radius:g} must be under half the '
+                                    f'pitch_m {self.pitch:g} (the dots apart)')
 
 
 SHIPPED_BOARD = Board()

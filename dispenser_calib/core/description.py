@@ -235,15 +235,12 @@ def _board(geometry: dict, where: str) -> Board:
     if missing:
         raise InvalidInputError(f'{where} lacks {", ".join(missing)}')
     dots = workspace_numbers(board['dots'], 2, 'dots', where, True)
-    if any(v != int(v) or v < 3 for v in dots):
-        raise InvalidInputError(f'{where}: dots must be two whole numbers of at least 3 (along '
-                                f'x and y), not {board["dots"]!r}')
     pitch = described_number(board, 'pitch_m', where, None, positive=True)
     radius = described_number(board, 'dot_radius_m', where, None, positive=True)
-    if not radius < pitch / 2:
-        raise InvalidInputError(f'{where}: dot_radius_m {radius:g} must be under half the '
-                                f'pitch_m {pitch:g} (the dots apart)')
-    return Board((int(dots[0]), int(dots[1])), pitch, radius)
+    try:    # the board's own checks: whole dots, at least 3 a side, apart
+        return Board(tuple(int(v) if v == int(v) else v for v in dots), pitch, radius)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f'{where}: {exc}') from None
 
 
 def _strokes(content: dict, where: str) -> dict:
