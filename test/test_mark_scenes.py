@@ -41,7 +41,7 @@ def _errors(kind: str, seed: int, **scene) -> np.ndarray:
 
 
 @pytest.mark.parametrize('kind', ['plain', 'dark_table', 'light_table', 'round_view',
-                                  'uneven', 'cable'])
+                                  'uneven', 'cable', 'hot_spot'])
 def test_every_dot_found_within_the_bound(kind):
     errors = np.concatenate([_errors(kind, seed) for seed in SEEDS])
     bound = _bound(BLUR)
@@ -50,6 +50,32 @@ def test_every_dot_found_within_the_bound(kind):
         bound *= np.sqrt(np.mean(uneven_light(u, 640) ** -2))
     ok, numbers = _within(errors, bound)
     assert ok, (kind, numbers)
+
+
+def test_a_highlight_beside_a_dot_moves_it_by_no_more_than_its_stated_sigma():
+    """The hot spot's dot (the ninth) and its neighbour (the tenth, 45 px on), whose plain
+    fits were 0.41 and 0.09 px off, over 12 seeds: their mean error within 3 standard
+    errors of zero, and their errors over their stated sigmas of unit RMS (0.6-1.5): the
+    local fit's covariance, not the plain one's, is reported. The other dots keep the
+    plain fit's sigma (within 10 % of the clean plate's)."""
+    z, errors, others = [], [], []
+    for seed in range(12):
+        frame, truth = dot_plate('hot_spot', seed)
+        marks = detect_marks(frame).marks
+        found = np.array([[m.u, m.v] for m in marks])
+        nearest = np.linalg.norm(found[:, None] - truth[None], axis=2).argmin(axis=0)
+        for dot in (8, 9):
+            mark = marks[nearest[dot]]
+            error = found[nearest[dot]] - truth[dot]
+            errors.append(error)
+            z.append(error / np.sqrt(np.diag(mark.covariance)))
+        others += [marks[nearest[i]].sigma_px for i in range(len(truth)) if i not in (8, 9, 14)]
+    errors, z = np.array(errors), np.array(z)
+    standard_error = np.sqrt(np.mean(errors ** 2, axis=0) / len(errors))
+    assert np.all(np.abs(errors.mean(axis=0)) < 3 * standard_error), errors.mean(axis=0)
+    assert 0.6 < np.sqrt(np.mean(z ** 2)) < 1.5, np.sqrt(np.mean(z ** 2))
+    clean = [m.sigma_px for m in detect_marks(dot_plate('plain', 0)[0]).marks]
+    assert abs(np.median(others) / np.median(clean) - 1) < 0.1
 
 
 @pytest.mark.parametrize('centre', [(160, 120), (480, 360), (320, 100), (120, 300)])

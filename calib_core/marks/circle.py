@@ -36,7 +36,8 @@ class DotCandidates:
 
 
 def fit_circles(pixels, candidates: DotCandidates, labels, blob_boxes, polarity: str,
-                full: float | None, box_below: float) -> list[Mark | DetectionError]:
+                full: float | None, box_below: float,
+                noise: float) -> list[Mark | DetectionError]:
     """The dots' fits, in the order of ``candidates``: a Mark, or why there is none.
 
     ``labels`` and ``blob_boxes``: the frame's segmentation and its blobs' bounding boxes
@@ -44,7 +45,8 @@ def fit_circles(pixels, candidates: DotCandidates, labels, blob_boxes, polarity:
     to keep other blobs out of each dot's band;
     ``full``: the frame's full scale where some pixels reach it, else None;
     ``box_below``: the starting blur (px) below which a dot's model sees the pixel's
-    box as it is (DetectorConfig.box_aperture_below_blur_px)."""
+    box as it is (DetectorConfig.box_aperture_below_blur_px);
+    ``noise``: the frame's noise sigma (intensity; see dot_run.fit_dot_windows)."""
     results: list = [None] * len(candidates.index)
     for ellipses in (False, True):
         group = np.flatnonzero(candidates.ellipse == ellipses)
@@ -52,14 +54,14 @@ def fit_circles(pixels, candidates: DotCandidates, labels, blob_boxes, polarity:
             # Most frames hold one kind only: then the candidates are the group.
             members = candidates if group.size == len(results) else candidates.subset(group)
             fits = _fit_group(pixels, members, ellipses, labels, blob_boxes, polarity, full,
-                              box_below)
+                              box_below, noise)
             for index, fit in zip(group.tolist(), fits):
                 results[index] = fit
     return results
 
 
 def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
-               box_below) -> list[Mark | DetectionError]:
+               box_below, noise) -> list[Mark | DetectionError]:
     """The fits of dots of one model: all disks, or all ellipses (``ellipses``)."""
     centres = candidates.centroid.astype(float)
     shapes = candidates.shape.astype(float)
@@ -72,7 +74,7 @@ def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
     # with a shift of the centre (10 % of the centre's error on 20-40 px dots).
     status, x, covariance, radius, quality = fit_dot_windows(
         pixels, geometry, centres, shapes, ellipses, clear, clear_first, polarity == 'dark',
-        np.inf if full is None else float(full), box_below)
+        np.inf if full is None else float(full), box_below, float(noise))
     # Python floats, not numpy scalars: numpy's call on a scalar costs 5 us a Mark.
     return [Mark('circle', cu, cv, cov, size, contrast, fit_quality) if not code
             else DetectionError(REASONS[code - 1])

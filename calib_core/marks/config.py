@@ -68,6 +68,15 @@ MIN_BAND_PX = 40
 # within this factor of the band's: both are the noise's where the model holds (to
 # about 15 % with a few hundred pixels).
 FLAT_MISFIT = 4.0
+# A dot whose edge band leaves a mean squared residual over this factor of the frame's
+# noise variance is fitted again with light of its own along and across its edge
+# (local_fit): the plain fit's ratio is 0.86-1.0 on rendered plates (the noise estimate
+# takes the grey levels' rounding), 4.5-11 beside a highlight that moved the dot by
+# 0.08-0.4 px.
+LOCAL_MISFIT = 1.3
+# ... and takes that fit where it moves the centre further than chance would with this
+# probability, were the plain model right (dot_run._centre_moved).
+LOCAL_SIGNIFICANCE = 1e-3
 # The cross fit gives up after this many model evaluations (see fit_cross).
 CROSS_MAX_EVALUATIONS = 40
 # A cross's blob overlaps itself turned by 90 degrees by at least this share (intersection

@@ -81,7 +81,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     # The dots are fitted together: one compiled run for all costs little more than for
     # one, where per-dot calls cost mostly the interpreter's overhead.
     fits = fit_circles(image, circles, labels, boxes, polarity, full,
-                       config.box_aperture_below_blur_px)
+                       config.box_aperture_below_blur_px, noise)
     for index, fitted in zip(circles.index, fits):
         if isinstance(fitted, Mark):
             found.append((index, fitted))

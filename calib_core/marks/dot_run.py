@@ -12,11 +12,13 @@ from numba import njit
 
 from calib_core.marks.bands import dot_levels, edge_bands_range, narrow_band
 from calib_core.marks.config import (
-    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, MIN_BAND_PX, NARROW_BAND_MIN_PX,
-    NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX)
+    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, LOCAL_MISFIT, LOCAL_SIGNIFICANCE, MIN_BAND_PX,
+    NARROW_BAND_MIN_PX, NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX)
 from calib_core.marks.dot_fit import fit_dot_range, flat_terms, solve_positive
 from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
+from calib_core.marks.local_fit import (
+    CONTRAST_ORDER, background_order, local_fit, parameter_count)
 
 # Why a dot is no Mark, by its code (0: it is one): its band is not fitted (1-3), or its
 # fit is not (4-5).
@@ -75,7 +77,7 @@ def dot_windows(boxes, areas, shapes, height, width):
 
 
 def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_first, dark,
-                    full, box_below):
+                    full, box_below, noise):
     """The fits of m dots of one model (disks, or ellipses where ``ellipses``).
 
     Parameters
@@ -95,6 +97,9 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
     box_below : float
         The starting blur (px) below which the model sees the pixel's box (see
         circle.fit_circles).
+    noise : float
+        The frame's noise sigma (intensity): a dot's band misfit beyond it calls for the
+        local fit (local_fit, LOCAL_MISFIT).
 
     Returns
     -------
@@ -121,7 +126,8 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
                np.zeros(marks))
     run_in_halves(lambda dots: _dots_range(pixels, windows, centres, radius0, scale, shapes,
                                            semi_axes, clear, clear_first, offsets, dark, full,
-                                           box_below, dots, *bands, x, box, *fits, *outcome),
+                                           box_below, noise, dots, *bands, x, box,
+                                           *fits, *outcome),
                   np.diff(offsets), PARALLEL_ABOVE_WINDOW_PX)
     status, covariance, radius, quality = outcome
     return status, x, covariance, radius, quality
@@ -129,8 +135,9 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
 
 @njit(cache=True, nogil=True)
 def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, clear,
-                clear_first, offsets, dark, full, box_below, dots, u, v, z, distance, spans,
-                flat, x, box, normal, cost, converged, status, covariance, radius, quality):
+                clear_first, offsets, dark, full, box_below, noise, dots, u, v, z,
+                distance, spans, flat, x, box, normal, cost, converged, status, covariance,
+                radius, quality):
     """fit_dot_windows' work on the dots of indices ``dots``; without the GIL."""
     edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, EDGE_BAND_PX, clear,
                      clear_first, dots, offsets, u, v, z, distance, spans, flat)
@@ -207,37 +214,139 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
     fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS,
                   rough_dots, normal, cost, converged)
     for k in fitted:
-        _outcome(k, x, centres, radius0, spans, flat, normal, cost, converged, status,
-                 covariance, radius, quality)
+        band = spans[k, 1] - spans[k, 0]
+        band_cost = cost[k] - flat_terms(x[k], flat[k], scratch_normal, scratch_gradient)
+        # Not where the edge is as wide as the band (see the flat pixels above): there
+        # light across the band and the edge's profile are one.
+        local = (band_cost > LOCAL_MISFIT * noise * noise * band
+                 and x[k, 3] ** 2 + PIXEL_APERTURE_VARIANCE <= (EDGE_BAND_PX / 4) ** 2)
+        if local:
+            local = _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z,
+                                 distance, spans, flat, box, normal, cost, converged, radius0,
+                                 centres, status, covariance, radius, quality)
+        if not local:
+            _outcome(k, x, centres, radius0, spans, flat, normal[k], cost, converged, status,
+                     covariance, radius, quality)
 
 
 @njit(cache=True)
-def _outcome(k, x, centres, radius0, spans, flat, normal, cost, converged, status, covariance,
-             radius, quality):
-    """Dot k's mean radius, quality and centre covariance from its fit, and its status:
-    not converged, or converged where it makes no sense (an ellipse past e = 1, an edge
-    blurred beyond the radius, the centre moved by over half the starting radius), or
-    with a centre the pixels do not determine (J^T J not positive definite)."""
-    width = x.shape[1]
-    counts = spans[k, 1] - spans[k, 0] + flat[k, 0, 0] + flat[k, 1, 0]
-    # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and the
-    # edge no ellipse.
-    e = math.hypot(x[k, 8], x[k, 9]) if width == 10 else 0.0
-    radius[k] = x[k, 2] / math.sqrt(math.sqrt(abs(1 - e * e))) if e < 1 else x[k, 2]
-    quality[k] = min(max(1 - math.sqrt(cost[k] / counts) / abs(x[k, 4]), 0.0), 1.0)
-    if (not converged[k] or e >= 1 or abs(x[k, 3]) > radius[k] or radius[k] <= 0
-            or math.hypot(x[k, 0] - centres[k, 0], x[k, 1] - centres[k, 1]) > 0.5 * radius0[k]):
-        status[k] = _NOT_CONVERGED
-        return
-    variance = cost[k] / max(counts - width, 1.0)
+def _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z, distance, spans,
+                 flat, box, normal, cost, converged, radius0, centres, status, covariance,
+                 radius, quality):
+    """Dot k fitted again with light of its own along and across its edge (local_fit),
+    from its plain fit, on its whole edge band about that fit (a narrowed band had left
+    the background's curvature across it less determined: 1.4 times the centre's error).
+    Taken, and its outcome written, where it moves the centre further than the two fits'
+    noise explains (see _centre_moved): a misfit the same all around the edge (its
+    profile, not the light) leaves the centre, and the plain fit's smaller variance
+    stands. Returns whether it was taken."""
+    geometry = 6 if x.shape[1] == 10 else 4
+    around, radii, shapes = centres.copy(), np.zeros(len(centres)), np.zeros((len(centres), 2))
+    around[k, 0], around[k, 1], radii[k] = x[k, 0], x[k, 1], x[k, 2]
+    if geometry == 6:
+        shapes[k, 0], shapes[k, 1] = x[k, 8], x[k, 9]
+    # The plain fit's band and flat moments, which its outcome counts if this fit is not
+    # taken; its pixels' room is taken by the whole band.
+    plain_span, plain_flat = spans[k].copy(), flat[k].copy()
+    flat[k] = 0.0
+    edge_bands_range(pixels, windows, around, radii, shapes, EDGE_BAND_PX, clear, clear_first,
+                     np.array([k]), offsets, u, v, z, distance, spans, flat)
+    flat[k] = 0.0  # this fit takes the band alone
+    first, end = spans[k]
+    band = end - first
+    order = background_order(x[k, 2])
+    width = parameter_count(geometry, order)
+    taken = band > 2 * width
+    params, local_normal, local_cost = x[k], np.empty((0, 0)), 0.0
+    if taken:
+        params, local_normal, local_cost, taken = local_fit(
+            x[k], geometry, order, u[first:end], v[first:end], z[first:end], box[k],
+            _TOLERANCE, _MAX_ITERATIONS)
+        plain_count = (plain_span[1] - plain_span[0] + plain_flat[0, 0] + plain_flat[1, 0])
+        taken = taken and _centre_moved(
+            x[k], normal[k], cost[k] / max(plain_count - x.shape[1], 1.0), params,
+            local_normal, local_cost / (band - width))
+    if not taken:
+        spans[k], flat[k] = plain_span, plain_flat
+        return False
+    # A local fit that makes no sense as a dot (see _outcome) leaves the plain one.
+    plain = x[k].copy()
+    x[k, 0], x[k, 1], x[k, 2], x[k, 3] = params[0], params[1], params[2], params[3]
+    if geometry == 6:
+        x[k, 8], x[k, 9] = params[4], params[5]
+    # The contrast and the background as their series' means; the light is theirs.
+    x[k, 4], x[k, 5] = params[geometry], params[geometry + 2 * CONTRAST_ORDER + 1]
+    x[k, 6] = x[k, 7] = 0.0
+    plain_cost, cost[k] = cost[k], local_cost
+    flat[k] = 0.0
+    _outcome(k, x, centres, radius0, spans, flat, local_normal, cost, converged, status,
+             covariance, radius, quality)
+    if status[k] != 0:
+        x[k], cost[k], status[k] = plain, plain_cost, 0
+        spans[k], flat[k] = plain_span, plain_flat
+        return False
+    return True
+
+
+@njit(cache=True)
+def _centre_moved(plain, plain_normal, plain_variance, local, local_normal, local_variance):
+    """Whether the local fit's centre (``local``: its parameters, J^T J and residual
+    variance) lies further from the plain fit's than chance would put it with probability
+    LOCAL_SIGNIFICANCE, were the plain model right (Hausman's test: the difference's
+    covariance is the local centre's less the plain one's, the plain fit being the
+    efficient one then; the local one's alone where that difference is not positive)."""
+    local_centre, plain_centre = np.empty((2, 2)), np.empty((2, 2))
+    if not (_centre_covariance(local_normal, local_variance, local_centre)
+            and _centre_covariance(plain_normal, plain_variance, plain_centre)):
+        return False
+    uu = local_centre[0, 0] - plain_centre[0, 0]
+    uv = local_centre[0, 1] - plain_centre[0, 1]
+    vv = local_centre[1, 1] - plain_centre[1, 1]
+    if not (uu > 0.0 and uu * vv - uv * uv > 0.0):
+        uu, uv, vv = local_centre[0, 0], local_centre[0, 1], local_centre[1, 1]
+    du, dv = local[0] - plain[0], local[1] - plain[1]
+    distance = (vv * du * du - 2.0 * uv * du * dv + uu * dv * dv) / (uu * vv - uv * uv)
+    return distance > -2.0 * math.log(LOCAL_SIGNIFICANCE)
+
+
+@njit(cache=True)
+def _centre_covariance(fit_normal, variance, out):
+    """The centre's covariance (2, 2; px^2) into ``out`` from a fit's J^T J (p, p; its
+    first two rows the centre's) and residual variance; False where J^T J is not
+    positive definite."""
+    width = fit_normal.shape[0]
     unit, column = np.zeros(width), np.empty(width)
     for axis in range(2):
         unit[:] = 0.0
         unit[axis] = 1.0
-        if not solve_positive(normal[k], unit, column):
-            status[k] = _DEGENERATE
-            return
-        covariance[k, 0, axis], covariance[k, 1, axis] = column[0] * variance, column[1] * variance
+        if not solve_positive(fit_normal, unit, column):
+            return False
+        out[0, axis], out[1, axis] = column[0] * variance, column[1] * variance
+    return True
+
+
+@njit(cache=True)
+def _outcome(k, x, centres, radius0, spans, flat, fit_normal, cost, converged, status,
+             covariance, radius, quality):
+    """Dot k's mean radius, quality and centre covariance from its fit, and its status:
+    not converged, or converged where it makes no sense (an ellipse past e = 1, an edge
+    blurred beyond the radius, the centre moved by over half the starting radius), or
+    with a centre the pixels do not determine (J^T J not positive definite).
+    ``fit_normal``: the fit's J^T J (p, p), its first two rows the centre's."""
+    width = fit_normal.shape[0]
+    counts = spans[k, 1] - spans[k, 0] + flat[k, 0, 0] + flat[k, 1, 0]
+    # An ellipse's mean radius; from e = 1 on, P is no longer positive definite and the
+    # edge no ellipse.
+    e = math.hypot(x[k, 8], x[k, 9]) if x.shape[1] == 10 else 0.0
+    radius[k] = x[k, 2] / math.sqrt(math.sqrt(abs(1 - e * e))) if e < 1 else x[k, 2]
+    quality[k] = min(max(1 - math.sqrt(cost[k] / counts) / max(abs(x[k, 4]), 1e-300), 0.0), 1.0)
+    if (not converged[k] or e >= 1 or abs(x[k, 3]) > radius[k] or radius[k] <= 0
+            or math.hypot(x[k, 0] - centres[k, 0], x[k, 1] - centres[k, 1]) > 0.5 * radius0[k]):
+        status[k] = _NOT_CONVERGED
+        return
+    if not _centre_covariance(fit_normal, cost[k] / max(counts - width, 1.0), covariance[k]):
+        status[k] = _DEGENERATE
+        return
     uu, uv, vv = covariance[k, 0, 0], covariance[k, 0, 1], covariance[k, 1, 1]
     if not (math.isfinite(uu) and math.isfinite(uv) and math.isfinite(vv) and uu > 0
             and uu * vv - uv * uv > 0):
