@@ -16,7 +16,7 @@ SUPERSAMPLING = 16          # 8 left a coverage step of 1/64 (0.9 grey levels on
 HOT_SPOT = 90.0             # grey levels at the highlight's peak
 
 
-def _coverage(shape, centres, radius):
+def disk_coverage(shape, centres, radius):
     """Each pixel's share inside any disk (centres (k, 2) px, pixel centres at integers),
     by SUPERSAMPLING x SUPERSAMPLING points a pixel."""
     cover = np.zeros(shape)
@@ -67,7 +67,7 @@ def dot_plate(kind: str, seed: int, shape=(480, 640), columns: int = 6, rows: in
         surround = np.full(shape, PLATE)
     if kind == 'uneven':
         light = uneven_light(xs, width)
-    cover = _coverage(shape, centres, RADIUS)
+    cover = disk_coverage(shape, centres, RADIUS)
     frame = (surround * (1 - cover) + DOT * cover) * light
     if kind == 'hot_spot':
         hu, hv = centres[8] + [14.0, 6.0]
