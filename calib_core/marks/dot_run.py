@@ -12,8 +12,9 @@ from numba import njit
 
 from calib_core.marks.bands import dot_levels, edge_bands_range, narrow_band
 from calib_core.marks.config import (
-    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, LOCAL_MISFIT, LOCAL_SIGNIFICANCE, MIN_BAND_PX,
-    NARROW_BAND_MIN_PX, NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX)
+    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, LOCAL_MISFIT, LOCAL_MISFIT_FLOOR,
+    LOCAL_SIGNIFICANCE, MIN_BAND_PX, NARROW_BAND_MIN_PX, NARROW_BAND_SIGMAS,
+    NARROW_BAND_SLACK_PX)
 from calib_core.marks.dot_fit import fit_dot_range, flat_terms, solve_positive
 from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
@@ -124,11 +125,17 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
     fits = (np.zeros((marks, width, width)), np.zeros(marks), np.zeros(marks, dtype=np.bool_))
     outcome = (np.zeros(marks, dtype=np.int64), np.zeros((marks, 2, 2)), np.zeros(marks),
                np.zeros(marks))
+    misfit = np.zeros(marks, dtype=np.bool_)
     run_in_halves(lambda dots: _dots_range(pixels, windows, centres, radius0, scale, shapes,
                                            semi_axes, clear, clear_first, offsets, dark, full,
                                            box_below, noise, dots, *bands, x, box,
-                                           *fits, *outcome),
+                                           *fits, *outcome, misfit),
                   np.diff(offsets), PARALLEL_ABOVE_WINDOW_PX)
+    # Apart from the run: compiled into it, the local fit's code had slowed every frame's
+    # first run (0.15 ms, its instructions out of the cache) where none calls for it.
+    if misfit.any():
+        _local_refits(np.flatnonzero(misfit), pixels, windows, clear, clear_first, offsets,
+                      centres, radius0, *bands, x, box, *fits, *outcome)
     status, covariance, radius, quality = outcome
     return status, x, covariance, radius, quality
 
@@ -137,8 +144,10 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
 def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, clear,
                 clear_first, offsets, dark, full, box_below, noise, dots, u, v, z,
                 distance, spans, flat, x, box, normal, cost, converged, status, covariance,
-                radius, quality):
-    """fit_dot_windows' work on the dots of indices ``dots``; without the GIL."""
+                radius, quality, misfit):
+    """fit_dot_windows' work on the dots of indices ``dots``; without the GIL. The dots
+    whose band leaves misfit for the local fit (``misfit``) are left without an
+    outcome."""
     edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, EDGE_BAND_PX, clear,
                      clear_first, dots, offsets, u, v, z, distance, spans, flat)
     fitted = np.empty(len(dots), dtype=np.int64)
@@ -218,13 +227,24 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
         band_cost = cost[k] - flat_terms(x[k], flat[k], scratch_normal, scratch_gradient)
         # Not where the edge is as wide as the band (see the flat pixels above): there
         # light across the band and the edge's profile are one.
-        local = (band_cost > LOCAL_MISFIT * noise * noise * band
-                 and x[k, 3] ** 2 + PIXEL_APERTURE_VARIANCE <= (EDGE_BAND_PX / 4) ** 2)
-        if local:
-            local = _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z,
-                                 distance, spans, flat, box, normal, cost, converged, radius0,
-                                 centres, status, covariance, radius, quality)
-        if not local:
+        floor = LOCAL_MISFIT_FLOOR * x[k, 4]
+        misfit[k] = (band_cost > LOCAL_MISFIT * (noise * noise + floor * floor) * band
+                     and x[k, 3] ** 2 + PIXEL_APERTURE_VARIANCE <= (EDGE_BAND_PX / 4) ** 2)
+        if not misfit[k]:
+            _outcome(k, x, centres, radius0, spans, flat, normal[k], cost, converged, status,
+                     covariance, radius, quality)
+
+
+@njit(cache=True)
+def _local_refits(dots, pixels, windows, clear, clear_first, offsets, centres, radius0, u, v, z,
+                  distance, spans, flat, x, box, normal, cost, converged, status, covariance,
+                  radius, quality):
+    """The outcomes of the dots of indices ``dots``: their local fits' where taken (see
+    _local_refit), else their plain fits'."""
+    for k in dots:
+        if not _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z,
+                            distance, spans, flat, box, normal, cost, converged, radius0,
+                            centres, status, covariance, radius, quality):
             _outcome(k, x, centres, radius0, spans, flat, normal[k], cost, converged, status,
                      covariance, radius, quality)
 
