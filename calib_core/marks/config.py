@@ -79,6 +79,11 @@ LOCAL_MISFIT = 1.3
 # not move the centre), which had called the local fit on every dot of clean frames at
 # 1 % noise, 3.5 times their time (10 times on 40 px dots), for the same centres.
 LOCAL_MISFIT_FLOOR = 0.01
+# ... also on edges as wide as the band where the band's RMS residual is over this share
+# of the contrast (a dot fading to 20 % across itself leaves 13 %, the plain fit taking
+# the fade for a 1.7 px blur, 2-3.6 px off; a neighbour's blurred edge in a noise-free
+# frame 0.5 %).
+GROSS_MISFIT = 0.05
 # ... and takes that fit where it moves the centre further than chance would with this
 # probability, were the plain model right (dot_run._centre_moved).
 LOCAL_SIGNIFICANCE = 1e-3

@@ -12,7 +12,7 @@ from numba import njit
 
 from calib_core.marks.bands import dot_levels, edge_bands_range, narrow_band
 from calib_core.marks.config import (
-    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, LOCAL_MISFIT, LOCAL_MISFIT_FLOOR,
+    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, GROSS_MISFIT, LOCAL_MISFIT, LOCAL_MISFIT_FLOOR,
     LOCAL_SIGNIFICANCE, MIN_BAND_PX, NARROW_BAND_MIN_PX, NARROW_BAND_SIGMAS,
     NARROW_BAND_SLACK_PX)
 from calib_core.marks.dot_fit import fit_dot_range, flat_terms, solve_positive
@@ -226,10 +226,12 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
         band = spans[k, 1] - spans[k, 0]
         band_cost = cost[k] - flat_terms(x[k], flat[k], scratch_normal, scratch_gradient)
         # Not where the edge is as wide as the band (see the flat pixels above): there
-        # light across the band and the edge's profile are one.
+        # light across the band and the edge's profile are one. Unless the misfit is
+        # gross: a plain fit takes a contrast fading across the dot for a wider blur.
         floor = LOCAL_MISFIT_FLOOR * x[k, 4]
         misfit[k] = (band_cost > LOCAL_MISFIT * (noise * noise + floor * floor) * band
-                     and x[k, 3] ** 2 + PIXEL_APERTURE_VARIANCE <= (EDGE_BAND_PX / 4) ** 2)
+                     and (x[k, 3] ** 2 + PIXEL_APERTURE_VARIANCE <= (EDGE_BAND_PX / 4) ** 2
+                          or band_cost > (GROSS_MISFIT * x[k, 4]) ** 2 * band))
         if not misfit[k]:
             _outcome(k, x, centres, radius0, spans, flat, normal[k], cost, converged, status,
                      covariance, radius, quality)
