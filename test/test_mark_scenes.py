@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from calib_core.errors import DetectionError
 from calib_core.marks import detect_marks
 from calib_core.sim.render import MarkShape
 from machine_alignment.bench.vision import CONTRAST, cramer_rao
@@ -102,6 +103,19 @@ def test_a_dot_fading_across_itself_is_measured_within_its_sigma(fade):
                             expected_count=1).marks[0]
         z = (np.array([mark.u, mark.v]) - centre) / np.sqrt(np.diag(mark.covariance))
         assert np.all(np.abs(z) < 3), z
+
+
+def test_a_dot_washed_out_on_one_side_is_refused_naming_it():
+    """The dot above faded by 1.6 of its contrast: a third of it is gone under the glare.
+    What is left is no dot's shape; the refusal names that it may be one washed out."""
+    rng = np.random.default_rng(6)
+    columns = np.mgrid[0:100, 0:120][1].astype(float)
+    centre = np.array([60.2, 50.4])
+    share = np.clip(1 - 1.6 * np.clip((centre[0] + 12 - columns) / 24, 0, 1), 0, 1)
+    frame = PLATE - (PLATE - DOT) * disk_coverage((100, 120), centre[None], 12.0) * share
+    frame = cv2.GaussianBlur(frame, (0, 0), BLUR) + rng.normal(0, NOISE, frame.shape)
+    with pytest.raises(DetectionError, match='washed out on one side'):
+        detect_marks(np.clip(np.round(frame), 0, 255).astype(np.uint8))
 
 
 @pytest.mark.parametrize('centre', [(160, 120), (480, 360), (320, 100), (120, 300)])

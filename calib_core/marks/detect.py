@@ -127,7 +127,7 @@ def _classify(boxes, blobs, labels, frame_shape, config, shape, noise_scaled):
     rejected = [(k, f'too large ({half[k]:.0f} px)' if kind == bands.TOO_LARGE
                  else 'clipped at the image border' if kind == bands.CLIPPED
                  else f'ambiguous shape (aspect {aspect[k]:.2f}, fill {fill[k]:.2f}; '
-                      'touching Marks or debris?)')
+                      'touching Marks, debris, or a Mark washed out on one side?)')
                 for k, kind in enumerate(classes.tolist())
                 if kind in (bands.TOO_LARGE, bands.CLIPPED, bands.AMBIGUOUS)]
     # A Mark at the lowest accepted contrast stands out of the smoothed frame by at
