@@ -82,7 +82,7 @@ LOCAL_MISFIT_FLOOR = 0.01
 # ... also on edges as wide as the band where the band's RMS residual is over this share
 # of the contrast (a dot fading to 20 % across itself leaves 13 %, the plain fit taking
 # the fade for a 1.7 px blur, 2-3.6 px off; a neighbour's blurred edge in a noise-free
-# frame 0.5 %).
+# frame 0.1 % at most).
 GROSS_MISFIT = 0.05
 # ... and takes that fit where it moves the centre further than chance would with this
 # probability, were the plain model right (dot_run._centre_moved).

@@ -18,7 +18,15 @@ from calib_core.sim.scenes import BLUR, DOT, NOISE, PLATE, RADIUS, dot_plate, un
 from machine_alignment.bench import main_with_out, write_results, write_table
 from machine_alignment.bench.vision import CONTRAST, _blob_detector, cramer_rao
 
-SCENES = ('plain', 'dark_table', 'light_table', 'round_view', 'uneven', 'hot_spot', 'cable')
+# (row, scene kind, its arguments): the kinds of calib_core.sim.scenes, a defocused plate
+# and plates of 3 x 2 dots smaller than the frame at two places.
+SCENES = tuple((kind, kind, {}) for kind in ('plain', 'dark_table', 'light_table', 'round_view',
+                                             'uneven', 'hot_spot', 'cable')) + (
+    ('defocused (blur 2.5 px), light table', 'light_table', {'blur': 2.5}),
+    ('3 x 2 plate at (160, 120) px', 'small_plate',
+     {'columns': 3, 'rows': 2, 'centre': (160, 120)}),
+    ('3 x 2 plate at (480, 360) px', 'small_plate',
+     {'columns': 3, 'rows': 2, 'centre': (480, 360)}))
 SEEDS = range(10)
 REPEATS = 5
 MATCH_PX = 2.0
@@ -52,15 +60,16 @@ def _ours(frame) -> np.ndarray:
 
 def run(out: Path) -> dict:
     blob = _blob_detector(max_area=4 * np.pi * RADIUS ** 2)
-    flat_bound = cramer_rao(MarkShape('circle', 100.0, 100.0, RADIUS), BLUR, NOISE) \
-        * abs(CONTRAST) / (PLATE - DOT)
     rows = []
-    for scene in SCENES:
+    for scene, kind, arguments in SCENES:
+        flat_bound = cramer_rao(MarkShape('circle', 100.0, 100.0, RADIUS),
+                                arguments.get('blur', BLUR), NOISE) * abs(CONTRAST) / (PLATE - DOT)
         tally = {'ours': [0, 0, [], []], 'blob': [0, 0, [], []]}
-        lights = []
+        lights, dots = [], 0
         for seed in SEEDS:
-            frame, truth = dot_plate(scene, seed)
-            lights.append(uneven_light(truth[:, 0], frame.shape[1]) if scene == 'uneven'
+            frame, truth = dot_plate(kind, seed, **arguments)
+            dots += len(truth)
+            lights.append(uneven_light(truth[:, 0], frame.shape[1]) if kind == 'uneven'
                           else np.ones(len(truth)))
             for name, detect in (('ours', lambda: _ours(frame)), ('blob', lambda: np.array(
                     [k.pt for k in blob.detect(frame)]).reshape(-1, 2))):
@@ -71,7 +80,7 @@ def run(out: Path) -> dict:
                 tally[name][2].append(errors)
                 tally[name][3].append(seconds)
         bound = flat_bound * np.sqrt(np.mean(np.concatenate(lights) ** -2))
-        row = {'scene': scene, 'dots': 24 * len(SEEDS), 'bound_px': float(bound)}
+        row = {'scene': scene, 'dots': dots, 'bound_px': float(bound)}
         for name, (hits, extra, errors, seconds) in tally.items():
             errors = np.concatenate(errors)
             rms = float(np.sqrt(np.mean(errors ** 2))) if errors.size else float('nan')
@@ -79,15 +88,15 @@ def run(out: Path) -> dict:
                          'rms_over_bound': rms / bound, 'ms_per_frame': 1e3 * float(
                              np.median(seconds))}
         rows.append(row)
-        print(f'{scene:12} ours {row["ours"]["found"]}/{row["dots"]} '
+        print(f'{scene:36} ours {row["ours"]["found"]}/{row["dots"]} '
               f'({row["ours"]["rms_over_bound"]:.2f} x bound, '
               f'{row["ours"]["ms_per_frame"]:.2f} ms), blob {row["blob"]["found"]}/'
               f'{row["dots"]} ({row["blob"]["rms_over_bound"]:.2f} x, '
               f'{row["blob"]["ms_per_frame"]:.2f} ms)')
     write_results(out, 'mark_scenes', {'seeds': [SEEDS.start, SEEDS.stop - 1], 'rows': rows})
     lines = [f'Mark detection in scenes of a dot plate at a machine (calib_core/sim/scenes.py: '
-             f'24 dots of {RADIUS:g} px radius, blur {BLUR:g} px, noise {NOISE:g} grey '
-             f'levels, exact centres), {len(SEEDS)} seeds per scene; centre error: per-axis '
+             f'24 dots of {RADIUS:g} px radius, blur {BLUR:g} px unless said, noise {NOISE:g} '
+             f'grey levels, exact centres), {len(SEEDS)} seeds per scene; centre error: per-axis '
              'RMS of the dots found, over the Cramer-Rao bound of the exact model (for '
              '`uneven`, each dot at its own light); time: median over the frames of the best '
              f'of {REPEATS} runs, both detectors in one process. `blob`: OpenCV\'s '
