@@ -236,15 +236,22 @@ def _normal_equations(params, u, v, z, flat, u0, v0, box, normal, gradient, colu
     ``normal`` and ``gradient``, with ``columns`` (p + 1, n) as room: its edge band's
     (u, v, z: n; ``box``: see _edge_columns) and its flat pixels' (``flat``: their
     moments, see flat_terms). Returns the cost r^T r (r: model less intensity)."""
-    width = params.size
     _edge_columns(params, u, v, u0, v0, box, columns)
+    columns[params.size] -= z
+    return normal_products(columns, normal, gradient) + flat_terms(params, flat, normal,
+                                                                   gradient)
+
+
+@njit(cache=True, inline='always', **_VECTOR)
+def normal_products(columns, normal, gradient):
+    """From ``columns`` (p + 1, n), a fit's Jacobian's p columns and its residuals last:
+    J^T J into ``normal`` (p, p) and J^T r into ``gradient`` (p,); returns r^T r."""
+    width = normal.shape[0]
     cost = 0.0
-    residual = columns[width]
-    residual -= z
     for a in range(width + 1):
         for b in range(a + 1):
             total = 0.0
-            for i in range(u.size):
+            for i in range(columns.shape[1]):
                 total += columns[a, i] * columns[b, i]
             if a < width:
                 normal[a, b] = normal[b, a] = total
@@ -252,7 +259,7 @@ def _normal_equations(params, u, v, z, flat, u0, v0, box, normal, gradient, colu
                 gradient[b] = total
             else:
                 cost = total
-    return cost + flat_terms(params, flat, normal, gradient)
+    return cost
 
 
 @njit(cache=True)

@@ -331,7 +331,7 @@ def _centre_moved(plain, plain_normal, plain_variance, local, local_normal, loca
     return distance > -2.0 * math.log(LOCAL_SIGNIFICANCE)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _centre_covariance(fit_normal, variance, out):
     """The centre's covariance (2, 2; px^2) into ``out`` from a fit's J^T J (p, p; its
     first two rows the centre's) and residual variance; False where J^T J is not

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from calib_core.marks.config import EDGE_BAND_PX
-from calib_core.marks.dot_fit import _pixel_columns, solve_positive
+from calib_core.marks.dot_fit import _pixel_columns, normal_products, solve_positive
 from calib_core.marks.normal import VECTOR as _VECTOR
 
 # The contrast's series in the angle ends at this order: a highlight that multiplies the
@@ -113,22 +113,9 @@ def _local_normal(params, geometry, order, u, v, z, u0, v0, radius0, box, normal
                   columns):
     """J^T J into ``normal`` and J^T r into ``gradient`` (r: model less ``z``) of the
     local model; returns r^T r. ``columns``: room of (p + 1, n)."""
-    width = params.size
     _local_columns(params, geometry, order, u, v, u0, v0, radius0, box, columns)
-    columns[width] -= z
-    cost = 0.0
-    for a in range(width + 1):
-        for b in range(a + 1):
-            total = 0.0
-            for i in range(u.size):
-                total += columns[a, i] * columns[b, i]
-            if a < width:
-                normal[a, b] = normal[b, a] = total
-            elif b < width:
-                gradient[b] = total
-            else:
-                cost = total
-    return cost
+    columns[params.size] -= z
+    return normal_products(columns, normal, gradient)
 
 
 @njit(cache=True)
