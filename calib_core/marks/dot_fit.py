@@ -338,6 +338,31 @@ def solve_positive(matrix, rhs, out):
     return True
 
 
+# marquardt_step's outcomes.
+AT_OPTIMUM, STEP, NOT_POSITIVE = 0, 1, 2
+
+
+@njit(cache=True, inline='always')
+def marquardt_step(normal, gradient, cost, damping, damped, descent, step):
+    """Marquardt's step (his diagonal scaling) of a least-squares fit at J^T J ``normal``
+    (p, p), J^T r ``gradient`` (p,) and cost r^T r, damped by ``damping``, into ``step``
+    (``damped``, ``descent``: scratch). Returns AT_OPTIMUM where the residual is already
+    orthogonal to every Jacobian column (MINPACK's gtol; checked first, because there
+    rounding may keep any step from lowering the cost), STEP, or NOT_POSITIVE where the
+    damped matrix is not positive definite."""
+    width = gradient.size
+    largest = 0.0
+    for a in range(width):
+        largest = max(largest, abs(gradient[a]) / math.sqrt(max(normal[a, a], 1e-300)))
+    if largest <= 1e-10 * math.sqrt(max(cost, 1e-300)):
+        return AT_OPTIMUM
+    damped[:] = normal
+    for a in range(width):
+        damped[a, a] += damping * max(normal[a, a], 1e-300)
+        descent[a] = -gradient[a]
+    return STEP if solve_positive(damped, descent, step) else NOT_POSITIVE
+
+
 @njit(cache=True)
 def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_iterations,
                          normal, room):
@@ -356,20 +381,10 @@ def _levenberg_marquardt(current, u, v, z, flat, u0, v0, box, tolerance, max_ite
     degrees_of_freedom = max(z.size + flat[0, 0] + flat[1, 0] - width, 1.0)
     damping = _DAMPING_START
     for _ in range(max_iterations):
-        # At the optimum the residual is orthogonal to every Jacobian column (MINPACK's
-        # gtol); checked first, because there rounding may keep any step from lowering
-        # the cost.
-        largest = 0.0
-        for a in range(width):
-            largest = max(largest, abs(gradient[a]) / math.sqrt(max(normal[a, a], 1e-300)))
-        if largest <= 1e-10 * math.sqrt(max(cost, 1e-300)):
+        outcome = marquardt_step(normal, gradient, cost, damping, damped, descent, step)
+        if outcome == AT_OPTIMUM:
             return cost, True
-        damped[:] = normal
-        for a in range(width):
-            damped[a, a] += damping * max(normal[a, a], 1e-300)
-        for a in range(width):
-            descent[a] = -gradient[a]
-        if not solve_positive(damped, descent, step):
+        if outcome == NOT_POSITIVE:
             damping *= 10.0
             if damping > _DAMPING_MAX:
                 return cost, False

@@ -18,7 +18,8 @@ import numpy as np
 from numba import njit
 
 from calib_core.marks.config import EDGE_BAND_PX
-from calib_core.marks.dot_fit import _pixel_columns, normal_products, solve_positive
+from calib_core.marks.dot_fit import (
+    AT_OPTIMUM, NOT_POSITIVE, _pixel_columns, marquardt_step, normal_products)
 from calib_core.marks.normal import VECTOR as _VECTOR
 
 # The contrast's series in the angle ends at this order: a highlight that multiplies the
@@ -152,16 +153,10 @@ def local_fit(start, geometry, order, u, v, z, box, tolerance, max_iterations):
                          gradient, columns)
     damping = _DAMPING_START
     for _ in range(max_iterations):
-        largest = 0.0
-        for a in range(width):
-            largest = max(largest, abs(gradient[a]) / math.sqrt(max(normal[a, a], 1e-300)))
-        if largest <= 1e-10 * math.sqrt(max(cost, 1e-300)):
+        outcome = marquardt_step(normal, gradient, cost, damping, damped, descent, step)
+        if outcome == AT_OPTIMUM:
             return current, normal, cost, True
-        damped[:] = normal
-        for a in range(width):
-            damped[a, a] += damping * max(normal[a, a], 1e-300)
-            descent[a] = -gradient[a]
-        if not solve_positive(damped, descent, step):
+        if outcome == NOT_POSITIVE:
             damping *= 10.0
             if damping > _DAMPING_MAX:
                 return current, normal, cost, False
