@@ -1,8 +1,9 @@
 """A frame's dots from their windows to their fits, in one compiled run for each half of
 them (halves.run_in_halves): each dot's edge band (bands), its starting values, its fit
 (dot_fit), and its fit again through the pixel's box or on its band alone where the
-first fit calls for it. Between those steps, in numpy, the interpreter had cost about
-0.25 ms a frame, and the band's levels were left to one core."""
+first fit calls for it; then, apart, the local fit (local_fit) of the dots whose band
+the plain model leaves misfit. Between those steps, in numpy, the interpreter had cost
+about 0.25 ms a frame, and the band's levels were left to one core."""
 from __future__ import annotations
 
 import math
@@ -131,8 +132,8 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
                                            box_below, noise, dots, *bands, x, box,
                                            *fits, *outcome, misfit),
                   np.diff(offsets), PARALLEL_ABOVE_WINDOW_PX)
-    # Apart from the run: compiled into it, the local fit's code had slowed every frame's
-    # first run (0.15 ms, its instructions out of the cache) where none calls for it.
+    # Apart from the compiled run, which so stays the code it was for the frames that call
+    # no local fit (most): a frame's first run after idle pays for the code it loads.
     if misfit.any():
         _local_refits(np.flatnonzero(misfit), pixels, windows, clear, clear_first, offsets,
                       centres, radius0, *bands, x, box, *fits, *outcome)
