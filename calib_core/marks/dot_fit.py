@@ -97,20 +97,20 @@ def _edge_columns(params, u, v, u0, v0, box, out):
               params[7], shape[0], shape[1], u0, v0)
     if box and ellipse:
         for i in range(u.size):
-            _store(out, i, _pixel_columns(values, u[i], v[i], True, True), True)
+            _store(out, i, pixel_columns(values, u[i], v[i], True, True), True)
     elif box:
         for i in range(u.size):
-            _store(out, i, _pixel_columns(values, u[i], v[i], True, False), False)
+            _store(out, i, pixel_columns(values, u[i], v[i], True, False), False)
     elif ellipse:
         for i in range(u.size):
-            _store(out, i, _pixel_columns(values, u[i], v[i], False, True), True)
+            _store(out, i, pixel_columns(values, u[i], v[i], False, True), True)
     else:
         for i in range(u.size):
-            _store(out, i, _pixel_columns(values, u[i], v[i], False, False), False)
+            _store(out, i, pixel_columns(values, u[i], v[i], False, False), False)
 
 
 @njit(cache=True, inline='always', **_VECTOR)
-def _pixel_columns(values, u, v, box, ellipse):
+def pixel_columns(values, u, v, box, ellipse):
     """_edge_columns' work on one pixel at (u, v), px, with ``values`` its parameters
     (the ellipse's a, b zero for a disk) and reference point: its derivatives by cu, cv,
     radius, blur, contrast, background, grad_u, grad_v, a and b, and its intensity."""
@@ -164,7 +164,7 @@ def _pixel_columns(values, u, v, box, ellipse):
 
 @njit(cache=True, inline='always', **_VECTOR)
 def _store(out, i, columns, ellipse):
-    """A pixel's columns (see _pixel_columns) into ``out[:, i]``, a disk's without a, b."""
+    """A pixel's columns (see pixel_columns) into ``out[:, i]``, a disk's without a, b."""
     for row in range(8):
         out[row, i] = columns[row]
     if ellipse:

@@ -19,7 +19,7 @@ from numba import njit
 
 from calib_core.marks.config import EDGE_BAND_PX
 from calib_core.marks.dot_fit import (
-    AT_OPTIMUM, NOT_POSITIVE, _pixel_columns, marquardt_step, normal_products)
+    AT_OPTIMUM, NOT_POSITIVE, marquardt_step, normal_products, pixel_columns)
 from calib_core.marks.normal import VECTOR as _VECTOR
 
 # The contrast's series in the angle ends at this order: a highlight that multiplies the
@@ -74,7 +74,7 @@ def _local_columns(params, geometry, order, u, v, u0, v0, radius0, box, out):
     first_background = geometry + 2 * CONTRAST_ORDER + 1
     terms = BACKGROUND_DEGREE + 1
     for i in range(u.size):
-        edge = _pixel_columns(values, u[i], v[i], box, ellipse)
+        edge = pixel_columns(values, u[i], v[i], box, ellipse)
         cover = edge[4]
         du, dv = u[i] - u0, v[i] - v0
         rho = math.sqrt(du * du + dv * dv)
