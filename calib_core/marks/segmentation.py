@@ -196,12 +196,16 @@ def _regions_split(flat, mask, blobs, polarity, guard, config):
     smallest = 4 * SIZE_SLACK[0] * config.min_size_px
     margin = config.border_margin_px
     from calib_core.marks.levels import mask_levels
-    for contour, (x0, y0, w, h) in zip(contours, boxes):
-        at_border = x0 <= margin or y0 <= margin or x0 + w >= width - margin \
-            or y0 + h >= height - margin
-        # A region holds a Mark with its surround: smaller ones (specks at the border) none.
-        if not (w > largest or h > largest or at_border) or min(w, h) < smallest:
-            continue
+    # The regions, chosen over all boxes at once: a frame's noise specks made a loop over
+    # every blob cost 0.08 ms. A region holds a Mark with its surround: smaller ones
+    # (specks at the border) none.
+    x0s, y0s, ws, hs = np.asarray(boxes).reshape(-1, 4).T
+    at_border = ((x0s <= margin) | (y0s <= margin) | (x0s + ws >= width - margin)
+                 | (y0s + hs >= height - margin))
+    regions = np.flatnonzero(((ws > largest) | (hs > largest) | at_border)
+                             & (np.minimum(ws, hs) >= smallest))
+    for index in regions.tolist():
+        contour, (x0, y0, w, h) = contours[index], boxes[index]
         region = np.zeros((h, w), np.uint8)
         cv2.drawContours(region, [contour], -1, 1, cv2.FILLED, offset=(-x0, -y0))
         pixels = flat[y0:y0 + h, x0:x0 + w]
