@@ -301,7 +301,6 @@ def _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z, di
     x[k, 4], x[k, 5] = params[geometry], params[geometry + 2 * CONTRAST_ORDER + 1]
     x[k, 6] = x[k, 7] = 0.0
     plain_cost, cost[k] = cost[k], local_cost
-    flat[k] = 0.0
     _outcome(k, x, centres, radius0, spans, flat, local_normal, cost, converged, status,
              covariance, radius, quality)
     if status[k] != 0:
