@@ -160,10 +160,12 @@ def test_a_plate_smaller_than_the_frame_anywhere_in_it(centre):
 
 
 def test_a_defocused_plate_on_a_light_table():
-    errors = np.concatenate([_errors('light_table', seed, blur=2.5) for seed in SEEDS])
+    """Blur 2.5 px, 12 frames (the allowance for chance 6 %, not the 10 % of 4): fitted on
+    the 6 px band alone, its edge cut short at 2.4 sigma, the centres were 1.22x the
+    bound (the band's own bound: 1.25x); on a band that holds the edge, 1.03x."""
+    errors = np.concatenate([_errors('light_table', seed, blur=2.5) for seed in range(12)])
     ok, numbers = _within(errors, _bound(2.5))
     assert ok, numbers
-
 
 
 def _block_means(kind: str) -> np.ndarray:

@@ -22,15 +22,16 @@ from machine_alignment.bench.vision import cramer_rao
 
 
 def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_first):
-    """bands.edge_bands_range on every dot, its band compacted to the front of u, v, z
-    and distance (as dot_run does it, from each window's offset)."""
+    """bands.edge_bands_range on every dot, each within ``reach`` (px) of its edge, its
+    band compacted to the front of u, v, z and distance (as dot_run does it, from each
+    window's offset)."""
     area = (windows[:, 1] - windows[:, 0]) * (windows[:, 3] - windows[:, 2])
     starts = np.concatenate([[0], np.cumsum(area)[:-1]]).astype(np.int64)
     u, v, z, distance = (np.empty(int(area.sum())) for _ in range(4))
     spans = np.empty((len(windows), 2), dtype=np.int64)
     flat = np.zeros((len(windows), 2, 10))
-    edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clear_first,
-                     np.arange(len(windows)), starts, u, v, z, distance, spans, flat)
+    edge_bands_range(pixels, windows, centres, radii, shapes, np.full(len(windows), reach),
+                     clear, clear_first, np.arange(len(windows)), starts, u, v, z, distance, spans, flat)
     band = np.concatenate([np.arange(*span) for span in spans]).astype(int)
     ends = np.cumsum(spans[:, 1] - spans[:, 0])
     return (u[band], v[band], z[band], distance[band],

@@ -159,10 +159,10 @@ def _label_moments(labels, x0, y0, w, h, label):
 
 
 @njit(cache=True, nogil=True)
-def edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clear_first,
+def edge_bands_range(pixels, windows, centres, radii, shapes, reaches, clear, clear_first,
                      dots, starts, u, v, z, distance, spans, flat):
     """The edge bands of the dots of indices ``dots``: for dot k, the pixels of its
-    window (rows r0:r1, columns c0:c1) within ``reach`` (px) of the edge of
+    window (rows r0:r1, columns c0:c1) within ``reaches[k]`` (px) of the edge of
     dot_edge_model's ellipse of its radius (px) and shape (a, b) at its centre (u, v;
     px), by Sampson's distance, and where its ``clear`` mask holds; and the moments of
     the window's other clear pixels, outside the band and inside it, where the dot's
@@ -182,7 +182,7 @@ def edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clea
         Also each dot's reference point of the flat moments.
     radii : ndarray, shape (k,)
     shapes : ndarray, shape (k, 2)
-    reach : float
+    reaches : ndarray, shape (k,)
     clear : ndarray of bool, shape (c,)
         The masks of the dots that have one, each window-shaped and flattened, one after
         another.
@@ -210,7 +210,7 @@ def edge_bands_range(pixels, windows, centres, radii, shapes, reach, clear, clea
         r0, r1, c0, c1 = windows[k]
         count = starts[k]
         a, b = shapes[k]
-        radius, first = radii[k], clear_first[k]
+        radius, first, reach = radii[k], clear_first[k], reaches[k]
         slack = reach * math.sqrt(1.0 + math.hypot(a, b))
         inner = (radius - slack) ** 2 if radius > slack else -1.0
         outer = (radius + slack) ** 2

@@ -3,7 +3,6 @@ candidate's window and the pixels in it clear of other blobs, then the edge band
 starting values and fits of all of a frame's, in one compiled run (dot_run)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
 import cv2
@@ -11,8 +10,11 @@ import numpy as np
 
 from calib_core.errors import DetectionError
 from calib_core.marks.bands import crowded_windows
-from calib_core.marks.config import EDGE_BAND_PX, NEIGHBOUR_CLEARANCE_PX, Mark
+from calib_core.marks.config import (
+    EDGE_BAND_PX, NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX, NEIGHBOUR_CLEARANCE_PX,
+    WIDE_BAND_MAX_PX, Mark)
 from calib_core.marks.dot_run import REASONS, dot_windows, fit_dot_windows
+from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 
 
 @dataclass(frozen=True)
@@ -63,18 +65,26 @@ def fit_circles(pixels, candidates: DotCandidates, labels, blob_boxes, polarity:
 def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
                box_below, noise) -> list[Mark | DetectionError]:
     """The fits of dots of one model: all disks, or all ellipses (``ellipses``)."""
-    centres = candidates.centroid.astype(float)
     shapes = candidates.shape.astype(float)
-    geometry = dot_windows(candidates.box, candidates.area.astype(float), shapes,
-                           *pixels.shape)
-    clear, clear_first = _clear_masks(labels, blob_boxes, geometry[3], candidates.label,
-                                      candidates.index)
-    # The model is evaluated on the edge band; the flat pixels beyond it enter the fit by
-    # their moments: they pin the illumination gradient, which the band alone confuses
-    # with a shift of the centre (10 % of the centre's error on 20-40 px dots).
-    status, x, covariance, radius, quality = fit_dot_windows(
-        pixels, geometry, centres, shapes, ellipses, clear, clear_first, polarity == 'dark',
-        np.inf if full is None else float(full), box_below, float(noise))
+    settings = (ellipses, labels, blob_boxes, polarity == 'dark',
+                np.inf if full is None else float(full), box_below, float(noise))
+    fits = _fit_dots(pixels, candidates, candidates.centroid.astype(float), shapes,
+                     np.full(len(shapes), EDGE_BAND_PX), *settings)
+    status, x = fits[0], fits[1]
+    # A dot whose edge the band does not hold (defocused) again on a band that does, from
+    # its fit; where that fit fails, the first stands.
+    edge_sigma = np.sqrt(x[:, 3] ** 2 + PIXEL_APERTURE_VARIANCE)
+    wide = np.flatnonzero((status == 0) & (NARROW_BAND_SIGMAS * edge_sigma > EDGE_BAND_PX))
+    if wide.size:
+        reaches = np.minimum(NARROW_BAND_SIGMAS * edge_sigma[wide] + NARROW_BAND_SLACK_PX,
+                             WIDE_BAND_MAX_PX)
+        again = _fit_dots(pixels, candidates.subset(wide), x[wide, :2].copy(),
+                          x[wide, 8:10].copy() if ellipses else shapes[wide], reaches, *settings,
+                          start=x[wide])
+        taken = again[0] == 0
+        for first_fit, wide_fit in zip(fits, again):
+            first_fit[wide[taken]] = wide_fit[taken]
+    status, x, covariance, radius, quality = fits
     # Python floats, not numpy scalars: numpy's call on a scalar costs 5 us a Mark.
     return [Mark('circle', cu, cv, cov, size, contrast, fit_quality) if not code
             else DetectionError(REASONS[code - 1])
@@ -83,18 +93,35 @@ def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
                 radius.tolist(), x[:, 4].tolist(), quality.tolist())]
 
 
-def _clear_masks(labels, blob_boxes, windows, own, own_box):
+def _fit_dots(pixels, candidates, centres, shapes, reaches, ellipses, labels, blob_boxes, dark,
+              full, box_below, noise, start=None):
+    """dot_run.fit_dot_windows' fits of ``candidates`` about their ``centres`` (m, 2; px) and
+    ``shapes`` (m, 2), on edge bands of ``reaches`` (m,; px), clear of other blobs; from
+    ``start`` (m, p), an earlier fit, where given."""
+    geometry = dot_windows(candidates.box, candidates.area.astype(float), shapes,
+                           *pixels.shape, reaches)
+    clear, clear_first = _clear_masks(labels, blob_boxes, geometry[3], candidates.label,
+                                      candidates.index, reaches)
+    # The model is evaluated on the edge band; the flat pixels beyond it enter the fit by
+    # their moments: they pin the illumination gradient, which the band alone confuses
+    # with a shift of the centre (10 % of the centre's error on 20-40 px dots).
+    return fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_first,
+                           dark, full, box_below, noise, reaches, start)
+
+
+def _clear_masks(labels, blob_boxes, windows, own, own_box, reaches):
     """bands.edge_bands_range's ``clear`` and ``clear_first``: masks for the dots whose
     windows (k, 4) hold other blobs than their own (``own``: labels, k; ``own_box``: their
-    indices into the frame's ``blob_boxes``), or have them within EDGE_BAND_PX outside.
+    indices into the frame's ``blob_boxes``), or have them within their band's reach
+    (``reaches``, k; px) outside.
 
     A blob's mask ends where its edge is halfway: its blurred edge reaches up to the
     band's width beyond (the model is flat beyond the band only for edges it holds to 4
     sigma). A neighbour 1 px outside a dot's window had put its edge among the dot's flat
     pixels and moved the dot by twice its sigma."""
     r0, r1, c0, c1 = windows.T
-    pad, (height, width) = int(math.ceil(EDGE_BAND_PX)), labels.shape
-    around = np.clip(windows + (-pad, pad, -pad, pad), 0, (height, height, width, width))
+    pad, (height, width) = np.ceil(reaches).astype(np.int64)[:, None], labels.shape
+    around = np.clip(windows + pad * (-1, 1, -1, 1), 0, (height, height, width, width))
     masks, first, start = [], np.full(len(windows), -1), 0
     for k in np.flatnonzero(crowded_windows(labels, around, own, blob_boxes, own_box)):
         top, bottom, left, right = around[k]

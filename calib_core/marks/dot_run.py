@@ -13,7 +13,7 @@ from numba import njit
 
 from calib_core.marks.bands import dot_levels, edge_bands_range, narrow_band
 from calib_core.marks.config import (
-    DEGENERATE_FIT, EDGE_BAND_PX, FLAT_MISFIT, GROSS_MISFIT, LOCAL_MISFIT, LOCAL_MISFIT_FLOOR,
+    DEGENERATE_FIT, FLAT_MISFIT, GROSS_MISFIT, LOCAL_MISFIT, LOCAL_MISFIT_FLOOR,
     LOCAL_SIGNIFICANCE, MIN_BAND_PX, NARROW_BAND_MIN_PX, NARROW_BAND_SIGMAS,
     NARROW_BAND_SLACK_PX)
 from calib_core.marks.dot_fit import fit_dot_range, flat_terms, solve_positive
@@ -39,10 +39,10 @@ PARALLEL_ABOVE_WINDOW_PX = 5000
 
 
 @njit(cache=True)
-def dot_windows(boxes, areas, shapes, height, width):
+def dot_windows(boxes, areas, shapes, height, width, reaches):
     """The geometry of m dots from their blobs' boxes (m, 4: x0, y0, width, height; px),
-    areas (m,; px^2) and shapes (a, b) of dot_edge_model (m, 2), in a frame ``height`` x
-    ``width`` (px).
+    areas (m,; px^2), shapes (a, b) of dot_edge_model (m, 2) and edge bands' reaches (m,;
+    px), in a frame ``height`` x ``width`` (px).
 
     Returns
     -------
@@ -53,8 +53,10 @@ def dot_windows(boxes, areas, shapes, height, width):
         larger; px), its mean radius radius0, and in dot_edge_model's norm its radius is
         radius0 * scale.
     windows : ndarray of int, shape (m, 4)
-        Rows r0:r1 and columns c0:c1 of the box grown by 4 px and 0.15 of the larger
-        semi-axis, inside the frame.
+        Rows r0:r1 and columns c0:c1 of the box grown by the reach less 2 px and 0.15 of
+        the larger semi-axis, inside the frame (the 6 px band's window, tuned for speed,
+        grew it by 4 px: its band is whole on the diagonals, a little short on the
+        sides, where the blob's box lies about on the edge).
     offsets : ndarray of int, shape (m + 1,)
         Where each window's pixels begin, laid out one after another; the last, their
         count.
@@ -69,7 +71,7 @@ def dot_windows(boxes, areas, shapes, height, width):
         scale[k] = (1 - e * e) ** 0.25
         semi_axes[k, 0] = radius0[k] * scale[k] / math.sqrt(1 + e)
         semi_axes[k, 1] = radius0[k] * scale[k] / math.sqrt(1 - e)
-        pad = math.ceil(4 + 0.15 * semi_axes[k, 1])
+        pad = math.ceil(reaches[k] - 2 + 0.15 * semi_axes[k, 1])
         x0, y0, w, h = boxes[k]
         windows[k, 0], windows[k, 1] = max(y0 - pad, 0), min(y0 + h + pad, height)
         windows[k, 2], windows[k, 3] = max(x0 - pad, 0), min(x0 + w + pad, width)
@@ -79,7 +81,7 @@ def dot_windows(boxes, areas, shapes, height, width):
 
 
 def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_first, dark,
-                    full, box_below, noise):
+                    full, box_below, noise, reaches, start=None):
     """The fits of m dots of one model (disks, or ellipses where ``ellipses``).
 
     Parameters
@@ -102,6 +104,12 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
     noise : float
         The frame's noise sigma (intensity): a dot's band misfit beyond it calls for the
         local fit (local_fit, LOCAL_MISFIT).
+    reaches : ndarray, shape (m,)
+        How far each dot's edge band reaches from its edge (px; its windows' in
+        ``geometry``).
+    start : ndarray, shape (m, p), optional
+        The fits start here (an earlier fit's parameters, on another band), not from
+        the band's levels.
 
     Returns
     -------
@@ -121,71 +129,74 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
     marks, size = len(windows), int(offsets[-1])
     bands = (np.empty(size), np.empty(size), np.empty(size), np.empty(size),
              np.empty((marks, 2), dtype=np.int64), np.zeros((marks, 2, 10)))
-    x = np.zeros((marks, width))
+    x = np.zeros((marks, width)) if start is None else start.astype(float)
     box = np.zeros(marks, dtype=np.bool_)
     fits = (np.zeros((marks, width, width)), np.zeros(marks), np.zeros(marks, dtype=np.bool_))
     outcome = (np.zeros(marks, dtype=np.int64), np.zeros((marks, 2, 2)), np.zeros(marks),
                np.zeros(marks))
     misfit = np.zeros(marks, dtype=np.bool_)
     run_in_halves(lambda dots: _dots_range(pixels, windows, centres, radius0, scale, shapes,
-                                           semi_axes, clear, clear_first, offsets, dark, full,
-                                           box_below, noise, dots, *bands, x, box,
+                                           semi_axes, reaches, clear, clear_first, offsets, dark,
+                                           full, box_below, noise, start is not None, dots,
+                                           *bands, x, box,
                                            *fits, *outcome, misfit),
                   np.diff(offsets), PARALLEL_ABOVE_WINDOW_PX)
     # Apart from the compiled run, which so stays the code it was for the frames that call
     # no local fit (most): a frame's first run after idle pays for the code it loads.
     if misfit.any():
-        _local_refits(np.flatnonzero(misfit), pixels, windows, clear, clear_first, offsets,
-                      centres, radius0, *bands, x, box, *fits, *outcome)
+        _local_refits(np.flatnonzero(misfit), pixels, windows, reaches, clear, clear_first,
+                      offsets, centres, radius0, *bands, x, box, *fits, *outcome)
     status, covariance, radius, quality = outcome
     return status, x, covariance, radius, quality
 
 
 @njit(cache=True, nogil=True)
-def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, clear,
-                clear_first, offsets, dark, full, box_below, noise, dots, u, v, z,
+def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, reaches, clear,
+                clear_first, offsets, dark, full, box_below, noise, restart, dots, u, v, z,
                 distance, spans, flat, x, box, normal, cost, converged, status, covariance,
                 radius, quality, misfit):
     """fit_dot_windows' work on the dots of indices ``dots``; without the GIL. The dots
     whose band leaves misfit for the local fit (``misfit``) are left without an
-    outcome."""
-    edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, EDGE_BAND_PX, clear,
+    outcome. With ``restart``, each fit starts from its parameters in ``x``."""
+    edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, reaches, clear,
                      clear_first, dots, offsets, u, v, z, distance, spans, flat)
     fitted = np.empty(len(dots), dtype=np.int64)
     count = 0
     for k in dots:
         first, end = spans[k]
-        band = end - first
+        band, reach = end - first, reaches[k]
         background, level, fraction_sum, transition, clipped = dot_levels(
             z[first:end], distance[first:end], dark, full)
         # Starting radius and edge sigma from the band's intensities as fractions of the
         # way from background to Mark. Blur conserves area, so the fractions sum to the
         # Mark's area inside the band; and for an erf edge those between 16 and 84 % lie
-        # within one sigma of the edge, a share sigma / EDGE_BAND_PX of the band's radial
-        # width.
-        inner_area = (max(semi_axes[k, 0] - EDGE_BAND_PX, 0.0)
-                      * max(semi_axes[k, 1] - EDGE_BAND_PX, 0.0))
+        # within one sigma of the edge, a share sigma / reach of the band's radial width.
+        inner_area = max(semi_axes[k, 0] - reach, 0.0) * max(semi_axes[k, 1] - reach, 0.0)
         radius_init = math.sqrt(max(fraction_sum / math.pi + inner_area, radius0[k] ** 2 / 4))
-        sigma0 = min(max(EDGE_BAND_PX * transition / max(band, 1), 0.3), 3.0)
+        sigma0 = min(max(reach * transition / max(band, 1), 0.3), reach / 2)
         blur0 = math.sqrt(max(sigma0 ** 2 - PIXEL_APERTURE_VARIANCE, 0.1 ** 2))
+        if restart:
+            blur0 = abs(x[k, 3])
+            sigma0 = math.sqrt(blur0 ** 2 + PIXEL_APERTURE_VARIANCE)
         # The model is flat beyond the band only where the band holds the edge to 4
         # sigma; a wider edge's tails there would tilt the fit under uneven light (7e-4
         # px at 3 px blur), so such dots are fitted on their band alone. A sharper
         # dot's band is narrowed to its edge's reach: its pixels beyond are flat, and
         # cost the fit nothing as moments (0.5 px blur: 40 % fewer band pixels, the
         # same centres to 1e-9 px).
-        if sigma0 > EDGE_BAND_PX / 4:
+        if sigma0 > reach / 4:
             flat[k] = 0.0
         else:
-            reach = max(NARROW_BAND_SIGMAS * sigma0 + NARROW_BAND_SLACK_PX, NARROW_BAND_MIN_PX)
-            if reach < EDGE_BAND_PX:
-                narrow_band(k, reach, centres, u, v, z, distance, spans, flat)
-        x[k, 0], x[k, 1] = centres[k, 0], centres[k, 1]
-        x[k, 2], x[k, 3] = radius_init * scale[k], blur0
-        x[k, 4], x[k, 5] = level - background, background
-        x[k, 6] = x[k, 7] = 0.0  # the illumination gradient: even light
-        if x.shape[1] == 10:
-            x[k, 8], x[k, 9] = shapes[k, 0], shapes[k, 1]
+            narrow = max(NARROW_BAND_SIGMAS * sigma0 + NARROW_BAND_SLACK_PX, NARROW_BAND_MIN_PX)
+            if narrow < reach:
+                narrow_band(k, narrow, centres, u, v, z, distance, spans, flat)
+        if not restart:
+            x[k, 0], x[k, 1] = centres[k, 0], centres[k, 1]
+            x[k, 2], x[k, 3] = radius_init * scale[k], blur0
+            x[k, 4], x[k, 5] = level - background, background
+            x[k, 6] = x[k, 7] = 0.0  # the illumination gradient: even light
+            if x.shape[1] == 10:
+                x[k, 8], x[k, 9] = shapes[k, 0], shapes[k, 1]
         box[k] = blur0 < box_below
         if clear_first[k] >= 0 and band < MIN_BAND_PX:
             status[k] = _CROWDED
@@ -231,7 +242,7 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
         # gross: a plain fit takes a contrast fading across the dot for a wider blur.
         floor = LOCAL_MISFIT_FLOOR * x[k, 4]
         misfit[k] = (band_cost > LOCAL_MISFIT * (noise * noise + floor * floor) * band
-                     and (x[k, 3] ** 2 + PIXEL_APERTURE_VARIANCE <= (EDGE_BAND_PX / 4) ** 2
+                     and (x[k, 3] ** 2 + PIXEL_APERTURE_VARIANCE <= (reaches[k] / 4) ** 2
                           or band_cost > (GROSS_MISFIT * x[k, 4]) ** 2 * band))
         if not misfit[k]:
             _outcome(k, x, centres, radius0, spans, flat, normal[k], cost, converged, status,
@@ -239,23 +250,23 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, cle
 
 
 @njit(cache=True)
-def _local_refits(dots, pixels, windows, clear, clear_first, offsets, centres, radius0, u, v, z,
-                  distance, spans, flat, x, box, normal, cost, converged, status, covariance,
-                  radius, quality):
+def _local_refits(dots, pixels, windows, reaches, clear, clear_first, offsets, centres, radius0,
+                  u, v, z, distance, spans, flat, x, box, normal, cost, converged, status,
+                  covariance, radius, quality):
     """The outcomes of the dots of indices ``dots``: their local fits' where taken (see
     _local_refit), else their plain fits'."""
     for k in dots:
-        if not _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z,
-                            distance, spans, flat, box, normal, cost, converged, radius0,
+        if not _local_refit(k, pixels, windows, reaches, clear, clear_first, offsets, x, u, v,
+                            z, distance, spans, flat, box, normal, cost, converged, radius0,
                             centres, status, covariance, radius, quality):
             _outcome(k, x, centres, radius0, spans, flat, normal[k], cost, converged, status,
                      covariance, radius, quality)
 
 
 @njit(cache=True)
-def _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z, distance, spans,
-                 flat, box, normal, cost, converged, radius0, centres, status, covariance,
-                 radius, quality):
+def _local_refit(k, pixels, windows, reaches, clear, clear_first, offsets, x, u, v, z, distance,
+                 spans, flat, box, normal, cost, converged, radius0, centres, status,
+                 covariance, radius, quality):
     """Dot k fitted again with light of its own along and across its edge (local_fit),
     from its plain fit, on its whole edge band about that fit (a narrowed band had left
     the background's curvature across it less determined: 1.4 times the centre's error).
@@ -272,7 +283,7 @@ def _local_refit(k, pixels, windows, clear, clear_first, offsets, x, u, v, z, di
     # taken; its pixels' room is taken by the whole band.
     plain_span, plain_flat = spans[k].copy(), flat[k].copy()
     flat[k] = 0.0
-    edge_bands_range(pixels, windows, around, radii, shapes, EDGE_BAND_PX, clear, clear_first,
+    edge_bands_range(pixels, windows, around, radii, shapes, reaches, clear, clear_first,
                      np.array([k]), offsets, u, v, z, distance, spans, flat)
     flat[k] = 0.0  # this fit takes the band alone
     first, end = spans[k]
