@@ -11,7 +11,7 @@ from scipy.special import erfc
 
 from calib_core.errors import DetectionError, InvalidInputError
 from calib_core.marks import DetectorConfig, detect_marks, dot_fit, dot_run, estimate_noise
-from calib_core.marks.bands import blob_statistics, edge_bands_range
+from calib_core.marks.bands import BY_SHAPE, TOO_LARGE, blob_statistics, edge_bands_range
 from calib_core.marks.dot_fit import dot_edge_model, fit_dot_range
 from calib_core.marks.halves import run_in_halves
 from calib_core.marks.intensity import edge_sigma
@@ -475,7 +475,9 @@ def test_compiled_fit_stops_at_the_converged_fit(rng, radius, aspect, blur, box)
 def test_blob_statistics_as_numpy_counts_them(rng):
     """Each blob's label, area, centroid and second moments (+1/12 px^2), and its depth
     (its extreme in the flattened frame against the upper median of the 2 px ring around
-    its box, corners counted twice), as numpy computes them, on random masks."""
+    its box, corners counted twice), as numpy computes them, on random masks; for a blob
+    whose box decides its class (here the larger half), its label, its box's area and
+    centre and zeros."""
     for _ in range(30):
         mask = (rng.random((120, 160)) < rng.uniform(0.05, 0.5)).astype(np.uint8)
         flat = rng.integers(0, 256, mask.shape).astype(np.uint8)
@@ -484,8 +486,13 @@ def test_blob_statistics_as_numpy_counts_them(rng):
         seeds = np.array([c[0, 0] for c in contours]).reshape(-1, 2)
         labels = cv2.connectedComponents(mask, connectivity=8)[1]
         dark = bool(rng.random() < 0.5)
-        statistics = blob_statistics(labels, boxes, seeds, flat, dark)
-        for (x0, y0, w, h), (u, v), row in zip(boxes, seeds, statistics):
+        box_class = np.where(rng.random(len(boxes)) < 0.5, BY_SHAPE, TOO_LARGE)
+        statistics = blob_statistics(labels, boxes, seeds, flat, dark, box_class)
+        for (x0, y0, w, h), (u, v), row, kind in zip(boxes, seeds, statistics, box_class):
+            if kind != BY_SHAPE:
+                assert np.array_equal(row, [labels[v, u], w * h, (w - 1) / 2, (h - 1) / 2,
+                                            0, 0, 0, 0])
+                continue
             rows, cols = np.nonzero(labels[y0:y0 + h, x0:x0 + w] == labels[v, u])
             r0, r1 = max(y0 - 2, 0), min(y0 + h + 2, 120)
             c0, c1 = max(x0 - 2, 0), min(x0 + w + 2, 160)

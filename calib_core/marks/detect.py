@@ -54,7 +54,7 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     """
     # The compiled code and numba (105 MiB, 0.4 s) load with the first frame, not with
     # every process that imports this package.
-    from calib_core.marks.bands import blob_statistics
+    from calib_core.marks.bands import blob_statistics, box_classes
     from calib_core.marks.circle import fit_circles
 
     if shape not in ('',) + SHAPES:
@@ -67,8 +67,10 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
         image, image.dtype.type(scale_low), image.dtype.type(scale_high))
     noise_scaled = noise * 255.0 / (scale_high - scale_low)
     polarity, labels, boxes, seeds, flat = segment(segmented, noise_scaled, config)
-    blobs = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark')
-    circles, crosses, rejected = _classify(boxes, blobs, labels, image.shape, config, shape,
+    box_class = box_classes(boxes, *image.shape, config.min_size_px * SIZE_SLACK[0],
+                            config.max_size_px * SIZE_SLACK[1], config.border_margin_px)
+    blobs = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark', box_class)
+    circles, crosses, rejected = _classify(boxes, blobs, box_class, labels, config, shape,
                                            noise_scaled)
     found: list[tuple[int, Mark]] = []
     for index in crosses:
@@ -106,17 +108,16 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     return Detection(marks=marks, rejected=reasons, noise_sigma=noise)
 
 
-def _classify(boxes, blobs, labels, frame_shape, config, shape, noise_scaled):
+def _classify(boxes, blobs, box_class, labels, config, shape, noise_scaled):
     """The blobs taken for dots (DotCandidates) and for crosses (their indices), and the
     others' reasons (index, why); noise specks and faint blobs are dropped without one.
 
     ``blobs``: bands.blob_statistics' table (label, area, centroid in the box, moments,
-    depth) of the blobs whose boxes (k, 4: x0, y0, width, height; px) are ``boxes``."""
+    depth) of the blobs whose boxes (k, 4: x0, y0, width, height; px) are ``boxes``;
+    ``box_class``: their bands.box_classes."""
     from calib_core.marks import bands
     from calib_core.marks.circle import DotCandidates
-    classes, cross_shaped, numbers = bands.blob_classes(
-        boxes, blobs, *frame_shape, config.min_size_px * SIZE_SLACK[0],
-        config.max_size_px * SIZE_SLACK[1], config.border_margin_px)
+    classes, cross_shaped, numbers = bands.blob_classes(boxes, blobs, box_class)
     half, aspect, fill = numbers.T
     # A dot seen at an angle fills its moments' ellipse; touching dots do not.
     for k in np.flatnonzero(classes == bands.ELLIPSE_SHAPED):

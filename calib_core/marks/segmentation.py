@@ -167,7 +167,8 @@ def segment(image, noise_scaled, config):
     else:
         polarity = config.polarity
         mask = _mask(flat, levels[polarity], polarity)
-        contours, boxes, _ = _regions_split(flat, mask, _blobs(mask), polarity, guard, config)
+        contours, boxes, _ = _regions_split(flat, histogram, mask, _blobs(mask), polarity,
+                                            guard, config)
     from calib_core.marks.labels import boxes_overlap, paint_labels
     if boxes_overlap(boxes):
         labels = cv2.connectedComponents(mask, connectivity=8)[1]
@@ -178,11 +179,11 @@ def segment(image, noise_scaled, config):
     return polarity, labels, boxes, seeds, flat
 
 
-def _regions_split(flat, mask, blobs, polarity, guard, config):
-    """The blobs of ``mask`` (as :func:`_blobs` gives them), with each region that is no
-    Mark cut again at a level of its own: a plate on a light table or in a round field of
-    view is one blob of the frame's threshold, darker than its surround, and its dots lie
-    inside it darker still. A region is a blob too large for a Mark in either direction or
+def _regions_split(flat, histogram, mask, blobs, polarity, guard, config):
+    """The blobs of ``mask`` (as :func:`_blobs` gives them; ``histogram``: ``flat``'s), with
+    each region that is no Mark cut again at a level of its own: a plate on a light table
+    or in a round field of view is one blob of the frame's threshold, darker than its
+    surround, and its dots lie inside it darker still. A region is a blob too large for a Mark in either direction or
     one at the frame's border (where a Mark is refused as clipped anyway); its level is
     taken from its own pixels' histogram as the frame's is (:func:`levels.mask_levels`),
     kept where it leaves the region's background out (the region's class above the level
@@ -209,12 +210,16 @@ def _regions_split(flat, mask, blobs, polarity, guard, config):
         region = np.zeros((h, w), np.uint8)
         cv2.drawContours(region, [contour], -1, 1, cv2.FILLED, offset=(-x0, -y0))
         pixels = flat[y0:y0 + h, x0:x0 + w]
-        histogram = cv2.calcHist([pixels], [0], region, [256], [0, 256]).ravel()
-        dark, bright = mask_levels(histogram, guard)
+        # A surround's region is the whole frame (its outline, the frame's border): the
+        # frame's histogram. Masked, calcHist took 0.2 ms on 640 x 480.
+        whole = pixels.size == flat.size and cv2.countNonZero(region) == region.size
+        counts = histogram if whole else cv2.calcHist([pixels], [0], region, [256],
+                                                      [0, 256]).ravel()
+        dark, bright = mask_levels(counts, guard)
         level = dark if polarity == 'dark' else bright
-        marks = (histogram[:int(level) + 1] if polarity == 'dark'
-                 else histogram[int(level) + 1:]).sum()
-        if not 0 < marks < 0.5 * histogram.sum():
+        marks = (counts[:int(level) + 1] if polarity == 'dark'
+                 else counts[int(level) + 1:]).sum()
+        if not 0 < marks < 0.5 * counts.sum():
             continue            # one class only: nothing inside stands out of the region
         cut = mask.copy() if cut is None else cut
         window = cut[y0:y0 + h, x0:x0 + w]
@@ -248,7 +253,7 @@ def _vote(flat, histogram, levels, config, guard):
     votes = []
     for polarity in order:
         mask = _mask(flat, levels[polarity], polarity)
-        blobs = _regions_split(flat, mask, _blobs(mask), polarity, guard, config)
+        blobs = _regions_split(flat, histogram, mask, _blobs(mask), polarity, guard, config)
         vote = (_mark_shaped(*blobs[:2], flat.shape, config), polarity == 'dark')
         votes.append((vote, polarity, mask, blobs))
         # The other mask has at most this one's holes in Mark-shaped blobs.
