@@ -210,11 +210,15 @@ def _regions_split(flat, histogram, mask, blobs, polarity, guard, config):
         region = np.zeros((h, w), np.uint8)
         cv2.drawContours(region, [contour], -1, 1, cv2.FILLED, offset=(-x0, -y0))
         pixels = flat[y0:y0 + h, x0:x0 + w]
-        # A surround's region is the whole frame (its outline, the frame's border): the
-        # frame's histogram. Masked, calcHist took 0.2 ms on 640 x 480.
-        whole = pixels.size == flat.size and cv2.countNonZero(region) == region.size
-        counts = histogram if whole else cv2.calcHist([pixels], [0], region, [256],
-                                                      [0, 256]).ravel()
+        # A region that fills its box (a surround's is the whole frame, a plate's its
+        # rectangle) is counted without the mask, which costs calcHist 2.5 times as much;
+        # the whole frame's histogram is at hand.
+        if cv2.countNonZero(region) < region.size:
+            counts = cv2.calcHist([pixels], [0], region, [256], [0, 256]).ravel()
+        elif pixels.size < flat.size:
+            counts = cv2.calcHist([pixels], [0], None, [256], [0, 256]).ravel()
+        else:
+            counts = histogram
         dark, bright = mask_levels(counts, guard)
         level = dark if polarity == 'dark' else bright
         marks = (counts[:int(level) + 1] if polarity == 'dark'
