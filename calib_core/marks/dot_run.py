@@ -123,6 +123,9 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
         The mean radius (px).
     quality : ndarray, shape (m,)
         1 less the RMS residual over the contrast, within [0, 1].
+    band_alone : ndarray of bool, shape (m,)
+        Whether the fit took the band alone, no flat pixels beyond it (an edge as wide as
+        the band as its start read it, a misfit inside the dot, or none in the window).
     """
     width = 10 if ellipses else 8
     radius0, scale, semi_axes, windows, offsets = geometry
@@ -147,7 +150,7 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
         _local_refits(np.flatnonzero(misfit), pixels, windows, reaches, clear, clear_first,
                       offsets, centres, radius0, *bands, x, box, *fits, *outcome)
     status, covariance, radius, quality = outcome
-    return status, x, covariance, radius, quality
+    return status, x, covariance, radius, quality, bands[5][:, :, 0].sum(axis=1) == 0
 
 
 @njit(cache=True, nogil=True)
