@@ -117,6 +117,21 @@ def test_a_dot_fading_across_itself_is_measured_within_its_sigma(fade):
         assert np.all(np.abs(z) < 3), z
 
 
+def test_a_lone_dot_beside_the_hot_spot_is_found_and_measured_within_its_sigma():
+    """The hot spot over the edge of the only dot in view (a fiducial under a glare), 10
+    seeds: found in each, nothing else, its errors over its stated sigmas of unit RMS and
+    its mean within 3 standard errors. Otsu's level had split the highlight, which
+    outnumbers the dot's pixels, off the plate: no Mark in any of them."""
+    errors, z = [], []
+    for seed in range(10):
+        frame, truth = dot_plate('hot_spot', seed, columns=1, rows=1)
+        mark, = detect_marks(frame, expected_count=1).marks
+        error = np.array([mark.u, mark.v]) - truth[0]
+        errors.append(error)
+        z.append(error / np.sqrt(np.diag(mark.covariance)))
+    _unbiased_with_honest_sigmas(errors, z)
+
+
 def test_a_highlight_beside_a_dot_seen_at_an_angle_leaves_its_centre():
     """A 3 x 3 grid of 12 px dots seen at an angle (ellipses of aspect 1.6, fitted as
     such), a highlight of 60 grey levels beside the middle one: over 8 seeds its errors

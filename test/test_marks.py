@@ -343,10 +343,10 @@ def test_mask_levels_from_otsu_and_the_guard(rng):
     two_classes = np.clip(np.round(rng.normal(180, 3, (100, 100))), 0, 255).astype(np.uint8)
     two_classes[:50] -= 120
     otsu = otsu_level(histogram(two_classes))
-    assert mask_levels(histogram(two_classes), 5.0) == (otsu - 1, otsu - 1)
+    assert mask_levels(histogram(two_classes), 5.0, False) == (otsu - 1, otsu - 1)
     one_small = np.clip(np.round(rng.normal(200, 3, (200, 200))), 0, 255).astype(np.uint8)
     one_small[100:103, 100:103] = 60
-    dark, _ = mask_levels(histogram(one_small), 15.0)
+    dark, _ = mask_levels(histogram(one_small), 15.0, False)
     assert 60 < dark <= np.median(one_small) - 15
 
 
@@ -943,10 +943,11 @@ def test_polarity_vote_traces_one_mask_where_the_other_cannot_win(rng, monkeypat
         flat = cv2.GaussianBlur(image.astype(np.uint8), (5, 5), 1.0)
         histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
         guard = 1.5 * noise
-        levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard)))
+        levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard, False)))
         counts = {p: mark_shaped(flat, levels[p], p) for p in ('dark', 'bright')}
         traced.clear()
-        polarity, mask, _ = segmentation._vote(flat, histogram, levels, config, guard)
+        polarity, mask, _ = segmentation._vote(flat, histogram, levels, config, guard,
+                                                    False)
         assert polarity == ('bright' if counts['bright'] > counts['dark'] else 'dark')
         assert np.array_equal(mask, segmentation._mask(flat, levels[polarity], polarity))
         complementary = levels['dark'] == levels['bright']

@@ -52,11 +52,6 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     InvalidInputError
         Not a single-channel finite image.
     """
-    # The compiled code and numba (105 MiB, 0.4 s) load with the first frame, not with
-    # every process that imports this package.
-    from calib_core.marks.bands import blob_statistics, box_classes
-    from calib_core.marks.circle import fit_circles
-
     if shape not in ('',) + SHAPES:
         raise InvalidInputError(f'shape must be "circle", "cross" or "", not {shape!r}')
     image = check_image(image)
@@ -66,7 +61,34 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     segmented = image if (scale_low, scale_high) == (low, high) else np.clip(
         image, image.dtype.type(scale_low), image.dtype.type(scale_high))
     noise_scaled = noise * 255.0 / (scale_high - scale_low)
-    polarity, labels, boxes, seeds, flat = segment(segmented, noise_scaled, config)
+    marks, reasons = _marks(image, segmented, noise, noise_scaled, full, config, shape, False)
+    if not marks or (expected_count and len(marks) < expected_count):
+        # Otsu's level may have split a highlight off the plate where it outnumbers the
+        # Marks (one Mark beside a glare): the levels from the frame's median instead.
+        again = _marks(image, segmented, noise, noise_scaled, full, config, shape, True)
+        if len(again[0]) > len(marks) and not (expected_count
+                                               and len(again[0]) > expected_count):
+            marks, reasons = again
+    if not marks:
+        detail = f' ({"; ".join(reasons)})' if reasons else ''
+        raise DetectionError(f'no {shape or "Mark"} found in the image{detail}')
+    if expected_count and len(marks) != expected_count:
+        detail = f'; rejected: {"; ".join(reasons)}' if reasons else ''
+        raise DetectionError(f'expected {expected_count} Mark(s), found {len(marks)}: ambiguous'
+                             f'{detail}')
+    return Detection(marks=marks, rejected=reasons, noise_sigma=noise)
+
+
+def _marks(image, segmented, noise, noise_scaled, full, config, shape, from_median):
+    """The Marks found (in reading order) and why each other candidate is not one, by
+    segment's levels (``from_median``: see levels.mask_levels)."""
+    # The compiled code and numba (105 MiB, 0.4 s) load with the first frame, not with
+    # every process that imports this package.
+    from calib_core.marks.bands import blob_statistics, box_classes
+    from calib_core.marks.circle import fit_circles
+
+    polarity, labels, boxes, seeds, flat = segment(segmented, noise_scaled, config,
+                                                   from_median)
     box_class = box_classes(boxes, *image.shape, config.min_size_px * SIZE_SLACK[0],
                             config.max_size_px * SIZE_SLACK[1], config.border_margin_px)
     blobs = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark', box_class)
@@ -97,15 +119,8 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
             marks.append(mark)
     marks.sort(key=lambda m: (round(m.v), m.u))
     # Reasons in the blobs' order, each with where its blob is.
-    reasons = [f'{why} {_where(blobs[index], boxes[index])}' for index, why in sorted(rejected)]
-    if not marks:
-        detail = f' ({"; ".join(reasons)})' if reasons else ''
-        raise DetectionError(f'no {shape or "Mark"} found in the image{detail}')
-    if expected_count and len(marks) != expected_count:
-        detail = f'; rejected: {"; ".join(reasons)}' if reasons else ''
-        raise DetectionError(f'expected {expected_count} Mark(s), found {len(marks)}: ambiguous'
-                             f'{detail}')
-    return Detection(marks=marks, rejected=reasons, noise_sigma=noise)
+    return marks, [f'{why} {_where(blobs[index], boxes[index])}'
+                   for index, why in sorted(rejected)]
 
 
 def _classify(boxes, blobs, box_class, labels, config, shape, noise_scaled):

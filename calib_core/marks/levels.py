@@ -12,16 +12,20 @@ from calib_core.marks.config import EXTREME_PIXELS
 
 
 @njit(cache=True)
-def mask_levels(histogram, guard):
+def mask_levels(histogram, guard, from_median):
     """The levels of the dark and the bright Marks' masks from the flattened frame's
     256-bin histogram (float32, as cv2.calcHist gives it) and the ``guard`` (grey levels)
     between Otsu's level and the background's median: dark Marks are the pixels at or
     below the first, bright ones those above the second (as cv2.threshold takes an 8-bit
     level: floored, src > level). Where Otsu's level t is kept for both, both are t - 1:
-    the dark Marks' mask is the pixels below t, the bright Marks' the others."""
+    the dark Marks' mask is the pixels below t, the bright Marks' the others.
+
+    With ``from_median``, Otsu's level is not tried: each level lies between the
+    frame's median and its extreme (see _class_threshold). A highlight beside a lone
+    Mark outnumbers it, and Otsu's level splits the highlight from the plate."""
     otsu = otsu_level(histogram)
-    dark = math.ceil(_class_threshold(histogram, otsu, guard)) - 1.0
-    bright = 255.0 - _class_threshold(histogram[::-1], 255 - otsu, guard)
+    dark = math.ceil(_class_threshold(histogram, otsu, guard, from_median)) - 1.0
+    bright = 255.0 - _class_threshold(histogram[::-1], 255 - otsu, guard, from_median)
     # The pixels at Otsu's level go to the bright Marks, so that the masks complement
     # each other (segmentation._vote counts on it).
     return dark, bright - 1.0 if bright == otsu else bright
@@ -51,7 +55,7 @@ def otsu_level(histogram):
 
 
 @njit(cache=True)
-def _class_threshold(histogram, otsu, guard):
+def _class_threshold(histogram, otsu, guard, from_median):
     """Grey level below which a pixel belongs to a dark Mark, from the flattened frame's
     histogram (mirrored for bright Marks) and Otsu's threshold.
 
@@ -59,20 +63,22 @@ def _class_threshold(histogram, otsu, guard):
     class above it. Otherwise it has split the background's noise (one small Mark in
     view), and the level is halfway between that median and the darkest pixels (the
     first level with EXTREME_PIXELS at or below it): the Mark's edge, as Otsu's
-    threshold would have put it."""
+    threshold would have put it. With ``from_median``, that level, from the median of
+    the whole frame."""
     size = histogram.size
+    first = 0 if from_median else otsu + 1
     above = np.float32(0.0)
-    for level in range(otsu + 1, size):
+    for level in range(first, size):
         above = np.float32(above + histogram[level])
     if above == 0:  # also where no level is above Otsu's
         return float(otsu)
     half, seen, background = np.float32(above / 2), np.float32(0.0), size
-    for level in range(otsu + 1, size):
+    for level in range(first, size):
         seen = np.float32(seen + histogram[level])
         if seen >= half:
             background = level
             break
-    if otsu <= background - guard:
+    if not from_median and otsu <= background - guard:
         return float(otsu)
     seen, darkest = np.float32(0.0), size
     for level in range(size):

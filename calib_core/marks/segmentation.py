@@ -142,7 +142,7 @@ def _is_step(means) -> bool:
     return not low[ring].any() or low[ring].all()
 
 
-def segment(image, noise_scaled, config):
+def segment(image, noise_scaled, config, from_median=False):
     """Candidate Marks: the connected components of the thresholded, flattened frame.
 
     Returns the polarity; the labels of the Marks' mask (int32, 8-connected); each
@@ -154,21 +154,24 @@ def segment(image, noise_scaled, config):
     that splits the background's noise (see levels.mask_levels). ``auto`` polarity takes
     the class with more Mark-shaped blobs (_vote): the minority class is not the Marks
     when a dense dot grid and a dark table fill most of a photo. The frame is scaled to 8
-    bits between its extremes (clipped to scaling_range's by the caller)."""
+    bits between its extremes (clipped to scaling_range's by the caller). With
+    ``from_median`` the levels lie between the frame's median and its extremes, not at
+    Otsu's (see levels.mask_levels)."""
     scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
     guard = MIN_THRESHOLD_SIGMA * smoothed_noise
     flat = _flatten(cv2.GaussianBlur(scaled, (5, 5), 1.0), smoothed_noise)
     histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
     from calib_core.marks.levels import mask_levels  # numba loads with the first frame
-    levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard)))
+    levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard, from_median)))
     if config.polarity == 'auto':
-        polarity, mask, (contours, boxes, _) = _vote(flat, histogram, levels, config, guard)
+        polarity, mask, (contours, boxes, _) = _vote(flat, histogram, levels, config, guard,
+                                                     from_median)
     else:
         polarity = config.polarity
         mask = _mask(flat, levels[polarity], polarity)
         contours, boxes, _ = _regions_split(flat, histogram, mask, _blobs(mask), polarity,
-                                            guard, config)
+                                            guard, config, from_median)
     from calib_core.marks.labels import boxes_overlap, paint_labels
     if boxes_overlap(boxes):
         labels = cv2.connectedComponents(mask, connectivity=8)[1]
@@ -179,7 +182,7 @@ def segment(image, noise_scaled, config):
     return polarity, labels, boxes, seeds, flat
 
 
-def _regions_split(flat, histogram, mask, blobs, polarity, guard, config):
+def _regions_split(flat, histogram, mask, blobs, polarity, guard, config, from_median):
     """The blobs of ``mask`` (as :func:`_blobs` gives them; ``histogram``: ``flat``'s), with
     each region that is no Mark cut again at a level of its own: a plate on a light table
     or in a round field of view is one blob of the frame's threshold, darker than its
@@ -219,7 +222,7 @@ def _regions_split(flat, histogram, mask, blobs, polarity, guard, config):
             counts = cv2.calcHist([pixels], [0], None, [256], [0, 256]).ravel()
         else:
             counts = histogram
-        dark, bright = mask_levels(counts, guard)
+        dark, bright = mask_levels(counts, guard, from_median)
         level = dark if polarity == 'dark' else bright
         marks = (counts[:int(level) + 1] if polarity == 'dark'
                  else counts[int(level) + 1:]).sum()
@@ -242,7 +245,7 @@ def _regions_split(flat, histogram, mask, blobs, polarity, guard, config):
     return contours, boxes, holes
 
 
-def _vote(flat, histogram, levels, config, guard):
+def _vote(flat, histogram, levels, config, guard, from_median):
     """The polarity whose mask has more Mark-shaped blobs (ties go to dark Marks), its
     mask and its blobs (as _blobs gives them).
 
@@ -257,7 +260,8 @@ def _vote(flat, histogram, levels, config, guard):
     votes = []
     for polarity in order:
         mask = _mask(flat, levels[polarity], polarity)
-        blobs = _regions_split(flat, histogram, mask, _blobs(mask), polarity, guard, config)
+        blobs = _regions_split(flat, histogram, mask, _blobs(mask), polarity, guard, config,
+                               from_median)
         vote = (_mark_shaped(*blobs[:2], flat.shape, config), polarity == 'dark')
         votes.append((vote, polarity, mask, blobs))
         # The other mask has at most this one's holes in Mark-shaped blobs.

@@ -42,9 +42,11 @@ def dot_plate(kind: str, seed: int, shape=(480, 640), columns: int = 6, rows: in
 
     kind: 'plain' (the plate fills the view), 'dark_table', 'light_table', 'round_view'
     (white outside a circle), 'uneven' (45 % less light across the plate), 'hot_spot' (a
-    specular highlight of +90 grey levels, 25 px wide, over the edge of the ninth dot),
-    'cable' (a dark cable across the plate between two rows), 'small_plate' (a plate of
-    ``columns`` x ``rows`` dots at ``centre`` on a dark table)."""
+    specular highlight of +90 grey levels, 25 px wide, over the edge of the ninth dot, or
+    of the only one), 'cable' (a dark cable across the plate between two rows),
+    'small_plate' (a plate of ``columns`` x ``rows`` dots at ``centre`` on a dark table),
+    'shadow' (a hard shadow, 30 % of the light, over the plate beyond a vertical edge a
+    pitch right of the plate's centre, 2 px soft)."""
     rng = np.random.default_rng(seed)
     height, width = shape
     cx, cy = (np.array(centre, float) if centre is not None
@@ -67,10 +69,12 @@ def dot_plate(kind: str, seed: int, shape=(480, 640), columns: int = 6, rows: in
         surround = np.full(shape, PLATE)
     if kind == 'uneven':
         light = uneven_light(xs, width)
+    if kind == 'shadow':
+        light = 0.3 + 0.7 / (1 + np.exp((xs - cx - pitch) / 2.0))
     cover = disk_coverage(shape, centres, RADIUS)
     frame = (surround * (1 - cover) + DOT * cover) * light
     if kind == 'hot_spot':
-        hu, hv = centres[8] + [14.0, 6.0]
+        hu, hv = centres[min(8, len(centres) - 1)] + [14.0, 6.0]
         frame = frame + HOT_SPOT * np.exp(-((xs - hu) ** 2 + (ys - hv) ** 2) / (2 * 12.5 ** 2))
     if kind == 'cable':
         frame = np.where(np.abs(ys - cy - 0.03 * (xs - cx)) < 5, 25.0, frame)

@@ -19,14 +19,17 @@ from machine_alignment.bench import main_with_out, write_results, write_table
 from machine_alignment.bench.vision import CONTRAST, _blob_detector, cramer_rao
 
 # (row, scene kind, its arguments): the kinds of calib_core.sim.scenes, a defocused plate
-# and plates of 3 x 2 dots smaller than the frame at two places.
+# and plates of 3 x 2 dots smaller than the frame at two places; last, two scenes beyond
+# issue 55's list, measured as they stand: one dot beside the hot spot, and a shadow.
 SCENES = tuple((kind, kind, {}) for kind in ('plain', 'dark_table', 'light_table', 'round_view',
                                              'uneven', 'hot_spot', 'cable')) + (
     ('defocused (blur 2.5 px), light table', 'light_table', {'blur': 2.5}),
     ('3 x 2 plate at (160, 120) px', 'small_plate',
      {'columns': 3, 'rows': 2, 'centre': (160, 120)}),
     ('3 x 2 plate at (480, 360) px', 'small_plate',
-     {'columns': 3, 'rows': 2, 'centre': (480, 360)}))
+     {'columns': 3, 'rows': 2, 'centre': (480, 360)}),
+    ('one dot, the hot spot over its edge', 'hot_spot', {'columns': 1, 'rows': 1}),
+    ('shadow (30 % light) over a third of the plate', 'shadow', {}))
 SEEDS = range(10)
 REPEATS = 5
 MATCH_PX = 2.0
