@@ -192,24 +192,32 @@ def _block_means(kind: str) -> np.ndarray:
     return tile_means(cv2.GaussianBlur(scaled, (5, 5), 1.0), TREND_BLOCK_PX)
 
 
-@pytest.mark.parametrize('kind, step', [('light_table', True), ('plain', False),
-                                        ('uneven', False), ('cable', False)])
-def test_a_plate_inside_a_surround_is_a_step_and_light_is_not(kind, step):
+@pytest.mark.parametrize('kind, step', [('light_table', 'inside'), ('plain', None),
+                                        ('uneven', None), ('cable', None),
+                                        ('shadow', 'across')])
+def test_a_plate_inside_a_surround_and_a_shadow_are_steps_and_light_is_not(kind, step):
     """The flattening is not fitted across a plate's edge (it warped the plate on a light
-    table and left its corners as blobs): a plate inside its surround is a step; uneven
-    light, a cable across the plate and a plate filling the view are not."""
-    from calib_core.marks.segmentation import _is_step
-    assert _is_step(_block_means(kind)) is step
+    table and left its corners as blobs): a plate inside its surround is a step inside
+    the frame, a shadow's edge one across it; uneven light, a cable across the plate and
+    a plate filling the view are none."""
+    from calib_core.marks.segmentation import _step
+    assert _step(_block_means(kind)) == step
 
 
-def test_a_shadow_edge_across_the_frame_is_no_plate_step():
-    """Half the frame in shadow (30 % of the light) splits the blocks in two classes as a
-    plate does, but both reach the frame's border: the surface still takes that step up,
-    or the shadowed half would be one region its dot does not stand out of."""
-    from calib_core.marks.segmentation import _is_step
-    means = np.full((30, 40), 200.0)
-    means[:, :20] = 60.0
-    assert not _is_step(means)
-    plate = np.full((30, 40), 230.0)          # a darker plate inside a light table
-    plate[6:24, 8:32] = 120.0
-    assert _is_step(plate)
+def test_a_shadow_over_a_third_of_the_plate():
+    """The scenes' shadow (30 % of the light beyond an edge a pitch right of the plate's
+    centre): every dot found and nothing else, on 4 seeds, the errors over their stated
+    sigmas of RMS 0.6-1.5 (1.07 in the light, 1.18 in the shadow over 10 seeds: the
+    edge's tail, 2 % of the light 7 px from it, reaches the windows of the dots beside
+    it, 0.02-0.04 px off). The quadratic flattening could not take up the step: the
+    shadowed dots were lost, 16 of 24 found in every frame."""
+    z = []
+    for seed in SEEDS:
+        frame, truth = dot_plate('shadow', seed)
+        marks = detect_marks(frame).marks
+        found = np.array([[m.u, m.v] for m in marks])
+        distance = np.linalg.norm(found[:, None] - truth[None], axis=2)
+        assert len(found) == len(truth) and np.all(distance.min(axis=1) < 1.0), seed
+        for mark, error in zip(marks, found - truth[distance.argmin(axis=1)]):
+            z.append(error / np.sqrt(np.diag(mark.covariance)))
+    assert 0.6 < np.sqrt(np.mean(np.square(z))) < 1.5

@@ -41,6 +41,9 @@ SURFACE_STEP_PX = 4
 # calib_core/sim/scenes.py 0.93-0.97 with 23-77 %.
 STEP_SEPARATION = 0.9
 STEP_MIN_SHARE = 0.15
+# Such classes that both reach the frame's border are a shadow's edge across it where at
+# most this share of neighbouring blocks differ in class (segmentation._step).
+STEP_MAX_BOUNDARY = 0.1
 # The frame is scaled to 8 bits for segmentation between its extremes, unless a grey
 # level would then span over this many noise sigma (a frame deeper than 8 bits stretched by
 # a few hot or dead pixels, or an overlay): then between the levels with this share of

@@ -9,8 +9,8 @@ import numpy as np
 
 from calib_core.marks.config import (
     MAX_GREY_LEVEL_SIGMAS, MIN_THRESHOLD_SIGMA, SCALING_OUTLIER_SHARE, SIZE_SLACK,
-    SMOOTHING_NOISE_GAIN, STEP_MIN_SHARE, STEP_SEPARATION, SURFACE_STEP_PX, TREND_BLOCK_PX,
-    TREND_ITERATIONS)
+    SMOOTHING_NOISE_GAIN, STEP_MAX_BOUNDARY, STEP_MIN_SHARE, STEP_SEPARATION, SURFACE_STEP_PX,
+    TREND_BLOCK_PX, TREND_ITERATIONS)
 
 
 def estimate_noise(image: np.ndarray) -> float:
@@ -94,8 +94,15 @@ def _flatten(smoothed, tolerance):
     # more).
     tenths = [means.size // 10, means.size // 2, means.size - 1 - means.size // 10]
     low, middle, high = np.partition(means, tenths)[tenths]
-    if min(middle - low, high - middle) < tolerance or _is_step(means.reshape(rows, cols)):
+    if max(middle - low, high - middle) < tolerance:
         return smoothed
+    step = _step(means.reshape(rows, cols))
+    if min(middle - low, high - middle) < tolerance and step != 'across':
+        return smoothed     # one tail: Marks, or a shadow over less than half the frame
+    if step == 'inside':
+        return smoothed
+    if step == 'across':
+        return _over_local_background(smoothed)
     coef = robust_quadratic(means.reshape(rows, cols), width, height, block_u, block_v,
                             TREND_ITERATIONS)
     # The surface is evaluated every SURFACE_STEP_PX px and interpolated up: cv2.resize
@@ -110,13 +117,31 @@ def _flatten(smoothed, tolerance):
     return cv2.addWeighted(smoothed, 1.0, surface[:height, :width], -1.0, 128.0)
 
 
-def _is_step(means) -> bool:
+def _over_local_background(smoothed):
+    """``smoothed`` (uint8) over its local background, at 128 (uint8): a shadow's edge
+    across the frame is a step no quadratic takes up, and the half in shadow was one
+    region whose own level its dots did not stand out of (its soft edge split off by
+    Otsu's level). The background is the median of a window an eighth of the frame's
+    shorter side wide, on a frame a quarter the size (1.3 ms at 640 x 480): it keeps a
+    step and leaves out Marks up to a third of the window. Over it, as light scales the
+    plate and its Marks alike, a dot has the same level in the shadow as out of it."""
+    height, width = smoothed.shape
+    small = cv2.resize(smoothed, (max(width // 4, 1), max(height // 4, 1)),
+                       interpolation=cv2.INTER_AREA)
+    window = max(min(small.shape) // 8, 1) | 1
+    # Grown by a pixel of the small frame: where the linear interpolation up crossed the
+    # step, the lit side's level had dropped and the plate there had come out bright.
+    background = cv2.dilate(cv2.medianBlur(small, window), np.ones((3, 3), np.uint8))
+    background = cv2.resize(background, (width, height), interpolation=cv2.INTER_LINEAR)
+    return cv2.divide(smoothed, np.maximum(background, 1), scale=128.0)
+
+
+def _step(means) -> str | None:
     """Whether block ``means`` ((rows, cols), uint8 levels) fall in two classes apart like
     a plate and its surround (STEP_SEPARATION, STEP_MIN_SHARE, by Otsu's split of their
-    histogram), one of them clear of the frame's outer blocks: a plate inside the frame.
-    A shadow's edge across the whole frame leaves both classes at the border; there the
-    surface still takes the step up, or the half in shadow would be one region whose own
-    level its dots do not stand out of."""
+    histogram): 'inside' where one of them is clear of the frame's outer blocks (a plate
+    inside the frame), 'across' where both reach them (a shadow's edge across the
+    frame), else None."""
     flat = np.clip(np.asarray(means), 0, 255).astype(np.int64)
     counts = np.bincount(flat.ravel(), minlength=256)
     levels = np.arange(256, dtype=np.float64)
@@ -126,7 +151,7 @@ def _is_step(means) -> bool:
     mean = float(counts @ levels) / total
     variance = float(counts @ (levels - mean) ** 2) / total
     if variance <= 0:
-        return False
+        return None
     inside = (share > 0) & (share < 1)
     # Between-class variance of each split, over the total: Otsu's criterion.
     between = np.zeros_like(share)
@@ -135,11 +160,18 @@ def _is_step(means) -> bool:
     best = int(np.argmax(between))
     if not (between[best] / variance > STEP_SEPARATION
             and min(share[best], 1 - share[best]) >= STEP_MIN_SHARE):
-        return False
+        return None
     low = flat <= best
     ring = np.ones(low.shape, bool)
     ring[1:-1, 1:-1] = False
-    return not low[ring].any() or low[ring].all()
+    if not low[ring].any() or low[ring].all():
+        return 'inside'
+    # A shadow is one piece or two: few neighbouring blocks differ in class (a straight
+    # edge's share is a block in a row or column); blocks with and without the dots of
+    # a grid scattered alike differ in half of the pairs.
+    differ = (np.count_nonzero(low[1:] != low[:-1]) + np.count_nonzero(low[:, 1:] != low[:, :-1]))
+    pairs = low[1:].size + low[:, 1:].size
+    return 'across' if differ <= STEP_MAX_BOUNDARY * pairs else None
 
 
 def segment(image, noise_scaled, config, from_median=False):
