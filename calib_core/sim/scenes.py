@@ -36,6 +36,12 @@ def uneven_light(u, width: int):
     return 1.0 - 0.45 * np.asarray(u, float) / width
 
 
+def shadow_light(u, edge: float, shade: float = 0.3, soft: float = 2.0):
+    """A shadow's light at column ``u`` (px): ``shade`` of it beyond the column ``edge``
+    (px), which is ``soft`` px wide (a logistic step)."""
+    return shade + (1 - shade) * 0.5 * (1 - np.tanh((np.asarray(u, float) - edge) / (2 * soft)))
+
+
 def dot_plate(kind: str, seed: int, shape=(480, 640), columns: int = 6, rows: int = 4,
               pitch: float = 45.0, centre=None, blur: float = BLUR):
     """A frame (uint8) of ``kind`` and its dots' true centres (k, 2) px.
@@ -70,7 +76,7 @@ def dot_plate(kind: str, seed: int, shape=(480, 640), columns: int = 6, rows: in
     if kind == 'uneven':
         light = uneven_light(xs, width)
     if kind == 'shadow':
-        light = 0.3 + 0.7 / (1 + np.exp((xs - cx - pitch) / 2.0))
+        light = shadow_light(xs, cx + pitch)
     cover = disk_coverage(shape, centres, RADIUS)
     frame = (surround * (1 - cover) + DOT * cover) * light
     if kind == 'hot_spot':
