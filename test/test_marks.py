@@ -31,7 +31,8 @@ def edge_bands(pixels, windows, centres, radii, shapes, reach, clear, clear_firs
     spans = np.empty((len(windows), 2), dtype=np.int64)
     flat = np.zeros((len(windows), 2, 10))
     edge_bands_range(pixels, windows, centres, radii, shapes, np.full(len(windows), reach),
-                     clear, clear_first, np.arange(len(windows)), starts, u, v, z, distance, spans, flat)
+                     clear, clear_first, np.arange(len(windows)), starts, u, v, z, distance,
+                     spans, flat)
     band = np.concatenate([np.arange(*span) for span in spans]).astype(int)
     ends = np.cumsum(spans[:, 1] - spans[:, 0])
     return (u[band], v[band], z[band], distance[band],

@@ -218,13 +218,13 @@ def _regions_split(flat, histogram, mask, blobs, polarity, guard, config, from_m
     """The blobs of ``mask`` (as :func:`_blobs` gives them; ``histogram``: ``flat``'s), with
     each region that is no Mark cut again at a level of its own: a plate on a light table
     or in a round field of view is one blob of the frame's threshold, darker than its
-    surround, and its dots lie inside it darker still. A region is a blob too large for a Mark in either direction or
-    one at the frame's border (where a Mark is refused as clipped anyway); its level is
-    taken from its own pixels' histogram as the frame's is (:func:`levels.mask_levels`),
-    kept where it leaves the region's background out (the region's class above the level
-    is most of it). The cut stands where it gives at least twice the Mark-shaped blobs the
-    frame's threshold gave (see below); ``mask`` is then cut in place and its blobs traced
-    again."""
+    surround, and its dots lie inside it darker still. A region is a blob too large for a
+    Mark in either direction or one at the frame's border (where a Mark is refused as
+    clipped anyway); its level is taken from its own pixels' histogram as the frame's is
+    (:func:`levels.mask_levels`), kept where it leaves the region's background out (the
+    region's class above the level is most of it). The cut stands where it gives at least
+    twice the Mark-shaped blobs the frame's threshold gave (see below); ``mask`` is then
+    cut in place and its blobs traced again."""
     contours, boxes, holes = blobs
     height, width = flat.shape
     cut = None          # the mask with the regions cut, copied at the first cut
