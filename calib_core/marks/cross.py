@@ -27,7 +27,8 @@ def fit_cross(pixels, x0, y0, component, area, polarity, noise, full) -> Mark:
     overlap = common / (2 * rows.size - common)
     if overlap < MIN_QUARTER_TURN_OVERLAP:
         raise DetectionError(f'not a cross: it differs from itself turned by 90 degrees '
-                             f'(overlap {overlap:.2f}; touching Marks or debris?)')
+                             f'(overlap {overlap:.2f}; touching Marks, debris, or a dot '
+                             'with a highlight on it?)')
     cu0, cv0 = x0 + cols.mean(), y0 + rows.mean()
     du, dv = x0 + cols - cu0, y0 + rows - cv0
     dist = np.hypot(du, dv)
