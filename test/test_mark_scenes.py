@@ -204,6 +204,22 @@ def test_a_plate_inside_a_surround_and_a_shadow_are_steps_and_light_is_not(kind,
     assert _step(_block_means(kind)) == step
 
 
+def test_blocks_in_two_classes_are_a_step_across_only_in_one_piece():
+    """Block means in two well-parted classes that both reach the frame's border: half
+    the field in shadow is a step across it; blocks with and without a grid's dots,
+    scattered alike (a checkerboard: every neighbour differs), are none, and keep the
+    quadratic flattening."""
+    from calib_core.marks.segmentation import _step
+    shadow = np.full((30, 40), 200.0)
+    shadow[:, :20] = 60.0
+    assert _step(shadow) == 'across'
+    grid = np.where(np.add.outer(np.arange(30), np.arange(40)) % 2, 200.0, 120.0)
+    assert _step(grid) is None
+    plate = np.full((30, 40), 230.0)          # a darker plate inside a light table
+    plate[6:24, 8:32] = 120.0
+    assert _step(plate) == 'inside'
+
+
 def test_a_shadow_over_a_third_of_the_plate():
     """The scenes' shadow (30 % of the light beyond an edge a pitch right of the plate's
     centre): every dot found and nothing else, on 4 seeds, the errors over their stated
