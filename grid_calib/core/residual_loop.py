@@ -278,7 +278,7 @@ def _report(grid, system, base: _Fit, final: _Fit, added, verdicts, skipped, dro
         effects.append({**entry['prepared'].describe(values, sigmas),
                         'not_determined': [n for n, d in zip(names, determined) if not d],
                         'f_statistic': entry['f_statistic'], 'p_value': entry['p_value'],
-                        'size_rms_m': entry['size_m']})
+                        'size_rms_m': entry['size_m'], 'residual_dof': int(final.dof)})
         offset += count
     g_base, g_final = _stage_error(grid, system, base), _stage_error(grid, system, final)
     return {'machine': 'grid', 'base_model': BASE_MODEL, 'effects': effects,
