@@ -68,9 +68,12 @@ def _flatten(smoothed, tolerance):
     threshold. Frames whose block means vary less than ``tolerance`` from their median
     to their 10th percentile, or to their 90th, are returned unchanged: the Marks darken
     (brighten) one tail of the blocks, uneven light spreads both, and an even background
-    gains nothing from the fit (dense dots had it fitted in every frame: 0.3 ms). Nor are
-    frames whose block means fall in two classes like a plate and its surround
-    (:func:`_is_step`): a quadratic fitted across that step warps the plate.
+    gains nothing from the fit (dense dots had it fitted in every frame: 0.3 ms); but for
+    a shadow's edge across the frame, which may spread one tail only. Nor are frames
+    whose block means fall in two classes like a plate and its surround (:func:`_step`,
+    'inside'): a quadratic fitted across that step warps the plate. A frame with a
+    shadow's edge across it (:func:`_step`, 'across') is taken over its local background
+    (:func:`_over_local_background`): no quadratic takes up that step.
 
     The blocks are whole TREND_BLOCK_PX squares from the frame's top left corner; the
     last rows and columns of a frame whose sides are no multiples of it (under a block)
