@@ -24,7 +24,7 @@ from machine_alignment.bench.vision import CONTRAST, _blob_detector, cramer_rao
 
 # (row, scene kind, its arguments): the kinds of calib_core.sim.scenes, a defocused plate
 # and plates of 3 x 2 dots smaller than the frame at two places; last, two scenes beyond
-# issue 55's list, measured as they stand: one dot beside the hot spot, and a shadow.
+# issue 55's list: one dot beside the hot spot, and a shadow.
 SCENES = tuple((kind, kind, {}) for kind in ('plain', 'dark_table', 'light_table', 'round_view',
                                              'uneven', 'hot_spot', 'cable')) + (
     ('defocused (blur 2.5 px), light table', 'light_table', {'blur': 2.5}),
