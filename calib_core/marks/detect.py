@@ -12,7 +12,7 @@ from calib_core.marks.config import (
 from calib_core.marks.cross import fit_cross
 from calib_core.marks.pixels import check_image, full_scale
 from calib_core.marks.segmentation import (
-    estimate_noise, moment_overlap, moment_shapes, scaling_range, segment)
+    estimate_noise, flattened, moment_overlap, moment_shapes, scaling_range, segment)
 
 
 def _levels(image: np.ndarray, config: DetectorConfig) -> tuple:
@@ -61,11 +61,12 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     segmented = image if (scale_low, scale_high) == (low, high) else np.clip(
         image, image.dtype.type(scale_low), image.dtype.type(scale_high))
     noise_scaled = noise * 255.0 / (scale_high - scale_low)
-    marks, reasons = _marks(image, segmented, noise, noise_scaled, full, config, shape, False)
+    frame = flattened(segmented, noise_scaled)
+    marks, reasons = _marks(image, frame, noise, noise_scaled, full, config, shape, False)
     if not marks or (expected_count and len(marks) < expected_count):
         # Otsu's level may have split a highlight off the plate where it outnumbers the
         # Marks (one Mark beside a glare): the levels from the frame's median instead.
-        again = _marks(image, segmented, noise, noise_scaled, full, config, shape, True)
+        again = _marks(image, frame, noise, noise_scaled, full, config, shape, True)
         if len(again[0]) > len(marks) and not (expected_count
                                                and len(again[0]) > expected_count):
             marks, reasons = again
@@ -79,16 +80,17 @@ def detect_marks(image, config: DetectorConfig = DetectorConfig(), shape: str = 
     return Detection(marks=marks, rejected=reasons, noise_sigma=noise)
 
 
-def _marks(image, segmented, noise, noise_scaled, full, config, shape, from_median):
-    """The Marks found (in reading order) and why each other candidate is not one, by
-    segment's levels (``from_median``: see levels.mask_levels)."""
+def _marks(image, frame, noise, noise_scaled, full, config, shape, from_median):
+    """The Marks found (in reading order) and why each other candidate is not one, in
+    ``frame`` (segmentation.flattened's) at segment's levels (``from_median``: see
+    levels.mask_levels)."""
     # The compiled code and numba (105 MiB, 0.4 s) load with the first frame, not with
     # every process that imports this package.
     from calib_core.marks.bands import blob_statistics, box_classes
     from calib_core.marks.circle import fit_circles
 
-    polarity, labels, boxes, seeds, flat = segment(segmented, noise_scaled, config,
-                                                   from_median)
+    flat = frame[0]
+    polarity, labels, boxes, seeds = segment(*frame, config, from_median)
     box_class = box_classes(boxes, *image.shape, config.min_size_px * SIZE_SLACK[0],
                             config.max_size_px * SIZE_SLACK[1], config.border_margin_px)
     blobs = blob_statistics(labels, boxes, seeds, flat, polarity == 'dark', box_class)

@@ -177,8 +177,22 @@ def _step(means) -> str | None:
     return 'across' if differ <= STEP_MAX_BOUNDARY * pairs else None
 
 
-def segment(image, noise_scaled, config, from_median=False):
-    """Candidate Marks: the connected components of the thresholded, flattened frame.
+def flattened(image, noise_scaled):
+    """The frame ``image`` scaled to 8 bits between its extremes (clipped to
+    scaling_range's by the caller), smoothed and flattened (_flatten), with its histogram
+    (256 bins) and the guard (grey levels) its levels keep from the background's noise
+    (``noise_scaled``: the noise sigma in the scaled frame's grey levels); segment's
+    input, which its tries at other levels share."""
+    scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+    smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
+    flat = _flatten(cv2.GaussianBlur(scaled, (5, 5), 1.0), smoothed_noise)
+    histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
+    return flat, histogram, MIN_THRESHOLD_SIGMA * smoothed_noise
+
+
+def segment(flat, histogram, guard, config, from_median=False):
+    """Candidate Marks: the connected components of the thresholded, flattened frame
+    (``flat``, ``histogram`` and ``guard`` as flattened gives them).
 
     Returns the polarity; the labels of the Marks' mask (int32, 8-connected); each
     blob's bounding box (k, 4: x, y, width, height, px) and one pixel of it (k, 2: u, v),
@@ -188,15 +202,9 @@ def segment(image, noise_scaled, config, from_median=False):
     (labels.py), a fifth of connected components' time. The threshold is Otsu's unless
     that splits the background's noise (see levels.mask_levels). ``auto`` polarity takes
     the class with more Mark-shaped blobs (_vote): the minority class is not the Marks
-    when a dense dot grid and a dark table fill most of a photo. The frame is scaled to 8
-    bits between its extremes (clipped to scaling_range's by the caller). With
-    ``from_median`` the levels lie between the frame's median and its extremes, not at
-    Otsu's (see levels.mask_levels)."""
-    scaled = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
-    smoothed_noise = SMOOTHING_NOISE_GAIN * noise_scaled
-    guard = MIN_THRESHOLD_SIGMA * smoothed_noise
-    flat = _flatten(cv2.GaussianBlur(scaled, (5, 5), 1.0), smoothed_noise)
-    histogram = cv2.calcHist([flat], [0], None, [256], [0, 256]).ravel()
+    when a dense dot grid and a dark table fill most of a photo. With ``from_median`` the
+    levels lie between the frame's median and its extremes, not at Otsu's (see
+    levels.mask_levels)."""
     from calib_core.marks.levels import mask_levels  # numba loads with the first frame
     levels = dict(zip(('dark', 'bright'), mask_levels(histogram, guard, from_median)))
     if config.polarity == 'auto':
@@ -214,7 +222,7 @@ def segment(image, noise_scaled, config, from_median=False):
         labels = np.zeros(mask.shape, dtype=np.int32)
         paint_labels(mask, boxes, labels)
     seeds = np.array([c[0, 0] for c in contours], dtype=int).reshape(-1, 2)
-    return polarity, labels, boxes, seeds, flat
+    return polarity, labels, boxes, seeds
 
 
 def _regions_split(flat, histogram, mask, blobs, polarity, guard, config, from_median):
