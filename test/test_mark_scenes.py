@@ -100,21 +100,24 @@ def test_a_highlight_beside_a_dot_moves_it_by_no_more_than_its_stated_sigma():
     assert abs(np.median(others) / np.median(clean) - 1) < 0.1
 
 
-@pytest.mark.parametrize('fade', [0.3, 0.9])
+@pytest.mark.parametrize('fade', [0.3, 0.6, 0.9])
 def test_a_dot_fading_across_itself_is_measured_within_its_sigma(fade):
     """A 12 px dot whose contrast falls linearly across it by ``fade`` of itself (a glare
     over one side; the plate's level unchanged), 1 px blur, 2 grey levels of noise: the
-    centre within 3 of its stated sigmas on 6 seeds. The plain fit's light multiplies the
-    plate with the dot, so it could not: 0.29 px off (20 sigma) at 0.3; at 0.9 it took
-    the fade for a 1.7 px blur, 3.6 px off at a stated 0.09 px. (At 0.6 the local fit is
-    0.04 px off, 2.5 sigma: the blur of a varying contrast shifts the edge by the blur's
-    variance times the contrast's relative gradient, which its model leaves out.)"""
+    centre within 3 of its stated sigmas on 6 seeds, their mean within 3 standard errors.
+    The plain fit's light multiplies the plate with the dot, so it could not: 0.29 px off
+    (20 sigma) at 0.3; at 0.9 it took the fade for a 1.7 px blur, 3.6 px off at a stated
+    0.09 px. The local fit without the edge's shift by the blur of the varying contrast
+    (local_fit._local_columns) was 0.04 px off at 0.6 (mean error over sigma -2.0 here,
+    largest 3.5)."""
     rng = np.random.default_rng(5)
+    z = []
     for _ in range(6):
         centre = np.array([60.0, 50.0]) + rng.uniform(-0.5, 0.5, 2)
         mark = detect_marks(_fading_dot(rng, centre, fade), expected_count=1).marks[0]
-        z = (np.array([mark.u, mark.v]) - centre) / np.sqrt(np.diag(mark.covariance))
-        assert np.all(np.abs(z) < 3), z
+        z.append((np.array([mark.u, mark.v]) - centre) / np.sqrt(np.diag(mark.covariance)))
+    assert np.all(np.abs(z) < 3), z
+    assert np.all(np.abs(np.mean(z, axis=0)) < 3 / np.sqrt(len(z))), np.mean(z, axis=0)
 
 
 def test_a_lone_dot_beside_the_hot_spot_is_found_and_measured_within_its_sigma():

@@ -11,8 +11,8 @@ import numpy as np
 from calib_core.errors import DetectionError
 from calib_core.marks.bands import crowded_windows
 from calib_core.marks.config import (
-    EDGE_BAND_PX, NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX, NEIGHBOUR_CLEARANCE_PX,
-    WIDE_BAND_MAX_PX, Mark)
+    EDGE_BAND_PX, LOCAL_BAND_PX, NARROW_BAND_SIGMAS, NARROW_BAND_SLACK_PX,
+    NEIGHBOUR_CLEARANCE_PX, WIDE_BAND_MAX_PX, Mark)
 from calib_core.marks.dot_run import REASONS, dot_windows, fit_dot_windows
 from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 
@@ -87,7 +87,19 @@ def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
         taken = again[0] == 0
         for first_fit, wide_fit in zip(fits, again):
             first_fit[wide[taken]] = wide_fit[taken]
-    status, x, covariance, radius, quality, _ = fits
+    # A dot that took the local fit on the plain band, fitted locally again on a wider
+    # band and window (LOCAL_BAND_PX), from that fit; where that fails, the first stands.
+    local = np.flatnonzero((status == 0) & fits[6])
+    local = local[~np.isin(local, wide)] if wide.size else local
+    if local.size:
+        again = _fit_dots(pixels, candidates.subset(local), x[local, :2].copy(),
+                          x[local, 8:10].copy() if ellipses else shapes[local],
+                          np.full(local.size, LOCAL_BAND_PX), *settings, start=x[local],
+                          local_only=True)
+        taken = (again[0] == 0) & again[6]
+        for first_fit, local_pass in zip(fits, again):
+            first_fit[local[taken]] = local_pass[taken]
+    status, x, covariance, radius, quality = fits[:5]
     # Python floats, not numpy scalars: numpy's call on a scalar costs 5 us a Mark.
     return [Mark('circle', cu, cv, cov, size, contrast, fit_quality) if not code
             else DetectionError(REASONS[code - 1])
@@ -97,10 +109,10 @@ def _fit_group(pixels, candidates, ellipses, labels, blob_boxes, polarity, full,
 
 
 def _fit_dots(pixels, candidates, centres, shapes, reaches, ellipses, labels, blob_boxes, dark,
-              full, box_below, noise, start=None):
+              full, box_below, noise, start=None, local_only=False):
     """dot_run.fit_dot_windows' fits of ``candidates`` about their ``centres`` (m, 2; px) and
     ``shapes`` (m, 2), on edge bands of ``reaches`` (m,; px), clear of other blobs; from
-    ``start`` (m, p), an earlier fit, where given."""
+    ``start`` (m, p), an earlier fit, where given; local fits only with ``local_only``."""
     geometry = dot_windows(candidates.box, candidates.area.astype(float), shapes,
                            *pixels.shape, reaches)
     clear, clear_first = _clear_masks(labels, blob_boxes, geometry[3], candidates.label,
@@ -109,7 +121,7 @@ def _fit_dots(pixels, candidates, centres, shapes, reaches, ellipses, labels, bl
     # their moments: they pin the illumination gradient, which the band alone confuses
     # with a shift of the centre (10 % of the centre's error on 20-40 px dots).
     return fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_first,
-                           dark, full, box_below, noise, reaches, start)
+                           dark, full, box_below, noise, reaches, start, local_only)
 
 
 def _clear_masks(labels, blob_boxes, windows, own, own_box, reaches):

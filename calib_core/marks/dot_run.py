@@ -81,7 +81,7 @@ def dot_windows(boxes, areas, shapes, height, width, reaches):
 
 
 def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_first, dark,
-                    full, box_below, noise, reaches, start=None):
+                    full, box_below, noise, reaches, start=None, local_only=False):
     """The fits of m dots of one model (disks, or ellipses where ``ellipses``).
 
     Parameters
@@ -110,6 +110,9 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
     start : ndarray, shape (m, p), optional
         The fits start here (an earlier fit's parameters, on another band), not from
         the band's levels.
+    local_only : bool
+        Every dot is fitted locally (local_fit) from ``start``, an earlier pass's local
+        fit, without a plain fit. A dot whose local fit fails is not ``local``.
 
     Returns
     -------
@@ -126,6 +129,8 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
     band_alone : ndarray of bool, shape (m,)
         Whether the fit took the band alone, no flat pixels beyond it (an edge as wide as
         the band as its start read it, a misfit inside the dot, or none in the window).
+    local : ndarray of bool, shape (m,)
+        Whether the dot's outcome is its local fit's.
     """
     width = 10 if ellipses else 8
     radius0, scale, semi_axes, windows, offsets = geometry
@@ -137,30 +142,33 @@ def fit_dot_windows(pixels, geometry, centres, shapes, ellipses, clear, clear_fi
     fits = (np.zeros((marks, width, width)), np.zeros(marks), np.zeros(marks, dtype=np.bool_))
     outcome = (np.zeros(marks, dtype=np.int64), np.zeros((marks, 2, 2)), np.zeros(marks),
                np.zeros(marks))
-    misfit = np.zeros(marks, dtype=np.bool_)
+    misfit, local = np.zeros(marks, dtype=np.bool_), np.zeros(marks, dtype=np.bool_)
     run_in_halves(lambda dots: _dots_range(pixels, windows, centres, radius0, scale, shapes,
                                            semi_axes, reaches, clear, clear_first, offsets, dark,
-                                           full, box_below, noise, start is not None, dots,
-                                           *bands, x, box,
+                                           full, box_below, noise, start is not None,
+                                           local_only, dots, *bands, x, box,
                                            *fits, *outcome, misfit),
                   np.diff(offsets), PARALLEL_ABOVE_WINDOW_PX)
     # Apart from the compiled run, which so stays the code it was for the frames that call
     # no local fit (most): a frame's first run after idle pays for the code it loads.
     if misfit.any():
-        _local_refits(np.flatnonzero(misfit), pixels, windows, reaches, clear, clear_first,
-                      offsets, centres, radius0, *bands, x, box, *fits, *outcome)
+        _local_refits(np.flatnonzero(misfit), local_only, pixels, windows, reaches, clear,
+                      clear_first, offsets, centres, radius0, *bands, x, box, *fits, *outcome,
+                      local)
     status, covariance, radius, quality = outcome
-    return status, x, covariance, radius, quality, bands[5][:, :, 0].sum(axis=1) == 0
+    return (status, x, covariance, radius, quality, bands[5][:, :, 0].sum(axis=1) == 0,
+            local)
 
 
 @njit(cache=True, nogil=True)
 def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, reaches, clear,
-                clear_first, offsets, dark, full, box_below, noise, restart, dots, u, v, z,
-                distance, spans, flat, x, box, normal, cost, converged, status, covariance,
-                radius, quality, misfit):
+                clear_first, offsets, dark, full, box_below, noise, restart, local_only, dots,
+                u, v, z, distance, spans, flat, x, box, normal, cost, converged, status,
+                covariance, radius, quality, misfit):
     """fit_dot_windows' work on the dots of indices ``dots``; without the GIL. The dots
-    whose band leaves misfit for the local fit (``misfit``) are left without an
-    outcome. With ``restart``, each fit starts from its parameters in ``x``."""
+    whose band leaves misfit for the local fit (``misfit``) are left without an outcome;
+    with ``local_only``, every dot, unfitted: the local fit starts from ``x``. With
+    ``restart``, each fit starts from its parameters in ``x``."""
     edge_bands_range(pixels, windows, centres, radius0 * scale, shapes, reaches, clear,
                      clear_first, dots, offsets, u, v, z, distance, spans, flat)
     fitted = np.empty(len(dots), dtype=np.int64)
@@ -211,6 +219,12 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, rea
             fitted[count] = k
             count += 1
     fitted = fitted[:count]
+    if local_only:
+        # The start is the earlier pass's local fit: it starts this one, which alone
+        # decides the outcome (a plain fit here cost a local dot 0.2 ms).
+        for k in fitted:
+            misfit[k] = converged[k] = True
+        return
     fit_dot_range(x, u, v, z, spans, flat, box, centres, _TOLERANCE, _MAX_ITERATIONS, fitted,
                   normal, cost, converged)
     # The start's blur is rough (a 0.3 px blur reads 0.1-0.35 px on disks, more on
@@ -253,30 +267,34 @@ def _dots_range(pixels, windows, centres, radius0, scale, shapes, semi_axes, rea
 
 
 @njit(cache=True)
-def _local_refits(dots, pixels, windows, reaches, clear, clear_first, offsets, centres, radius0,
-                  u, v, z, distance, spans, flat, x, box, normal, cost, converged, status,
-                  covariance, radius, quality):
+def _local_refits(dots, local_only, pixels, windows, reaches, clear, clear_first, offsets,
+                  centres, radius0, u, v, z, distance, spans, flat, x, box, normal, cost,
+                  converged, status, covariance, radius, quality, local):
     """The outcomes of the dots of indices ``dots``: their local fits' where taken (see
-    _local_refit), else their plain fits'."""
+    _local_refit; where it converges to a dot, with ``local_only``), else their plain
+    fits'. ``local``: whether each dot's outcome is its local fit's."""
     for k in dots:
-        if not _local_refit(k, pixels, windows, reaches, clear, clear_first, offsets, x, u, v,
-                            z, distance, spans, flat, box, normal, cost, converged, radius0,
-                            centres, status, covariance, radius, quality):
+        local[k] = _local_refit(k, local_only, pixels, windows, reaches, clear, clear_first,
+                                offsets, x, u, v, z, distance, spans, flat, box, normal, cost,
+                                converged, radius0, centres, status, covariance, radius,
+                                quality)
+        if not local[k]:
             _outcome(k, x, centres, radius0, spans, flat, normal[k], cost, converged, status,
                      covariance, radius, quality)
 
 
 @njit(cache=True)
-def _local_refit(k, pixels, windows, reaches, clear, clear_first, offsets, x, u, v, z, distance,
-                 spans, flat, box, normal, cost, converged, radius0, centres, status,
-                 covariance, radius, quality):
+def _local_refit(k, local_only, pixels, windows, reaches, clear, clear_first, offsets, x, u, v,
+                 z, distance, spans, flat, box, normal, cost, converged, radius0, centres,
+                 status, covariance, radius, quality):
     """Dot k fitted again with light of its own along and across its edge (local_fit),
     from its plain fit, on its whole edge band about that fit (a narrowed band had left
     the background's curvature across it less determined: 1.4 times the centre's error).
     Taken, and its outcome written, where it moves the centre further than the two fits'
     noise explains (see _centre_moved): a misfit the same all around the edge (its
     profile, not the light) leaves the centre, and the plain fit's smaller variance
-    stands. Returns whether it was taken."""
+    stands; with ``local_only`` (an earlier pass took it), where it converges. Returns
+    whether it was taken."""
     geometry = 6 if x.shape[1] == 10 else 4
     around, radii, shapes = centres.copy(), np.zeros(len(centres)), np.zeros((len(centres), 2))
     around[k, 0], around[k, 1], radii[k] = x[k, 0], x[k, 1], x[k, 2]
@@ -300,9 +318,9 @@ def _local_refit(k, pixels, windows, reaches, clear, clear_first, offsets, x, u,
             x[k], geometry, order, u[first:end], v[first:end], z[first:end], box[k],
             _TOLERANCE, _MAX_ITERATIONS)
         plain_count = (plain_span[1] - plain_span[0] + plain_flat[0, 0] + plain_flat[1, 0])
-        taken = taken and _centre_moved(
+        taken = taken and (local_only or _centre_moved(
             x[k], normal[k], cost[k] / max(plain_count - x.shape[1], 1.0), params,
-            local_normal, local_cost / (band - width))
+            local_normal, local_cost / (band - width)))
     if not taken:
         spans[k], flat[k] = plain_span, plain_flat
         return False

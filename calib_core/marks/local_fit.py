@@ -20,6 +20,7 @@ from numba import njit
 from calib_core.marks.config import EDGE_BAND_PX
 from calib_core.marks.dot_fit import (
     AT_OPTIMUM, NOT_POSITIVE, marquardt_step, normal_products, pixel_columns)
+from calib_core.marks.intensity import PIXEL_APERTURE_VARIANCE
 from calib_core.marks.normal import VECTOR as _VECTOR
 
 # The contrast's series in the angle ends at this order: a highlight that multiplies the
@@ -66,23 +67,63 @@ def _local_columns(params, geometry, order, u, v, u0, v0, radius0, box, out):
     the order's terms flat across the band, a dot in a noise-free frame under uneven
     light moved by 0.003 px; with a slope of their own, free, the slope and the
     background's made a kink at the edge that the centre's shift resembles (6 times the
-    error beside a highlight)."""
+    error beside a highlight).
+
+    The blur acts on the contrast times the dot, not on the dot alone: for a contrast c
+    linear across the edge, a blur of variance s^2 (the optics' and the pixel's) gives
+    ``c cover + s^2 grad c . grad cover``, to first order c times the cover at the pixel
+    moved by s^2 grad c / c: the edge shifts towards the fainter side. The model takes
+    the cover there (the shift at most the blur's sigma), so that its derivatives by the
+    geometry are the cover's own. Without it, a 12 px dot whose contrast fell by 0.9 of
+    itself across it was 0.08 px off its centre (a shift of up to 0.4 px at its faint
+    side)."""
     ellipse = geometry == 6
     a, b = (params[4], params[5]) if ellipse else (0.0, 0.0)
     values = (params[0], params[1], params[2], params[3], 1.0, 0.0, 0.0, 0.0, a, b, u0, v0)
     first_contrast = geometry
     first_background = geometry + 2 * CONTRAST_ORDER + 1
     terms = BACKGROUND_DEGREE + 1
+    spread = params[3] * params[3] + PIXEL_APERTURE_VARIANCE
+    longest_shift = math.sqrt(spread)
     for i in range(u.size):
-        edge = pixel_columns(values, u[i], v[i], box, ellipse)
-        cover = edge[4]
         du, dv = u[i] - u0, v[i] - v0
         rho = math.sqrt(du * du + dv * dv)
         inverse = 1.0 / max(rho, 1e-9)
         across = (rho - radius0) / EDGE_BAND_PX
         c1, s1 = du * inverse, dv * inverse
-        contrast = params[first_contrast]
-        out[first_contrast, i] = cover
+        # The contrast and its gradient, from the solid harmonics' gradients:
+        # grad Re(w^k) = k (Re w^(k-1), -Im w^(k-1)) and grad Im(w^k) = k (Im w^(k-1),
+        # Re w^(k-1)) for w = du + i dv.
+        contrast, contrast_u, contrast_v = params[first_contrast], 0.0, 0.0
+        ck, sk, solid = 1.0, 0.0, 1.0
+        for k in range(1, CONTRAST_ORDER + 1):
+            column = first_contrast + 2 * k - 1
+            factor = k * solid / radius0
+            contrast_u += factor * (params[column] * ck + params[column + 1] * sk)
+            contrast_v += factor * (params[column + 1] * ck - params[column] * sk)
+            ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
+            solid *= rho / radius0
+            contrast += (params[column] * ck + params[column + 1] * sk) * solid
+        # The cover at the pixel moved by the blur of the varying contrast (see above);
+        # where that would move it beyond the blur's sigma (a contrast fading to nothing),
+        # by the sigma, and the shift's own derivatives are left out.
+        relative = spread / contrast if contrast != 0.0 else 0.0
+        shift_u, shift_v = relative * contrast_u, relative * contrast_v
+        length = math.sqrt(shift_u * shift_u + shift_v * shift_v)
+        moving = 1.0
+        if length > longest_shift:
+            shift_u *= longest_shift / length
+            shift_v *= longest_shift / length
+            moving = 0.0
+        edge = pixel_columns(values, u[i] + shift_u, v[i] + shift_v, box, ellipse)
+        cover = edge[4]
+        cover_u, cover_v = -moving * edge[0], -moving * edge[1]
+        # grad cover . grad c, and its share in each term's derivative:
+        # d(c cover(x + shift)) / d(term) = term cover + s^2 (grad cover . grad term
+        # - grad cover . grad c term / c).
+        along = cover_u * contrast_u + cover_v * contrast_v
+        share = along / contrast if contrast != 0.0 else 0.0
+        out[first_contrast, i] = cover - spread * share
         background = 0.0
         for j in range(terms):
             power = across ** j
@@ -90,12 +131,16 @@ def _local_columns(params, geometry, order, u, v, u0, v0, radius0, box, out):
             background += params[first_background + j] * power
         ck, sk, solid = 1.0, 0.0, 1.0
         for k in range(1, order + 1):
+            if k <= CONTRAST_ORDER:
+                column = first_contrast + 2 * k - 1
+                factor = k * solid / radius0
+                along_c = factor * (ck * cover_u - sk * cover_v)
+                along_s = factor * (sk * cover_u + ck * cover_v)
             ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
             if k <= CONTRAST_ORDER:
                 solid *= rho / radius0
-                column = first_contrast + 2 * k - 1
-                out[column, i], out[column + 1, i] = ck * solid * cover, sk * solid * cover
-                contrast += (params[column] * ck + params[column + 1] * sk) * solid
+                out[column, i] = ck * solid * (cover - spread * share) + spread * along_c
+                out[column + 1, i] = sk * solid * (cover - spread * share) + spread * along_s
             base = first_background + (2 * k - 1) * terms
             for j in range(terms):
                 power = across ** j
@@ -103,7 +148,8 @@ def _local_columns(params, geometry, order, u, v, u0, v0, radius0, box, out):
                 out[base + terms + j, i] = sk * power
                 background += (params[base + j] * ck + params[base + terms + j] * sk) * power
         out[0, i], out[1, i] = edge[0] * contrast, edge[1] * contrast
-        out[2, i], out[3, i] = edge[2] * contrast, edge[3] * contrast
+        out[2, i] = edge[2] * contrast
+        out[3, i] = edge[3] * contrast + 2.0 * params[3] * along
         if ellipse:
             out[4, i], out[5, i] = edge[8] * contrast, edge[9] * contrast
         out[params.size, i] = background + contrast * cover
