@@ -15,7 +15,8 @@ from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M
 from calib_core.closed_loop import (MachineModel, evaluate, refit, scalar_covariates,
                                     select_rows)
 from calib_core.closed_loop.fitting import Fit, without_effects
-from calib_core.datasets import read_columns, write_columns
+from calib_core.datasets import read_columns, unit_factor, write_columns
+from calib_core.description import LENGTH_UNITS
 from calib_core.effects import CATEGORICAL_COVARIATES
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
@@ -67,14 +68,40 @@ class AxisData:
         return len(self.command)
 
     @classmethod
-    def from_csv(cls, path, dropped: dict | None = None) -> 'AxisData':
-        """Read the axis CSV of DESIGN.md section 6 (command, measured in m; direction)."""
-        columns = read_columns(path, list(AXIS_COLUMNS), dropped)
-        AXIS_SCHEMA.check({'command': columns['command'],
-                           'measured - command': columns['measured'] - columns['command']},
-                          path)
-        return cls(columns['command'], columns['measured'], columns['direction'],
-                   {k: v for k, v in columns.items() if k not in AXIS_COLUMNS})
+    def from_csv(cls, path, dropped: dict | None = None, length_unit: str = 'm',
+                 error_unit: str | None = None) -> 'AxisData':
+        """Read the axis CSV of DESIGN.md section 6: command, measured and direction; or
+        command, error (measured - command, as a laser interferometer's software exports
+        the deviation) and direction.
+
+        Parameters
+        ----------
+        length_unit : str
+            The unit of command and measured: m (the format's), mm, um or inch.
+        error_unit : str, optional
+            The unit of error; default ``length_unit``.
+
+        Raises
+        ------
+        InvalidInputError
+            Missing columns, both measured and error, an unknown unit, values outside what
+            an axis reads (naming the likely unit mistake)."""
+        columns = read_columns(path, ['command', 'direction'], dropped)
+        given = [name for name in ('measured', 'error') if name in columns]
+        if len(given) != 1:
+            raise InvalidInputError(
+                f'{path}: an axis CSV has a measured column (the position the reference read) '
+                f'or an error column (measured - command), {"not both" if given else "not neither"}')
+        per_unit = unit_factor(length_unit, LENGTH_UNITS, f'{path}: command and measured')
+        command = columns['command'] * per_unit
+        if given == ['measured']:
+            measured = columns['measured'] * per_unit
+        else:
+            measured = command + columns['error'] * unit_factor(
+                error_unit or length_unit, LENGTH_UNITS, f'{path}: error')
+        AXIS_SCHEMA.check({'command': command, 'measured - command': measured - command}, path)
+        return cls(command, measured, columns['direction'],
+                   {k: v for k, v in columns.items() if k not in AXIS_COLUMNS + ('error',)})
 
     def to_csv(self, path) -> None:
         names = list(AXIS_COLUMNS) + list(self.covariates)

@@ -29,7 +29,7 @@ from calib_core.errors import InvalidInputError
 from calib_core.files import read_yaml
 
 # The unit an actuator reading is in -> m per unit; rev and count need m_per_unit.
-LENGTH_UNITS = {'m': 1.0, 'mm': 1e-3, 'um': 1e-6}
+LENGTH_UNITS = {'m': 1.0, 'mm': 1e-3, 'um': 1e-6, 'inch': 0.0254}
 # The unit a rotary axis's reading is in -> rad per unit (controllers read degrees).
 ANGLE_UNITS = {'rad': 1.0, 'deg': float(np.pi / 180)}
 SCALED_UNITS = ('rev', 'count')

@@ -11,7 +11,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from calib_core.datasets import read_columns, write_columns
+from calib_core.datasets import read_columns, unit_factor, write_columns
+from calib_core.description import ANGLE_UNITS, LENGTH_UNITS
 from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.data import board_points, one_board
 from dispenser_calib.core.model import DispenserModel, distort, dot_centres
@@ -44,10 +45,12 @@ class TargetPoses:
                            None if self.covariance is None else self.covariance[rows])
 
 
-def read_target_poses(path, a_column: str = 'a', c_column: str = 'c') -> TargetPoses:
-    """Poses from a CSV: ``a_column``, ``c_column`` (rad), ``x, y, z`` (m, the target's
-    origin in the instrument frame), ``qw, qx, qy, qz`` (the instrument-to-target rotation);
-    other numeric columns are kept as covariates.
+def read_target_poses(path, a_column: str = 'a', c_column: str = 'c', angle_unit: str = 'rad',
+                      length_unit: str = 'm') -> TargetPoses:
+    """Poses from a CSV: ``a_column``, ``c_column`` (rad, or ``angle_unit``: deg), ``x, y,
+    z`` (m, or ``length_unit``: mm, um, inch; the target's origin in the instrument frame),
+    ``qw, qx, qy, qz`` (the instrument-to-target rotation); other numeric columns are kept
+    as covariates.
 
     Raises
     ------
@@ -61,16 +64,19 @@ def read_target_poses(path, a_column: str = 'a', c_column: str = 'c') -> TargetP
         line = int(np.argmax(np.abs(norm - 1) > 1e-3)) + 2
         raise InvalidInputError(f'{path} line {line}: the quaternion qw, qx, qy, qz has norm '
                                 f'{norm[line - 2]:.6g}, not 1')
-    translation = np.column_stack([columns[k] for k in ('x', 'y', 'z')])
+    translation = np.column_stack([columns[k] for k in ('x', 'y', 'z')]) * unit_factor(
+        length_unit, LENGTH_UNITS, f'{path}: x, y, z')
+    per_angle = unit_factor(angle_unit, ANGLE_UNITS, f'{path}: {a_column}, {c_column}')
+    angles = {name: columns[name] * per_angle for name in (a_column, c_column)}
     if np.max(np.abs(translation)) > 100:
         raise InvalidInputError(f'{path}: target positions up to {np.max(np.abs(translation)):.4g}'
                                 f' m: the columns x, y, z must be in m (mm given?)')
-    for name in (a_column, c_column):
-        if np.max(np.abs(columns[name])) > 4 * np.pi:
-            raise InvalidInputError(f'{path}: {name} reaches {np.max(np.abs(columns[name])):.4g}:'
+    for name, values in angles.items():
+        if np.max(np.abs(values)) > 4 * np.pi:
+            raise InvalidInputError(f'{path}: {name} reaches {np.max(np.abs(values)):.4g} rad:'
                                     f' angles must be in rad (degrees given?)')
     used = {a_column, c_column, *POSE_COLUMNS}
-    return TargetPoses(columns[a_column], columns[c_column],
+    return TargetPoses(angles[a_column], angles[c_column],
                        Rotation.from_quat(quaternion / norm[:, None]).as_matrix(), translation,
                        {k: v for k, v in columns.items() if k not in used})
 

@@ -6,7 +6,12 @@ from __future__ import annotations
 from machine_alignment.cli import command_help
 from machine_alignment.cli.common import ranged
 
-FORMATS = {'axis': 'CSV: command, measured (m), direction (+1/-1); optional cycle, '
+# The length units a dataset may be read in: calib_core.description.LENGTH_UNITS's, listed
+# here so that --help does not import the science stack (test_data_units holds them equal).
+LENGTH_UNITS = ('m', 'mm', 'um', 'inch')
+
+FORMATS = {'axis': 'CSV: command, measured (m), direction (+1/-1), or command, error '
+                   '(measured - command) and direction; optional cycle, '
                    'sequence (approach number), block/setup/run (labels), time (s), '
                    'temperature (K)',
            'gantry': 'CSV: command_x, command_y, measured_x, measured_y (m); optional '
@@ -55,6 +60,16 @@ def add_parser(sub) -> None:
                                   '(m; px for the camera); default: the machine\'s')
         if name == 'camera':
             machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
+        if name in ('axis', 'gantry', 'rotary'):
+            machine.add_argument('--length-unit', choices=LENGTH_UNITS, default='m',
+                                 help='the unit of the positions in --data (default: m, '
+                                      'the format\'s); the report is in m')
+        if name == 'axis':
+            machine.add_argument('--error-unit', choices=LENGTH_UNITS, default=None,
+                                 help='the unit of an error column (default: --length-unit)')
+        if name == 'rotary':
+            machine.add_argument('--angle-unit', choices=('rad', 'deg'), default='rad',
+                                 help='the unit of the A and C columns (default: rad)')
         if name == 'axis':
             machine.add_argument('--machine-units', choices=('mm', 'inch'), default='mm',
                                  help='units of the LinuxCNC compensation file written beside '

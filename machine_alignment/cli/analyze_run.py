@@ -4,23 +4,45 @@ pay for the science stack; each machine's modules are imported when that machine
 analysed, so that one machine's command does not load the others' (up to a second)."""
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from calib_core.closed_loop import LoopConfig, analyze, format_report
-from calib_core.errors import MachineAlignmentError
+from calib_core.errors import InvalidInputError, MachineAlignmentError
 from machine_alignment.cli.common import parse_size, progress, write_report
 
 
 def _axis(args, dropped):
     from calib_core.axis import AxisData, AxisModel
-    return AxisModel(AxisData.from_csv(args.data, dropped))
+    with _unit_hint(args):
+        return AxisModel(AxisData.from_csv(args.data, dropped, args.length_unit,
+                                           args.error_unit))
 
 
 def _gantry(args, dropped):
     from printer_alignment.core.loop_models import GantryData, GantryLoopModel
-    return GantryLoopModel(GantryData.from_csv(args.data, dropped))
+    with _unit_hint(args):
+        return GantryLoopModel(GantryData.from_csv(args.data, dropped, args.length_unit))
+
+
+@contextmanager
+def _unit_hint(args):
+    """A dataset refused for its values' unit names the option that reads it in that
+    unit."""
+    try:
+        yield
+    except InvalidInputError as exc:
+        message = str(exc)
+        for mistake, option in (('look like mm', '--length-unit mm'),
+                                ('look like degrees', '--angle-unit deg'),
+                                ('(mm given?)', '--length-unit mm'),
+                                ('(degrees given?)', '--angle-unit deg')):
+            if mistake in message and option.split()[0].lstrip('-').replace('-', '_') in vars(args):
+                raise InvalidInputError(f'{message} (or read them as they are with '
+                                        f'{option})') from None
+        raise
 
 
 def _camera(args, dropped):
@@ -77,8 +99,10 @@ def _rotary(args, dropped):
         return RotaryLoopModel(poses_from_images(model, images), variants=variants)
     from dispenser_calib.core.rotary import LEVER
     from dispenser_calib.core.target_poses import read_target_poses
-    return RotaryLoopModel(read_target_poses(args.data, args.a_column, args.c_column),
-                           LEVER if args.lever is None else args.lever)
+    with _unit_hint(args):
+        poses = read_target_poses(args.data, args.a_column, args.c_column, args.angle_unit,
+                                  args.length_unit)
+    return RotaryLoopModel(poses, LEVER if args.lever is None else args.lever)
 
 
 def _hexapod(args, dropped):
@@ -201,6 +225,9 @@ def cmd_analyze(args) -> int:
                         min_effect=args.min_effect)
     result = analyze(machine, config, progress=progress)
     report = dict(result.report, data=str(args.data), dropped_columns=dropped)
+    units = {key: getattr(args, f'{key}_unit', None) for key in ('length', 'error', 'angle')}
+    if any(units.values()):
+        report['data_units'] = {key: unit for key, unit in units.items() if unit}
     print(format_report(report))
     for name, reason in dropped.items():
         print(f'  column {name}: {reason}')

@@ -32,7 +32,9 @@ import numpy as np
 
 from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M
 from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
-from calib_core.datasets import directions_from_order, read_columns, write_columns
+from calib_core.datasets import (
+    directions_from_order, read_columns, unit_factor, write_columns)
+from calib_core.description import LENGTH_UNITS
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
 from calib_core.schema import Column, Schema
@@ -89,13 +91,15 @@ class GantryData:
         return len(self.command)
 
     @classmethod
-    def from_csv(cls, path, dropped: dict | None = None) -> 'GantryData':
-        """Columns command_x, command_y, measured_x, measured_y (m); optional direction_x,
-        direction_y (+1 / -1; without them, from the order of the rows), time (s),
-        temperature (K)."""
+    def from_csv(cls, path, dropped: dict | None = None, length_unit: str = 'm'
+                 ) -> 'GantryData':
+        """Columns command_x, command_y, measured_x, measured_y (m, or ``length_unit``: mm,
+        um, inch); optional direction_x, direction_y (+1 / -1; without them, from the order
+        of the rows), time (s), temperature (K)."""
         columns = read_columns(path, list(GANTRY_COLUMNS), dropped)
-        command = np.column_stack([columns['command_x'], columns['command_y']])
-        measured = np.column_stack([columns['measured_x'], columns['measured_y']])
+        per_unit = unit_factor(length_unit, LENGTH_UNITS, f'{path}: commands and measurements')
+        command = np.column_stack([columns['command_x'], columns['command_y']]) * per_unit
+        measured = np.column_stack([columns['measured_x'], columns['measured_y']]) * per_unit
         error = measured - command
         GANTRY_SCHEMA.check({'command_x': command[:, 0], 'command_y': command[:, 1],
                              'measured - command (x)': error[:, 0],

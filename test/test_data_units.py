@@ -1,0 +1,119 @@
+"""Datasets read in the units the instrument wrote them in: an ISO 230-2 run exported as
+target (mm) and deviation (um), a gantry in mm, a rotary table's angles in degrees. Read
+with their unit, they give what the same data in SI give; read as SI, they are refused
+with the option that reads them named."""
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from calib_core.axis import AxisData
+from calib_core.errors import InvalidInputError
+from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
+from machine_alignment.cli import main as cli_main
+from printer_alignment.core.loop_models import GantryData
+
+
+def _write(path, header, rows):
+    with open(path, 'w', newline='') as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(rows)
+
+
+@pytest.fixture
+def axis_files(tmp_path):
+    """One axis run with 4 um backlash: in m (the format), in mm, and as a laser's export
+    of target in mm and deviation in um."""
+    data = simulate_axis_test(AxisTruth(backlash=4e-6), AxisTest(targets=11, cycles=3), seed=5)
+    error = data.measured - data.command
+    files = {'m': tmp_path / 'axis_m.csv', 'mm': tmp_path / 'axis_mm.csv',
+             'laser': tmp_path / 'axis_laser.csv'}
+    _write(files['m'], ['command', 'measured', 'direction'],
+           zip(data.command, data.measured, data.direction))
+    _write(files['mm'], ['command', 'measured', 'direction'],
+           zip(data.command * 1e3, data.measured * 1e3, data.direction))
+    _write(files['laser'], ['command', 'error', 'direction'],
+           zip(data.command * 1e3, error * 1e6, data.direction))
+    return data, files
+
+
+def test_an_axis_read_in_mm_or_as_target_and_deviation_is_the_axis_in_metres(axis_files):
+    data, files = axis_files
+    for read in (AxisData.from_csv(files['mm'], length_unit='mm'),
+                 AxisData.from_csv(files['laser'], length_unit='mm', error_unit='um')):
+        np.testing.assert_allclose(read.command, data.command, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(read.measured - read.command, data.measured - data.command,
+                                   rtol=1e-9, atol=1e-15)
+        assert 'error' not in read.covariates
+    with pytest.raises(InvalidInputError, match='look like mm'):
+        AxisData.from_csv(files['mm'])
+    with pytest.raises(InvalidInputError, match="unit 'feet'"):
+        AxisData.from_csv(files['mm'], length_unit='feet')
+
+
+def test_the_loop_on_an_axis_in_mm_says_what_it_says_in_metres(axis_files, tmp_path, capsys):
+    _, files = axis_files
+    reports = {}
+    for name, options in (('m', []), ('laser', ['--length-unit', 'mm', '--error-unit', 'um'])):
+        out = tmp_path / f'{name}.json'
+        assert cli_main(['analyze', 'axis', '--data', str(files[name]), '--json', str(out),
+                         *options]) == 0
+        reports[name] = json.loads(out.read_text())
+    metres, laser = reports['m'], reports['laser']
+    assert [e['name'] for e in laser['effects_added']] == \
+        [e['name'] for e in metres['effects_added']] == ['reversal']
+    backlash = [e['parameters']['backlash_axis'] for e in (metres['effects_added'][0],
+                                                            laser['effects_added'][0])]
+    assert backlash[1] == pytest.approx(backlash[0], rel=1e-6)
+    assert abs(backlash[0]) == pytest.approx(4e-6, abs=0.5e-6)
+    assert laser['data_units'] == {'length': 'mm', 'error': 'um'}
+    # Read as SI, the mm file is refused, naming the option that reads it.
+    capsys.readouterr()
+    assert cli_main(['analyze', 'axis', '--data', str(files['mm'])]) != 0
+    assert '--length-unit mm' in capsys.readouterr().err
+
+
+def test_the_command_lines_units_are_the_readers(tmp_path):
+    from calib_core.description import LENGTH_UNITS
+    from machine_alignment.cli.analyze import LENGTH_UNITS as OFFERED
+    assert set(OFFERED) == set(LENGTH_UNITS)
+
+
+def test_an_axis_file_with_both_measured_and_error_is_refused(tmp_path):
+    path = tmp_path / 'both.csv'
+    _write(path, ['command', 'measured', 'error', 'direction'], [(0.0, 0.0, 0.0, 1.0)])
+    with pytest.raises(InvalidInputError, match='not both'):
+        AxisData.from_csv(path)
+    _write(path, ['command', 'direction'], [(0.0, 1.0)])
+    with pytest.raises(InvalidInputError, match='not neither'):
+        AxisData.from_csv(path)
+
+
+def test_a_gantry_in_mm_and_a_rotary_table_in_degrees(tmp_path):
+    rng = np.random.default_rng(3)
+    command = rng.uniform(0, 0.2, (20, 2))
+    measured = command + rng.normal(0, 2e-6, command.shape)
+    metres, millimetres = tmp_path / 'gantry_m.csv', tmp_path / 'gantry_mm.csv'
+    header = ['command_x', 'command_y', 'measured_x', 'measured_y']
+    _write(metres, header, np.column_stack([command, measured]))
+    _write(millimetres, header, np.column_stack([command, measured]) * 1e3)
+    si, read = GantryData.from_csv(metres), GantryData.from_csv(millimetres, length_unit='mm')
+    np.testing.assert_allclose(read.command, si.command, rtol=1e-12)
+    np.testing.assert_allclose(read.measured - read.command, si.measured - si.command,
+                               rtol=1e-8, atol=1e-15)
+    with pytest.raises(InvalidInputError, match='look like mm'):
+        GantryData.from_csv(millimetres)
+
+    from dispenser_calib.core.target_poses import read_target_poses
+    angles = np.column_stack([rng.uniform(-1.5, 1.5, 8), rng.uniform(-3, 3, 8)])
+    pose = [0.1, 0.02, 0.3, 1.0, 0.0, 0.0, 0.0]
+    radians, degrees = tmp_path / 'rotary_rad.csv', tmp_path / 'rotary_deg.csv'
+    header = ['a', 'c', 'x', 'y', 'z', 'qw', 'qx', 'qy', 'qz']
+    _write(radians, header, [[*row, *pose] for row in angles])
+    _write(degrees, header, [[*np.degrees(row), *pose] for row in angles])
+    si, read = read_target_poses(radians), read_target_poses(degrees, angle_unit='deg')
+    np.testing.assert_allclose([read.a, read.c], [si.a, si.c], rtol=1e-12)
+    with pytest.raises(InvalidInputError, match='degrees given'):
+        read_target_poses(degrees)
