@@ -9,7 +9,7 @@ instrument:            # what measured the machine
   position_sigma_m: 0.4e-3      # 1 sigma per axis
   angle_sigma_rad: 2.0e-3       # 1 sigma per axis (pose sensors)
 actuators:             # how the actuators are read
-  unit: rev                     # m, mm, um, rev (with m_per_unit), count (with m_per_unit)
+  unit: rev                     # m, mm, um, inch, rev (with m_per_unit), count (with m_per_unit)
   m_per_unit: 5.0e-3            # the nominal lead, m per revolution
   sigma_m: 5.0e-6               # positioning noise, 1 sigma
 repeatability_m: 20.0e-6        # the machine's own, 1 sigma

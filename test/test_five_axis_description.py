@@ -43,7 +43,7 @@ def test_the_shipped_simulator_description_is_the_shipped_machine():
 @pytest.mark.parametrize('change, message', [
     ({'kind': 'hexapod'}, 'kind must be five_axis'),
     ({'colour': 'red'}, 'unknown key'),
-    ({'actuators': {'linear_unit': 'inch'}}, "linear_unit 'inch' is not one of"),
+    ({'actuators': {'linear_unit': 'feet'}}, "linear_unit 'feet' is not one of"),
     ({'actuators': {'rotary_unit': 'grad'}}, "rotary_unit 'grad' is not one of"),
     ({'instrument': {'name': 'camera'}}, 'centroid_sigma_px is missing'),
     ({'geometry': {'focal_px': -5.0}}, 'focal_px must be positive'),

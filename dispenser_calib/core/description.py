@@ -13,7 +13,7 @@ geometry:
   board: {dots: [11, 9], pitch_m: 2.0e-3, dot_radius_m: 0.4e-3}   # the dot board on the table
 instrument: {name: camera, centroid_sigma_px: 0.17}   # a dot's centre, 1 sigma per axis
 actuators:                       # how the controller reads the axes
-  linear_unit: mm                # m, mm, um
+  linear_unit: mm                # m, mm, um, inch
   rotary_unit: deg               # rad, deg
   sigma_m: 1.0e-6                # positioning noise, 1 sigma
   sigma_rad: 5.0e-6
