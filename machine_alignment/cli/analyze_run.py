@@ -40,8 +40,8 @@ def _unit_hint(args):
                                 ('(mm given?)', '--length-unit mm'),
                                 ('(degrees given?)', '--angle-unit deg')):
             if mistake in message and option.split()[0].lstrip('-').replace('-', '_') in vars(args):
-                raise InvalidInputError(f'{message} (or read them as they are with '
-                                        f'{option})') from None
+                raise InvalidInputError(f'{message}; or read them as they are with '
+                                        f'{option}') from None
         raise
 
 
@@ -231,6 +231,10 @@ def cmd_analyze(args) -> int:
     print(format_report(report))
     for name, reason in dropped.items():
         print(f'  column {name}: {reason}')
+    if 'data_units' in report:
+        print('  data read in ' + ', '.join(f'{unit} ({key})' for key, unit
+                                            in report['data_units'].items())
+              + '; the report is in m and rad')
     if args.machine == 'axis':
         _axis_figures(machine, result, report, args.json, args.machine_units)
     if args.machine in ('gantry', 'stage'):
