@@ -231,7 +231,7 @@ def cmd_analyze(args) -> int:
     print(format_report(report))
     for name, reason in dropped.items():
         print(f'  column {name}: {reason}')
-    if 'data_units' in report:
+    if set(report.get('data_units', {}).values()) - {'m', 'rad'}:
         print('  data read in ' + ', '.join(f'{unit} ({key})' for key, unit
                                             in report['data_units'].items())
               + '; the report is in m and rad')
