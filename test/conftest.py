@@ -1,5 +1,6 @@
-"""Shared fixtures: a seeded random generator and the real photos in test/data/real
-(BoofCV-Data, CC-BY-4.0; see its SOURCES.md)."""
+"""Shared fixtures: a seeded random generator, the real photos in test/data/real
+(BoofCV-Data, CC-BY-4.0; see its SOURCES.md) and the real measurements in
+test/data/measured (each folder's SOURCES.md and licence)."""
 from pathlib import Path
 
 import numpy as np
@@ -7,6 +8,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_DATA = REPO / 'test' / 'data' / 'real'
+MEASURED_DATA = REPO / 'test' / 'data' / 'measured'
 
 
 @pytest.fixture
@@ -17,6 +19,11 @@ def rng():
 @pytest.fixture
 def real_data():
     return REAL_DATA
+
+
+@pytest.fixture
+def measured_data():
+    return MEASURED_DATA
 
 
 def pytest_collection_modifyitems(items):

@@ -134,3 +134,13 @@ class LinearisedModel(MachineModel):
 
     def workspace(self):
         return self.machine.workspace()
+
+    def channel_scale(self, base):
+        return self.machine.channel_scale(base)
+
+    @property
+    def stratum_name(self):
+        return self.machine.stratum_name
+
+    def stratum_label(self, stratum):
+        return self.machine.stratum_label(stratum)

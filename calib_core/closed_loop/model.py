@@ -73,6 +73,13 @@ class MachineModel:
         """Residuals expressed in the channels (what ``delta`` lacks), shape (n, C)."""
         return self.residuals(base, delta, rows, context)
 
+    def channel_scale(self, base: ParameterSet) -> np.ndarray | None:
+        """Per channel, the residuals' unit per the channel's (C,), where the channels are
+        in another unit than the residuals (a camera's normalised image coordinates against
+        its pixels); None where they are the same. What is found in the channels (the
+        structure tests' sizes) is reported in the residuals' unit through it."""
+        return None
+
     def to_channels(self, jacobian: np.ndarray) -> np.ndarray:
         """The map (n, C, k) from a row's residual to the channel shifts that best explain
         it, from the residuals' channel Jacobian ``jacobian`` (n, k, C): least squares per
@@ -86,6 +93,15 @@ class MachineModel:
     def strata(self) -> np.ndarray:
         """Label per row; hold-out and folds sample every label (e.g. camera views)."""
         return np.zeros(len(self), dtype=int)
+
+    # What a stratum is to the user ('view'), where the strata are things a user can check
+    # or leave out; '' where they are not (one stratum). Outliers are then counted per
+    # stratum, and a stratum that most of its rows disagree with is named.
+    stratum_name = ''
+
+    def stratum_label(self, stratum: int) -> str:
+        """The user's name of ``stratum`` (a value of :meth:`strata`): its id in the data."""
+        return str(stratum)
 
     def replicates(self) -> np.ndarray | None:
         """A label per row that repeated measurements of one setting share (an ISO 230-2

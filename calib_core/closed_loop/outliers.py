@@ -22,6 +22,9 @@ MAD_CONSISTENCY = 1.4826
 """1 / Phi^-1(3/4): 1.4826 MAD estimates a normal distribution's standard deviation."""
 
 OUTLIER_SIGMAS = 5.0
+# A stratum (a camera's view) is named when at least this share of its rows, and at least
+# STRATUM_MIN_ROWS of them, are outliers: its data disagree with the rest as a whole.
+STRATUM_SHARE, STRATUM_MIN_ROWS = 0.25, 3
 OUTLIER_TAIL = float(2 * special.ndtr(-OUTLIER_SIGMAS))   # two-sided, 5.7e-7
 
 
@@ -52,7 +55,10 @@ def find_outliers(machine, residuals: np.ndarray, covariates: dict, min_effect: 
         ``robust_sigma`` (RMS over the components of their robust scales, residual unit),
         ``robust_sigma_by_component``, ``limit_sigmas`` (the whitened limit),
         ``limit`` (that limit times ``robust_sigma``, residual unit), ``count`` and up to
-        20 ``rows`` (row, its error, its covariates), the worst first.
+        20 ``rows`` (row, its error, its covariates, and its stratum's label where the
+        machine names its strata), the worst first; where it does, ``strata``: each
+        stratum most of whose rows disagree (see STRATUM_SHARE), with its ``label``, its
+        ``outliers`` and its ``rows``, the most first.
     """
     r = np.asarray(residuals, float)
     errors = machine.row_errors(r)
@@ -71,9 +77,23 @@ def find_outliers(machine, residuals: np.ndarray, covariates: dict, min_effect: 
     for i in flagged:
         worst.setdefault(int(i) // per_row, float(errors[i]))
     sigma = float(np.sqrt(np.mean(scale ** 2)))
-    return {'robust_sigma': sigma, 'robust_sigma_by_component': scale.tolist(),
-            'limit_sigmas': limit_sigmas, 'limit': max(limit_sigmas * sigma, min_effect),
-            'rows': [{'row': row, 'error': error,
-                      'covariates': {k: float(v[row]) for k, v in covariates.items()}}
-                     for row, error in list(worst.items())[:20]],
-            'count': len(worst)}
+    found = {'robust_sigma': sigma, 'robust_sigma_by_component': scale.tolist(),
+             'limit_sigmas': limit_sigmas, 'limit': max(limit_sigmas * sigma, min_effect),
+             'rows': [{'row': row, 'error': error,
+                       'covariates': {k: float(v[row]) for k, v in covariates.items()}}
+                      for row, error in list(worst.items())[:20]],
+             'count': len(worst)}
+    name = getattr(machine, 'stratum_name', '')    # MachineModel's; '' for any other
+    if name:
+        strata = np.asarray(machine.strata())
+        for entry in found['rows']:
+            entry[name] = machine.stratum_label(int(strata[entry['row']]))
+        labels, sizes = np.unique(strata, return_counts=True)
+        counts = np.array([np.count_nonzero(strata[list(worst)] == s) for s in labels]) \
+            if worst else np.zeros(len(labels), int)
+        named = np.flatnonzero((counts >= STRATUM_MIN_ROWS) & (counts >= STRATUM_SHARE * sizes))
+        found['strata'] = [{'label': machine.stratum_label(int(labels[i])),
+                            'outliers': int(counts[i]), 'rows': int(sizes[i])}
+                           for i in named[np.argsort(-counts[named], kind='stable')]]
+        found['stratum_name'] = name
+    return found

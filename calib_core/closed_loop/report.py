@@ -54,6 +54,14 @@ def _unexplained(machine, config, final: Fit, train, covariates: dict, outliers:
     unexplained = [dict(item) for item in structure] if structure is not None else \
         structure_tests(machine.channels, residuals_by_channel(machine, final, train),
                         {k: v[train] for k, v in covariates.items()}, config.alpha)
+    scale = machine.channel_scale(final.base)
+    if scale is not None:
+        # The structure tests see the channels; people read the residuals' unit.
+        for item in unexplained:
+            factor = scale[machine.channels.index(item['component'].removeprefix('residual_'))]
+            for key in ('structure_rms', 'residual_rms', 'pure_error_sigma'):
+                if key in item:
+                    item[key] = item[key] * float(factor)
     if machine.channel_units:
         own = dict(zip(machine.channels, machine.channel_units))
         for item in unexplained:
@@ -275,14 +283,23 @@ def _held_out_lines(report: dict, factor: float, unit: str) -> list:
 def _outlier_lines(outliers: dict, factor: float, unit: str) -> list:
     if not outliers.get('count'):
         return []
+    name = outliers.get('stratum_name', '')
     described = '; '.join(
-        f'row {o["row"]} ({", ".join(f"{k} {v:.4g}" for k, v in o["covariates"].items())}):'
-        f' {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
-    return [f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
-            f'{outliers["limit_sigmas"]:.3g} robust sigma '
-            f'({outliers["limit"] * factor:.3g} {unit}; '
-            f'robust sigma {outliers["robust_sigma"] * factor:.3g} {unit}) '
-            f'under the extended model, e.g. {described}']
+        f'row {o["row"]} ('
+        + ', '.join(([f'{name} {o[name]}'] if name in o else [])
+                    + [f'{k} {v:.4g}' for k, v in o['covariates'].items()])
+        + f'): {o["error"] * factor:.3g} {unit}' for o in outliers['rows'][:5])
+    lines = [f'  OUTLIERS: {outliers["count"]} row(s) off by more than '
+             f'{outliers["limit_sigmas"]:.3g} robust sigma '
+             f'({outliers["limit"] * factor:.3g} {unit}; '
+             f'robust sigma {outliers["robust_sigma"] * factor:.3g} {unit}) '
+             f'under the extended model, e.g. {described}']
+    for stratum in outliers.get('strata', []):
+        lines.append(f'    {stratum["outliers"]} of them in {name} {stratum["label"]} (of its '
+                     f'{stratum["rows"]} rows): the {name} as a whole disagrees with the rest '
+                     f'(mis-detected or mis-ordered points?); check it, or leave it out and '
+                     f'analyse again')
+    return lines
 
 
 def _unexplained_lines(item: dict, report_unit: str, factor: float, unit: str) -> list:

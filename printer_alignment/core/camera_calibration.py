@@ -19,10 +19,12 @@ INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3')
 
 @dataclass(frozen=True)
 class View:
-    """Planar target points (m, (n, 2), z = 0) and their pixels (px, (n, 2))."""
+    """Planar target points (m, (n, 2), z = 0) and their pixels (px, (n, 2)); ``label``:
+    the view's id in the data it was read from ('' where it has none)."""
 
     model: np.ndarray
     pixels: np.ndarray
+    label: str = ''
 
 
 # The correspondences CSV, declared: target points on a plate of any size here.
@@ -39,7 +41,7 @@ def read_correspondences(path) -> list[View]:
     for view_id in np.unique(c['view']):
         k = c['view'] == view_id
         views.append(View(np.stack([c['model_x'][k], c['model_y'][k]], 1),
-                          np.stack([c['u'][k], c['v'][k]], 1)))
+                          np.stack([c['u'][k], c['v'][k]], 1), f'{view_id:g}'))
     return views
 
 

@@ -258,10 +258,19 @@ class CameraLoopModel(MachineModel):
         return self.pixels[rows] - self._project(base, normalized)
 
     def channel_residuals(self, base, delta, rows, context):
-        return self.residuals(base, delta, rows, context) / np.array([base['fx'], base['fy']])
+        return self.residuals(base, delta, rows, context) / self.channel_scale(base)
+
+    def channel_scale(self, base):
+        """px per unit of normalised image coordinate: the focal lengths."""
+        return np.array([base['fx'], base['fy']])
+
+    stratum_name = 'view'
 
     def strata(self):
         return self.view_index
+
+    def stratum_label(self, stratum):
+        return self.views[stratum].label or str(stratum)
 
     def workspace(self):
         return self.pixels
