@@ -2,12 +2,14 @@
 imported only when one of them runs, so that their parsers and ``--help`` stay light."""
 from __future__ import annotations
 
+import numpy as np
+
 from calib_core.errors import MachineAlignmentError
 from machine_alignment.cli.common import parse_size, quantity, read_run, write_json
 from printer_alignment.core.camera_calibration import (
     calibrate_intrinsics, camera_arrays, distortion_from_dot_views, infer_image_size,
     read_boofcv_intrinsics, read_correspondences, reprojection_errors, rms_px,
-    views_from_images)
+    suspect_views, views_from_images)
 from printer_alignment.core.dot_markers import LlahIndex, load_uchiya_markers, read_marker_photos
 from printer_alignment.core.records import INTRINSICS_RESULT_TOPIC, VISION_OBSERVATIONS_TOPIC
 from printer_alignment.core.vision_procedure import observation_from_message
@@ -33,8 +35,8 @@ def cmd_calibrate_camera(args) -> int:
         print(f'{path}: {reason}')
     if args.image_size:
         size = parse_size(args.image_size)
-    result = calibrate_intrinsics(views, size, distortion=not args.no_distortion,
-                                  radial_only=args.radial_only)
+    options = {'distortion': not args.no_distortion, 'radial_only': args.radial_only}
+    result = calibrate_intrinsics(views, size, **options)
     report = result.report()
     report['failed_images'] = [{'image': p, 'reason': r} for p, r in failures]
     if photos is not None:
@@ -43,10 +45,39 @@ def cmd_calibrate_camera(args) -> int:
     print(f'{report["num_views"]} views, reprojection RMS {report["rms_reprojection_px"]:.3f} px')
     for name in p:
         print(f'  {name:>3} = {quantity(p[name], s[name], report["units"][name])}')
+    _suspect_views(views, size, options, result, report)
     if args.reference:
         report['reference'] = _compare_with_reference(args.reference, views, report)
     write_json(args.json, report)
     return 0
+
+
+def _suspect_views(views, size, options, result, report) -> None:
+    """Views that reproject far worse than the others (suspect_views: mis-detected or
+    mis-ordered points) named, and the calibration without them beside, in the report
+    (``suspect_views``, ``without_suspect_views``): one such view had moved fx by 2.4 %."""
+    suspects = suspect_views(result.per_view_rms_px)
+    if not suspects.size:
+        return
+    median = float(np.median(result.per_view_rms_px))
+    named = [{'view': views[i].label or str(i), 'rms_px': float(result.per_view_rms_px[i])}
+             for i in suspects]
+    report['suspect_views'] = named
+    for view in named:
+        print(f'WARNING: view {view["view"]} reprojects at {view["rms_px"]:.3g} px against a '
+              f'median of {median:.3g} px over the views: mis-detected or mis-ordered points?')
+    kept = [v for i, v in enumerate(views) if i not in set(suspects.tolist())]
+    if len(kept) < 3:
+        return
+    without = calibrate_intrinsics(kept, size, **options).report()
+    report['without_suspect_views'] = {key: without[key] for key in (
+        'parameters', 'std_devs', 'rms_reprojection_px', 'num_views')}
+    p, s = without['parameters'], without['std_devs']
+    print(f'without {"them" if len(named) > 1 else "it"}: {without["num_views"]} views, '
+          f'reprojection RMS {without["rms_reprojection_px"]:.3f} px; '
+          + ', '.join(f'{name} {quantity(p[name], s[name], without["units"][name])}'
+                      for name in p)
+          + '; leave the view out of the data and calibrate again')
 
 
 def _views_from_marker_photos(images, markers_path):
