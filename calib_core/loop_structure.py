@@ -8,6 +8,11 @@ Every channel's residual is tested against every covariate, by the kind of covar
   the distinct positions resolve, its frequency refined to the peak;
 - a position with a direction of approach: a reversal that changes with position
   (direction times a cubic in position), the interaction one covariate at a time misses.
+  Its p-value beyond the cubic trend is kept beside (``p_beyond_trend``): the loop tries
+  the reversal candidates on the first, a wide screen; the report names the structure
+  only where the second holds too (a real turntable's 227 um trend, its data mostly of
+  one direction, had been named a second time as a reversal changing with position,
+  which its reversal candidate then did not find).
 
 Each is an extra-sum-of-squares F-test, Bonferroni-corrected over the periods scanned and
 over every test made; the size reported is the RMS of the fitted structure.
@@ -25,6 +30,14 @@ from calib_core.periodogram import explained_power
 
 def _scaled(z: np.ndarray) -> np.ndarray:
     return 2 * (z - z.min()) / np.ptp(z) - 1
+
+
+def _same_covariate(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether ``b`` is ``a`` scaled and shifted (either way round), to 1e-3 of its range."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if a.shape != b.shape or not (np.ptp(a) > 0 and np.ptp(b) > 0):
+        return False
+    return bool(np.max(np.abs(_scaled(a) - _scaled(b))) < 1e-3)
 
 
 def _periodic_basis(z: np.ndarray, r: np.ndarray):
@@ -53,13 +66,15 @@ def _periodic_basis(z: np.ndarray, r: np.ndarray):
 
 
 def _candidates(name: str, z: np.ndarray, r: np.ndarray, covariates: dict, channel: str):
-    """(kind, basis, trials, detail) of the structures to test ``r`` for against ``z``."""
+    """(kind, basis, trials, detail) of the structures to test ``r`` for against ``z``;
+    ``detail['_also_beyond']``: a basis the structure is also tested beyond."""
     levels = np.unique(z)
     if name in CATEGORICAL_COVARIATES or len(levels) == 2:
         yield 'step', np.column_stack([z == level for level in levels[1:]]).astype(float), 1.0, {}
         return
     degree = min(3, len(levels) - 1)
-    yield 'trend', legendre.legvander(_scaled(z), degree)[:, 1:], 1.0, {}
+    trend = legendre.legvander(_scaled(z), degree)[:, 1:]
+    yield 'trend', trend, 1.0, {}
     if not name.startswith('position'):
         return
     periodic = _periodic_basis(z, r)
@@ -69,7 +84,30 @@ def _candidates(name: str, z: np.ndarray, r: np.ndarray, covariates: dict, chann
     direction = covariates.get(name.replace('position', 'direction', 1))
     if direction is not None and len(np.unique(direction)) == 2:
         yield ('reversal changing with position',
-               direction[:, None] * legendre.legvander(_scaled(z), degree), 1.0, {})
+               direction[:, None] * legendre.legvander(_scaled(z), degree), 1.0,
+               {'_also_beyond': trend})
+
+
+def _f_test(r: np.ndarray, basis: np.ndarray, given: np.ndarray | None):
+    """(p-value, fitted structure (n,)) of ``basis`` explaining ``r`` beyond ``given``
+    (None: beyond the mean alone), columns centred; None where the test has no degrees
+    of freedom."""
+    n = len(r)
+    before = np.zeros_like(r)
+    given_rank = 0
+    if given is not None:
+        given = given - given.mean(axis=0)
+        before = given @ np.linalg.lstsq(given, r, rcond=None)[0]
+        given_rank = np.linalg.matrix_rank(given)
+        basis = np.column_stack([given, basis])
+    full = basis @ np.linalg.lstsq(basis, r, rcond=None)[0]
+    rss0, rss1 = float(np.sum((r - before) ** 2)), float(np.sum((r - full) ** 2))
+    rank = np.linalg.matrix_rank(basis)
+    p, dof = rank - given_rank, n - rank - 1
+    if dof <= 0 or rss1 <= 0 or p <= 0:
+        return None
+    f_stat = (rss0 - rss1) / p / (rss1 / dof)
+    return float(special.fdtrc(p, dof, f_stat)), full - before
 
 
 def structure_tests(channels, residuals: np.ndarray, covariates: dict, alpha: float) -> list:
@@ -79,33 +117,48 @@ def structure_tests(channels, residuals: np.ndarray, covariates: dict, alpha: fl
     -------
     list of dict
         The significant structures, most significant first: covariate, component, kind,
-        p_value (corrected), structure_rms and residual_rms (residual units), and the
-        period (m) of a periodic one.
+        p_value (corrected), structure_rms and residual_rms (residual units), the period
+        (m) of a periodic one, and ``same_as``: the other covariates with the same values
+        (a rotary axis's position and angle), tested once.
     """
-    n = len(residuals)
     tests = []
-    for name, z in covariates.items():
+    # A covariate that is another scaled and shifted, to a thousandth of its range (a
+    # rotary axis's commanded places and its encoder's readings), is one test, under the
+    # name that gets the most kinds of test (a position's): counted twice, it had doubled
+    # both the report's lines and the correction.
+    kept: dict = {}
+    for name in sorted(covariates, key=lambda key: not key.startswith('position')):
+        z = covariates[name]
+        twin = next((k for k in kept if _same_covariate(covariates[k], z)), None)
+        if twin is None:
+            kept[name] = []
+        else:
+            kept[twin].append(name)
+    for name, aliases in kept.items():
+        z = covariates[name]
         if len(np.unique(z)) < 2:
             continue
         for j, component in enumerate(channels):
             r = residuals[:, j] - residuals[:, j].mean()
             for kind, basis, trials, detail in _candidates(name, z, r, covariates, component):
-                basis = basis - basis.mean(axis=0)
-                fitted = basis @ np.linalg.lstsq(basis, r, rcond=None)[0]
-                rss1 = float(np.sum((r - fitted) ** 2))
-                p = np.linalg.matrix_rank(basis)
-                dof = n - p - 1
-                if dof <= 0 or rss1 <= 0 or p == 0:
+                beyond = detail.pop('_also_beyond', None)
+                tested = _f_test(r, basis - basis.mean(axis=0), None)
+                if tested is None:
                     continue
-                f_stat = (float(r @ r) - rss1) / p / (rss1 / dof)
+                p_value, fitted = tested
+                if beyond is not None:
+                    partial = _f_test(r, basis - basis.mean(axis=0), beyond)
+                    detail['p_beyond_trend'] = 1.0 if partial is None else partial[0] * trials
                 tests.append(dict(detail, covariate=name, component=f'residual_{component}',
-                                  kind=kind,
-                                  p_value=min(1.0, float(special.fdtrc(p, dof, f_stat)) * trials),
+                                  kind=kind, **({'same_as': aliases} if aliases else {}),
+                                  p_value=min(1.0, p_value * trials),
                                   structure_rms=float(np.sqrt(np.mean(fitted ** 2))),
                                   residual_rms=float(np.sqrt(np.mean(r ** 2)))))
     count = max(len(tests), 1)
-    found = [dict(t, p_value=min(1.0, t['p_value'] * count)) for t in tests
-             if t['p_value'] * count < alpha]
+    found = [dict(t, p_value=min(1.0, t['p_value'] * count),
+                  **({'p_beyond_trend': min(1.0, t['p_beyond_trend'] * count)}
+                     if 'p_beyond_trend' in t else {}))
+             for t in tests if t['p_value'] * count < alpha]
     return sorted(found, key=lambda t: t['p_value'])
 
 

@@ -54,6 +54,10 @@ def _unexplained(machine, config, final: Fit, train, covariates: dict, outliers:
     unexplained = [dict(item) for item in structure] if structure is not None else \
         structure_tests(machine.channels, residuals_by_channel(machine, final, train),
                         {k: v[train] for k, v in covariates.items()}, config.alpha)
+    # A reversal changing with position that the trend alone explains is the trend, named
+    # on its own (loop_structure).
+    unexplained = [item for item in unexplained
+                   if item.get('p_beyond_trend', 0.0) < config.alpha]
     scale = machine.channel_scale(final.base)
     if scale is not None:
         # The structure tests see the channels; people read the residuals' unit.
@@ -323,8 +327,9 @@ def _unexplained_lines(item: dict, report_unit: str, factor: float, unit: str) -
     if 'pure_error_sigma' in item:
         repeat, _ = _in_small_units(item['pure_error_sigma'], item.get('unit', report_unit))
         scatter = f' while the repeats scatter {repeat:.3g} {label}'
+    same = f' (= {", ".join(item["same_as"])})' if item.get('same_as') else ''
     lines = [f'  UNEXPLAINED {item["kind"]}{period} of {item["component"]} against '
-             f'{item["covariate"]}: {size:.3g} {label} RMS{scatter} '
+             f'{item["covariate"]}{same}: {size:.3g} {label} RMS{scatter} '
              f'(p = {item["p_value"]:.2g}); could be {item["likely_causes"]}']
     lines += [f'    {item[key]}' for key in ('candidate_tried', 'remedy') if key in item]
     return lines
