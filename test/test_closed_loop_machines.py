@@ -102,6 +102,23 @@ def test_camera_radial_distortion_found():
     assert report['base_parameters']['after']['fx'] == pytest.approx(800, abs=2)
 
 
+def test_camera_sixth_order_distortion_found_after_k1_k2():
+    """A lens with k3 = 1.0 beside k1, k2: the loop adds radial_distortion, then its sixth
+    order (tried only once k1, k2 are in; 0.025 px RMS beyond what they take), each within
+    3 sigma of the truth; the lens without k3 gets none (test above). At k3 = 0.3 these
+    views, the plate over 70 % of the width, leave k3 0.008 px beyond what k2 takes:
+    below the minimum effect, and not added."""
+    views = tilted_plate_views(CAMERA, (-0.25, 0.08, 0, 0, 1.0), noise_px=CAMERA_NOISE,
+                               seed=7)
+    effects = _added(analyze(CameraLoopModel(views, (640, 480))).report)
+    assert list(effects) == ['radial_distortion', 'radial_distortion_k3'], list(effects)
+    for name, truth in (('radial_distortion', {'k1': -0.25, 'k2': 0.08}),
+                        ('radial_distortion_k3', {'k3': 1.0})):
+        for parameter, value in truth.items():
+            found = effects[name]['parameters'][parameter]
+            assert abs(found - value) < 3 * effects[name]['std_devs'][parameter], parameter
+
+
 def test_camera_two_effects_and_clean_views():
     views = tilted_plate_views(CAMERA, (-0.25, 0.08, 1e-3, -8e-4), noise_px=CAMERA_NOISE, seed=5)
     effects = _added(analyze(CameraLoopModel(views, (640, 480))).report)

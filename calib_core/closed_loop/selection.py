@@ -81,6 +81,10 @@ def _select(machine, config: LoopConfig, k: int, min_effect: float, progress=Non
         for i, name in enumerate(remaining):
             if progress:
                 progress(i, len(remaining), f'round {len(rounds) + 1}: {name}')
+            follows = LIBRARY[name].follows
+            if follows and follows not in current.names():
+                skipped[name] = f'a higher order of {follows}, tried once that is in the model'
+                continue
             entry = try_candidate(machine, current, name, train, context, channel_residuals,
                                    config.alpha)
             if isinstance(entry, str):

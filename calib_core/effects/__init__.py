@@ -28,6 +28,8 @@ Names are stable (they appear in reports):
 ``drift_temperature``       thermal expansion and zero drift, term = (k (x - x_mean) + g)
                             (T - T_ref) (k in 1/K, g the growth at the mean position, m/K)
 ``radial_distortion``       lens distortion k1, k2 (OpenCV): x_n (k1 r^2 + k2 r^4) (1)
+``radial_distortion_k3``    its sixth order k3 (OpenCV): x_n k3 r^6 (1); tried once
+                            ``radial_distortion`` is in the model (``follows``)
 ``tangential_distortion``   decentring distortion p1, p2 (OpenCV) (1)
 ``leg_play``                joint play taken up by the static leg force,
                             term = -play/2 * sign(load) (m)
@@ -49,7 +51,8 @@ Modules: ``base`` (Effect, Prepared and shared shapes), ``per_channel``, ``leg_p
 ``smooth_map``.
 """
 from calib_core.effects.base import Effect, Prepared
-from calib_core.effects.camera import RadialDistortion, TangentialDistortion
+from calib_core.effects.camera import (
+    RadialDistortion, RadialDistortionK3, TangentialDistortion)
 from calib_core.effects.categorical import CATEGORICAL_COVARIATES, BlockStep, WarmUp
 from calib_core.effects.error_motion import ErrorMotion
 from calib_core.effects.leg_play import LegPlay
@@ -63,7 +66,7 @@ from calib_core.effects.smooth_map import SmoothMap
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
                                ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
-                               DriftTime(), DriftSequence(), DriftTemperature(), RadialDistortion(),
+                               DriftTime(), DriftSequence(), DriftTemperature(), RadialDistortion(), RadialDistortionK3(),
                                TangentialDistortion(), LegPlay(), Compliance(),
                                RotaryHarmonics(), ErrorMotion(), SmoothMap())}
 # Effects that describe the run measured, not the machine: in force they would act on later
@@ -75,6 +78,7 @@ __all__ = ['CATEGORICAL_COVARIATES', 'LIBRARY', 'BlockStep', 'Compliance', 'Drif
            'DriftTemperature',
            'DriftTime', 'Effect', 'ErrorMotion', 'LeadError', 'LegPlay', 'OF_THE_RUN', 'Offset',
            'Periodic', 'Prepared',
-           'RadialDistortion', 'Reversal', 'ReversalByPosition', 'RotaryHarmonics', 'Scale',
+           'RadialDistortion', 'RadialDistortionK3', 'Reversal', 'ReversalByPosition',
+           'RotaryHarmonics', 'Scale',
            'SmoothMap', 'Squareness', 'TangentialDistortion', 'WarmUp', 'resolvable_orders',
            'resolvable_periods']

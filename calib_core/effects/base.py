@@ -71,6 +71,9 @@ class Effect:
     meaning = ''
     requires: tuple = ()
     supersedes: tuple = ()   # effects this one includes and replaces when added
+    # An effect that is a higher order of another (k3 of k1, k2) is tried only once that
+    # one is in the model: alone it is no physical effect, and trying it costs a round.
+    follows: str = ''
 
     def prepare(self, context: dict, channels: tuple, channel_residuals: np.ndarray):
         """A :class:`Prepared` for this data, or a string saying why the effect cannot be

@@ -17,6 +17,18 @@ class RadialDistortion(FixedParameters):
         return n * (params[0] * r2 + params[1] * r2 ** 2)
 
 
+class RadialDistortionK3(FixedParameters):
+    name = 'radial_distortion_k3'
+    meaning = 'radial lens distortion of sixth order (OpenCV k3): x_n k3 r^6'
+    requires, parameters, units = ('normalized',), ('k3',), ('1',)
+    follows = 'radial_distortion'
+
+    def term(self, params, context):
+        n = context['normalized']
+        r2 = np.sum(n ** 2, axis=1, keepdims=True)
+        return n * (params[0] * r2 ** 3)
+
+
 class TangentialDistortion(FixedParameters):
     name = 'tangential_distortion'
     meaning = 'decentring lens distortion (OpenCV p1, p2)'

@@ -188,7 +188,7 @@ class CameraLoopModel(MachineModel):
     unit = 'px'
     min_effect = 0.01   # px
     channels = ('x_n', 'y_n')
-    candidates = ('radial_distortion', 'tangential_distortion')
+    candidates = ('radial_distortion', 'radial_distortion_k3', 'tangential_distortion')
 
     def __init__(self, views: list[View], image_size: tuple[int, int] | None = None):
         if len(views) < 2:
