@@ -33,11 +33,13 @@ def _scaled(z: np.ndarray) -> np.ndarray:
 
 
 def _same_covariate(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether ``b`` is ``a`` scaled and shifted (either way round), to 1e-3 of its range."""
+    """Whether ``b`` is ``a`` scaled (by either sign) and shifted, to 1e-3 of its range."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     if a.shape != b.shape or not (np.ptp(a) > 0 and np.ptp(b) > 0):
         return False
-    return bool(np.max(np.abs(_scaled(a) - _scaled(b))) < 1e-3)
+    scaled_a, scaled_b = _scaled(a), _scaled(b)
+    return bool(min(np.max(np.abs(scaled_a - scaled_b)), np.max(np.abs(scaled_a + scaled_b)))
+                < 1e-3)
 
 
 def _periodic_basis(z: np.ndarray, r: np.ndarray):

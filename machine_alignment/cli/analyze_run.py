@@ -29,17 +29,17 @@ def _gantry(args, dropped):
 
 @contextmanager
 def _unit_hint(args):
-    """A dataset refused for its values' unit names the option that reads it in that
-    unit."""
+    """A dataset read as SI and refused for its values' unit names the option that reads
+    it in that unit."""
     try:
         yield
     except InvalidInputError as exc:
         message = str(exc)
-        for mistake, option in (('look like mm', '--length-unit mm'),
-                                ('look like degrees', '--angle-unit deg'),
-                                ('(mm given?)', '--length-unit mm'),
-                                ('(degrees given?)', '--angle-unit deg')):
-            if mistake in message and option.split()[0].lstrip('-').replace('-', '_') in vars(args):
+        for mistake, option, given in (('look like mm', '--length-unit mm', 'length_unit'),
+                                       ('(mm given?)', '--length-unit mm', 'length_unit'),
+                                       ('look like degrees', '--angle-unit deg', 'angle_unit'),
+                                       ('(degrees given?)', '--angle-unit deg', 'angle_unit')):
+            if mistake in message and getattr(args, given, None) in ('m', 'rad'):
                 raise InvalidInputError(f'{message}; or read them as they are with '
                                         f'{option}') from None
         raise
