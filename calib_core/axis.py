@@ -91,8 +91,8 @@ class AxisData:
         if len(given) != 1:
             raise InvalidInputError(
                 f'{path}: an axis CSV has a measured column (the position the reference read) '
-                f'or an error column (measured - command), '
-                f'{"not both" if given else "not neither"}')
+                f'or an error column (measured - command); this one has '
+                f'{"both" if given else "neither"}')
         per_unit = unit_factor(length_unit, LENGTH_UNITS, f'{path}: command and measured')
         command = columns['command'] * per_unit
         if given == ['measured']:

@@ -84,10 +84,10 @@ def test_the_command_lines_units_are_the_readers(tmp_path):
 def test_an_axis_file_with_both_measured_and_error_is_refused(tmp_path):
     path = tmp_path / 'both.csv'
     _write(path, ['command', 'measured', 'error', 'direction'], [(0.0, 0.0, 0.0, 1.0)])
-    with pytest.raises(InvalidInputError, match='not both'):
+    with pytest.raises(InvalidInputError, match='this one has both'):
         AxisData.from_csv(path)
     _write(path, ['command', 'direction'], [(0.0, 1.0)])
-    with pytest.raises(InvalidInputError, match='not neither'):
+    with pytest.raises(InvalidInputError, match='this one has neither'):
         AxisData.from_csv(path)
 
 
