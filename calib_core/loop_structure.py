@@ -68,33 +68,34 @@ def _periodic_basis(z: np.ndarray, r: np.ndarray):
 
 
 def _candidates(name: str, z: np.ndarray, r: np.ndarray, covariates: dict, channel: str):
-    """(kind, basis, trials, detail) of the structures to test ``r`` for against ``z``;
-    ``detail['_also_beyond']``: a basis the structure is also tested beyond."""
+    """(kind, basis, beyond, trials, detail) of the structures to test ``r`` for against
+    ``z``; ``beyond``: a basis the structure is also tested beyond (None: none)."""
     levels = np.unique(z)
     if name in CATEGORICAL_COVARIATES or len(levels) == 2:
-        yield 'step', np.column_stack([z == level for level in levels[1:]]).astype(float), 1.0, {}
+        yield ('step', np.column_stack([z == level for level in levels[1:]]).astype(float),
+               None, 1.0, {})
         return
     degree = min(3, len(levels) - 1)
     trend = legendre.legvander(_scaled(z), degree)[:, 1:]
-    yield 'trend', trend, 1.0, {}
+    yield 'trend', trend, None, 1.0, {}
     if not name.startswith('position'):
         return
     periodic = _periodic_basis(z, r)
     if periodic is not None:
         basis, trials, period = periodic
-        yield 'periodic', basis, trials, {'period': float(period)}
+        yield 'periodic', basis, None, trials, {'period': float(period)}
     direction = covariates.get(name.replace('position', 'direction', 1))
     if direction is not None and len(np.unique(direction)) == 2:
         yield ('reversal changing with position',
-               direction[:, None] * legendre.legvander(_scaled(z), degree), 1.0,
-               {'_also_beyond': trend})
+               direction[:, None] * legendre.legvander(_scaled(z), degree), trend, 1.0, {})
 
 
 def _f_test(r: np.ndarray, basis: np.ndarray, given: np.ndarray | None):
     """(p-value, fitted structure (n,)) of ``basis`` explaining ``r`` beyond ``given``
-    (None: beyond the mean alone), columns centred; None where the test has no degrees
+    (None: beyond the mean alone), both centred here; None where the test has no degrees
     of freedom."""
     n = len(r)
+    basis = basis - basis.mean(axis=0)
     before = np.zeros_like(r)
     given_rank = 0
     if given is not None:
@@ -142,14 +143,14 @@ def structure_tests(channels, residuals: np.ndarray, covariates: dict, alpha: fl
             continue
         for j, component in enumerate(channels):
             r = residuals[:, j] - residuals[:, j].mean()
-            for kind, basis, trials, detail in _candidates(name, z, r, covariates, component):
-                beyond = detail.pop('_also_beyond', None)
-                tested = _f_test(r, basis - basis.mean(axis=0), None)
+            for kind, basis, beyond, trials, detail in _candidates(name, z, r, covariates,
+                                                                   component):
+                tested = _f_test(r, basis, None)
                 if tested is None:
                     continue
                 p_value, fitted = tested
                 if beyond is not None:
-                    partial = _f_test(r, basis - basis.mean(axis=0), beyond)
+                    partial = _f_test(r, basis, beyond)
                     detail['p_beyond_trend'] = 1.0 if partial is None else partial[0] * trials
                 tests.append(dict(detail, covariate=name, component=f'residual_{component}',
                                   kind=kind, **({'same_as': aliases} if aliases else {}),
