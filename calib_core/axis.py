@@ -15,8 +15,8 @@ from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M
 from calib_core.closed_loop import (MachineModel, evaluate, refit, scalar_covariates,
                                     select_rows)
 from calib_core.closed_loop.fitting import Fit, without_effects
-from calib_core.datasets import read_columns, unit_factor, write_columns
-from calib_core.description import LENGTH_UNITS
+from calib_core.datasets import read_columns, write_columns
+from calib_core.description import LENGTH_UNITS, si_per_unit
 from calib_core.effects import CATEGORICAL_COVARIATES
 from calib_core.errors import InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
@@ -93,13 +93,13 @@ class AxisData:
                 f'{path}: an axis CSV has a measured column (the position the reference read) '
                 f'or an error column (measured - command); this one has '
                 f'{"both" if given else "neither"}')
-        per_unit = unit_factor(length_unit, LENGTH_UNITS, f'{path}: command and measured')
+        per_unit = si_per_unit(length_unit, LENGTH_UNITS, f'{path}: the length unit')
         command = columns['command'] * per_unit
         if given == ['measured']:
             measured = columns['measured'] * per_unit
         else:
-            measured = command + columns['error'] * unit_factor(
-                error_unit or length_unit, LENGTH_UNITS, f'{path}: error')
+            measured = command + columns['error'] * si_per_unit(
+                error_unit or length_unit, LENGTH_UNITS, f'{path}: the error unit')
         AXIS_SCHEMA.check({'command': command, 'measured - command': measured - command}, path)
         return cls(command, measured, columns['direction'],
                    {k: v for k, v in columns.items() if k not in AXIS_COLUMNS + ('error',)})

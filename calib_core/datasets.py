@@ -66,19 +66,6 @@ def read_columns(path: str | os.PathLike, required: list[str],
     return columns
 
 
-def unit_factor(unit: str, units: dict, what: str) -> float:
-    """SI per ``unit`` from ``units`` (name -> SI per unit, e.g.
-    calib_core.description.LENGTH_UNITS) for the readings ``what`` (for the message).
-
-    Raises
-    ------
-    InvalidInputError
-        A unit not in ``units``."""
-    if unit not in units:
-        raise InvalidInputError(f'{what}: unit {unit!r} is none of {", ".join(units)}')
-    return units[unit]
-
-
 def directions_from_order(command: np.ndarray) -> np.ndarray:
     """Direction of approach (+1 / -1) of each row from the order the targets were
     visited, shape like ``command`` (n, C): the sign of the last move that changed each

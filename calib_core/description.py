@@ -163,13 +163,19 @@ def read_measurement(content: dict, where: str, default_instrument: Instrument,
     return Measurement(measured_by, read_by, repeatability, declared)
 
 
+def si_per_unit(unit, units: dict, where: str) -> float:
+    """SI per ``unit`` from ``units`` (name -> SI per unit: LENGTH_UNITS, ANGLE_UNITS), or
+    a clear error naming ``where`` the unit was given and listing the known ones."""
+    if not isinstance(unit, str) or unit not in units:
+        raise InvalidInputError(f'{where} {unit!r} is not one of {", ".join(units)}')
+    return units[unit]
+
+
 def unit_factor(section: dict, key: str, units: dict, where: str, default: str) -> tuple:
     """The unit ``section[key]`` names (``default`` if absent) and its factor to SI from
     ``units``, or a clear error listing the known ones."""
     unit = section.get(key, default)
-    if not isinstance(unit, str) or unit not in units:
-        raise InvalidInputError(f'{where}: {key} {unit!r} is not one of {", ".join(units)}')
-    return unit, units[unit]
+    return unit, si_per_unit(unit, units, f'{where}: {key}')
 
 
 def workspace_section(content: dict, where: str, keys: tuple) -> dict | None:

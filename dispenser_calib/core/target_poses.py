@@ -11,8 +11,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from calib_core.datasets import read_columns, unit_factor, write_columns
-from calib_core.description import ANGLE_UNITS, LENGTH_UNITS
+from calib_core.datasets import read_columns, write_columns
+from calib_core.description import ANGLE_UNITS, LENGTH_UNITS, si_per_unit
 from calib_core.errors import CalibrationError, InvalidInputError
 from dispenser_calib.core.data import board_points, one_board
 from dispenser_calib.core.model import DispenserModel, distort, dot_centres
@@ -64,9 +64,9 @@ def read_target_poses(path, a_column: str = 'a', c_column: str = 'c', angle_unit
         line = int(np.argmax(np.abs(norm - 1) > 1e-3)) + 2
         raise InvalidInputError(f'{path} line {line}: the quaternion qw, qx, qy, qz has norm '
                                 f'{norm[line - 2]:.6g}, not 1')
-    translation = np.column_stack([columns[k] for k in ('x', 'y', 'z')]) * unit_factor(
-        length_unit, LENGTH_UNITS, f'{path}: x, y, z')
-    per_angle = unit_factor(angle_unit, ANGLE_UNITS, f'{path}: {a_column}, {c_column}')
+    translation = np.column_stack([columns[k] for k in ('x', 'y', 'z')]) * si_per_unit(
+        length_unit, LENGTH_UNITS, f'{path}: the length unit')
+    per_angle = si_per_unit(angle_unit, ANGLE_UNITS, f'{path}: the angle unit')
     angles = {name: columns[name] * per_angle for name in (a_column, c_column)}
     if np.max(np.abs(translation)) > 100:
         raise InvalidInputError(f'{path}: target positions up to {np.max(np.abs(translation)):.4g}'

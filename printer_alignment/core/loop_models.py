@@ -32,9 +32,8 @@ import numpy as np
 
 from calib_core.checks import MAX_ERROR_M, MAX_POSITION_M
 from calib_core.closed_loop import MachineModel, scalar_covariates, select_rows
-from calib_core.datasets import (
-    directions_from_order, read_columns, unit_factor, write_columns)
-from calib_core.description import LENGTH_UNITS
+from calib_core.datasets import directions_from_order, read_columns, write_columns
+from calib_core.description import LENGTH_UNITS, si_per_unit
 from calib_core.errors import CalibrationError, InvalidInputError
 from calib_core.parameters import Parameter, ParameterSet
 from calib_core.schema import Column, Schema
@@ -97,7 +96,7 @@ class GantryData:
         um, inch); optional direction_x, direction_y (+1 / -1; without them, from the order
         of the rows), time (s), temperature (K)."""
         columns = read_columns(path, list(GANTRY_COLUMNS), dropped)
-        per_unit = unit_factor(length_unit, LENGTH_UNITS, f'{path}: commands and measurements')
+        per_unit = si_per_unit(length_unit, LENGTH_UNITS, f'{path}: the length unit')
         command = np.column_stack([columns['command_x'], columns['command_y']]) * per_unit
         measured = np.column_stack([columns['measured_x'], columns['measured_y']]) * per_unit
         error = measured - command
