@@ -66,7 +66,7 @@ def _suspect_views(views, size, options, result, report) -> None:
     for view in named:
         print(f'WARNING: view {view["view"]} reprojects at {view["rms_px"]:.3g} px against a '
               f'median of {median:.3g} px over the views: mis-detected or mis-ordered points?')
-    kept = [v for i, v in enumerate(views) if i not in set(suspects.tolist())]
+    kept = [v for i, v in enumerate(views) if i not in suspects]
     if len(kept) < 3:
         return
     without = calibrate_intrinsics(kept, size, **options).report()
