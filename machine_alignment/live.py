@@ -24,6 +24,7 @@ class LiveClient:
     defaults to localhost, as the launcher's graphs use."""
 
     WATCH_PERIOD = 1.0   # s between checks that the server is still in the graph
+    PROGRESS_DRAIN = 0.2   # s for progress sent before the answer to arrive after it
 
     def __init__(self, name: str = 'machine_align_client', domain: int | None = None):
         os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -104,6 +105,14 @@ class LiveClient:
                         f'{service} went away {time.monotonic() - start:.0f} s into the call '
                         'without answering: its node died or was stopped (see the launcher\'s '
                         'output or the node\'s log); nothing was received from it')
+            if subscription is not None:
+                # The node sends its last progress before it answers, but on another
+                # reader: the answer can be taken first, and the last line ("7/7") was
+                # lost now and then. What has come meanwhile is delivered before the
+                # subscription goes.
+                drained = time.monotonic() + self.PROGRESS_DRAIN
+                while time.monotonic() < drained:
+                    self.executor.spin_once(timeout_sec=self.PROGRESS_DRAIN / 4)
             return future.result()
         finally:
             if previous is not None:
