@@ -202,6 +202,7 @@ class CameraLoopModel(MachineModel):
         self.points = np.concatenate([np.column_stack([v.model, np.zeros(len(v.model))])
                                       for v in views])
         self.pixels = np.concatenate([v.pixels for v in views])
+        self._last_context = None
 
     def __len__(self):
         return len(self.points)
@@ -236,17 +237,21 @@ class CameraLoopModel(MachineModel):
                 pattern[:, :, j] = True
         return pattern.reshape(-1, len(free))
 
-    def _poses(self, base: ParameterSet):
-        poses = np.array(list(base.as_dict().values())[4:]).reshape(len(self.views), 6)
-        return _rodrigues(poses[:, :3]), poses[:, 3:]
-
     def context(self, base, rows):
-        rotations, translations = self._poses(base)
+        poses = np.array([p.value for p in base.parameters[4:]]).reshape(len(self.views), 6)
+        # A fit's finite differences step the intrinsics and the effects as often as the
+        # poses; the points' normalised coordinates depend on the poses alone.
+        cached = self._last_context
+        if cached is not None and cached[0] is rows and np.array_equal(cached[1], poses):
+            return cached[2]
+        rotations, translations = _rodrigues(poses[:, :3]), poses[:, 3:]
         v = self.view_index[rows]
         camera = np.einsum('nij,nj->ni', rotations[v], self.points[rows]) + translations[v]
         if np.any(camera[:, 2] <= 0):
             raise CalibrationError('a target point lies behind the camera')
-        return {'normalized': camera[:, :2] / camera[:, 2:3]}
+        context = {'normalized': camera[:, :2] / camera[:, 2:3]}
+        self._last_context = (rows, poses, context)
+        return context
 
     def _project(self, base, normalized):
         return np.column_stack([base['fx'] * normalized[:, 0] + base['cx'],
