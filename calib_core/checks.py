@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_core.errors import InvalidInputError
+from calib_core.errors import InvalidInputError, UnitMistake
 
 # Plausible magnitudes of the lengths in a dataset (m). Beyond them the file is most likely
 # in mm: a 200 mm travel written in mm reads as 200 m, a 30 um error as 30 mm.
@@ -18,15 +18,15 @@ def check_metres(values, what: str, source, limit_m: float) -> None:
 
     Raises
     ------
-    InvalidInputError
+    UnitMistake
         The largest magnitude in ``values`` exceeds ``limit_m``; the message names
-        ``what`` in ``source`` and the likely cause."""
+        ``what`` in ``source`` and the likely cause (mm)."""
     values = np.asarray(values, dtype=float)
     largest = float(np.max(np.abs(values))) if values.size else 0.0
     if largest > limit_m:
-        raise InvalidInputError(f'{source}: {what} reaches {largest:.4g} m, beyond the '
-                                f'{limit_m:g} m plausible here: the values look like mm; the '
-                                'format is SI metres')
+        raise UnitMistake(f'{source}: {what} reaches {largest:.4g} m, beyond the '
+                          f'{limit_m:g} m plausible here: the values look like mm; the format '
+                          'is SI metres', 'length', 'mm')
 
 
 MAX_COUNT = 10_000

@@ -13,6 +13,18 @@ class InvalidInputError(MachineAlignmentError, ValueError):
     """Input data is malformed: missing columns, NaN or infinite values, wrong shapes."""
 
 
+class UnitMistake(InvalidInputError):
+    """Values that make sense only in another unit than the one they were read in (a file
+    in mm read as metres): ``quantity`` ('length', 'angle' or 'temperature') and
+    ``likely_unit`` ('mm', 'deg', 'degC' or 'K'), for a caller that can offer the option
+    reading them in that unit."""
+
+    def __init__(self, message: str, quantity: str, likely_unit: str):
+        super().__init__(message)
+        self.quantity = quantity
+        self.likely_unit = likely_unit
+
+
 class DetectionError(MachineAlignmentError):
     """No usable Mark in an image: none found, clipped at the border, ambiguous, saturated."""
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_core.errors import InvalidInputError
+from calib_core.errors import InvalidInputError, UnitMistake
 
 DEGREES_PER_RAD = 180 / np.pi
 MM_PER_M = 1000.0
@@ -36,27 +36,28 @@ class Column:
     high: float
     meaning: str
 
-    def likely_mistake(self, value: float) -> str:
-        """What the column's largest value outside the range most likely means: mm for m
-        when it is many times the range or a metre and more, and would fit it in mm;
-        degrees for rad when over twice the range and fitting it in degrees; degrees Celsius
-        for kelvin (and the other way round) when the value so read fits; else another zero
-        or column."""
+    def mistaken_unit(self, value: float) -> tuple[str, str, str] | None:
+        """The unit the column's largest value outside the range was most likely written
+        in, as (quantity, unit, what to say): mm for m when it is many times the range or a
+        metre and more, and would fit it in mm; degrees for rad when over twice the range
+        and fitting it in degrees; degrees Celsius for kelvin (and the other way round)
+        when the value so read fits; else None."""
         ratio = abs(value) / max(abs(self.low), abs(self.high))
         # A metre or more outside a machine's range, or many times the range: mm, when the
         # value read in mm fits.
         if self.unit == 'm' and (ratio >= 20 or abs(value) >= 1.0) \
                 and self.low <= value / MM_PER_M <= self.high:
-            return 'the values look like mm; the format is SI metres'
+            return 'length', 'mm', 'the values look like mm; the format is SI metres'
         if self.unit == 'rad' and ratio >= 2 and \
                 self.low <= value / DEGREES_PER_RAD <= self.high:
-            return 'the values look like degrees; the format is radians'
+            return 'angle', 'deg', 'the values look like degrees; the format is radians'
         if self.unit == 'K' and self.low <= value + CELSIUS_ZERO_K <= self.high:
-            return 'the values look like degrees Celsius; the format is kelvin'
+            return ('temperature', 'degC',
+                    'the values look like degrees Celsius; the format is kelvin')
         if self.unit == 'K' and self.low <= value - CELSIUS_ZERO_K <= self.high:
-            return ('the values look like kelvin where degrees Celsius were due (as '
-                    'sensor_msgs/Temperature carries them)')
-        return 'no such machine reads this (another zero, unit or column?)'
+            return ('temperature', 'K', 'the values look like kelvin where degrees Celsius '
+                    'were due (as sensor_msgs/Temperature carries them)')
+        return None
 
     def check(self, values, source: str) -> None:
         """Refuse the column if any value is NaN or outside [low, high], naming the one
@@ -64,7 +65,9 @@ class Column:
 
         Raises
         ------
-        InvalidInputError"""
+        InvalidInputError
+            A :class:`~calib_core.errors.UnitMistake` where the value fits the range in
+            another unit."""
         values = np.asarray(values, dtype=float).ravel()
         if not np.all(np.isfinite(values)):
             raise InvalidInputError(f'{source}: column {self.name} ({self.meaning}) holds NaN '
@@ -73,10 +76,15 @@ class Column:
         if outside.size:
             worst = outside[np.argmax(np.abs(values[outside]))]
             value = float(values[worst])
-            raise InvalidInputError(
-                f'{source}: column {self.name} ({self.meaning}) is {value:.6g} {self.unit} in '
-                f'row {worst + 1}, outside {self.low:.6g}..{self.high:.6g} {self.unit}: '
-                f'{self.likely_mistake(value)}')
+            mistaken = self.mistaken_unit(value)
+            message = (f'{source}: column {self.name} ({self.meaning}) is {value:.6g} '
+                       f'{self.unit} in row {worst + 1}, outside {self.low:.6g}..'
+                       f'{self.high:.6g} {self.unit}: ' + (
+                           mistaken[2] if mistaken
+                           else 'no such machine reads this (another zero, unit or column?)'))
+            if mistaken:
+                raise UnitMistake(message, *mistaken[:2])
+            raise InvalidInputError(message)
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calib_core.axis import AxisData
-from calib_core.errors import InvalidInputError
+from calib_core.errors import InvalidInputError, UnitMistake
 from calib_core.sim.axis import AxisTest, AxisTruth, simulate_axis_test
 from machine_alignment.cli import main as cli_main
 from printer_alignment.core.loop_models import GantryData
@@ -117,3 +117,40 @@ def test_a_gantry_in_mm_and_a_rotary_table_in_degrees(tmp_path):
     np.testing.assert_allclose([read.a, read.c], [si.a, si.c], rtol=1e-12)
     with pytest.raises(InvalidInputError, match='degrees given'):
         read_target_poses(degrees)
+    with pytest.raises(UnitMistake) as refused:
+        read_target_poses(degrees)
+    assert (refused.value.quantity, refused.value.likely_unit) == ('angle', 'deg')
+    assert cli_main(['analyze', 'rotary', '--data', str(degrees)]) != 0
+
+
+def test_the_unit_a_refusal_names_travels_with_it_and_only_its_own_option_is_offered(
+        tmp_path, capsys):
+    """A refusal carries the unit the values look like (UnitMistake), and the command
+    line offers the option that reads that quantity in it: mm for a length, not for a
+    temperature in degrees Celsius, for which no machine description or unit option is
+    the answer (the grid's calibrate had offered one)."""
+    from calib_core.schema import Column
+    with pytest.raises(UnitMistake) as refused:
+        Column('x', 'm', -1.0, 1.0, 'reading').check([0.1, 40.0], 'f.csv')
+    assert (refused.value.quantity, refused.value.likely_unit) == ('length', 'mm')
+    with pytest.raises(UnitMistake) as refused:
+        Column('temperature', 'K', 200.0, 400.0, 'temperature').check([21.5], 'f.csv')
+    assert (refused.value.quantity, refused.value.likely_unit) == ('temperature', 'degC')
+    with pytest.raises(InvalidInputError) as refused:
+        Column('feed1', 'm', -0.01, 0.05, 'feed reading').check([0.01, -0.6], 'f.csv')
+    assert not isinstance(refused.value, UnitMistake)    # in m from another zero, not mm
+
+    marks = tmp_path / 'marks_celsius.csv'
+    _write(marks, ['region', 'placement', 'i', 'j', 'x', 'y', 'temperature'],
+           [[0, placement, i, j, 0.01 * i + shift, 0.01 * j, 21.5]
+            for placement, shift in (('initial', 0.0), ('shifted', 0.01))
+            for i in range(-2, 3) for j in range(-2, 3)])
+    capsys.readouterr()
+    assert cli_main(['calibrate', 'grid', '--data', str(marks), '--pitch', '0.01']) != 0
+    said = capsys.readouterr().err
+    assert 'degrees Celsius' in said and '--description' not in said, said
+    gantry = tmp_path / 'gantry_mm.csv'
+    _write(gantry, ['command_x', 'command_y', 'measured_x', 'measured_y'],
+           [[100.0 * k, 50.0, 100.0 * k + 0.002, 50.0] for k in range(12)])
+    assert cli_main(['analyze', 'gantry', '--data', str(gantry)]) != 0
+    assert '--length-unit mm' in capsys.readouterr().err

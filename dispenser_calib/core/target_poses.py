@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from calib_core.datasets import read_columns, write_columns
 from calib_core.description import ANGLE_UNITS, LENGTH_UNITS, si_per_unit
-from calib_core.errors import CalibrationError, InvalidInputError
+from calib_core.errors import CalibrationError, InvalidInputError, UnitMistake
 from dispenser_calib.core.data import board_points, one_board
 from dispenser_calib.core.model import DispenserModel, distort, dot_centres
 
@@ -69,12 +69,12 @@ def read_target_poses(path, a_column: str = 'a', c_column: str = 'c', angle_unit
     per_angle = si_per_unit(angle_unit, ANGLE_UNITS, f'{path}: the angle unit')
     angles = {name: columns[name] * per_angle for name in (a_column, c_column)}
     if np.max(np.abs(translation)) > 100:
-        raise InvalidInputError(f'{path}: target positions up to {np.max(np.abs(translation)):.4g}'
-                                f' m: the columns x, y, z must be in m (mm given?)')
+        raise UnitMistake(f'{path}: target positions up to {np.max(np.abs(translation)):.4g} m:'
+                          ' the columns x, y, z must be in m (mm given?)', 'length', 'mm')
     for name, values in angles.items():
         if np.max(np.abs(values)) > 4 * np.pi:
-            raise InvalidInputError(f'{path}: {name} reaches {np.max(np.abs(values)):.4g} rad:'
-                                    f' angles must be in rad (degrees given?)')
+            raise UnitMistake(f'{path}: {name} reaches {np.max(np.abs(values)):.4g} rad: '
+                              'angles must be in rad (degrees given?)', 'angle', 'deg')
     used = {a_column, c_column, *POSE_COLUMNS}
     return TargetPoses(angles[a_column], angles[c_column],
                        Rotation.from_quat(quaternion / norm[:, None]).as_matrix(), translation,

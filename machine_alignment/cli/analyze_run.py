@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from calib_core.closed_loop import LoopConfig, analyze, format_report
-from calib_core.errors import InvalidInputError, MachineAlignmentError
+from calib_core.errors import InvalidInputError, MachineAlignmentError, UnitMistake
 from machine_alignment.cli.common import parse_size, progress, write_report
 
 
@@ -33,15 +33,12 @@ def _unit_hint(args):
     it in that unit."""
     try:
         yield
-    except InvalidInputError as exc:
-        message = str(exc)
-        for mistake, option, given in (('look like mm', '--length-unit mm', 'length_unit'),
-                                       ('(mm given?)', '--length-unit mm', 'length_unit'),
-                                       ('look like degrees', '--angle-unit deg', 'angle_unit'),
-                                       ('(degrees given?)', '--angle-unit deg', 'angle_unit')):
-            if mistake in message and getattr(args, given, None) in ('m', 'rad'):
-                raise InvalidInputError(f'{message}; or read them as they are with '
-                                        f'{option}') from None
+    except UnitMistake as exc:
+        option = {'length': ('--length-unit', 'length_unit', 'm'),
+                  'angle': ('--angle-unit', 'angle_unit', 'rad')}.get(exc.quantity)
+        if option and getattr(args, option[1], None) == option[2]:
+            raise InvalidInputError(f'{exc}; or read them as they are with {option[0]} '
+                                    f'{exc.likely_unit}') from None
         raise
 
 

@@ -112,19 +112,20 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
 
 
 def read_in_si(read, *args, **kwargs):
-    """``read(*args, **kwargs)`` of a file the suite reads in SI units; where its values
-    look like mm or degrees, the refusal also says that a machine description can declare
-    the unit its actuators are read in.
+    """``read(*args, **kwargs)`` of a file the suite reads in SI units; where its lengths
+    look like mm or its angles like degrees, the refusal also says that a machine
+    description can declare the unit its actuators are read in (not where a temperature
+    is in the wrong unit: no description changes that).
 
     Raises
     ------
     InvalidInputError
         As ``read`` does."""
-    from calib_core.errors import InvalidInputError
+    from calib_core.errors import InvalidInputError, UnitMistake
     try:
         return read(*args, **kwargs)
-    except InvalidInputError as exc:
-        if 'look like mm' in str(exc) or 'look like degrees' in str(exc):
+    except UnitMistake as exc:
+        if exc.quantity in ('length', 'angle'):
             raise InvalidInputError(f'{exc}; if the actuators are read in another unit, say '
                                     'so in a machine description and give it with '
                                     '--description (docs/machine_description.md)') from None
