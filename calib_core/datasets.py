@@ -12,9 +12,28 @@ from calib_core.files import read_text
 from calib_core.storage import write_atomic
 
 
+# The words an instrument's export may write for a direction of approach (a laser
+# system's "+" / "-" or "forward" / "reverse"), read as +1 / -1 in a column whose name
+# begins with "direction".
+DIRECTION_WORDS = {**dict.fromkeys(('+', 'forward', 'fwd', 'positive', 'pos', 'up'), 1.0),
+                   **dict.fromkeys(('-', 'reverse', 'rev', 'backward', 'back', 'bwd',
+                                    'negative', 'neg', 'down'), -1.0)}
+
+
+def _number(cell: str, column: str) -> float:
+    """A cell as a float; in a direction column, also one of DIRECTION_WORDS."""
+    try:
+        return float(cell)
+    except ValueError:
+        if column.startswith('direction') and cell.strip().lower() in DIRECTION_WORDS:
+            return DIRECTION_WORDS[cell.strip().lower()]
+        raise
+
+
 def read_columns(path: str | os.PathLike, required: list[str],
                  dropped: dict | None = None) -> dict[str, np.ndarray]:
-    """Read a CSV with a header row into float columns.
+    """Read a CSV with a header row into float columns (a direction column may also say
+    "+" / "-", "forward" / "reverse" and the like: DIRECTION_WORDS).
 
     Every column is returned (extra numeric columns are covariates for later analysis).
     Extra columns that are not numeric are left out. Given a ``dropped`` dict, extra
@@ -48,11 +67,13 @@ def read_columns(path: str | os.PathLike, required: list[str],
                 raise InvalidInputError(f'{path} line {i}: {len(row)} fields, header has '
                                         f'{len(header)}')
             try:
-                values.append(float(row[j]))
+                values.append(_number(row[j], name))
             except ValueError:
                 if name in required:
+                    words = (' nor a direction (+1 / -1, + / -, forward / reverse)'
+                             if name.startswith('direction') else '')
                     raise InvalidInputError(f'{path} line {i}: {name}={row[j]!r} is not a '
-                                            'number') from None
+                                            f'number{words}') from None
                 break
         else:
             array = np.array(values)

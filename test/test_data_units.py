@@ -154,3 +154,24 @@ def test_the_unit_a_refusal_names_travels_with_it_and_only_its_own_option_is_off
            [[100.0 * k, 50.0, 100.0 * k + 0.002, 50.0] for k in range(12)])
     assert cli_main(['analyze', 'gantry', '--data', str(gantry)]) != 0
     assert '--length-unit mm' in capsys.readouterr().err
+
+
+def test_a_direction_written_as_a_word_reads_as_its_sign(axis_files, tmp_path):
+    """A laser system's export may write the direction of approach as "+" / "-" or
+    "forward" / "reverse": read as +1 / -1, the run is the same run; a word that is no
+    direction is refused, naming what is read."""
+    data, files = axis_files
+    words = {1.0: ['+', 'Forward'], -1.0: ['-', 'reverse']}
+    for k in range(2):
+        path = tmp_path / f'words_{k}.csv'
+        _write(path, ['command', 'measured', 'direction'],
+               [(c, m, words[d][k]) for c, m, d in zip(data.command, data.measured,
+                                                         data.direction)])
+        read = AxisData.from_csv(path)
+        np.testing.assert_array_equal(read.direction, data.direction)
+        np.testing.assert_array_equal(read.measured, data.measured)
+    path = tmp_path / 'sideways.csv'
+    _write(path, ['command', 'measured', 'direction'], [(0.0, 0.0, 'sideways')])
+    with pytest.raises(InvalidInputError, match=r"direction='sideways' is not a number nor a "
+                                                r"direction \(\+1 / -1, \+ / -"):
+        AxisData.from_csv(path)
