@@ -31,9 +31,10 @@ def _number(cell: str, column: str) -> float:
 
 
 def read_columns(path: str | os.PathLike, required: list[str],
-                 dropped: dict | None = None) -> dict[str, np.ndarray]:
+                 dropped: dict | None = None, labels: tuple = ()) -> dict[str, np.ndarray]:
     """Read a CSV with a header row into float columns (a direction column may also say
-    "+" / "-", "forward" / "reverse" and the like: DIRECTION_WORDS).
+    "+" / "-", "forward" / "reverse" and the like: DIRECTION_WORDS); the columns named in
+    ``labels`` (names of views, images) as text, stripped.
 
     Every column is returned (extra numeric columns are covariates for later analysis).
     Extra columns that are not numeric are left out. Given a ``dropped`` dict, extra
@@ -60,12 +61,16 @@ def read_columns(path: str | os.PathLike, required: list[str],
     if not body:
         raise InvalidInputError(f'{path} has a header but no data rows')
     columns = {}
+    for i, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise InvalidInputError(f'{path} line {i}: {len(row)} fields, header has '
+                                    f'{len(header)}')
     for j, name in enumerate(header):
+        if name in labels:
+            columns[name] = np.array([row[j].strip() for row in body])
+            continue
         values = []
         for i, row in enumerate(body, start=2):
-            if len(row) != len(header):
-                raise InvalidInputError(f'{path} line {i}: {len(row)} fields, header has '
-                                        f'{len(header)}')
             try:
                 values.append(_number(row[j], name))
             except ValueError:

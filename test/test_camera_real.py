@@ -165,3 +165,28 @@ def test_the_dot_grids_leftover_trend_is_not_its_dots_perspective_bias(measured_
     corners = _with_centre_bias(
         read_correspondences(measured_data / CHARUCO / 'correspondences.csv'), (1600, 1200))
     assert abs(corners[2]) < corners[3], corners
+
+
+def test_views_named_by_their_photos_file_names_are_the_same_views(measured_data, tmp_path):
+    """A view may be named by any text, such as its photo's file name: the views are the
+    same (in the order they first appear), the calibration the same, and the suspect view
+    named by its file."""
+    lines = (measured_data / DOTS / 'correspondences.csv').read_text().splitlines()
+    suspect = (measured_data / DOTS / 'view11_suspect.csv').read_text().splitlines()[1:]
+    numbered, named = tmp_path / 'numbered.csv', tmp_path / 'named.csv'
+    numbered.write_text('\n'.join(lines + suspect) + '\n')
+    named.write_text('\n'.join([lines[0]] + [f'photo_{int(line.split(",")[0]):02d}.png,'
+                                             + line.split(',', 1)[1]
+                                             for line in lines[1:] + suspect]) + '\n')
+    reports = {}
+    for path in (numbered, named):
+        out = tmp_path / f'{path.stem}.json'
+        assert cli_main(['calibrate', 'camera', '--data', str(path), '--image-size',
+                         '640x480', '--json', str(out)]) == 0
+        reports[path.stem] = json.loads(out.read_text())
+    # The same views in another order (view 11 last, as in the file): OpenCV's solution
+    # to rounding.
+    assert reports['named']['parameters'] == pytest.approx(reports['numbered']['parameters'],
+                                                           rel=1e-6)
+    assert [v['view'] for v in reports['named']['suspect_views']] == ['photo_11.png']
+    assert cli_main(['analyze', 'camera', '--data', str(named)]) == 0

@@ -34,14 +34,31 @@ CORRESPONDENCE_SCHEMA = Schema(tuple(
 
 
 def read_correspondences(path) -> list[View]:
-    """Views from a CSV with columns view, model_x, model_y (m), u, v (px)."""
-    c = read_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'])
+    """Views from a CSV with columns view, model_x, model_y (m), u, v (px). A view is
+    named by a number (views in its order) or by any text, such as its image's file name
+    (views in the order they first appear)."""
+    c = read_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'], labels=('view',))
     CORRESPONDENCE_SCHEMA.check(c, path)
+    names = c['view']
+    if not all(names):
+        line = int(np.argmin(names.astype(bool))) + 2
+        raise InvalidInputError(f'{path} line {line}: the view is not named')
+    try:
+        keys = names.astype(float)
+        numbered = bool(np.all(np.isfinite(keys)))
+    except ValueError:
+        numbered = False
+    if numbered:
+        order = np.unique(keys)
+        labels = [f'{n:g}' for n in order]
+    else:
+        keys = names
+        order = labels = [names[k] for k in np.sort(np.unique(names, return_index=True)[1])]
     views = []
-    for view_id in np.unique(c['view']):
-        k = c['view'] == view_id
+    for key, label in zip(order, labels):
+        k = keys == key
         views.append(View(np.stack([c['model_x'][k], c['model_y'][k]], 1),
-                          np.stack([c['u'][k], c['v'][k]], 1), f'{view_id:g}'))
+                          np.stack([c['u'][k], c['v'][k]], 1), label))
     return views
 
 
