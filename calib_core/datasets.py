@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import csv
-import io
 import os
 
 import numpy as np
 
 from calib_core.errors import InvalidInputError
-from calib_core.files import read_text
+from calib_core.files import csv_table, read_text
 from calib_core.storage import write_atomic
 
 
@@ -20,10 +19,11 @@ DIRECTION_WORDS = {**dict.fromkeys(('+', 'forward', 'fwd', 'positive', 'pos', 'u
                                     'negative', 'neg', 'down'), -1.0)}
 
 
-def _number(cell: str, column: str) -> float:
-    """A cell as a float; in a direction column, also one of DIRECTION_WORDS."""
+def _number(cell: str, column: str, decimal_comma: bool = False) -> float:
+    """A cell as a float (with ``decimal_comma``, 0,5 as 0.5); in a direction column, also
+    one of DIRECTION_WORDS."""
     try:
-        return float(cell)
+        return float(cell.replace(',', '.') if decimal_comma else cell)
     except ValueError:
         if column.startswith('direction') and cell.strip().lower() in DIRECTION_WORDS:
             return DIRECTION_WORDS[cell.strip().lower()]
@@ -34,7 +34,9 @@ def read_columns(path: str | os.PathLike, required: list[str],
                  dropped: dict | None = None, labels: tuple = ()) -> dict[str, np.ndarray]:
     """Read a CSV with a header row into float columns (a direction column may also say
     "+" / "-", "forward" / "reverse" and the like: DIRECTION_WORDS); the columns named in
-    ``labels`` (names of views, images) as text, stripped.
+    ``labels`` (names of views, images) as text, stripped. Fields are separated by commas,
+    semicolons or tabs, ``#`` lines are notes (files.csv_table); where semicolons or tabs
+    separate them, a decimal comma is read as a point (a spreadsheet's 0,5).
 
     Every column is returned (extra numeric columns are covariates for later analysis).
     Extra columns that are not numeric are left out. Given a ``dropped`` dict, extra
@@ -47,7 +49,7 @@ def read_columns(path: str | os.PathLike, required: list[str],
         Missing file or columns, non-numeric, NaN or infinite values, ragged rows.
     """
     try:
-        rows = list(csv.reader(io.StringIO(read_text(path, 'a CSV dataset'))))
+        rows, delimiter = csv_table(read_text(path, 'a CSV dataset'))
     except csv.Error as exc:
         raise InvalidInputError(f'{path} is not a CSV file: {exc}') from None
     if not rows:
@@ -72,7 +74,7 @@ def read_columns(path: str | os.PathLike, required: list[str],
         values = []
         for i, row in enumerate(body, start=2):
             try:
-                values.append(_number(row[j], name))
+                values.append(_number(row[j], name, delimiter != ','))
             except ValueError:
                 if name in required:
                     words = (' nor a direction (+1 / -1, + / -, forward / reverse)'

@@ -14,14 +14,15 @@ from calib_core.errors import InvalidInputError
 
 
 def read_text(path: str | os.PathLike, what: str) -> str:
-    """The text of ``path`` (UTF-8).
+    """The text of ``path`` (UTF-8; a leading byte-order mark, which spreadsheets write
+    and no one sees, is dropped).
 
     Raises
     ------
     InvalidInputError
         Missing, a directory, unreadable, or not UTF-8 text (e.g. a binary file)."""
     try:
-        with open(path, encoding='utf-8', newline='') as stream:
+        with open(path, encoding='utf-8-sig', newline='') as stream:
             text = stream.read()
     except FileNotFoundError:
         raise InvalidInputError(f'no such file: {path} (expected {what})') from None
@@ -37,13 +38,38 @@ def read_text(path: str | os.PathLike, what: str) -> str:
     return text
 
 
+DELIMITERS = (',', ';', '\t')
+"""Field separators a CSV may use: a comma, or a semicolon (a spreadsheet where the comma
+is the decimal separator) or a tab (an instrument's export)."""
+
+
+def csv_table(text: str) -> tuple[list, str]:
+    """The rows (lists of fields) of CSV ``text`` and its separator: the one of DELIMITERS
+    its header line holds most of (a comma where it holds none). Lines starting with
+    ``#`` (an instrument's notes above or between its rows) are left out.
+
+    Raises
+    ------
+    csv.Error
+        Text the csv module cannot read."""
+    lines = [line for line in text.splitlines(keepends=True) if not line.lstrip().startswith('#')]
+    header = next((line for line in lines if line.strip()), '')
+    delimiter = max(DELIMITERS, key=header.count) if any(d in header for d in DELIMITERS) \
+        else ','
+    return list(csv.reader(io.StringIO(''.join(lines)), delimiter=delimiter)), delimiter
+
+
 def read_csv_rows(path: str | os.PathLike, what: str, columns, error=InvalidInputError) -> list:
-    """The rows of a CSV file as dicts, refused (``error``, an InvalidInputError) when it is
-    not CSV, empty, or lacks one of ``columns``."""
+    """The rows of a CSV file as dicts (see :func:`csv_table`), refused (``error``, an
+    InvalidInputError) when it is not CSV, empty, or lacks one of ``columns``."""
     try:
-        rows = list(csv.DictReader(io.StringIO(read_text(path, what))))
+        table, _ = csv_table(read_text(path, what))
     except csv.Error as exc:
         raise error(f'{path} is not a CSV file: {exc}') from None
+    header = [name.strip() for name in table[0]] if table else []
+    # A short row's missing fields are None, as csv.DictReader gives them.
+    rows = [dict(zip(header, row + [None] * (len(header) - len(row)))) for row in table[1:]
+            if any(cell.strip() for cell in row)]
     if not rows or any(c not in rows[0] for c in columns):
         raise error(f'{path} needs the columns {", ".join(columns)}')
     return rows

@@ -175,3 +175,30 @@ def test_a_direction_written_as_a_word_reads_as_its_sign(axis_files, tmp_path):
     with pytest.raises(InvalidInputError, match=r"direction='sideways' is not a number nor a "
                                                 r"direction \(\+1 / -1, \+ / -"):
         AxisData.from_csv(path)
+
+
+def test_a_spreadsheets_or_an_instruments_csv_reads_as_the_plain_one(axis_files, tmp_path):
+    """What spreadsheets and instruments write around the numbers: a byte-order mark (Excel's
+    "CSV UTF-8"), semicolons with decimal commas (a European locale), tabs, CRLF line ends
+    and '#' notes above and between the rows. Each reads as the plain file."""
+    from calib_core.files import read_csv_rows
+    data, files = axis_files
+    plain = files['m'].read_text()
+    lines = plain.splitlines()
+    variants = {
+        'bom': ('\ufeff' + plain, 'utf-8'),
+        'semicolons': ('\n'.join([lines[0].replace(',', ';')] + [
+            line.replace(',', ';').replace('.', ',') for line in lines[1:]]) + '\n', 'utf-8'),
+        'tabs': (plain.replace(',', '\t').replace('\n', '\r\n'), 'utf-8'),
+        'notes': ('# laser export, target and deviation\n# units: m\n' + '\n'.join(
+            lines[:5] + ['# cycle 2'] + lines[5:]) + '\n', 'utf-8')}
+    for name, (text, encoding) in variants.items():
+        path = tmp_path / f'{name}.csv'
+        path.write_bytes(text.encode(encoding))
+        read = AxisData.from_csv(path)
+        np.testing.assert_array_equal(read.command, data.command, err_msg=name)
+        np.testing.assert_array_equal(read.measured, data.measured, err_msg=name)
+        np.testing.assert_array_equal(read.direction, data.direction, err_msg=name)
+        rows = read_csv_rows(path, 'an axis CSV', ('command', 'measured', 'direction'))
+        assert len(rows) == len(data.command) and set(rows[0]) == {'command', 'measured',
+                                                                    'direction'}, name
