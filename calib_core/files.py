@@ -45,18 +45,37 @@ is the decimal separator) or a tab (an instrument's export)."""
 
 def csv_table(text: str) -> tuple[list, str]:
     """The rows (lists of fields) of CSV ``text`` and its separator: the one of DELIMITERS
-    its header line holds most of (a comma where it holds none). Lines starting with
-    ``#`` (an instrument's notes above or between its rows) are left out.
+    its header line holds most of (a comma where it holds none). Blank lines and lines
+    starting with ``#`` (an instrument's notes above or between its rows) are left out,
+    but for a note right above rows that are all numbers: their header, as numpy.savetxt
+    writes it.
 
     Raises
     ------
     csv.Error
         Text the csv module cannot read."""
-    lines = [line for line in text.splitlines(keepends=True) if not line.lstrip().startswith('#')]
-    header = next((line for line in lines if line.strip()), '')
+    every = [line for line in text.splitlines(keepends=True) if line.strip()]
+    lines = [line for line in every if not line.lstrip().startswith('#')]
+    header = lines[0] if lines else ''
+    # numpy.savetxt writes its header as a note ('# x,y'): a note right above rows that
+    # are all numbers is their header.
+    first = every.index(header) if header else 0
+    if first and _all_numbers(header) and not _all_numbers(every[first - 1].lstrip()[1:]):
+        header = every[first - 1].lstrip()[1:]
+        lines.insert(0, header)
     delimiter = max(DELIMITERS, key=header.count) if any(d in header for d in DELIMITERS) \
         else ','
     return list(csv.reader(io.StringIO(''.join(lines)), delimiter=delimiter)), delimiter
+
+
+def _all_numbers(line: str) -> bool:
+    """Whether every field of ``line`` (split at any of DELIMITERS) is a number."""
+    try:
+        for field in re.split('[,;\t]', line.strip()):
+            float(field.replace(',', '.'))
+    except ValueError:
+        return False
+    return True
 
 
 def read_csv_rows(path: str | os.PathLike, what: str, columns, error=InvalidInputError) -> list:

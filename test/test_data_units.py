@@ -180,7 +180,8 @@ def test_a_direction_written_as_a_word_reads_as_its_sign(axis_files, tmp_path):
 def test_a_spreadsheets_or_an_instruments_csv_reads_as_the_plain_one(axis_files, tmp_path):
     """What spreadsheets and instruments write around the numbers: a byte-order mark (Excel's
     "CSV UTF-8"), semicolons with decimal commas (a European locale), tabs, CRLF line ends
-    and '#' notes above and between the rows. Each reads as the plain file."""
+    and '#' notes above and between the rows; numpy.savetxt's header, written as a note.
+    Each reads as the plain file."""
     from calib_core.files import read_csv_rows
     data, files = axis_files
     plain = files['m'].read_text()
@@ -192,6 +193,10 @@ def test_a_spreadsheets_or_an_instruments_csv_reads_as_the_plain_one(axis_files,
         'tabs': (plain.replace(',', '\t').replace('\n', '\r\n'), 'utf-8'),
         'notes': ('# laser export, target and deviation\n# units: m\n' + '\n'.join(
             lines[:5] + ['# cycle 2'] + lines[5:]) + '\n', 'utf-8')}
+    saved = tmp_path / 'savetxt.csv'
+    np.savetxt(saved, np.column_stack([data.command, data.measured, data.direction]),
+               delimiter=',', header='command,measured,direction')
+    variants['numpy.savetxt'] = (saved.read_text(), 'utf-8')
     for name, (text, encoding) in variants.items():
         path = tmp_path / f'{name}.csv'
         path.write_bytes(text.encode(encoding))
