@@ -91,6 +91,7 @@ bench: setup
 	$(BIN)/python -m machine_alignment.bench.closed_loop_axis --out bench_results
 	$(BIN)/python -m machine_alignment.bench.closed_loop_channels --out bench_results
 	$(BIN)/python -m machine_alignment.bench.closed_loop_rotary --out bench_results
+	$(BIN)/python -m machine_alignment.bench.camera_real --out bench_results
 	$(BIN)/python -m machine_alignment.bench.closed_loop_speed --out bench_results
 	$(BIN)/python -m machine_alignment.bench.command_speed --out bench_results
 	$(BIN)/python -m machine_alignment.bench.stage --out bench_results
