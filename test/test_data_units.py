@@ -207,3 +207,22 @@ def test_a_spreadsheets_or_an_instruments_csv_reads_as_the_plain_one(axis_files,
         rows = read_csv_rows(path, 'an axis CSV', ('command', 'measured', 'direction'))
         assert len(rows) == len(data.command) and set(rows[0]) == {'command', 'measured',
                                                                     'direction'}, name
+
+
+def test_analyze_names_the_machine_description_for_actuators_read_in_mm(tmp_path, capsys):
+    """Legs written in mm to a hexapod's pose file, read as SI: analyze, like calibrate,
+    says that a machine description declares the actuators' unit."""
+    assert cli_main(['simulate', 'hexapod', '--out', str(tmp_path / 'hx'), '--poses', '20']) == 0
+    rows = list(csv.DictReader(open(tmp_path / 'hx' / 'calibration.csv')))
+    legs = [f'l{i}' for i in range(1, 7)]
+    assert all(name in rows[0] for name in legs)
+    for row in rows:
+        row.update({name: str(float(row[name]) * 1e3) for name in legs})
+    path = tmp_path / 'legs_mm.csv'
+    _write(path, list(rows[0]), [list(row.values()) for row in rows])
+    capsys.readouterr()
+    for command in ('analyze', 'calibrate'):
+        assert cli_main([command, 'hexapod', '--data', str(path), '--geometry',
+                         str(tmp_path / 'hx' / 'nominal.yaml')]) != 0
+        said = capsys.readouterr().err
+        assert 'look like mm' in said and '--description' in said, (command, said)

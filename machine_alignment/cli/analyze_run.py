@@ -11,7 +11,7 @@ import numpy as np
 
 from calib_core.closed_loop import LoopConfig, analyze, format_report
 from calib_core.errors import InvalidInputError, MachineAlignmentError, UnitMistake
-from machine_alignment.cli.common import parse_size, progress, write_report
+from machine_alignment.cli.common import parse_size, progress, read_in_si, write_report
 
 
 def _axis(args, dropped):
@@ -56,7 +56,7 @@ def _stage(args, dropped):
         from printer_alignment.core.stage_description import read_description
         described = read_description(args.description)
         return StageLoopModel(described.read(args.data, dropped), described.d)
-    return StageLoopModel(StageData.from_csv(args.data, dropped))
+    return StageLoopModel(read_in_si(StageData.from_csv, args.data, dropped))
 
 
 def _platform(args, dropped):
@@ -73,7 +73,7 @@ def _platform(args, dropped):
                          'feeds', f'{args.data} read by {platform.source}')
         return PlatformLoopModel(data, platform.geometry)
     nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
-    return PlatformLoopModel(PoseData.from_csv(args.data, dropped), nominal)
+    return PlatformLoopModel(read_in_si(PoseData.from_csv, args.data, dropped), nominal)
 
 
 def _rotary(args, dropped):
@@ -110,8 +110,9 @@ def _hexapod(args, dropped):
     from hexapod_calib.core.loop_models import HexapodLoopModel
     description = read_description(args.description) if args.description else None
     nominal = description.geometry if description else read_geometry(args.geometry)
-    data = PoseData.from_csv(args.data, nominal, dropped, leg_m_per_unit=(
-        description.measurement.actuators.m_per_unit if description else 1.0))
+    data = (PoseData.from_csv(args.data, nominal, dropped, leg_m_per_unit=(
+        description.measurement.actuators.m_per_unit)) if description
+            else read_in_si(PoseData.from_csv, args.data, nominal, dropped))
     if description:
         refuse_unit_slip(travel_ratio(data, description), description.measurement.actuators,
                          'legs', f'{args.data} read by {description.source}')
