@@ -15,14 +15,17 @@ class InvalidInputError(MachineAlignmentError, ValueError):
 
 class UnitMistake(InvalidInputError):
     """Values that make sense only in another unit than the one they were read in (a file
-    in mm read as metres): ``quantity`` ('length', 'angle' or 'temperature') and
-    ``likely_unit`` ('mm', 'deg', 'degC' or 'K'), for a caller that can offer the option
-    reading them in that unit."""
+    in mm read as metres): ``quantity`` ('length', 'angle' or 'temperature'),
+    ``likely_unit`` ('mm', 'deg', 'degC' or 'K') and the ``column`` they are in (None
+    where several are), for a caller that can offer the option reading them in that
+    unit."""
 
-    def __init__(self, message: str, quantity: str, likely_unit: str):
+    def __init__(self, message: str, quantity: str, likely_unit: str,
+                 column: str | None = None):
         super().__init__(message)
         self.quantity = quantity
         self.likely_unit = likely_unit
+        self.column = column
 
 
 class DetectionError(MachineAlignmentError):

@@ -83,7 +83,7 @@ class Column:
                            mistaken[2] if mistaken
                            else 'no such machine reads this (another zero, unit or column?)'))
             if mistaken:
-                raise UnitMistake(message, *mistaken[:2])
+                raise UnitMistake(message, *mistaken[:2], self.name)
             raise InvalidInputError(message)
 
 

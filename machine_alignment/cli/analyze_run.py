@@ -56,7 +56,8 @@ def _stage(args, dropped):
         from printer_alignment.core.stage_description import read_description
         described = read_description(args.description)
         return StageLoopModel(described.read(args.data, dropped), described.d)
-    return StageLoopModel(read_in_si(StageData.from_csv, args.data, dropped))
+    return StageLoopModel(read_in_si(StageData.from_csv, args.data, dropped,
+                                     actuators=('q1', 'q2', 'q3')))
 
 
 def _platform(args, dropped):
@@ -73,7 +74,8 @@ def _platform(args, dropped):
                          'feeds', f'{args.data} read by {platform.source}')
         return PlatformLoopModel(data, platform.geometry)
     nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
-    return PlatformLoopModel(read_in_si(PoseData.from_csv, args.data, dropped), nominal)
+    return PlatformLoopModel(read_in_si(PoseData.from_csv, args.data, dropped,
+                                        actuators=('feed1', 'feed2', 'feed3')), nominal)
 
 
 def _rotary(args, dropped):
@@ -104,7 +106,7 @@ def _rotary(args, dropped):
 
 def _hexapod(args, dropped):
     from calib_core.description import refuse_unit_slip
-    from hexapod_calib.core.calibration import PoseData
+    from hexapod_calib.core.calibration import LEG_NAMES, PoseData
     from hexapod_calib.core.description import read_description, travel_ratio
     from hexapod_calib.core.geometry import read_geometry
     from hexapod_calib.core.loop_models import HexapodLoopModel
@@ -112,7 +114,7 @@ def _hexapod(args, dropped):
     nominal = description.geometry if description else read_geometry(args.geometry)
     data = (PoseData.from_csv(args.data, nominal, dropped, leg_m_per_unit=(
         description.measurement.actuators.m_per_unit)) if description
-            else read_in_si(PoseData.from_csv, args.data, nominal, dropped))
+            else read_in_si(PoseData.from_csv, args.data, nominal, dropped, actuators=LEG_NAMES))
     if description:
         refuse_unit_slip(travel_ratio(data, description), description.measurement.actuators,
                          'legs', f'{args.data} read by {description.source}')

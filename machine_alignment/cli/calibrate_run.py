@@ -6,7 +6,7 @@ import numpy as np
 
 from calib_core.errors import MachineAlignmentError
 from hexapod_calib.core.calibration import (
-    DETERMINED_SIGMAS, PoseData, check_identification, identify, summarise_pose_errors,
+    DETERMINED_SIGMAS, LEG_NAMES, PoseData, check_identification, identify, summarise_pose_errors,
     undetermined_beyond)
 from hexapod_calib.core.description import likely_causes, read_description
 from hexapod_calib.core.geometry import HexapodGeometry, read_geometry, write_geometry
@@ -81,7 +81,7 @@ def cmd_calibrate_stage(args) -> int:
                   'replay with the shipped stage\'s: give --description to replay it as it ran')
     else:
         data = (described.read(args.data) if described
-                else read_in_si(StageData.from_csv, args.data))
+                else read_in_si(StageData.from_csv, args.data, actuators=('q1', 'q2', 'q3')))
     models, report = calibrate_stage(data, *((described.d,) if described else ()))
     s, p = report['stepwise'], report['parametric']
     print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '
@@ -124,8 +124,9 @@ def cmd_calibrate_hexapod(args) -> int:
                                     'MACHINE.yaml (one of them)')
     description = read_description(args.description) if args.description else None
     nominal = description.geometry if description else read_geometry(args.geometry)
-    data = read_in_si(PoseData.from_csv, args.data, nominal, leg_m_per_unit=(
-        description.measurement.actuators.m_per_unit if description else 1.0))
+    data = read_in_si(PoseData.from_csv, args.data, nominal, actuators=LEG_NAMES,
+                      leg_m_per_unit=(description.measurement.actuators.m_per_unit
+                                      if description else 1.0))
     identification = identify(data, nominal, fixed=args.fix or ())
     report = identification.report()
     report['data'] = str(args.data)

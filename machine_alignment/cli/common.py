@@ -111,11 +111,11 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
     return stops, recorded
 
 
-def read_in_si(read, *args, **kwargs):
-    """``read(*args, **kwargs)`` of a file the suite reads in SI units; where its lengths
-    look like mm or its angles like degrees, the refusal also says that a machine
-    description can declare the unit its actuators are read in (not where a temperature
-    is in the wrong unit: no description changes that).
+def read_in_si(read, *args, actuators: tuple, **kwargs):
+    """``read(*args, **kwargs)`` of a file the suite reads in SI units; where the lengths
+    or angles of one of its ``actuators`` columns look like mm or degrees, the refusal also
+    says that a machine description can declare the unit the actuators are read in (not
+    for the instrument's columns, nor a temperature: no description changes those).
 
     Raises
     ------
@@ -125,7 +125,7 @@ def read_in_si(read, *args, **kwargs):
     try:
         return read(*args, **kwargs)
     except UnitMistake as exc:
-        if exc.quantity in ('length', 'angle'):
+        if exc.quantity in ('length', 'angle') and exc.column in actuators:
             raise InvalidInputError(f'{exc}; if the actuators are read in another unit, say '
                                     'so in a machine description and give it with '
                                     '--description (docs/machine_description.md)') from None

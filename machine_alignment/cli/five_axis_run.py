@@ -208,7 +208,8 @@ def cmd_calibrate(args) -> int:
                   'way)')
     else:
         images = (described.read(args.data) if described
-                  else read_in_si(read_observations, args.data))
+                  else read_in_si(read_observations, args.data,
+                                  actuators=('x', 'y', 'z', 'a', 'c')))
         _, result = calibrate(images, size,
                               pose_sigma=described.pose_sigma() if described else None)
         report = result.report(images)

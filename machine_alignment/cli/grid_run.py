@@ -97,7 +97,7 @@ def cmd_calibrate_grid(args) -> int:
         if args.pitch is None:
             raise MachineAlignmentError('--data needs --pitch (the plate\'s nominal pitch, m) '
                                         'or --description')
-        grid, regions = read_in_si(read_marks, args.data, args.pitch)
+        grid, regions = read_in_si(read_marks, args.data, args.pitch, actuators=('x', 'y'))
     certified = (args.certified_pitch if args.certified_pitch is not None
                  else described.certified_pitch if described else None)
     calibration = calibrate_travel(grid, regions, args.stitch, certified, described)

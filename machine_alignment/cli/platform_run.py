@@ -83,7 +83,7 @@ def cmd_calibrate_platform(args) -> int:
                   f'way (here: the built-in gate)')
     else:
         data = (description.read(args.data) if description
-                else read_in_si(PoseData.from_csv, args.data))
+                else read_in_si(PoseData.from_csv, args.data, actuators=('feed1', 'feed2', 'feed3')))
     result = identify(data, nominal)
     report = result.report()
     if description:
