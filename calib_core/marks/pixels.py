@@ -15,6 +15,14 @@ def full_scale(image: np.ndarray) -> float | None:
     return None
 
 
+def read_grey_image(path) -> np.ndarray | None:
+    """The image file ``path`` as one grey channel at its own depth (8 or 16 bits, or
+    float: a 12-bit camera's frames in 16-bit PNG or TIFF keep their precision; colour is
+    weighted to grey as OpenCV does), or None where OpenCV cannot read it."""
+    import cv2
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+
+
 # The pixel types of camera frames, rendered frames and files, which make setup compiles
 # the detector for (precompile.py), C-ordered.
 PIXEL_TYPES = (np.uint8, np.uint16, np.float32, np.float64)

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
 from machine_alignment.cli import command_help
 from machine_alignment.cli.common import progress, write_json
 from calib_core.marks import DetectorConfig, detect_marks
+from calib_core.marks.pixels import read_grey_image
 
 
 def cmd_detect(args) -> int:
@@ -18,7 +18,7 @@ def cmd_detect(args) -> int:
     results, failures = [], 0
     for k, path in enumerate(args.images):
         # Checked first: OpenCV would print its own warning for a missing file.
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) if Path(path).is_file() else None
+        image = read_grey_image(path) if Path(path).is_file() else None
         entry = {'image': str(path)}
         if image is None:
             entry['error'] = ('no such file' if not Path(path).exists() else

@@ -12,6 +12,7 @@ from calib_core.datasets import read_columns, write_columns
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
 from calib_core.files import read_yaml
 from calib_core.marks import detect_marks
+from calib_core.marks.pixels import read_grey_image
 from calib_core.schema import Column, Schema
 
 INTRINSIC_NAMES = ('fx', 'fy', 'cx', 'cy', 'k1', 'k2', 'p1', 'p2', 'k3')
@@ -301,16 +302,20 @@ def target_points(kind: str, cols: int, rows: int, spacing: float) -> np.ndarray
 
 
 def find_target(image: np.ndarray, kind: str, cols: int, rows: int) -> np.ndarray:
-    """Pixels (px, (n, 2)) of the target's points in a grey image.
+    """Pixels (px, (n, 2)) of the target's points in a grey image (8 or 16 bits, or float).
 
     ``kind``: ``chessboard`` (inner corners, refined by cornerSubPix), ``circles``
     (symmetric grid) or ``acircles`` (asymmetric grid; both: the centres of our
     detector's Marks, see _circle_grid). Raises DetectionError if not found."""
     if kind == 'chessboard':
+        # OpenCV finds a board in 8 bits only; the corners are refined on every bit.
+        eight = image if image.dtype == np.uint8 else cv2.normalize(
+            image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
         found, corners = cv2.findChessboardCorners(
-            image, (cols, rows), cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+            eight, (cols, rows), cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
         if found:
-            corners = cv2.cornerSubPix(image, corners, (5, 5), (-1, -1),
+            corners = cv2.cornerSubPix(image if image.dtype == np.uint8
+                                       else image.astype(np.float32), corners, (5, 5), (-1, -1),
                                        (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-3))
     elif kind in ('circles', 'acircles'):
         return _circle_grid(image, kind, cols, rows)
@@ -361,7 +366,7 @@ def read_images(paths: list, measure):
     not fatal; results are (path, measurement) pairs."""
     results, failures, size = [], [], None
     for path in paths:
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        image = read_grey_image(path)
         if image is None:
             failures.append((str(path), 'not a readable image'))
             continue
