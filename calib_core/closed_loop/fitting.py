@@ -209,8 +209,8 @@ def _gauss_newton(fun, jac, x0: np.ndarray, r0: np.ndarray):
     Returns (x, residuals, Jacobian at the last step) once a full step lowers the sum of
     squares by less than GAUSS_NEWTON_TOLERANCE of it, or two full steps' falls, shrinking
     by their ratio, predict the next one below it (a camera without its distortion in
-    the model settled in 6 steps, now 5, to the same printed digits), or None when no halving of a step
-    lowers it, a step lands where the machine cannot be evaluated (a camera point behind
+    the model settled in 6 steps, now 5, to the same printed digits); or None when no
+    halving of a step lowers it, a step lands where the machine cannot be evaluated (a camera point behind
     the lens) or the steps do not settle: the caller then solves with a trust region."""
     x, r = x0, r0
     cost = float(r @ r)
@@ -238,7 +238,8 @@ def _gauss_newton(fun, jac, x0: np.ndarray, r0: np.ndarray):
         # the tolerance spares the step that would only confirm it.
         settled = halving == 0 and (
             fall <= GAUSS_NEWTON_TOLERANCE * cost
-            or (last_fall is not None and fall * fall <= GAUSS_NEWTON_TOLERANCE * cost * last_fall))
+            or (last_fall is not None
+                and fall * fall <= GAUSS_NEWTON_TOLERANCE * cost * last_fall))
         last_fall = fall if halving == 0 else None
         x, r, cost = moved, r_moved, cost_moved
         if settled:

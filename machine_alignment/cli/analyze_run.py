@@ -51,20 +51,20 @@ def _camera(args, dropped):
 
 def _stage(args, dropped):
     from printer_alignment.core.loop_models import StageLoopModel
-    from printer_alignment.core.stage_calibration import StageData
+    from printer_alignment.core.stage_calibration.data import INPUT_COLUMNS, StageData
     if args.description:
         from printer_alignment.core.stage_description import read_description
         described = read_description(args.description)
         return StageLoopModel(described.read(args.data, dropped), described.d)
     return StageLoopModel(read_in_si(StageData.from_csv, args.data, dropped,
-                                     actuators=('q1', 'q2', 'q3')))
+                                     actuators=INPUT_COLUMNS))
 
 
 def _platform(args, dropped):
     from calib_core.description import refuse_unit_slip
     from platform_calib.core.description import read_description, travel_ratio
     from platform_calib.core.geometry import nominal_geometry, read_geometry
-    from platform_calib.core.identification import PoseData
+    from platform_calib.core.identification import FEED_COLUMNS, PoseData
     from platform_calib.core.loop_model import PlatformLoopModel
     if args.description:
         platform = read_description(args.description)
@@ -75,7 +75,7 @@ def _platform(args, dropped):
         return PlatformLoopModel(data, platform.geometry)
     nominal = read_geometry(args.geometry) if args.geometry else nominal_geometry()
     return PlatformLoopModel(read_in_si(PoseData.from_csv, args.data, dropped,
-                                        actuators=('feed1', 'feed2', 'feed3')), nominal)
+                                        actuators=FEED_COLUMNS), nominal)
 
 
 def _rotary(args, dropped):

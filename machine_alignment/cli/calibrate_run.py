@@ -21,6 +21,7 @@ from printer_alignment.core.records import (
     stage_data_from_records, stage_record)
 from printer_alignment.core.stage_calibration import (
     StageData, calibrate_stage, check_stage_calibration, models_as_dict)
+from printer_alignment.core.stage_calibration.data import INPUT_COLUMNS
 from printer_alignment.core.stage_description import likely_causes as stage_likely_causes
 from printer_alignment.core.stage_description import read_description as read_stage_description
 from printer_alignment.core.vision_description import (
@@ -81,7 +82,7 @@ def cmd_calibrate_stage(args) -> int:
                   'replay with the shipped stage\'s: give --description to replay it as it ran')
     else:
         data = (described.read(args.data) if described
-                else read_in_si(StageData.from_csv, args.data, actuators=('q1', 'q2', 'q3')))
+                else read_in_si(StageData.from_csv, args.data, actuators=INPUT_COLUMNS))
     models, report = calibrate_stage(data, *((described.d,) if described else ()))
     s, p = report['stepwise'], report['parametric']
     print(f'{len(data)} stops. Stepwise: R1..R3 {s["R1"] * 1e3:.5f}, {s["R2"] * 1e3:.5f}, '

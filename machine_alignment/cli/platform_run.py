@@ -20,7 +20,8 @@ from platform_calib.core.compensation import (  # noqa: E402
 from platform_calib.core.description import likely_causes, read_description  # noqa: E402
 from platform_calib.core.geometry import (  # noqa: E402
     geometry_from_mapping, nominal_geometry, read_geometry, write_geometry)
-from platform_calib.core.identification import PoseData, check_identification, identify  # noqa: E402
+from platform_calib.core.identification import (  # noqa: E402
+    FEED_COLUMNS, PoseData, check_identification, identify)
 from platform_calib.core.kinematics import forward, inverse  # noqa: E402
 from platform_calib.core.procedure import data_of, evaluate  # noqa: E402
 from platform_calib.core.records import (  # noqa: E402
@@ -83,7 +84,7 @@ def cmd_calibrate_platform(args) -> int:
                   f'way (here: the built-in gate)')
     else:
         data = (description.read(args.data) if description
-                else read_in_si(PoseData.from_csv, args.data, actuators=('feed1', 'feed2', 'feed3')))
+                else read_in_si(PoseData.from_csv, args.data, actuators=FEED_COLUMNS))
     result = identify(data, nominal)
     report = result.report()
     if description:

@@ -18,7 +18,8 @@ from platform_calib.core.geometry import CHAIN_PARAMETERS, UNITS, PlatformGeomet
 from platform_calib.core.kinematics import joint_positions, pose_jacobians, slide_positions
 
 MIN_POSES = 6
-COLUMNS = ('feed1', 'feed2', 'feed3', 'x', 'y', 'theta')
+FEED_COLUMNS = ('feed1', 'feed2', 'feed3')     # the feeds' readings: the actuators
+COLUMNS = FEED_COLUMNS + ('x', 'y', 'theta')
 DIRECTION_COLUMNS = ('direction1', 'direction2', 'direction3')
 COVARIATE_COLUMNS = ('time', 'temperature')
 # What a screen-registration platform's tracker reports: positions within half a metre of

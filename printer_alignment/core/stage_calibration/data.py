@@ -14,7 +14,8 @@ from printer_alignment.core.alignment import rigid_fit
 from printer_alignment.core.stage import STROKE, check_stroke
 
 
-STAGE_COLUMNS = ('q1', 'q2', 'q3', 'mark1_x', 'mark1_y', 'mark2_x', 'mark2_y')
+INPUT_COLUMNS = ('q1', 'q2', 'q3')      # the chains' inputs: the stage's actuators
+STAGE_COLUMNS = INPUT_COLUMNS + ('mark1_x', 'mark1_y', 'mark2_x', 'mark2_y')
 
 
 def stage_schema(stroke: float = STROKE) -> Schema:
@@ -80,9 +81,9 @@ class StageData:
         such as time (s) or temperature (K). Inputs beyond 10x the ``stroke`` (m) are
         refused."""
         columns = read_columns(path, list(STAGE_COLUMNS), dropped)
-        for c in ('q1', 'q2', 'q3'):
+        for c in INPUT_COLUMNS:
             columns[c] = columns[c] * m_per_unit
-        q = np.column_stack([columns[c] for c in ('q1', 'q2', 'q3')])
+        q = np.column_stack([columns[c] for c in INPUT_COLUMNS])
         present = [c for c in STAGE_DIRECTIONS if c in columns]
         if present and len(present) != 3:
             raise InvalidInputError(f'{path} has {", ".join(present)} but not all three '
