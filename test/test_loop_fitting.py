@@ -28,6 +28,41 @@ def test_a_linear_fit_settles_at_the_least_squares_solution(seed):
     np.testing.assert_array_equal(J, design)
 
 
+def test_a_large_mostly_empty_jacobian_is_sparse_and_solves_as_a_dense_one(monkeypatch):
+    """200 blocks of 2 parameters, each seen by its own 6 rows, and 2 parameters every row
+    sees (a camera's views and intrinsics): 402 columns, 2 % full. The Jacobian comes as a
+    sparse matrix, and the fit lands where the dense route lands on the same problem (the
+    sparse route off: SPARSE_ABOVE_COLUMNS beyond its columns), at the least-squares
+    solution (to the forward differences' own error)."""
+    from scipy import sparse
+    from calib_core.closed_loop import fitting
+    rng = np.random.default_rng(7)
+    blocks = 200
+    rows, columns = 6 * blocks, 2 * blocks + 2
+    design = np.zeros((rows, columns))
+    for k in range(blocks):
+        design[6 * k:6 * k + 6, 2 * k:2 * k + 2] = rng.normal(size=(6, 2))
+    design[:, -2:] = rng.normal(size=(rows, 2)) * [1e3, 1e-3]
+    observed = design @ rng.normal(size=columns) + rng.normal(0.0, 1e-3, rows)
+    fun = lambda x: design @ x - observed                       # noqa: E731
+    x0 = np.zeros(columns)
+    solved = {}
+    for route, above in (('sparse', fitting.SPARSE_ABOVE_COLUMNS), ('dense', columns)):
+        monkeypatch.setattr(fitting, 'SPARSE_ABOVE_COLUMNS', above)
+        jac = grouped_differences(fun, design != 0)
+        assert sparse.issparse(jac(x0)) == (route == 'sparse')
+        x, _, J = _gauss_newton(fun, jac, x0, fun(x0))
+        solved[route] = x, J.toarray() if sparse.issparse(J) else J
+    # The design, to the forward differences' rounding (residuals of 1e3 over 1.5e-8 steps).
+    np.testing.assert_allclose(solved['sparse'][1], design, atol=1e-4)
+    # In each parameter's standard deviation: the same to the steps' stopping tolerance
+    # (the normal equations summed in another order), at the least-squares solution.
+    sigma = 1e-3 * np.sqrt(np.diag(np.linalg.inv(design.T @ design)))
+    assert np.max(np.abs(solved['sparse'][0] - solved['dense'][0]) / sigma) < 1e-2
+    expected = np.linalg.lstsq(design, observed, rcond=None)[0]
+    assert np.max(np.abs(solved['sparse'][0] - expected) / sigma) < 1e-2
+
+
 def test_a_nonlinear_fit_by_grouped_differences_settles_at_the_minimum():
     """A sinusoid's amplitude, phase and period, started near them: the steps settle where
     the gradient vanishes, the trust region's minimum."""

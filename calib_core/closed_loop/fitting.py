@@ -3,6 +3,7 @@ rows, hold-out splits and K-fold cross-validation."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy import sparse
@@ -24,6 +25,18 @@ class Fit:
     @property
     def rss(self) -> float:
         return float(np.sum(self.residuals ** 2))
+
+    @cached_property
+    def rank(self) -> int:
+        """Numerical rank of the Jacobian with its columns scaled to unit norm: its singular
+        values over 1e-8 of the largest (one SVD, once per fit: the current model's rank is
+        asked for every candidate tried against it)."""
+        norms = np.linalg.norm(self.jacobian, axis=0)
+        scaled = self.jacobian[:, norms > 0] / norms[norms > 0]
+        if scaled.size == 0:
+            return 0
+        singular = np.linalg.svd(scaled, compute_uv=False)
+        return int(np.count_nonzero(singular > 1e-8 * singular[0]))
 
     @property
     def parameter_count(self) -> int:
@@ -80,17 +93,27 @@ def residuals_by_channel(machine, fit: Fit, rows) -> np.ndarray:
     return model_residuals(machine, fit.base, fit.effects, fit.values, rows, in_channels=True)
 
 
+SPARSE_ABOVE_COLUMNS = 150
+"""A Jacobian of more columns than this whose pattern is at most SPARSE_DENSITY full is
+handed over as a sparse matrix, whose normal equations cost what its nonzeros do: a
+camera of 60 views (364 parameters) had spent 10 of its loop's 22 s forming dense ones."""
+SPARSE_DENSITY = 0.25
+
+
 def grouped_differences(fun, sparsity: np.ndarray):
     """A Jacobian callable for ``fun`` by forward differences, stepping together the
     columns whose nonzero rows (``sparsity``, (m, n) bool) do not overlap (Curtis, Powell and
-    Reid's grouping, greedy), returned dense: each step is then solved exactly (normal
-    equations or SVD), which converges in far fewer iterations than an iterative sparse
-    solver (LSMR) on the camera's few hundred parameters. The caller may pass ``f0``, the
-    residuals at x it already has."""
+    Reid's grouping, greedy). Each step is solved exactly (normal equations or SVD), which
+    converges in far fewer iterations than an iterative sparse solver (LSMR) on the
+    camera's few hundred parameters; the Jacobian is dense, or a scipy.sparse CSR matrix
+    where it is large and mostly empty (SPARSE_ABOVE_COLUMNS, SPARSE_DENSITY). The
+    caller may pass ``f0``, the residuals at x it already has."""
     sparsity = np.asarray(sparsity, bool)
     count = sparsity.shape[1]
-    # Columns that share a row cannot be stepped together.
-    overlap = (sparsity.T.astype(np.float32) @ sparsity.astype(np.float32)) > 0
+    # Columns that share a row cannot be stepped together (the product taken sparse: a
+    # camera's pattern is mostly empty).
+    pattern = sparse.csc_matrix(sparsity, dtype=np.float32)
+    overlap = (pattern.T @ pattern).toarray() > 0
     conflicts = np.zeros((0, count), bool)     # per group: the columns it cannot take
     group_of = np.empty(count, int)
     for column in range(count):
@@ -107,17 +130,33 @@ def grouped_differences(fun, sparsity: np.ndarray):
         members = np.flatnonzero(group_of == group)
         rows, columns = np.nonzero(sparsity[:, members])
         entries.append((members, rows, members[columns]))
+    shape = sparsity.shape
+    as_sparse = (count > SPARSE_ABOVE_COLUMNS
+                 and np.count_nonzero(sparsity) <= SPARSE_DENSITY * sparsity.size)
+    if as_sparse:
+        # The entries in the order of a CSR matrix's, once: each Jacobian then only fills
+        # its values.
+        every_row = np.concatenate([rows for _, rows, _ in entries])
+        every_column = np.concatenate([columns for _, _, columns in entries])
+        order = np.lexsort((every_column, every_row))
+        indptr = np.searchsorted(every_row[order], np.arange(shape[0] + 1))
+        indices = every_column[order]
 
     def jacobian(x, f0=None):
         f0 = fun(x) if f0 is None else f0
         # The step scipy's '2-point' takes: sqrt(machine epsilon) relative, at least absolute.
         step = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
-        out = np.zeros((len(f0), len(x)))
+        values = []
         for members, rows, columns in entries:
             moved = x.copy()
             moved[members] += step[members]
             change = fun(moved) - f0
-            out[rows, columns] = change[rows] / (moved - x)[columns]
+            values.append(change[rows] / (moved - x)[columns])
+        if as_sparse:
+            return sparse.csr_matrix((np.concatenate(values)[order], indices, indptr), shape)
+        out = np.zeros(shape)
+        for (_, rows, columns), value in zip(entries, values):
+            out[rows, columns] = value
         return out
     return jacobian
 
@@ -180,9 +219,10 @@ def fit_model(machine: MachineModel, base: ParameterSet, effects: list, values: 
         # Imported here: scipy.optimize costs 0.4 s, and a command's --help should not wait.
         from scipy.optimize import least_squares
         solution = least_squares(fun, x0, jac=jac, method='trf', x_scale='jac')
-        solved = solution.x, solution.fun, (solution.jac.toarray()
-                                            if sparse.issparse(solution.jac) else solution.jac)
+        solved = solution.x, solution.fun, solution.jac
     x, residuals, solved_jacobian = solved
+    if sparse.issparse(solved_jacobian):
+        solved_jacobian = solved_jacobian.toarray()
     b, parts = unpack(x)
     # Held parameters get zero columns: the rows say nothing about them.
     jacobian = np.zeros((solved_jacobian.shape[0], len(start)))
@@ -254,10 +294,16 @@ def _gauss_newton_step(J: np.ndarray, r: np.ndarray) -> np.ndarray:
     its largest), else by an SVD (the minimum-norm step, which leaves a gauge's free
     direction alone). An inexact step costs an iteration, not accuracy: the steps stop
     where the gradient vanishes, whatever solved them."""
-    scale = np.linalg.norm(J, axis=0)
-    scale[scale == 0] = 1.0
-    scaled = J / scale
-    normal = scaled.T @ scaled
+    if sparse.issparse(J):
+        scale = np.sqrt(np.asarray(J.multiply(J).sum(axis=0)).ravel())
+        scale[scale == 0] = 1.0
+        scaled = J @ sparse.diags(1.0 / scale)
+        normal = (scaled.T @ scaled).toarray()
+    else:
+        scale = np.linalg.norm(J, axis=0)
+        scale[scale == 0] = 1.0
+        scaled = J / scale
+        normal = scaled.T @ scaled
     try:
         factor = np.linalg.cholesky(normal)
     except np.linalg.LinAlgError:
@@ -266,7 +312,8 @@ def _gauss_newton_step(J: np.ndarray, r: np.ndarray) -> np.ndarray:
         gradient = scaled.T @ r
         step = -cho_solve((factor, True), gradient, check_finite=False)
     else:
-        step = np.linalg.lstsq(scaled, -r, rcond=None)[0]
+        dense = scaled.toarray() if sparse.issparse(scaled) else scaled
+        step = np.linalg.lstsq(dense, -r, rcond=None)[0]
     return step / scale
 
 

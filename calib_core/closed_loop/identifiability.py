@@ -19,15 +19,6 @@ MAX_TERM_UNCERTAINTY = 0.5
 more than this share of the term's own RMS."""
 
 
-def _rank(jacobian: np.ndarray) -> int:
-    """Numerical rank of a Jacobian with its columns scaled to unit norm."""
-    norms = np.linalg.norm(jacobian, axis=0)
-    scaled = jacobian[:, norms > 0] / norms[norms > 0]
-    if scaled.size == 0:
-        return 0
-    return int(np.linalg.matrix_rank(scaled, tol=1e-8 * np.linalg.norm(scaled, 2)))
-
-
 def _term_spread(prepared, values: np.ndarray, covariance: np.ndarray, context: dict):
     """RMS of an effect's term over the rows and the RMS of its standard deviation
     (first-order propagation of the parameters' covariance)."""
@@ -56,7 +47,7 @@ def undetermined_reason(machine, current: Fit, entry: dict, rows) -> str | None:
     k = len(extended.effects) - 1
     prepared, values = extended.effects[k], extended.values[k]
     columns = extended.effect_slice(k)
-    gained = _rank(extended.jacobian) - _rank(current.jacobian)
+    gained = extended.rank - current.rank
     if gained < extra:
         return (f'its parameters are not separable from the model\'s: they add {gained} '
                 f'of {extra} independent directions to the fit')
