@@ -226,3 +226,36 @@ def test_analyze_names_the_machine_description_for_actuators_read_in_mm(tmp_path
                          str(tmp_path / 'hx' / 'nominal.yaml')]) != 0
         said = capsys.readouterr().err
         assert 'look like mm' in said and '--description' in said, (command, said)
+
+
+def test_a_cameras_target_in_mm_is_the_target_in_metres(tmp_path, capsys):
+    """Correspondences whose target points are written in mm: read with --length-unit mm,
+    the loop and the calibration say what they say of the file in metres; read as SI, they
+    are refused with the option named."""
+    metres, millimetres = tmp_path / 'camera_m.csv', tmp_path / 'camera_mm.csv'
+    assert cli_main(['simulate', 'camera', '--out', str(metres), '--views', '6']) == 0
+    rows = list(csv.DictReader(open(metres)))
+    for row in rows:
+        row.update({k: str(float(row[k]) * 1e3) for k in ('model_x', 'model_y')})
+    _write(millimetres, list(rows[0]), [list(row.values()) for row in rows])
+    reports = {}
+    for name, path, options in (('m', metres, []), ('mm', millimetres, ['--length-unit', 'mm'])):
+        out = tmp_path / f'{name}.json'
+        assert cli_main(['analyze', 'camera', '--data', str(path), '--json', str(out),
+                         *options]) == 0
+        reports[name] = json.loads(out.read_text())
+        out = tmp_path / f'{name}_calibration.json'
+        assert cli_main(['calibrate', 'camera', '--data', str(path), '--json', str(out),
+                         *options]) == 0
+        reports[name + ' calibration'] = json.loads(out.read_text())
+    added = {name: {e['name']: e['parameters'] for e in reports[name]['effects_added']}
+             for name in ('m', 'mm')}
+    assert list(added['mm']) == list(added['m']) == ['radial_distortion']
+    assert added['mm']['radial_distortion'] == pytest.approx(added['m']['radial_distortion'],
+                                                             rel=1e-6)
+    assert reports['mm']['rms_after'] == pytest.approx(reports['m']['rms_after'], rel=1e-6)
+    assert reports['mm calibration']['parameters'] == pytest.approx(
+        reports['m calibration']['parameters'], rel=1e-6)
+    capsys.readouterr()
+    assert cli_main(['analyze', 'camera', '--data', str(millimetres)]) != 0
+    assert '--length-unit mm' in capsys.readouterr().err

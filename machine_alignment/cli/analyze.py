@@ -60,10 +60,11 @@ def add_parser(sub) -> None:
                                   '(m; px for the camera); default: the machine\'s')
         if name == 'camera':
             machine.add_argument('--image-size', help='WxH in px (default: inferred from the data)')
-        if name in ('axis', 'gantry', 'rotary'):
+        if name in ('axis', 'gantry', 'rotary', 'camera'):
             machine.add_argument('--length-unit', choices=LENGTH_UNITS, default='m',
-                                 help='the unit of the positions in --data (default: m, '
-                                      'the format\'s); the report is in m')
+                                 help='the unit of the positions (the camera: the target\'s '
+                                      'points) in --data (default: m, the format\'s); the '
+                                      'report is in m')
         if name == 'axis':
             machine.add_argument('--error-unit', choices=LENGTH_UNITS, default=None,
                                  help='the unit of an error column (default: --length-unit)')

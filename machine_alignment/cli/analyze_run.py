@@ -46,7 +46,9 @@ def _camera(args, dropped):
     from printer_alignment.core.camera_calibration import read_correspondences
     from printer_alignment.core.loop_models import CameraLoopModel
     size = parse_size(args.image_size) if args.image_size else None
-    return CameraLoopModel(read_correspondences(args.data), size)
+    with _unit_hint(args):
+        views = read_correspondences(args.data, args.length_unit)
+    return CameraLoopModel(views, size)
 
 
 def _stage(args, dropped):

@@ -20,6 +20,9 @@ def add_parser(what) -> None:
     camera.add_argument('--rows', type=int, help='inner corners / circles per column')
     camera.add_argument('--spacing', type=float, help='square size or circle pitch, m')
     camera.add_argument('--image-size', help='WxH in px (default: from images or inferred)')
+    camera.add_argument('--length-unit', choices=('m', 'mm', 'um', 'inch'), default='m',
+                        help='the unit of model_x, model_y in --data (default: m); the '
+                             'report is in m')
     camera.add_argument('--no-distortion', action='store_true', help='fit the pinhole model only (no k1, k2, p1, p2, k3)')
     camera.add_argument('--radial-only', action='store_true', help='k1, k2; no p1, p2, k3')
     camera.add_argument('--reference', help='intrinsics to compare with (BoofCV intrinsic.yaml)')

@@ -20,7 +20,7 @@ def cmd_calibrate_camera(args) -> int:
         return _calibrate_camera_from_bag(args)
     failures, photos = [], None
     if args.data:
-        views = read_correspondences(args.data)
+        views = read_correspondences(args.data, args.length_unit)
         size = parse_size(args.image_size) if args.image_size else infer_image_size(views)
     elif args.target == 'uchiya':
         if not args.markers:

@@ -34,11 +34,15 @@ CORRESPONDENCE_SCHEMA = Schema(tuple(
     for n in ('model_x', 'model_y')))
 
 
-def read_correspondences(path) -> list[View]:
-    """Views from a CSV with columns view, model_x, model_y (m), u, v (px). A view is
-    named by a number (views in its order) or by any text, such as its image's file name
-    (views in the order they first appear)."""
+def read_correspondences(path, length_unit: str = 'm') -> list[View]:
+    """Views from a CSV with columns view, model_x, model_y (m, or ``length_unit`` of
+    calib_core.description.LENGTH_UNITS), u, v (px). A view is named by a number (views
+    in its order) or by any text, such as its image's file name (views in the order they
+    first appear)."""
+    from calib_core.description import LENGTH_UNITS, si_per_unit
     c = read_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'], labels=('view',))
+    per_unit = si_per_unit(length_unit, LENGTH_UNITS, f'{path}: the length unit')
+    c['model_x'], c['model_y'] = c['model_x'] * per_unit, c['model_y'] * per_unit
     CORRESPONDENCE_SCHEMA.check(c, path)
     names = c['view']
     if not all(names):
