@@ -236,7 +236,8 @@ def cmd_analyze(args) -> int:
     if set(report.get('data_units', {}).values()) - {'m', 'rad'}:
         print('  data read in ' + ', '.join(f'{unit} ({key})' for key, unit
                                             in report['data_units'].items())
-              + '; the report is in m and rad')
+              + ('; the report is in m and px' if args.machine == 'camera'
+                 else '; the report is in m and rad'))
     if args.machine == 'axis':
         _axis_figures(machine, result, report, args.json, args.machine_units)
     if args.machine in ('gantry', 'stage'):
