@@ -260,5 +260,6 @@ def test_a_cameras_target_in_mm_is_the_target_in_metres(tmp_path, capsys):
     for key, sigma in si['std_devs'].items():
         assert abs(read['parameters'][key] - si['parameters'][key]) < 0.01 * sigma, key
     capsys.readouterr()
-    assert cli_main(['analyze', 'camera', '--data', str(millimetres)]) != 0
-    assert '--length-unit mm' in capsys.readouterr().err
+    for command in ('analyze', 'calibrate'):
+        assert cli_main([command, 'camera', '--data', str(millimetres)]) != 0
+        assert '--length-unit mm' in capsys.readouterr().err, command

@@ -4,49 +4,34 @@ pay for the science stack; each machine's modules are imported when that machine
 analysed, so that one machine's command does not load the others' (up to a second)."""
 from __future__ import annotations
 
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from calib_core.closed_loop import LoopConfig, analyze, format_report
-from calib_core.errors import InvalidInputError, MachineAlignmentError, UnitMistake
-from machine_alignment.cli.common import parse_size, progress, read_in_si, write_report
+from calib_core.errors import MachineAlignmentError
+from machine_alignment.cli.common import (
+    parse_size, progress, read_in_si, unit_hint, write_report)
 
 
 def _axis(args, dropped):
     from calib_core.axis import AxisData, AxisModel
-    with _unit_hint(args):
+    with unit_hint(args):
         return AxisModel(AxisData.from_csv(args.data, dropped, args.length_unit,
                                            args.error_unit))
 
 
 def _gantry(args, dropped):
     from printer_alignment.core.loop_models import GantryData, GantryLoopModel
-    with _unit_hint(args):
+    with unit_hint(args):
         return GantryLoopModel(GantryData.from_csv(args.data, dropped, args.length_unit))
-
-
-@contextmanager
-def _unit_hint(args):
-    """A dataset read as SI and refused for its values' unit names the option that reads
-    it in that unit."""
-    try:
-        yield
-    except UnitMistake as exc:
-        option = {'length': ('--length-unit', 'length_unit', 'm'),
-                  'angle': ('--angle-unit', 'angle_unit', 'rad')}.get(exc.quantity)
-        if option and getattr(args, option[1], None) == option[2]:
-            raise InvalidInputError(f'{exc}; or read them as they are with {option[0]} '
-                                    f'{exc.likely_unit}') from None
-        raise
 
 
 def _camera(args, dropped):
     from printer_alignment.core.camera_calibration import read_correspondences
     from printer_alignment.core.loop_models import CameraLoopModel
     size = parse_size(args.image_size) if args.image_size else None
-    with _unit_hint(args):
+    with unit_hint(args):
         views = read_correspondences(args.data, args.length_unit)
     return CameraLoopModel(views, size)
 
@@ -100,7 +85,7 @@ def _rotary(args, dropped):
         return RotaryLoopModel(poses_from_images(model, images), variants=variants)
     from dispenser_calib.core.rotary import LEVER
     from dispenser_calib.core.target_poses import read_target_poses
-    with _unit_hint(args):
+    with unit_hint(args):
         poses = read_target_poses(args.data, args.a_column, args.c_column, args.angle_unit,
                                   args.length_unit)
     return RotaryLoopModel(poses, LEVER if args.lever is None else args.lever)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib_core.errors import MachineAlignmentError
-from machine_alignment.cli.common import parse_size, quantity, read_run, write_json
+from machine_alignment.cli.common import parse_size, quantity, read_run, unit_hint, write_json
 from printer_alignment.core.camera_calibration import (
     calibrate_intrinsics, camera_arrays, distortion_from_dot_views, infer_image_size,
     read_boofcv_intrinsics, read_correspondences, reprojection_errors, rms_px,
@@ -20,7 +20,8 @@ def cmd_calibrate_camera(args) -> int:
         return _calibrate_camera_from_bag(args)
     failures, photos = [], None
     if args.data:
-        views = read_correspondences(args.data, args.length_unit)
+        with unit_hint(args):
+            views = read_correspondences(args.data, args.length_unit)
         size = parse_size(args.image_size) if args.image_size else infer_image_size(views)
     elif args.target == 'uchiya':
         if not args.markers:

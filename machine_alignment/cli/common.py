@@ -7,6 +7,7 @@ import json
 import math
 import os
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 from calib_core.errors import MachineAlignmentError
@@ -109,6 +110,23 @@ def read_run(bag, stop_topic: str, stop_type: str, convert, what: str,
         print(f'{bag} is a cut run (its writer was stopped before the bag was complete): '
               f'{len(stops)} stops recovered from its journal')
     return stops, recorded
+
+
+@contextmanager
+def unit_hint(args):
+    """A dataset read as SI and refused for its values' unit (a UnitMistake) names the
+    option of the command (``args``: --length-unit, --angle-unit) that reads it in that
+    unit, where the command has it."""
+    from calib_core.errors import InvalidInputError, UnitMistake
+    try:
+        yield
+    except UnitMistake as exc:
+        option = {'length': ('--length-unit', 'length_unit', 'm'),
+                  'angle': ('--angle-unit', 'angle_unit', 'rad')}.get(exc.quantity)
+        if option and getattr(args, option[1], None) == option[2]:
+            raise InvalidInputError(f'{exc}; or read them as they are with {option[0]} '
+                                    f'{exc.likely_unit}') from None
+        raise
 
 
 def read_in_si(read, *args, actuators: tuple, **kwargs):
