@@ -250,8 +250,9 @@ def _gauss_newton(fun, jac, x0: np.ndarray, r0: np.ndarray):
     squares by less than GAUSS_NEWTON_TOLERANCE of it, or two full steps' falls, shrinking
     by their ratio, predict the next one below it (a camera without its distortion in
     the model settled in 6 steps, now 5, to the same printed digits); or None when no
-    halving of a step lowers it, a step lands where the machine cannot be evaluated (a camera point behind
-    the lens) or the steps do not settle: the caller then solves with a trust region."""
+    halving of a step lowers it, a step lands where the machine cannot be evaluated (a
+    camera point behind the lens) or the steps do not settle: the caller then solves with
+    a trust region."""
     x, r = x0, r0
     cost = float(r @ r)
     last_fall = None     # the previous full step's fall of the sum of squares
@@ -287,8 +288,9 @@ def _gauss_newton(fun, jac, x0: np.ndarray, r0: np.ndarray):
     return None
 
 
-def _gauss_newton_step(J: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """The step minimising |J step + r|, on the columns scaled to unit norm: by the normal
+def _gauss_newton_step(J, r: np.ndarray) -> np.ndarray:
+    """The step minimising |J step + r| (J dense, or scipy.sparse whose normal equations
+    are formed sparse), on the columns scaled to unit norm: by the normal
     equations' Cholesky factor (a tenth of an SVD's time on the camera's 1500 x 130) where
     the factor's diagonal shows no nearly dependent columns (its smallest at least 1e-6 of
     its largest), else by an SVD (the minimum-norm step, which leaves a gauge's free
