@@ -9,40 +9,30 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
-import numpy as np
-
 from calib_core.closed_loop import LoopConfig, analyze
 from machine_alignment.bench import main_with_out, write_results, write_table
-from printer_alignment.core.camera_calibration import read_correspondences
+from printer_alignment.core.camera_calibration import calibrate_intrinsics, read_correspondences
 from printer_alignment.core.loop_models import CameraLoopModel
 
 MEASURED = Path(__file__).resolve().parents[2] / 'test' / 'data' / 'measured'
 CAMERAS = (('640 x 480, 10 x 10 dot grid, 14 views', 'ric_circlegrid_640', (640, 480)),
            ('AVT Mako 1600 x 1200, ChArUco corners, 15 views', 'ric_charuco_mako',
             (1600, 1200)))
-# OpenCV's flags that leave free the coefficients each effect of the loop stands for.
+# The coefficients each effect of the loop stands for.
 OPENCV_FREE = {'radial_distortion': ('k1', 'k2'), 'radial_distortion_k3': ('k3',),
                'tangential_distortion': ('p1', 'p2')}
-_COEFFICIENTS = ('k1', 'k2', 'p1', 'p2', 'k3')
 
 
 def opencv_coefficients(views, size, free: set) -> tuple[dict, float]:
-    """OpenCV's calibrateCamera of ``views`` with the distortion coefficients in ``free``
-    estimated and the others held at zero: the coefficients and the RMS reprojection (px)."""
-    flags = 0
-    for name, flag in (('k1', cv2.CALIB_FIX_K1), ('k2', cv2.CALIB_FIX_K2),
-                       ('k3', cv2.CALIB_FIX_K3)):
-        if name not in free:
-            flags |= flag
-    if not {'p1', 'p2'} & free:
-        flags |= cv2.CALIB_ZERO_TANGENT_DIST
-    objects = [np.column_stack([v.model, np.zeros(len(v.model))]).astype(np.float32)
-               for v in views]
-    rms, _, distortion, _, _ = cv2.calibrateCamera(
-        objects, [v.pixels.astype(np.float32) for v in views], size, None, None, flags=flags)
-    values = dict(zip(_COEFFICIENTS, distortion.ravel()[:5].tolist()))
-    return {name: values[name] for name in _COEFFICIENTS if name in free}, float(rms)
+    """The suite's OpenCV calibration (calibrate_intrinsics) of ``views`` with the
+    distortion coefficients ``free``: all five, or k1, k2 alone (its radial_only); the
+    coefficients and the RMS reprojection (px)."""
+    if free not in ({'k1', 'k2', 'p1', 'p2', 'k3'}, {'k1', 'k2'}):
+        raise ValueError(f'no OpenCV calibration frees exactly {sorted(free)}')
+    result = calibrate_intrinsics(views, size, radial_only=free == {'k1', 'k2'})
+    values = result.report()['parameters']
+    return {name: values[name] for name in ('k1', 'k2', 'p1', 'p2', 'k3') if name in free}, \
+        float(result.rms_px)
 
 
 def run(out: Path) -> dict:
