@@ -74,7 +74,7 @@ def read_target_poses(path, a_column: str = 'a', c_column: str = 'c', angle_unit
     for name, values in angles.items():
         if np.max(np.abs(values)) > 4 * np.pi:
             raise UnitMistake(f'{path}: {name} reaches {np.max(np.abs(values)):.4g} rad: '
-                              'angles must be in rad (degrees given?)', 'angle', 'deg')
+                              'angles must be in rad (degrees given?)', 'angle', 'deg', name)
     used = {a_column, c_column, *POSE_COLUMNS}
     return TargetPoses(angles[a_column], angles[c_column],
                        Rotation.from_quat(quaternion / norm[:, None]).as_matrix(), translation,

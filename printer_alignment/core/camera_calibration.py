@@ -9,6 +9,7 @@ import numpy as np
 
 from calib_core.checks import MAX_POSITION_M
 from calib_core.datasets import read_columns, write_columns
+from calib_core.description import LENGTH_UNITS, si_per_unit
 from calib_core.errors import CalibrationError, DetectionError, InvalidInputError
 from calib_core.files import read_yaml
 from calib_core.marks import detect_marks
@@ -39,7 +40,6 @@ def read_correspondences(path, length_unit: str = 'm') -> list[View]:
     calib_core.description.LENGTH_UNITS), u, v (px). A view is named by a number (views
     in its order) or by any text, such as its image's file name (views in the order they
     first appear)."""
-    from calib_core.description import LENGTH_UNITS, si_per_unit
     c = read_columns(path, ['view', 'model_x', 'model_y', 'u', 'v'], labels=('view',))
     per_unit = si_per_unit(length_unit, LENGTH_UNITS, f'{path}: the length unit')
     c['model_x'], c['model_y'] = c['model_x'] * per_unit, c['model_y'] * per_unit
