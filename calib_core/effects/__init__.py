@@ -66,7 +66,8 @@ from calib_core.effects.smooth_map import SmoothMap
 
 LIBRARY = {e.name: e for e in (Offset(), Scale(), Squareness(), Reversal(), Periodic(),
                                ReversalByPosition(), LeadError(), BlockStep(), WarmUp(),
-                               DriftTime(), DriftSequence(), DriftTemperature(), RadialDistortion(), RadialDistortionK3(),
+                               DriftTime(), DriftSequence(), DriftTemperature(),
+                               RadialDistortion(), RadialDistortionK3(),
                                TangentialDistortion(), LegPlay(), Compliance(),
                                RotaryHarmonics(), ErrorMotion(), SmoothMap())}
 # Effects that describe the run measured, not the machine: in force they would act on later
